@@ -1,0 +1,81 @@
+"""The ``policy-align`` command.
+
+Sub-commands (each imports its heavy dependencies only when it runs)::
+
+    policy-align demo [--robot NAME] [--out DIR]
+    policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
+    policy-align call SERVICE [--data true|false]
+    policy-align bench toy|grasp|humanoid|scale|executor [--datasets N] [--jobs J] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="policy-align",
+        description="Learn potential-based policies from constrained demonstrations "
+        "(PolicyAlign) and execute them under new constraints.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    demo = sub.add_parser("demo", help="run the whole ROS 2 graph on a simulated robot")
+    demo.add_argument("--robot", default="talos", help="example-robot-data name or URDF")
+    demo.add_argument("--out", default="demo_out", help="directory for data, model, plots")
+
+    learn = sub.add_parser("learn", help="learn a model from rosbag2 bags or datasets")
+    learn.add_argument("inputs", nargs="+", metavar="BAG_OR_DATASET")
+    learn.add_argument("--out", required=True, help="model file to write (.npz)")
+    learn.add_argument("--joints", default=None, help="comma-separated joint names")
+    learn.add_argument("--sigma", default="medium", help="narrow|medium|wide or sigma^2")
+    learn.add_argument("--gap", type=float, default=0.5, help="split demos at gaps [s]")
+
+    call = sub.add_parser("call", help="call a std_srvs Trigger or SetBool service")
+    call.add_argument("service", help="for example /learner/learn")
+    call.add_argument("--data", choices=["true", "false"], default=None,
+                      help="SetBool request value (omit for Trigger)")
+    call.add_argument("--timeout", type=float, default=30.0, help="seconds to wait")
+
+    bench = sub.add_parser("bench", help="reproduce the paper's experiments, measure speed")
+    bench.add_argument("which", choices=["toy", "grasp", "humanoid", "scale", "executor"])
+    bench.add_argument("--datasets", type=int, default=None,
+                       help="data sets per cell (default: the paper's number)")
+    bench.add_argument("--jobs", type=int, default=2, help="worker processes")
+    bench.add_argument("--out", default="bench_out", help="directory for tables and figures")
+    bench.add_argument("--seed", type=int, default=0, help="base random seed")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``policy-align``; returns the process exit code."""
+    args = _build_parser().parse_args(argv)
+    try:
+        if args.command == "bench":
+            from policy_align_ros.experiments.bench import run_bench
+
+            return run_bench(args)
+        if args.command == "learn":
+            from policy_align_ros.data.learn import run_learn
+
+            return run_learn(args)
+        if args.command == "demo":
+            from policy_align_ros.nodes.demo import run_demo
+
+            return run_demo(args)
+        if args.command == "call":
+            from policy_align_ros.nodes.call import run_call
+
+            return run_call(args)
+    except KeyboardInterrupt:
+        return 130
+    except (ValueError, FileNotFoundError) as err:
+        print(f"policy-align {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

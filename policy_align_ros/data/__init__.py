@@ -1,0 +1,27 @@
+"""Demonstrations on disk: rosbag2 bags of ``sensor_msgs/msg/JointState`` (ROS-free).
+
+Imports numpy, rosbags and :mod:`policy_align_ros.learning` only. Stamps are integer
+nanoseconds, trajectory times seconds, positions and velocities in the joints' units.
+"""
+
+from policy_align_ros.data.bags import (
+    DatasetReport,
+    DemoInfo,
+    find_bags,
+    load_dataset,
+    read_joint_states,
+    write_joint_state_bag,
+)
+from policy_align_ros.data.messages import SKIP_REASONS
+from policy_align_ros.data.recording import DemoRecorder
+
+__all__ = [
+    "SKIP_REASONS",
+    "DatasetReport",
+    "DemoInfo",
+    "DemoRecorder",
+    "find_bags",
+    "load_dataset",
+    "read_joint_states",
+    "write_joint_state_bag",
+]

@@ -1,0 +1,510 @@
+"""rosbag2 demonstrations of ``sensor_msgs/msg/JointState`` (ROS-free, ``rosbags``).
+
+Units and conventions: stamps are integer nanoseconds since the epoch (header stamps,
+falling back to the bag's receive time when a header stamp is zero); trajectory times
+are seconds relative to the first sample of the demonstration; positions and
+velocities are in the joints' units (rad, rad/s for revolute joints).
+
+Storage: bags are written with the MCAP storage plugin and metadata version 9, the
+defaults of ``ros2 bag record`` since Iron (so also Jazzy), which Foxglove opens directly
+and whose single append-only file has its index at the end; reading accepts both MCAP
+and sqlite3 bags (Humble's default), as bag directories or bare ``.mcap``/``.db3`` files.
+
+Atomicity: a bag is written into a hidden temporary directory next to its final name,
+every file and the directory are fsync'ed, then it is renamed into place and the parent
+directory is fsync'ed. A crash at any point leaves either the complete bag or a hidden
+temporary directory, which readers ignore (:func:`is_temporary`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import uuid
+from collections import Counter
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from policy_align_ros.data.messages import (
+    NEW,
+    SKIP,
+    SKIP_REASONS,
+    JointSelector,
+    StreamClock,
+)
+from policy_align_ros.learning import Trajectory
+
+__all__ = [
+    "JOINT_STATE",
+    "BagOpenError",
+    "DatasetReport",
+    "DemoInfo",
+    "find_bags",
+    "is_temporary",
+    "load_dataset",
+    "next_demo_path",
+    "read_joint_states",
+    "write_joint_state_bag",
+]
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+DEFAULT_TOPIC = "/joint_states"
+_TMP_PREFIX = ".tmp-"
+_DEMO_RE = re.compile(r"^demo_(\d+)$")
+# JointState is identical in every ROS 2 distribution's store; Jazzy is the target.
+_TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+_JointState = _TYPESTORE.types[JOINT_STATE]
+_Header = _TYPESTORE.types["std_msgs/msg/Header"]
+_Time = _TYPESTORE.types["builtin_interfaces/msg/Time"]
+_EMPTY = np.empty(0, dtype=np.float64)
+
+
+class BagOpenError(ValueError):
+    """A path that should be a bag cannot be opened as one (the message names it)."""
+
+
+def is_temporary(path: Path) -> bool:
+    """True for hidden entries (such as unfinished bags), which readers ignore."""
+    return path.name.startswith(".")
+
+
+def _fsync_path(path: Path, directory: bool = False) -> None:
+    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def next_demo_path(dataset_dir: str | os.PathLike[str]) -> Path:
+    """Path of the next ``demo_NNNN`` bag in a dataset directory (not created)."""
+    root = Path(dataset_dir)
+    used = [
+        int(m.group(1))
+        for entry in (root.iterdir() if root.is_dir() else ())
+        if (m := _DEMO_RE.match(entry.name))
+    ]
+    return root / f"demo_{max(used, default=-1) + 1:04d}"
+
+
+def _joint_state_cdr(
+    stamp_ns: int, names: list[str], pos: np.ndarray, vel: np.ndarray
+) -> memoryview:
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    msg = _JointState(
+        header=_Header(stamp=_Time(sec=sec, nanosec=nanosec), frame_id=""),
+        name=names,
+        position=pos,
+        velocity=vel,
+        effort=_EMPTY,
+    )
+    return _TYPESTORE.serialize_cdr(msg, JOINT_STATE)
+
+
+def write_joint_state_bag(
+    path: str | os.PathLike[str],
+    joint_names: Sequence[str],
+    stamps_ns: Sequence[int] | np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray | None = None,
+    *,
+    has_velocity: Sequence[bool] | np.ndarray | None = None,
+    topic: str = DEFAULT_TOPIC,
+    unique: bool = False,
+) -> Path:
+    """Write one demonstration as a rosbag2 bag, atomically and durably.
+
+    Parameters
+    ----------
+    path : path-like
+        Final bag directory; its parent is created if needed. It must not exist unless
+        ``unique`` is set.
+    joint_names : sequence of str, length n
+    stamps_ns : sequence of int, shape (N,)
+        Header stamps (and bag receive times) in nanoseconds since the epoch.
+    positions : ndarray, shape (N, n)
+        Joint positions (rad or m).
+    velocities : ndarray, shape (N, n), optional
+        Joint velocities (rad/s or m/s); ``None`` writes empty velocity arrays.
+    has_velocity : sequence of bool, shape (N,), optional
+        Which messages carry their velocity row (default: all, when ``velocities`` given).
+    topic : str
+        Topic name stored in the bag.
+    unique : bool
+        If the final name is taken, use the next free ``demo_NNNN`` name in the same
+        directory instead of failing (several recorders sharing a directory).
+
+    Returns
+    -------
+    Path
+        The bag directory, complete and fsync'ed when this returns.
+
+    Raises
+    ------
+    ValueError
+        On inconsistent shapes, or if ``path`` exists and ``unique`` is not set.
+    """
+    final = Path(path)
+    names = [str(j) for j in joint_names]
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    q = np.asarray(positions, dtype=np.float64)
+    n_msgs = stamps.shape[0]
+    if stamps.ndim != 1 or q.shape != (n_msgs, len(names)):
+        raise ValueError(
+            f"{final}: positions must have shape ({n_msgs}, {len(names)}) to match stamps "
+            f"and joint names, got {q.shape}"
+        )
+    v = None if velocities is None else np.asarray(velocities, dtype=np.float64)
+    if v is not None and v.shape != q.shape:
+        raise ValueError(f"{final}: velocities must have shape {q.shape}, got {v.shape}")
+    flags = (
+        np.full(n_msgs, v is not None)
+        if has_velocity is None
+        else np.asarray(has_velocity, dtype=bool)
+    )
+    if flags.shape != (n_msgs,) or (v is None and flags.any()):
+        raise ValueError(f"{final}: has_velocity must be (N,) and needs velocities")
+    if final.exists() and not unique:
+        raise ValueError(f"{final}: exists already, not overwriting")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = final.parent / f"{_TMP_PREFIX}{final.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    try:
+        with Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            conn = writer.add_connection(topic, JOINT_STATE, typestore=_TYPESTORE)
+            for k in range(n_msgs):
+                vel = v[k] if flags[k] else _EMPTY
+                writer.write(conn, int(stamps[k]), _joint_state_cdr(stamps[k], names, q[k], vel))
+        for entry in tmp.iterdir():
+            _fsync_path(entry)
+        _fsync_path(tmp, directory=True)
+        final = _rename_into_place(tmp, final, unique)
+        _fsync_path(final.parent, directory=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final
+
+
+def _rename_into_place(tmp: Path, final: Path, unique: bool) -> Path:
+    for _ in range(1000):
+        # os.rename would silently replace an empty directory: check first, and the
+        # rename itself refuses a non-empty one if another writer won the race.
+        if not final.exists():
+            try:
+                os.rename(tmp, final)
+                return final
+            except OSError:
+                if not unique:
+                    raise
+        elif not unique:
+            raise ValueError(f"{final}: exists already, not overwriting")
+        final = next_demo_path(final.parent)
+    raise ValueError(f"{final.parent}: could not find a free bag name")
+
+
+def find_bags(path: str | os.PathLike[str]) -> list[Path]:
+    """Bags named by a path: the bag itself, or the bags inside a dataset directory.
+
+    Parameters
+    ----------
+    path : path-like
+        A rosbag2 bag directory (with ``metadata.yaml``), a bare ``.mcap`` / ``.db3``
+        file, or a dataset directory whose sub-directories are bags.
+
+    Returns
+    -------
+    list of Path
+        Sorted by name; hidden (temporary) entries are ignored.
+
+    Raises
+    ------
+    ValueError
+        If the path does not exist, or is neither a bag nor a directory holding bags.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise ValueError(f"{p}: no such file or directory")
+    if p.is_file():
+        if p.suffix in (".mcap", ".db3"):
+            return [p]
+        raise ValueError(f"{p}: not a rosbag2 bag (expected a bag directory, .mcap or .db3)")
+    if (p / "metadata.yaml").is_file():
+        return [p]
+    bags = sorted(
+        entry
+        for entry in p.iterdir()
+        if entry.is_dir() and not is_temporary(entry) and (entry / "metadata.yaml").is_file()
+    )
+    if not bags:
+        raise ValueError(f"{p}: not a rosbag2 bag, and contains no rosbag2 bags")
+    return bags
+
+
+def read_joint_states(
+    bag: str | os.PathLike[str], counts: Counter[str] | None = None
+) -> Iterator[tuple[str, int, list[str], np.ndarray, np.ndarray, np.ndarray]]:
+    """Decoded JointState messages of every JointState topic of one bag, in bag order.
+
+    Parameters
+    ----------
+    bag : path-like
+        Bag directory or bare storage file.
+    counts : Counter, optional
+        Incremented under ``undecodable`` for messages that fail to deserialize.
+
+    Yields
+    ------
+    (topic, stamp_ns, names, positions, velocities, efforts)
+        ``stamp_ns`` is the header stamp, or the bag time when the header stamp is zero.
+
+    Raises
+    ------
+    BagOpenError
+        A ``ValueError`` naming the path, if the bag cannot be opened.
+    """
+    path = Path(bag)
+    try:
+        reader = Reader(path)
+        reader.open()
+    except (ReaderError, FileNotFoundError, OSError, KeyError) as err:
+        raise BagOpenError(f"{path}: cannot open as a rosbag2 bag: {err}") from None
+    try:
+        conns = [c for c in reader.connections if c.msgtype == JOINT_STATE]
+        if not conns:
+            return
+        for conn, bag_ns, raw in reader.messages(connections=conns):
+            try:
+                msg = _TYPESTORE.deserialize_cdr(raw, JOINT_STATE)
+            except Exception:  # any decoding failure is one bad message
+                if counts is not None:
+                    counts["undecodable"] += 1
+                continue
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            yield (
+                conn.topic,
+                stamp or bag_ns,
+                msg.name,
+                msg.position,
+                msg.velocity,
+                msg.effort,
+            )
+    finally:
+        reader.close()
+
+
+@dataclass
+class DemoInfo:
+    """Where one demonstration came from.
+
+    Attributes
+    ----------
+    bag : str
+        Bag path.
+    topic : str
+        JointState topic.
+    start_ns : int
+        Stamp of the first sample (ns since the epoch); trajectory times are relative to it.
+    n_samples : int
+        Number of samples.
+    """
+
+    bag: str
+    topic: str
+    start_ns: int
+    n_samples: int
+
+
+@dataclass
+class DatasetReport:
+    """What :func:`load_dataset` read, used and skipped.
+
+    Attributes
+    ----------
+    bags : list of str
+        Bags read, in order.
+    topics : list of str
+        JointState topics found.
+    messages_read, messages_used : int
+        JointState messages decoded and accepted.
+    skipped : dict of str to int
+        Skipped messages by reason (:data:`SKIP_REASONS` plus ``undecodable``).
+    demos_found, demos_too_short : int
+        Segments found, and how many had fewer than ``min_samples`` samples.
+    demos : list of DemoInfo
+        The demonstrations returned, in order.
+    errors : list of str
+        Bags of a dataset directory that could not be opened, and bags whose reading
+        stopped early (for example a truncated file; what was read before is kept).
+    """
+
+    bags: list[str] = field(default_factory=list)
+    topics: list[str] = field(default_factory=list)
+    messages_read: int = 0
+    messages_used: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+    demos_found: int = 0
+    demos_too_short: int = 0
+    demos: list[DemoInfo] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def messages_skipped(self) -> int:
+        """Total number of skipped messages."""
+        return sum(self.skipped.values())
+
+    def summary(self) -> str:
+        """One-line human-readable account."""
+        skipped = ", ".join(f"{k}={v}" for k, v in self.skipped.items() if v) or "none"
+        text = (
+            f"{len(self.bags)} bag(s), {self.messages_read} JointState messages, "
+            f"{self.messages_used} used, skipped: {skipped}; "
+            f"{self.demos_found - self.demos_too_short} demonstration(s) "
+            f"({self.demos_too_short} too short)"
+        )
+        if self.errors:
+            text += f"; {len(self.errors)} bag(s) unreadable or cut short"
+        return text
+
+
+class _Segment:
+    """Accumulates one demonstration of one topic."""
+
+    def __init__(self, topic: str, start_ns: int) -> None:
+        self.topic = topic
+        self.stamps: list[int] = []
+        self.positions: list[list[float]] = []
+        self.velocities: list[list[float]] = []
+        self.all_velocities = True
+        self.start_ns = start_ns
+
+
+def load_dataset(
+    paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    joints: Sequence[str] | None = None,
+    gap_s: float = 0.5,
+    *,
+    min_samples: int = 2,
+) -> tuple[list[Trajectory], list[str], DatasetReport]:
+    """Read demonstrations from rosbag2 bags and dataset directories.
+
+    Every JointState topic of every bag is a stream: joints are matched by name, the
+    stream is split into demonstrations at gaps of more than ``gap_s`` seconds (and never
+    across bags or topics), and malformed messages are skipped and counted (see
+    :mod:`policy_align_ros.data.messages`).
+
+    Parameters
+    ----------
+    paths : path-like or iterable of path-like
+        Bag directories, ``.mcap``/``.db3`` files, or dataset directories of bags.
+    joints : sequence of str, optional
+        Joint order of the state; default: the joints of the first accepted message.
+    gap_s : float
+        Split threshold in seconds; ``0`` never splits.
+    min_samples : int
+        Demonstrations with fewer samples are dropped and counted as too short.
+
+    Returns
+    -------
+    trajectories : list of Trajectory
+        Positions (N_k, n), times (N_k,) in seconds from the demo's start, and velocities
+        (N_k, n) when every message of the demonstration had them.
+    joint_names : list of str, length n
+    report : DatasetReport
+
+    Raises
+    ------
+    ValueError
+        On a missing path, a path that is not a bag or dataset, bad arguments, or when no
+        demonstration is usable; the message names the path(s).
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    paths = list(paths)
+    if not paths:
+        raise ValueError("paths: no bag or dataset given")
+    if not (np.isfinite(gap_s) and gap_s >= 0):
+        raise ValueError(f"gap_s: must be a finite number >= 0, got {gap_s}")
+    if int(min_samples) < 2:
+        raise ValueError(f"min_samples: must be >= 2, got {min_samples}")
+    # Bags named explicitly must open; an unreadable bag inside a dataset is reported.
+    sources = [(bag, bag == Path(p)) for p in paths for bag in find_bags(p)]
+    bags = [bag for bag, _ in sources]
+    selector = JointSelector(joints)
+    counts: Counter[str] = Counter({reason: 0 for reason in SKIP_REASONS})
+    report = DatasetReport(bags=[str(b) for b in bags])
+    trajectories: list[Trajectory] = []
+    gap_ns = round(gap_s * 1e9)
+
+    def close(segment: _Segment | None, bag: Path) -> None:
+        if segment is None or not segment.stamps:
+            return
+        report.demos_found += 1
+        if len(segment.stamps) < min_samples:
+            report.demos_too_short += 1
+            return
+        stamps = np.asarray(segment.stamps, dtype=np.int64)
+        k = len(trajectories)
+        trajectories.append(
+            Trajectory(
+                np.asarray(segment.positions, dtype=np.float64),
+                (stamps - stamps[0]) * 1e-9,
+                np.asarray(segment.velocities) if segment.all_velocities else None,
+                name=f"{k} ({bag.name}{segment.topic} @ {stamps[0]} ns)",
+            )
+        )
+        report.demos.append(DemoInfo(str(bag), segment.topic, int(stamps[0]), len(stamps)))
+
+    for bag, explicit in sources:
+        clocks: dict[str, StreamClock] = {}
+        segments: dict[str, _Segment | None] = {}
+        try:
+            for topic, stamp, names, pos, vel, eff in read_joint_states(bag, counts):
+                report.messages_read += 1
+                clock = clocks.get(topic)
+                if clock is None:
+                    clock = clocks[topic] = StreamClock(gap_ns)
+                    segments[topic] = None
+                    if topic not in report.topics:
+                        report.topics.append(topic)
+                picked = selector.select(names, pos, vel, eff)
+                if isinstance(picked, str):
+                    counts[picked] += 1
+                    continue
+                outcome = clock.step(stamp)
+                if outcome == SKIP:
+                    counts["time_not_increasing"] += 1
+                    continue
+                selector.commit(names)
+                clock.accept(stamp)
+                segment = segments[topic]
+                if outcome == NEW:
+                    close(segment, bag)
+                    segment = segments[topic] = _Segment(topic, stamp)
+                assert segment is not None
+                segment.stamps.append(stamp)
+                segment.positions.append(picked[0])
+                if picked[1] is None:
+                    segment.all_velocities = False
+                else:
+                    segment.velocities.append(picked[1])
+                report.messages_used += 1
+        except BagOpenError as err:
+            if explicit:
+                raise
+            report.errors.append(str(err))
+        except Exception as err:  # a damaged bag keeps what was read
+            report.errors.append(f"{bag}: {err}")
+        for segment in segments.values():
+            close(segment, bag)
+    report.skipped = {k: v for k, v in counts.items() if v or k in SKIP_REASONS}
+    if not trajectories:
+        where = ", ".join(str(p) for p in paths)
+        raise ValueError(f"{where}: no usable demonstrations ({report.summary()})")
+    assert selector.joints is not None
+    return trajectories, list(selector.joints), report

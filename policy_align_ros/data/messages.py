@@ -1,0 +1,222 @@
+"""Validation and segmentation of ``sensor_msgs/msg/JointState`` streams (ROS-free).
+
+A joint-state message is handled here as plain values: a stamp in integer nanoseconds
+(``stamp_ns``), the joint ``names`` and the ``positions`` (rad or m), ``velocities``
+(rad/s or m/s) and ``efforts`` sequences, which may be empty as in ``sensor_msgs``.
+
+The same rules serve the bag reader and the live recorder, so a message is skipped for
+exactly one reason, the first that applies, in this order:
+
+``length_mismatch``
+    ``positions`` differ in length from ``names``, or ``velocities`` / ``efforts`` are
+    neither empty nor of that length.
+``duplicate_joints``
+    a joint name appears twice.
+``unknown_joints``
+    none of the message's joints is a selected joint (for example another publisher's
+    joints on the same topic).
+``missing_joints``
+    some, but not all, of the selected joints are present.
+``non_finite``
+    a selected position or velocity is NaN or inf.
+``time_not_increasing``
+    the stamp is not later than the last accepted one (going backwards or repeated).
+
+Selected joints are either given or taken from the first accepted message; joints of a
+message beyond the selected ones are ignored, so foreign streams with extra joints in
+any order are matched by name. The per-message work is plain Python and O(n), with the
+name-to-index mapping cached, so that a 1 kHz stream costs a few microseconds a message.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+__all__ = [
+    "SKIP_REASONS",
+    "JointSelector",
+    "StreamClock",
+    "validate_joint_names",
+]
+
+SKIP_REASONS: tuple[str, ...] = (
+    "length_mismatch",
+    "duplicate_joints",
+    "unknown_joints",
+    "missing_joints",
+    "non_finite",
+    "time_not_increasing",
+)
+
+#: Outcomes of :meth:`StreamClock.step`.
+SAME, NEW, SKIP = 0, 1, 2
+
+# Bounds the per-name-list cache; real streams have one or two distinct name lists.
+_CACHE_LIMIT = 64
+
+
+def validate_joint_names(joints: Sequence[str] | None) -> list[str] | None:
+    """Check a joint selection.
+
+    Parameters
+    ----------
+    joints : sequence of str or None
+        Joint names in the order wanted; ``None`` or empty means "from the first message".
+
+    Returns
+    -------
+    list of str or None
+        The names as a list, ``None`` for an empty selection.
+
+    Raises
+    ------
+    ValueError
+        If a name is not a non-empty string or appears twice.
+    """
+    if joints is None:
+        return None
+    if isinstance(joints, str):
+        raise ValueError(f"joints: expected a list of joint names, got the string {joints!r}")
+    names = list(joints)
+    if not names:
+        return None
+    seen: set[str] = set()
+    for name in names:
+        if not isinstance(name, str) or not name.strip():
+            raise ValueError(f"joints: invalid joint name {name!r} (need non-empty strings)")
+        if name in seen:
+            raise ValueError(f"joints: joint {name!r} is listed twice")
+        seen.add(name)
+    return names
+
+
+class JointSelector:
+    """Pick the selected joints out of joint-state messages, by name.
+
+    Parameters
+    ----------
+    joints : sequence of str, optional
+        Selected joints in output order; ``None`` takes the names of the first accepted
+        message (call :meth:`commit` with them).
+    """
+
+    def __init__(self, joints: Sequence[str] | None = None) -> None:
+        self.joints: list[str] | None = validate_joint_names(joints)
+        self._cache: dict[tuple[str, ...], list[int] | str] = {}
+
+    def set_joints(self, joints: Sequence[str] | None) -> None:
+        """Change the selection (``None``: from the next accepted message)."""
+        self.joints = validate_joint_names(joints)
+        self._cache.clear()
+
+    def _indices(self, names: Sequence[str]) -> list[int] | str:
+        key = tuple(names)
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        position = {name: i for i, name in enumerate(key)}
+        result: list[int] | str
+        if len(position) != len(key):
+            result = "duplicate_joints"
+        elif self.joints is None:
+            result = list(range(len(key))) if key else "unknown_joints"
+        else:
+            found = [position[j] for j in self.joints if j in position]
+            if not found:
+                result = "unknown_joints"
+            elif len(found) < len(self.joints):
+                result = "missing_joints"
+            else:
+                result = found
+        if len(self._cache) >= _CACHE_LIMIT:
+            self._cache.clear()
+        self._cache[key] = result
+        return result
+
+    def select(
+        self,
+        names: Sequence[str],
+        positions: Sequence[float],
+        velocities: Sequence[float] = (),
+        efforts: Sequence[float] = (),
+    ) -> tuple[list[float], list[float] | None] | str:
+        """Validate one message and extract the selected joints.
+
+        Parameters
+        ----------
+        names : sequence of str, length m
+        positions : sequence of float, length m
+        velocities, efforts : sequence of float, length 0 or m
+
+        Returns
+        -------
+        (positions, velocities) or str
+            Selected positions (length n) and velocities (length n, or ``None`` when the
+            message has none), or the skip reason (one of :data:`SKIP_REASONS` except
+            ``time_not_increasing``).
+        """
+        m = len(names)
+        if len(positions) != m or len(velocities) not in (0, m) or len(efforts) not in (0, m):
+            return "length_mismatch"
+        idx = self._indices(names)
+        if isinstance(idx, str):
+            return idx
+        pos = [float(positions[i]) for i in idx]
+        vel = [float(velocities[i]) for i in idx] if len(velocities) else None
+        isfinite = math.isfinite
+        if not all(map(isfinite, pos)) or (vel is not None and not all(map(isfinite, vel))):
+            return "non_finite"
+        return pos, vel
+
+    def commit(self, names: Sequence[str]) -> None:
+        """Fix the selection to ``names`` if it is still open (first accepted message)."""
+        if self.joints is None:
+            self.joints = list(names)
+            # Entries computed while the selection was open are no longer valid.
+            self._cache.clear()
+
+
+class StreamClock:
+    """Order check and gap splitting of one stream of stamps.
+
+    Parameters
+    ----------
+    gap_ns : int
+        A step forward of more than ``gap_ns`` nanoseconds starts a new segment, and so
+        does a jump backwards of more than ``gap_ns`` (a restarted clock), rather than
+        discarding the rest of the stream. ``0`` disables splitting: every step that is
+        not forward is then skipped.
+    """
+
+    def __init__(self, gap_ns: int = 0) -> None:
+        if gap_ns < 0:
+            raise ValueError(f"gap: must be >= 0, got {gap_ns} ns")
+        self.gap_ns = int(gap_ns)
+        self.last_ns: int | None = None
+
+    def reset(self) -> None:
+        """Forget the last stamp: the next message starts a segment."""
+        self.last_ns = None
+
+    def step(self, stamp_ns: int) -> int:
+        """Classify a stamp without accepting it.
+
+        Returns
+        -------
+        int
+            ``NEW`` (first message or a gap), ``SAME`` (continues the segment) or
+            ``SKIP`` (time not increasing).
+        """
+        last = self.last_ns
+        if last is None:
+            return NEW
+        step = stamp_ns - last
+        gap = self.gap_ns
+        if step > 0:
+            return NEW if gap and step > gap else SAME
+        return NEW if gap and -step > gap else SKIP
+
+    def accept(self, stamp_ns: int) -> None:
+        """Record the stamp of an accepted message."""
+        self.last_ns = stamp_ns

@@ -1,0 +1,1 @@
+"""experiments subpackage of policy_align_ros."""

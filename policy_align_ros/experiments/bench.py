@@ -1,0 +1,151 @@
+"""``policy-align bench``: the paper's experiments and the speed/scale measurements.
+
+Each benchmark prints a markdown table, writes it with its figure and raw numbers to
+``--out``, and returns a process exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from policy_align_ros.experiments.evaluation import METRIC_NAMES
+
+__all__ = ["run_bench", "run_toy_bench", "parallel_map", "format_mean_std"]
+
+
+def parallel_map(func, tasks: list, jobs: int, label: str) -> list:
+    """``map`` over worker processes with a progress line on stderr."""
+    results = []
+    start = time.perf_counter()
+    step = max(1, len(tasks) // 20)
+
+    def report(done: int) -> None:
+        if done % step == 0 or done == len(tasks):
+            rate = (time.perf_counter() - start) / done
+            left = rate * (len(tasks) - done)
+            print(f"\r{label}: {done}/{len(tasks)} ({left:.0f} s left)   ",
+                  end="", file=sys.stderr, flush=True)
+
+    if jobs <= 1:
+        for i, task in enumerate(tasks, 1):
+            results.append(func(task))
+            report(i)
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for i, res in enumerate(pool.map(func, tasks), 1):
+                results.append(res)
+                report(i)
+    print(file=sys.stderr)
+    return results
+
+
+def format_mean_std(mean: float, std: float, percent: bool = False) -> str:
+    """``mean ± std`` with 4 decimals (2 for percentages)."""
+    return f"{mean:.2f} ± {std:.2f}" if percent else f"{mean:.4f} ± {std:.4f}"
+
+
+def _toy_table(results: dict, n_datasets: int) -> tuple[str, list[str]]:
+    from policy_align_ros.experiments.toy import PAPER_TABLE_I, RULES, SETUPS
+
+    header = (
+        "| Setup | σ² | | Alignment nMSE | Potential nMSE | nUPE | nCPE | Discarded (%) |\n"
+        "|---|---|---|---|---|---|---|---|\n"
+    )
+    lines = []
+    verdicts = []
+    for potential, n_traj, n_samples in SETUPS:
+        for rule in RULES:
+            key = (potential, n_traj, rule)
+            values = np.array([[r[rule][m] for m in METRIC_NAMES] for r in results[key]])
+            mean, std = values.mean(axis=0), values.std(axis=0)
+            paper = PAPER_TABLE_I[key]
+            setup = f"{potential} K={n_traj} N={n_samples}"
+            ours = [format_mean_std(mean[i], std[i], i == 4) for i in range(5)]
+            theirs = [format_mean_std(*paper[i], i == 4) for i in range(5)]
+            lines.append(f"| {setup} | {rule} | ours | " + " | ".join(ours) + " |")
+            lines.append("| | | paper | " + " | ".join(theirs) + " |")
+            if rule in ("narrow", "medium"):
+                checks = {
+                    "nUPE": mean[2] <= paper[2][0],
+                    "nCPE": mean[3] <= paper[3][0],
+                    "discarded": mean[4] <= paper[4][0],
+                    "alignment": mean[0] <= paper[0][0] + paper[0][1],
+                }
+                missed = [name for name, ok in checks.items() if not ok]
+                verdicts.append(
+                    f"{setup}, {rule}: " + ("all targets met" if not missed
+                                            else "missed " + ", ".join(missed))
+                )
+    table = header + "\n".join(lines) + "\n"
+    table += f"\nMean ± std over {n_datasets} data sets per row; errors on a held-out 20%.\n"
+    return table, verdicts
+
+
+def run_toy_bench(args: argparse.Namespace) -> int:
+    """Table I of the paper (section IV-B) and a figure like its Fig. 3."""
+    from policy_align_ros.experiments.toy import SETUPS, run_toy_dataset
+    from policy_align_ros.experiments.toy_figure import plot_toy_figure
+
+    n_datasets = args.datasets or 100
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    tasks = [
+        (potential, n_traj, n_samples, args.seed * 100_003 + 7919 * c + i)
+        for c, (potential, n_traj, n_samples) in enumerate(SETUPS)
+        for i in range(n_datasets)
+    ]
+    start = time.perf_counter()
+    flat = parallel_map(run_toy_dataset, tasks, args.jobs, "bench toy")
+    elapsed = time.perf_counter() - start
+    results: dict = {}
+    for (potential, n_traj, _, _), res in zip(tasks, flat, strict=True):
+        for rule in res:
+            results.setdefault((potential, n_traj, rule), []).append(res)
+    table, verdicts = _toy_table(results, n_datasets)
+    text = (
+        f"## Table I reproduction (`policy-align bench toy --datasets {n_datasets}`)\n\n"
+        + table + "\nTargets (narrow and medium rows):\n\n"
+        + "\n".join(f"- {v}" for v in verdicts)
+        + f"\n\nWall time: {elapsed:.0f} s with --jobs {args.jobs}.\n"
+    )
+    print(text)
+    (out / "toy.md").write_text(text)
+    raw = {f"{p}_K{k}_{r}": [res[r] for res in v] for (p, k, r), v in results.items()}
+    (out / "toy.json").write_text(json.dumps(raw, indent=1))
+    figure = plot_toy_figure(out / "toy.png", seed=args.seed)
+    print(f"wrote {out / 'toy.md'}, {out / 'toy.json'} and {figure}")
+    return 0
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    """Dispatch ``policy-align bench WHICH``."""
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.datasets is not None and args.datasets < 1:
+        raise ValueError(f"--datasets must be at least 1, got {args.datasets}")
+    if args.which == "toy":
+        return run_toy_bench(args)
+    if args.which == "scale":
+        from policy_align_ros.experiments.scale import run_scale_bench
+
+        return run_scale_bench(args)
+    if args.which == "grasp":
+        from policy_align_ros.experiments import grasp
+
+        return grasp.main(args)
+    if args.which == "humanoid":
+        from policy_align_ros.experiments import humanoid
+
+        return humanoid.main(args)
+    if args.which == "executor":
+        from policy_align_ros.experiments import executor_bench
+
+        return executor_bench.main(args)
+    raise ValueError(f"unknown benchmark {args.which!r}")

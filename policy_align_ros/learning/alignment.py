@@ -1,0 +1,285 @@
+"""Alignment of the local potential models (paper section III-B, eqs. 8-15).
+
+Notation: ``M`` points ``x_m`` from ``K`` trajectories; ``phi_km`` the Euler estimate of
+trajectory ``k`` at its own points. Trajectory ``k``'s local model is nearest-neighbour
+regression, ``f_k(x) = phi_{k,i*}`` with ``i* = argmin_i ||x - x_ki||^2`` (eq. 8), weighted by
+
+    w_k(x) = exp(-min_i ||x - x_ki||^2 / (2 sigma^2)),    q_km = w_k(x_m) / sum_j w_j(x_m).
+
+The offsets ``b`` minimise ``E(b) = 1/2 sum_{m,k,j} q_km q_jm (f_km + b_k - f_jm - b_j)^2``,
+i.e. ``H b = -a`` with (eq. 14)
+
+    h_ij = delta_ij sum_m q_jm - sum_m q_im q_jm,
+    a_k  = sum_m q_km f_km - sum_{m,j} q_km q_jm f_jm,
+
+and ``b = -pinv(H) a`` (eq. 15). Because ``sum_k q_km = 1``, ``H`` is the Laplacian of the
+graph whose edge weights are ``W_kj = sum_m q_km q_jm`` (k != j). That is what makes the
+problem scale: ``q`` is stored sparsely, keeping only weights above ``weight_tol`` (a cut-off
+radius for a KD-tree search), ``H`` is a sparse Laplacian, and ``pinv(H) a`` is a sparse solve
+per connected group (the minimum-norm solution: offsets have zero mean in each group).
+
+When the trajectories are split into groups (outlier detection), each group is aligned on its
+own: the objective keeps only pairs ``k, j`` of the same group, which gives the same formulas
+with ``sum_k q_km`` replaced by the group's share of point ``m``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.sparse.linalg import spsolve
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "LocalModelTable",
+    "local_model_table",
+    "dense_local_model_table",
+    "alignment_system",
+    "solve_offsets",
+    "dense_offsets",
+]
+
+_CHUNK_PAIRS = 4_000_000  # bound on neighbour pairs held at once
+_DENSE_FRACTION = 0.1  # above this share of points in reach, distance blocks beat a tree
+_DENSE_MAX_ENTRIES = 50_000_000  # (M, K) entries a dense search may hold
+
+
+@dataclass
+class LocalModelTable:
+    """Sparse table of ``(m, k, q_km, f_km)`` for the non-negligible responsibilities.
+
+    Attributes
+    ----------
+    rows, cols : ndarray of int, shape (nnz,)
+        Point index ``m`` and trajectory index ``k``.
+    q : ndarray, shape (nnz,)
+        Responsibilities ``q_km`` (each row sums to 1).
+    f : ndarray, shape (nnz,)
+        Local predictions ``f_km = f_k(x_m)``.
+    n_points, n_trajectories : int
+        ``M`` and ``K``.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    q: np.ndarray
+    f: np.ndarray
+    n_points: int
+    n_trajectories: int
+
+
+def _thin_reference(
+    X: np.ndarray, labels: np.ndarray, spacing: float
+) -> np.ndarray:
+    """Indices of reference points kept so that consecutive ones are ~``spacing`` apart.
+
+    Points of one trajectory that lie within ``spacing`` arc length of the previous kept
+    point change the nearest-neighbour distance by at most ``spacing``, but a robot that
+    rests at its goal produces thousands of them.
+    """
+    if spacing <= 0:
+        return np.arange(len(X))
+    steps = np.linalg.norm(np.diff(X, axis=0), axis=1)
+    steps[labels[1:] != labels[:-1]] = 0.0
+    arc = np.concatenate(([0.0], np.cumsum(steps)))
+    bins = np.floor(arc / spacing).astype(np.int64)
+    first = np.ones(len(X), dtype=bool)
+    first[1:] = (bins[1:] != bins[:-1]) | (labels[1:] != labels[:-1])
+    return np.flatnonzero(first)
+
+
+def local_model_table(
+    X: np.ndarray,
+    labels: np.ndarray,
+    phi: np.ndarray,
+    sigma2: float,
+    *,
+    weight_tol: float = 1e-8,
+    merge_tol: float = 0.05,
+) -> LocalModelTable:
+    """Responsibilities and local predictions, keeping weights above ``weight_tol``.
+
+    Parameters
+    ----------
+    X : ndarray, shape (M, n)
+        All points, trajectories stored contiguously.
+    labels : ndarray of int, shape (M,)
+        Trajectory index ``k`` of each point, non-decreasing, values in ``0..K-1``.
+    phi : ndarray, shape (M,)
+        Potential estimates along each trajectory.
+    sigma2 : float
+        Kernel width ``sigma^2`` (squared state units).
+    weight_tol : float
+        Weights ``w_k(x_m)`` below this are dropped (cut-off radius
+        ``sqrt(-2 sigma^2 log weight_tol)``).
+    merge_tol : float
+        Reference points of a trajectory closer than ``merge_tol * sigma`` along it are
+        merged for the neighbour search (0 keeps every point, as in the paper).
+
+    Returns
+    -------
+    LocalModelTable
+    """
+    M = len(X)
+    K = int(labels[-1]) + 1
+    radius = float(np.sqrt(-2.0 * sigma2 * np.log(weight_tol)))
+    ref = _thin_reference(X, labels, merge_tol * np.sqrt(sigma2))
+    tree = cKDTree(X[ref])
+    ref_labels = labels[ref]
+    ref_phi = phi[ref]
+
+    rows_parts = [np.arange(M)]
+    cols_parts = [labels.astype(np.int64)]
+    d_parts = [np.zeros(M)]
+    f_parts = [phi.astype(float)]
+    sample = X[:: max(1, M // 2000)]
+    per_point = max(1.0, tree.count_neighbors(cKDTree(sample), radius) / len(sample))
+    if per_point > _DENSE_FRACTION * len(ref) and M * K <= _DENSE_MAX_ENTRIES:
+        # A wide kernel reaches most points: a tree search would enumerate ~M^2 pairs,
+        # while one distance block per trajectory is a single matrix product.
+        searches = _nearest_per_trajectory_dense(X, labels, X[ref], ref_labels, radius)
+    else:
+        searches = _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point)
+    for i, k, j, d2 in searches:
+        rows_parts.append(i)
+        cols_parts.append(k)
+        d_parts.append(d2)
+        f_parts.append(ref_phi[j])
+    rows = np.concatenate(rows_parts)
+    cols = np.concatenate(cols_parts)
+    d2 = np.concatenate(d_parts)
+    f = np.concatenate(f_parts)
+    w = np.exp(-0.5 * d2 / sigma2)
+    q = w / np.bincount(rows, weights=w, minlength=M)[rows]
+    return LocalModelTable(rows, cols, q, f, M, K)
+
+
+def _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point):
+    """Yield ``(m, k, reference index, squared distance)`` of the nearest reference point
+    of every other trajectory within ``radius``, by chunked KD-tree pair searches."""
+    M = len(X)
+    chunk = int(max(256, min(M, _CHUNK_PAIRS // per_point)))
+    for start in range(0, M, chunk):
+        stop = min(M, start + chunk)
+        pairs = cKDTree(X[start:stop]).sparse_distance_matrix(
+            tree, radius, output_type="ndarray"
+        )
+        i = pairs["i"].astype(np.int64) + start
+        j = pairs["j"]
+        k = ref_labels[j].astype(np.int64)
+        foreign = k != labels[i]
+        i, j, k, dist = i[foreign], j[foreign], k[foreign], pairs["v"][foreign]
+        order = np.lexsort((dist, k, i))
+        i, j, k, dist = i[order], j[order], k[order], dist[order]
+        first = np.ones(len(i), dtype=bool)
+        first[1:] = (i[1:] != i[:-1]) | (k[1:] != k[:-1])
+        yield i[first], k[first], j[first], dist[first] ** 2
+
+
+def _nearest_per_trajectory_dense(X, labels, R, ref_labels, radius):
+    """Same as the tree search, from one (M, N_k) distance block per trajectory."""
+    sq_x = np.einsum("ij,ij->i", X, X)
+    M = len(X)
+    for k in range(int(ref_labels[-1]) + 1):
+        idx = np.flatnonzero(ref_labels == k)
+        Rk = R[idx]
+        d2 = sq_x[:, None] + np.einsum("ij,ij->i", Rk, Rk)[None, :] - 2.0 * X @ Rk.T
+        arg = np.argmin(d2, axis=1)
+        best = np.maximum(d2[np.arange(M), arg], 0.0)
+        keep = (best <= radius**2) & (labels != k)
+        m = np.flatnonzero(keep)
+        yield m, np.full(len(m), k, dtype=np.int64), idx[arg[keep]], best[keep]
+
+
+def dense_local_model_table(
+    X: np.ndarray, labels: np.ndarray, phi: np.ndarray, sigma2: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's dense ``Q`` and ``F`` (shape (M, K) each); for tests and small data."""
+    K = int(labels[-1]) + 1
+    d2 = np.sum((X[:, None, :] - X[None, :, :]) ** 2, axis=-1)
+    Q = np.empty((len(X), K))
+    F = np.empty((len(X), K))
+    for k in range(K):
+        cols = np.flatnonzero(labels == k)
+        nearest = cols[np.argmin(d2[:, cols], axis=1)]
+        Q[:, k] = np.exp(-0.5 * d2[np.arange(len(X)), nearest] / sigma2)
+        F[:, k] = phi[nearest]
+    Q /= Q.sum(axis=1, keepdims=True)
+    return Q, F
+
+
+def alignment_system(
+    table: LocalModelTable, groups: np.ndarray | None = None
+) -> tuple[sp.csr_matrix, np.ndarray, sp.csr_matrix]:
+    """Hessian ``H``, linear term ``a`` and graph weights ``W`` of eq. 14.
+
+    Parameters
+    ----------
+    table : LocalModelTable
+    groups : ndarray of int, shape (K,), optional
+        Group of each trajectory; only pairs within a group enter the objective.
+
+    Returns
+    -------
+    H : csr_matrix, shape (K, K)
+        Graph Laplacian ``diag(W 1) - W``.
+    a : ndarray, shape (K,)
+    W : csr_matrix, shape (K, K)
+        Edge weights ``W_kj = sum_m q_km q_jm`` for ``k != j`` in the same group.
+    """
+    rows, cols, q, f = table.rows, table.cols, table.q, table.f
+    K, M = table.n_trajectories, table.n_points
+    if groups is None:
+        share = np.ones(len(rows))
+        key = rows
+        n_keys = M
+    else:
+        # A point's share and mean prediction are taken within each group separately.
+        key, inverse = np.unique(rows * np.int64(K) + groups[cols], return_inverse=True)
+        n_keys = len(key)
+        key = inverse
+        share = np.bincount(key, weights=q, minlength=n_keys)[key]
+    mean_f = np.bincount(key, weights=q * f, minlength=n_keys)[key]
+    a = np.bincount(cols, weights=q * (f * share - mean_f), minlength=K)
+
+    Q = sp.csr_matrix((q, (key, cols)), shape=(n_keys, K))
+    W = (Q.T @ Q).tocsr()
+    W.setdiag(0.0)
+    W.eliminate_zeros()
+    H = sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
+    return H.tocsr(), a, W
+
+
+def solve_offsets(H: sp.spmatrix, a: np.ndarray) -> np.ndarray:
+    """Minimum-norm solution ``b = -pinv(H) a`` of the Laplacian system (eq. 15).
+
+    Each connected component of ``H`` is solved on its own with one node grounded, then
+    shifted to zero mean, which is what the pseudo-inverse returns for a Laplacian whose
+    right-hand side sums to zero on every component.
+    """
+    H = sp.csr_matrix(H)
+    n_comp, comp = connected_components(H, directed=False)
+    b = np.zeros(H.shape[0])
+    for c in range(n_comp):
+        idx = np.flatnonzero(comp == c)
+        if len(idx) < 2:
+            continue
+        sub = H[idx][:, idx].tocsc()
+        rest = sub[1:, 1:]
+        if len(idx) == 2:
+            x = -a[idx[1:]] / rest.toarray().ravel()
+        else:
+            x = spsolve(rest, -a[idx[1:]])
+        b_c = np.concatenate(([0.0], np.atleast_1d(x)))
+        b[idx] = b_c - b_c.mean()
+    return b
+
+
+def dense_offsets(Q: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """The paper's formulas verbatim: ``H``, ``a`` from dense ``Q``, ``F`` and ``-pinv(H) a``."""
+    H = np.diag(Q.sum(axis=0)) - Q.T @ Q
+    a = np.sum(Q * F, axis=0) - Q.T @ np.sum(Q * F, axis=1)
+    return -np.linalg.pinv(H) @ a

@@ -1,0 +1,89 @@
+"""Model files: one ``.npz`` of numeric arrays plus a JSON header (DESIGN.md section 4).
+
+The header is stored as a 0-d unicode array named ``__header__`` so that the file loads
+with ``allow_pickle=False``. Files are written to a temporary file in the target directory,
+flushed to disk and renamed over the target, so a reader never sees half a model.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "atomic_write_bytes"]
+
+FORMAT_VERSION = 1
+_HEADER = "__header__"
+
+
+def atomic_write_bytes(path: str | Path, writer) -> Path:
+    """Call ``writer(file_object)`` on a temporary file, fsync it and rename it to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            writer(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+    return path
+
+
+def save_npz(path: str | Path, header: dict, arrays: dict[str, np.ndarray]) -> Path:
+    """Write ``arrays`` and a JSON ``header`` atomically; returns the path written."""
+    header = {"format_version": FORMAT_VERSION, **header}
+    payload = {_HEADER: np.array(json.dumps(header))}
+    for name, value in arrays.items():
+        value = np.asarray(value)
+        if value.dtype == object:
+            raise ValueError(f"array {name!r} has dtype object, which would need pickle")
+        payload[name] = value
+    return atomic_write_bytes(path, lambda fh: np.savez(fh, **payload))
+
+
+def load_npz(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """Read a file written by ``save_npz``; errors name the file and the problem.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        The file is truncated, not a model file, of another kind, or of a newer format.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: model file not found")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if _HEADER not in data.files:
+                raise ValueError("no header: not a policy_align_ros model file")
+            header = json.loads(str(data[_HEADER]))
+            arrays = {name: data[name] for name in data.files if name != _HEADER}
+    except (zipfile.BadZipFile, OSError, EOFError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path}: truncated or not a model file ({err})") from None
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
+    version = header.get("format_version")
+    if not isinstance(version, int) or version > FORMAT_VERSION:
+        raise ValueError(
+            f"{path}: model format version {version!r} is newer than this package "
+            f"supports ({FORMAT_VERSION}); upgrade policy_align_ros"
+        )
+    if header.get("kind") != kind:
+        raise ValueError(f"{path}: holds a {header.get('kind')!r} model, expected {kind!r}")
+    return header, arrays

@@ -1,0 +1,306 @@
+"""The PolicyAlign estimator (paper Algorithm 1).
+
+Notation: ``K`` trajectories ``X_k`` (``N_k`` x ``n``), Euler potentials ``phi_hat_k``,
+offsets ``b_k``, kernel width ``sigma^2``; the global model ``f(x)`` of the potential is
+trained on ``(x_kn, phi_hat_kn + b_k)`` for the kept trajectories (eq. 16) and the
+policy is ``pi_hat(x) = -grad f(x)``, in state units per second when the trajectories carry
+times (per step otherwise).
+
+1. estimate ``phi_hat_k`` along each trajectory (``integration``);
+2. build the sparse alignment system and find the weakly connected groups (``outliers``);
+3. align each group (``b = -pinv(H) a`` restricted to the group) and keep the largest;
+4. fit the global regressor on the kept, aligned data.
+"""
+
+from __future__ import annotations
+
+import copy
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from policy_align_ros.learning import model_io
+from policy_align_ros.learning.alignment import (
+    alignment_system,
+    local_model_table,
+    solve_offsets,
+)
+from policy_align_ros.learning.bandwidth import resolve_sigma2
+from policy_align_ros.learning.outliers import weakly_connected_groups
+from policy_align_ros.learning.potential import METHODS, estimate_potential
+from policy_align_ros.learning.regression import LocalLinearRegression, NotFittedError
+from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
+
+__all__ = ["PolicyAlign"]
+
+
+class PolicyAlign:
+    """Learn a potential-based policy from trajectories observed under unknown constraints.
+
+    Parameters
+    ----------
+    sigma : {"narrow", "medium", "wide"} or float
+        Kernel width rule (paper eqs. 17-19) or ``sigma^2`` itself (squared state units).
+    integration : {"euler", "trapezoid"}
+        Rule for the potential along each trajectory; ``"trapezoid"`` needs velocities.
+    weight_tol : float
+        Responsibility weights below this are treated as zero (sets the neighbour cut-off).
+    merge_tol : float
+        Reference points closer than ``merge_tol * sigma`` along a trajectory are merged
+        in the neighbour search (0: every point, as in the paper).
+    eigen_tol : float
+        Eigenvalues of the alignment Hessian below this mark weakly connected groups.
+    regressor : estimator, optional
+        Global model with ``fit(X, y, groups)``, ``predict``, ``gradient``, ``get_state``
+        and ``from_state``; default ``LocalLinearRegression``, whose gradient is analytic.
+    random_state : int or None
+        Seeds every random choice (sigma heuristics on large data, the regressor's CV).
+    verbose : bool
+        Print the progress of each stage to stderr.
+    """
+
+    def __init__(
+        self,
+        *,
+        sigma: str | float = "medium",
+        integration: str = "euler",
+        weight_tol: float = 1e-8,
+        merge_tol: float = 0.05,
+        eigen_tol: float = 1e-8,
+        regressor=None,
+        random_state: int | None = 0,
+        verbose: bool = False,
+    ) -> None:
+        self.sigma = sigma
+        self.integration = integration
+        self.weight_tol = weight_tol
+        self.merge_tol = merge_tol
+        self.eigen_tol = eigen_tol
+        self.regressor = regressor
+        self.random_state = random_state
+        self.verbose = verbose
+
+    # -- scikit-learn style parameter access ------------------------------------------
+    def get_params(self) -> dict:
+        """Constructor arguments, as given."""
+        return {
+            "sigma": self.sigma,
+            "integration": self.integration,
+            "weight_tol": self.weight_tol,
+            "merge_tol": self.merge_tol,
+            "eigen_tol": self.eigen_tol,
+            "regressor": self.regressor,
+            "random_state": self.random_state,
+            "verbose": self.verbose,
+        }
+
+    def _validate_params(self) -> None:
+        if self.integration not in METHODS:
+            raise ValueError(
+                f"integration must be one of {METHODS}, got {self.integration!r}"
+            )
+        for name in ("weight_tol", "eigen_tol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 < value < 1):
+                raise ValueError(f"{name} must be a float in (0, 1), got {value!r}")
+        if not (isinstance(self.merge_tol, (int, float)) and 0 <= self.merge_tol < 1):
+            raise ValueError(f"merge_tol must be a float in [0, 1), got {self.merge_tol!r}")
+
+    def _log(self, message: str) -> None:
+        if self.verbose:
+            print(f"[PolicyAlign] {message}", file=sys.stderr, flush=True)
+
+    # -- fitting ----------------------------------------------------------------------
+    def fit(
+        self,
+        trajectories: Sequence[Trajectory | np.ndarray],
+        *,
+        train_mask: Sequence[np.ndarray] | None = None,
+        joint_names: Sequence[str] | None = None,
+    ) -> PolicyAlign:
+        """Run Algorithm 1 on the demonstrations.
+
+        Parameters
+        ----------
+        trajectories : sequence of Trajectory or array_like (N_k, n)
+            At least two demonstrations of equal dimension.
+        train_mask : sequence of bool arrays (N_k,), optional
+            Samples the global model is trained on (default: all). Held-out samples still
+            take part in the potential estimate and the alignment, which need whole
+            trajectories.
+        joint_names : sequence of str, optional
+            Names of the ``n`` state coordinates, stored in the model file.
+
+        Returns
+        -------
+        self
+        """
+        self._validate_params()
+        trajs = as_trajectories(trajectories)
+        if len(trajs) < 2:
+            raise ValueError("PolicyAlign needs at least 2 trajectories to align")
+        n = trajs[0].n_dims
+        if joint_names is not None and len(joint_names) != n:
+            raise ValueError(f"joint_names has {len(joint_names)} names for a {n}-D state")
+        masks = self._check_masks(train_mask, trajs)
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+
+        phi = [estimate_potential(t, self.integration) for t in trajs]
+        X = np.concatenate([t.positions for t in trajs])
+        labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
+        phi_all = np.concatenate(phi)
+        self.sigma2_ = resolve_sigma2(
+            self.sigma, [t.positions for t in trajs], random_state=self.random_state
+        )
+        timings["sigma"] = time.perf_counter() - t0
+        self._log(f"{len(trajs)} trajectories, {len(X)} samples, sigma^2 = {self.sigma2_:.4g}")
+
+        t1 = time.perf_counter()
+        table = local_model_table(
+            X, labels, phi_all, self.sigma2_,
+            weight_tol=self.weight_tol, merge_tol=self.merge_tol,
+        )
+        _, _, W = alignment_system(table)
+        self.groups_ = weakly_connected_groups(W, self.eigen_tol)
+        H, a, _ = alignment_system(table, self.groups_)
+        self.offsets_ = solve_offsets(H, a)
+        self.inliers_ = np.flatnonzero(self.groups_ == 0)
+        self.aligned_potentials_ = [p + b for p, b in zip(phi, self.offsets_, strict=True)]
+        timings["alignment"] = time.perf_counter() - t1
+        self._log(
+            f"aligned with {len(table.q)} responsibilities; kept {len(self.inliers_)} of "
+            f"{len(trajs)} trajectories ({timings['alignment']:.2f} s)"
+        )
+
+        t2 = time.perf_counter()
+        keep = self.inliers_
+        Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
+        ytr = np.concatenate([self.aligned_potentials_[k][masks[k]] for k in keep])
+        gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
+        regressor = LocalLinearRegression(random_state=self.random_state)
+        if self.regressor is not None:
+            regressor = copy.deepcopy(self.regressor)
+        self.regressor_ = regressor.fit(Xtr, ytr, groups=gtr)
+        timings["regression"] = time.perf_counter() - t2
+        timings["total"] = time.perf_counter() - t0
+        self._log(f"global model fitted on {len(Xtr)} samples ({timings['regression']:.2f} s)")
+
+        self.n_features_in_ = n
+        self.joint_names_ = None if joint_names is None else [str(j) for j in joint_names]
+        self.timed_ = trajs[0].times is not None
+        self.fit_summary_ = {
+            "n_trajectories": len(trajs),
+            "n_samples": int(len(X)),
+            "n_inliers": int(len(keep)),
+            "n_groups": int(self.groups_.max() + 1),
+            "n_responsibilities": int(len(table.q)),
+            "timings_s": timings,
+        }
+        return self
+
+    @staticmethod
+    def _check_masks(
+        train_mask: Sequence[np.ndarray] | None, trajs: list[Trajectory]
+    ) -> list[np.ndarray]:
+        if train_mask is None:
+            return [np.ones(t.n_samples, dtype=bool) for t in trajs]
+        masks = list(train_mask)
+        if len(masks) != len(trajs):
+            raise ValueError(f"train_mask has {len(masks)} entries for {len(trajs)} trajectories")
+        out = []
+        for k, (m, t) in enumerate(zip(masks, trajs, strict=True)):
+            m = np.asarray(m)
+            if m.shape != (t.n_samples,) or m.dtype != bool:
+                raise ValueError(
+                    f"train_mask {k}: must be a bool array of shape ({t.n_samples},), "
+                    f"got {m.dtype} {m.shape}"
+                )
+            out.append(m)
+        return out
+
+    # -- prediction -------------------------------------------------------------------
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "regressor_"):
+            raise NotFittedError("this PolicyAlign is not fitted yet: call fit() or load()")
+
+    def _check_X(self, X: np.ndarray) -> np.ndarray:
+        self._check_fitted()
+        X = np.asarray(X, dtype=float)
+        if X.ndim == 1:
+            X = X[None, :]
+        if X.ndim != 2 or X.shape[1] != self.n_features_in_:
+            raise ValueError(
+                f"X must have shape (m, {self.n_features_in_}), got {np.shape(X)}"
+            )
+        if not np.all(np.isfinite(X)):
+            raise ValueError("X contains NaN or inf")
+        return X
+
+    def potential(self, X: np.ndarray) -> np.ndarray:
+        """Learnt potential ``f(x)``, shape (m,), for states ``X`` of shape (m, n)."""
+        return self.regressor_.predict(self._check_X(X))
+
+    def policy(self, X: np.ndarray) -> np.ndarray:
+        """Learnt unconstrained policy ``-grad f(x)``, shape (m, n)."""
+        return -self.regressor_.gradient(self._check_X(X))
+
+    # -- persistence ------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write the fitted model atomically to ``path`` (an ``.npz`` file)."""
+        self._check_fitted()
+        reg_arrays, reg_meta = self.regressor_.get_state()
+        params = {k: v for k, v in self.get_params().items() if k != "regressor"}
+        header = {
+            "kind": "policy_align",
+            "joint_names": self.joint_names_,
+            "state": "joint positions" if self.joint_names_ else "positions",
+            "policy_units": "per second" if self.timed_ else "per step",
+            "n_features": self.n_features_in_,
+            "sigma2": self.sigma2_,
+            "params": params,
+            "regressor": {"class": type(self.regressor_).__name__, "meta": reg_meta},
+            "training": self.fit_summary_,
+        }
+        lengths = np.array([len(p) for p in self.aligned_potentials_])
+        arrays = {
+            "offsets": self.offsets_,
+            "groups": self.groups_,
+            "inliers": self.inliers_,
+            "aligned_lengths": lengths,
+            "aligned_potentials": np.concatenate(self.aligned_potentials_),
+            **{f"regressor.{k}": v for k, v in reg_arrays.items()},
+        }
+        return model_io.save_npz(path, header, arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> PolicyAlign:
+        """Read a model written by ``save``; a bad file gives an error naming it."""
+        header, arrays = model_io.load_npz(path, kind="policy_align")
+        try:
+            params = dict(header["params"])
+            model = cls(**params)
+            reg_arrays = {
+                k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("regressor.")
+            }
+            if header["regressor"]["class"] != LocalLinearRegression.__name__:
+                raise ValueError(f"unknown regressor {header['regressor']['class']!r}")
+            model.regressor_ = LocalLinearRegression.from_state(
+                reg_arrays, header["regressor"]["meta"]
+            )
+            model.sigma2_ = float(header["sigma2"])
+            model.n_features_in_ = int(header["n_features"])
+            model.joint_names_ = header["joint_names"]
+            model.timed_ = header["policy_units"] == "per second"
+            model.fit_summary_ = header["training"]
+            model.offsets_ = arrays["offsets"]
+            model.groups_ = arrays["groups"]
+            model.inliers_ = arrays["inliers"]
+            splits = np.cumsum(arrays["aligned_lengths"])[:-1]
+            model.aligned_potentials_ = np.split(arrays["aligned_potentials"], splits)
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"{path}: malformed policy_align model file ({err})") from None
+        return model

@@ -1,0 +1,1127 @@
+"""Global regression of the LWPR family with an exact analytic gradient.
+
+PolicyAlign (paper section III-D, eq. 16) fits a global model ``f(x)`` of the potential on
+the aligned data and uses ``pi_hat(x) = -grad f(x)`` as the policy. The paper uses LWPR;
+this module implements its prediction rule with a batch fit.
+
+Notation and units
+------------------
+``x`` in ``R^n`` is a state (state units, e.g. rad or m); ``y`` in ``R^d`` an output (for
+the potential ``d = 1``, in state units^2 per second). Receptive field ``j`` has centre
+``c_j`` and the common width ``h`` (state units). Its weight is a Gaussian with a smooth
+polynomial cut-off at ``R = CUTOFF * h``, so that sums over neighbours are exact and
+sparse::
+
+    g(s) = exp(-s / (2 h^2)) * (1 - (s / R^2)^2)^2   for s < R^2, else 0,  s = ||x - c||^2
+
+Each field carries a local linear model ``l_j(x) = beta_j0 + B_j (x - c_j)`` (``B_j`` of
+shape (d, n)). The prediction is the normalised blend (LWPR)::
+
+    f(x) = sum_j v_j(x) l_j(x) / sum_j v_j(x),   v_j(x) = g(||x - c_j||^2 - min_k ||x - c_k||^2)
+
+The shift by the squared distance of the nearest centre cancels for the Gaussian factor, and
+keeps the prediction finite and smooth far away from every centre (there it tends to the
+nearest centre's local model). ``grad f`` follows from the quotient rule, exactly.
+
+Fit: centres are a farthest-point cover of (a subsample of) the data with spacing ``h``
+(LWPR's rule of adding a field where none is active), capped at ``max_centers``.
+Each local model is weighted ridge least squares on the points within ``R``: with
+weighted mean ``mu_j`` and covariance ``Sigma_j``,
+``(Sigma_j + ridge h^2 I) B_j^T = Cov_j(x, y)``, so ``ridge`` is dimensionless and acts on
+the local slopes only; directions in which the local data do not vary (the data lie on
+trajectory manifolds) get zero slope, as in LWPR's projection regression. The width ``h``
+is chosen by K-fold cross-validation over whole held-out trajectories (``groups``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+__all__ = ["LocalLinearRegression", "NotFittedError"]
+
+#: Cut-off radius of a receptive field in units of its width ``h``.
+CUTOFF = 3.0
+#: Growth of the blending width with the distance from the nearest centre, far away.
+FAR_WIDENING = 0.5
+#: Spacing of the cover of centres in units of ``h``.
+SPACING = 1.0
+#: Largest number of points used to place centres (a random subsample beyond).
+MAX_COVER_POINTS = 20000
+#: Largest number of points used for cross-validation (whole trajectories, thinned).
+MAX_CV_POINTS = 20000
+#: Fewest samples kept per trajectory when thinning the CV data.
+MIN_CV_SAMPLES_PER_GROUP = 25
+#: Relative grid of candidate widths, times the RMS spread of the data.
+GRID_FACTORS = np.geomspace(0.02, 1.0, 9)
+#: A local model enters a CV prediction only with this much training weight (points).
+MIN_FIELD_WEIGHT = 0.5
+#: Rows of data processed at once, to bound memory.
+CHUNK = 20000
+#: Up to this input dimension neighbours are found with a k-d tree, beyond with BLAS.
+KDTREE_MAX_DIM = 4
+#: Entries of one block of dense point-centre distances.
+DENSE_BLOCK = 2_000_000
+#: A dense block of weights is made sparse below this fraction of non-zeros.
+DENSE_FRACTION = 0.1
+_STATE_VERSION = 1
+
+
+class NotFittedError(ValueError):
+    """Raised when a model is used before ``fit`` (or ``from_state``)."""
+
+
+# --------------------------------------------------------------------------- kernel
+
+
+def kernel(s: np.ndarray, h2: float | np.ndarray, derivative: bool = True):
+    """Receptive-field weight ``g(s; h^2)`` and its derivatives.
+
+    Parameters
+    ----------
+    s : ndarray
+        Squared distances (state units^2), ``s >= 0``.
+    h2 : float or ndarray broadcastable to ``s``
+        Squared width ``h^2`` (state units^2).
+    derivative : bool
+        Also return the derivatives.
+
+    Returns
+    -------
+    g : ndarray, shape of ``s``
+        Dimensionless, 0 for ``s >= CUTOFF^2 h^2``.
+    dg_ds, dg_dh2 : ndarray, shape of ``s``
+        In 1/state units^2; only when ``derivative``.
+    """
+    r2 = (CUTOFF * CUTOFF) * h2
+    u = np.minimum(s / r2, 1.0)
+    one_minus = 1.0 - u * u
+    gauss = np.exp(-0.5 * s / h2)
+    g = gauss * (one_minus * one_minus)
+    if not derivative:
+        return g
+    dg_ds = -0.5 * g / h2 - 4.0 * gauss * u * one_minus / r2
+    dg_dh2 = 0.5 * g * s / (h2 * h2) + 4.0 * gauss * u * u * one_minus / h2
+    return g, dg_ds, dg_dh2
+
+
+def blend_width2(t: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Squared blending width ``H^2(t)`` at squared distance ``t`` from the nearest centre.
+
+    ``H^2 = h^2 + a^2 t^2 / (t + R^2)`` with ``a = FAR_WIDENING`` and ``R = CUTOFF h``:
+    ``h^2`` near the data, growing like ``(a d_min)^2`` far from it. Without this, far
+    away the blend would switch between diverging linear extrapolations over a width of
+    ``h^2 / ||c_j - c_k||``, and its gradient would grow without bound with the distance.
+
+    Parameters
+    ----------
+    t : ndarray
+        Squared distances to the nearest centre (state units^2).
+    h : float
+        Field width (state units).
+
+    Returns
+    -------
+    H2, dH2_dt : ndarray, shape of ``t``
+    """
+    r2 = (CUTOFF * h) ** 2
+    a2 = FAR_WIDENING * FAR_WIDENING
+    q = t + r2
+    return h * h + a2 * t * t / q, a2 * t * (t + 2.0 * r2) / (q * q)
+
+
+# --------------------------------------------------------------------------- centres
+
+
+class FarthestPointCover:
+    """Centres in farthest-point order, giving a cover of the data for every radius.
+
+    Each new centre is the (subsampled) data point farthest from the centres so far, so
+    the first ``k`` centres cover all points within ``radii[k - 1]`` and lie at least that
+    far apart: LWPR's rule of adding a receptive field where no field is active, for all
+    widths at once. The order is extended lazily, as finer covers are asked for.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+        Data (state units).
+    max_centers : int
+        Cap on the number of centres.
+    rng : numpy.random.Generator
+        Picks the subsample (``MAX_COVER_POINTS``) and the first centre.
+    """
+
+    def __init__(self, X: np.ndarray, max_centers: int, rng: np.random.Generator) -> None:
+        self.points = X[rng.permutation(X.shape[0])[:MAX_COVER_POINTS]]
+        self.max_centers = min(max_centers, len(self.points))
+        self.sq = np.einsum("ij,ij->i", self.points, self.points)
+        self.order = [0]
+        self.radii = [math.inf]
+        self.dist = self._sqdist(0)
+
+    def _sqdist(self, i: int) -> np.ndarray:
+        d = self.sq + self.sq[i] - 2.0 * (self.points @ self.points[i])
+        return np.maximum(d, 0.0, out=d)
+
+    @property
+    def capped(self) -> bool:
+        """Whether the cap on centres has been reached."""
+        return len(self.order) >= self.max_centers
+
+    def centres(self, radius: float) -> np.ndarray:
+        """Fewest leading centres covering the data within ``radius`` (or the cap).
+
+        Returns
+        -------
+        ndarray, shape (C, n)
+        """
+        limit = radius * radius
+        while not self.capped:
+            i = int(np.argmax(self.dist))
+            if self.dist[i] <= limit:
+                break
+            self.order.append(i)
+            self.radii.append(math.sqrt(self.dist[i]))
+            np.minimum(self.dist, self._sqdist(i), out=self.dist)
+        count = max(1, int(np.sum(np.asarray(self.radii) > radius)))
+        return self.points[self.order[:count]]
+
+    @property
+    def radius(self) -> float:
+        """Cover radius of all centres placed so far (state units)."""
+        return float(np.sqrt(self.dist.max()))
+
+
+# --------------------------------------------------------------------------- neighbours
+
+
+class CentreIndex:
+    """Kernel weights between points and fixed centres, block by block.
+
+    Below ``KDTREE_MAX_DIM`` dimensions neighbours come from a k-d tree and blocks are
+    sparse. Above, k-d trees lose their edge, and blocks of squared distances
+    ``|x|^2 + |c|^2 - 2 x.c`` come from one matrix product; a block stays dense when more
+    than ``DENSE_FRACTION`` of its weights are non-zero, else it is made sparse.
+
+    Parameters
+    ----------
+    centres : ndarray, shape (C, n)
+        Centres (state units).
+    """
+
+    def __init__(self, centres: np.ndarray) -> None:
+        self.centres = centres
+        self.tree = cKDTree(centres) if centres.shape[1] <= KDTREE_MAX_DIM else None
+        self.sq = np.einsum("ij,ij->i", centres, centres)
+
+    def _starts(self, m: int) -> tuple[range, int]:
+        step = CHUNK if self.tree is not None else DENSE_BLOCK // len(self.centres)
+        step = max(1, min(step, CHUNK))
+        return range(0, m, step), step
+
+    def _sqdist(self, X: np.ndarray) -> np.ndarray:
+        d2 = np.einsum("ij,ij->i", X, X)[:, None] + self.sq[None, :]
+        d2 -= 2.0 * (X @ self.centres.T)
+        return np.maximum(d2, 0.0, out=d2)
+
+    def _exact(self, X: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        diff = X[rows] - self.centres[cols]
+        return np.einsum("ij,ij->i", diff, diff)
+
+    def weight_blocks(self, X: np.ndarray, h: float):
+        """Kernel weights ``g(||x_i - c_j||^2)`` for consecutive blocks of points.
+
+        Parameters
+        ----------
+        X : ndarray, shape (m, n)
+        h : float
+            Field width (state units).
+
+        Yields
+        ------
+        start, stop : int
+            The block is ``X[start:stop]``.
+        W : ndarray or scipy.sparse.csr_matrix, shape (stop - start, C)
+        """
+        C = len(self.centres)
+        radius = CUTOFF * h
+        starts, step = self._starts(X.shape[0])
+        for start in starts:
+            Xb = X[start : start + step]
+            b = len(Xb)
+            if self.tree is not None:
+                res = cKDTree(Xb).sparse_distance_matrix(
+                    self.tree, radius, output_type="ndarray"
+                )
+                rows, cols = res["i"].astype(np.intp), res["j"].astype(np.intp)
+            else:
+                d2 = self._sqdist(Xb)
+                mask = d2 < radius * radius
+                if mask.mean() > DENSE_FRACTION:
+                    yield start, start + b, kernel(d2, h * h, derivative=False)
+                    continue
+                rows, cols = np.nonzero(mask)
+            w = kernel(self._exact(Xb, rows, cols), h * h, derivative=False)
+            yield start, start + b, sp.csr_matrix((w, (rows, cols)), shape=(b, C))
+
+    def relative_blocks(self, X: np.ndarray, h: float, derivative: bool = True):
+        """Blending weights of every point on the centres, by blocks.
+
+        ``v_j = g(rel_j; H^2)`` with ``rel_j = ||x - c_j||^2 - t``, ``t = d_min(x)^2``, and
+        the width ``H^2 = blend_width2(t, h)``, which equals ``h^2`` near the data and
+        grows with the distance far from it. Every point keeps at least its nearest centre
+        (``v = 1``), however far it is.
+
+        Parameters
+        ----------
+        X : ndarray, shape (m, n)
+        h : float
+            Field width (state units).
+        derivative : bool
+            Also compute the derivatives (else they are None).
+
+        Yields
+        ------
+        start, stop : int
+            The block is ``X[start:stop]``.
+        nearest : ndarray of intp, shape (b,)
+            Index of each point's nearest centre.
+        dwidth : ndarray, shape (b,), or None
+            ``d H^2 / d t`` per point.
+        weights : tuple
+            Dense ``(v, dv/drel, dv/dH^2)``, each (b, C); or sparse
+            ``(rows, cols, v, dv/drel, dv/dH^2)``, each (nnz,).
+        """
+        starts, step = self._starts(X.shape[0])
+        for start in starts:
+            Xb = X[start : start + step]
+            b = len(Xb)
+            if self.tree is None:
+                d2 = self._sqdist(Xb)
+                nearest = np.argmin(d2, axis=1)
+                t = d2[np.arange(b), nearest]
+                w2, dw2 = blend_width2(t, h)
+                rel = d2 - t[:, None]
+                mask = rel < (CUTOFF * CUTOFF) * w2[:, None]
+                if mask.mean() > DENSE_FRACTION:
+                    rel = np.maximum(rel, 0.0, out=rel)
+                    weights = self._kernel(rel, w2[:, None], derivative)
+                    yield start, start + b, nearest, dw2 if derivative else None, weights
+                    continue
+                rows, cols = np.nonzero(mask)
+            else:
+                dmin, nearest = self.tree.query(Xb, k=1)
+                nearest = np.asarray(nearest, dtype=np.intp)
+                w2, dw2 = blend_width2(dmin * dmin, h)
+                lists = self.tree.query_ball_point(
+                    Xb, np.sqrt(dmin * dmin + (CUTOFF * CUTOFF) * w2), return_sorted=False
+                )
+                lens = np.fromiter(map(len, lists), dtype=np.intp, count=len(lists))
+                chain = itertools.chain.from_iterable(lists)
+                rows = np.repeat(np.arange(b), lens)
+                cols = np.fromiter(chain, dtype=np.intp, count=int(lens.sum()))
+            # Exact pairwise distances: the weights are then exactly smooth functions of x.
+            t = self._exact(Xb, np.arange(b), nearest)
+            w2, dw2 = blend_width2(t, h)
+            rel = np.maximum(self._exact(Xb, rows, cols) - t[rows], 0.0)
+            rel[cols == nearest[rows]] = 0.0
+            weights = self._kernel(rel, w2[rows], derivative)
+            yield start, start + b, nearest, dw2 if derivative else None, (rows, cols, *weights)
+
+    @staticmethod
+    def _kernel(s, h2, derivative):
+        return kernel(s, h2) if derivative else (kernel(s, h2, derivative=False), None, None)
+
+
+# --------------------------------------------------------------------------- local fits
+
+
+def _features(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Per-point sufficient statistics ``[1, x, y, x x^T (upper), x y^T]``, shape (m, p)."""
+    m, n = X.shape
+    iu, ju = np.triu_indices(n)
+    xy = (X[:, :, None] * Y[:, None, :]).reshape(m, -1)
+    return np.hstack([np.ones((m, 1)), X, Y, X[:, iu] * X[:, ju], xy])
+
+
+def local_statistics(
+    X: np.ndarray,
+    Y: np.ndarray,
+    index: CentreIndex,
+    h: float,
+    folds: np.ndarray | None = None,
+    n_folds: int = 1,
+) -> np.ndarray:
+    """Weighted sums of the local sufficient statistics of every field, per fold.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+        Inputs, shifted by the same origin as the centres (state units).
+    Y : ndarray, shape (m, d)
+        Outputs.
+    index : CentreIndex
+        The ``C`` field centres.
+    h : float
+        Field width (state units).
+    folds : ndarray of int, shape (m,), optional
+        Fold of every point, non-decreasing (points sorted by fold); ``None`` puts all
+        points in fold 0.
+    n_folds : int
+        Number of folds ``K``.
+
+    Returns
+    -------
+    ndarray, shape (K, C, p)
+        ``sum_i w_ij [1, x_i, y_i, x_i x_i^T (upper), x_i y_i^T]`` over each fold's points.
+    """
+    n, d = X.shape[1], Y.shape[1]
+    p = 1 + n + d + n * (n + 1) // 2 + n * d
+    out = np.zeros((n_folds, len(index.centres), p))
+    for start, stop, W in index.weight_blocks(X, h):
+        F = _features(X[start:stop], Y[start:stop])
+        if folds is None:
+            out[0] += W.T @ F
+            continue
+        bounds = np.searchsorted(folds[start:stop], np.arange(n_folds + 1))
+        for k in range(n_folds):
+            a, b = bounds[k], bounds[k + 1]
+            if b > a:
+                out[k] += W[a:b].T @ F[a:b]
+    return out
+
+
+def solve_local_models(
+    stats: np.ndarray,
+    centres: np.ndarray,
+    n_outputs: int,
+    h: float,
+    ridge: float,
+    smoothing: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted ridge least-squares local linear models from their statistics.
+
+    With ``smoothing > 0`` the slopes are shrunk toward a prior slope instead of toward
+    zero: the common slope of the neighbouring fields (kernel of width ``smoothing * h``),
+    each centred on its own mean, so directions without local data are learnt from the
+    neighbours' data.
+
+    Parameters
+    ----------
+    stats : ndarray, shape (C, p)
+        One fold of :func:`local_statistics` (same origin as ``centres``).
+    centres : ndarray, shape (C, n)
+        Field centres (state units, same origin).
+    n_outputs : int
+        ``d``.
+    h : float
+        Field width (state units); the slope penalty is ``ridge * h^2``.
+    ridge : float
+        Dimensionless penalty on the slopes.
+    smoothing : float
+        Width of the neighbour average in units of ``h``; 0 shrinks toward zero.
+
+    Returns
+    -------
+    intercepts : ndarray, shape (C, d)
+        ``beta_j0 = l_j(c_j)``.
+    slopes : ndarray, shape (C, d, n)
+        ``B_j``, output units per state unit.
+    """
+    C, n = centres.shape
+    d = n_outputs
+    iu, ju = np.triu_indices(n)
+    W = stats[:, 0]
+    mu = stats[:, 1 : 1 + n] / W[:, None]
+    ybar = stats[:, 1 + n : 1 + n + d] / W[:, None]
+    k = 1 + n + d
+    sxx = np.zeros((C, n, n))
+    sxx[:, iu, ju] = stats[:, k : k + len(iu)]
+    sxx[:, ju, iu] = stats[:, k : k + len(iu)]
+    sxy = stats[:, k + len(iu) :].reshape(C, n, d)
+    cov = sxx / W[:, None, None] - mu[:, :, None] * mu[:, None, :]
+    cxy = sxy / W[:, None, None] - mu[:, :, None] * ybar[:, None, :]
+    # A tiny floor keeps the systems solvable with ridge=0 on degenerate data.
+    lam = max(ridge, 1e-10) * h * h
+    eye = np.eye(n)
+    if smoothing > 0 and C > 1:
+        # Prior slopes: one common slope fitted to the neighbouring fields' data, each
+        # field around its own mean, so a direction one field has not seen is learnt from
+        # neighbours that have, without the bias of one wide field on curved data.
+        A = neighbour_matrix(centres, smoothing * h) @ sp.diags(W)
+        norm = np.asarray(A.sum(axis=1)).ravel()
+        pcov = (A @ cov.reshape(C, n * n)).reshape(C, n, n) / norm[:, None, None]
+        pcxy = (A @ cxy.reshape(C, n * d)).reshape(C, n, d) / norm[:, None, None]
+        prior = np.linalg.solve(pcov + lam * eye, pcxy)
+        slopes = np.linalg.solve(cov + lam * eye, cxy + lam * prior)
+    else:
+        slopes = np.linalg.solve(cov + lam * eye, cxy)
+    slopes = slopes.transpose(0, 2, 1)
+    intercepts = ybar + np.einsum("cdn,cn->cd", slopes, centres - mu)
+    return intercepts, slopes
+
+
+def neighbour_matrix(centres: np.ndarray, width: float) -> sp.csr_matrix:
+    """Kernel weights ``g(||c_j - c_k||^2)`` of width ``width`` between centres, (C, C)."""
+    blocks = [sp.csr_matrix(W) for _, _, W in CentreIndex(centres).weight_blocks(centres, width)]
+    return sp.vstack(blocks).tocsr()
+
+
+# --------------------------------------------------------------------------- prediction
+
+
+def blend(
+    X: np.ndarray,
+    index: CentreIndex,
+    intercepts: np.ndarray,
+    slopes: np.ndarray,
+    h: float,
+    gradient: bool = False,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Normalised blend of the local models and its exact gradient.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+        Query states (state units, same origin as the centres).
+    index : CentreIndex
+        The field centres, shape (C, n).
+    intercepts : ndarray, shape (C, d)
+        Local model values at their centres.
+    slopes : ndarray, shape (C, d, n)
+        Local model slopes.
+    h : float
+        Field width (state units).
+    gradient : bool
+        Also return ``d f / d x``.
+
+    Returns
+    -------
+    f : ndarray, shape (m, d)
+        Prediction.
+    grad : ndarray, shape (m, d, n), or None
+        Exact gradient of ``f`` (output units per state unit) when requested.
+    """
+    m, n = X.shape
+    C, d = intercepts.shape
+    centres = index.centres
+    # l_j(x) = a_j + B_j x, with the centre folded into the offset.
+    offsets = intercepts - np.einsum("cdn,cn->cd", slopes, centres)
+    f = np.empty((m, d))
+    grad = np.empty((m, d, n)) if gradient else None
+    # With v_j = g(rel_j; H^2(t)), rel_j = ||x - c_j||^2 - t and t = ||x - c_*||^2:
+    #   d rel_j/dx = 2 (c_* - c_j),   d H^2/dx = H^2'(t) 2 (x - c_*),
+    #   grad f = [sum_j v_j B_j + sum_j (l_j - f) grad v_j] / sum_j v_j.
+    for start, stop, nearest, dw2, weights in index.relative_blocks(X, h, gradient):
+        Xb = X[start:stop]
+        b = stop - start
+        cn = centres[nearest]
+        if len(weights) == 3:
+            v, dvs, dvh = weights
+            V = v.sum(axis=1)
+            for k in range(d):
+                L = offsets[None, :, k] + Xb @ slopes[:, k, :].T
+                fk = np.einsum("ij,ij->i", v, L) / V
+                f[start:stop, k] = fk
+                if gradient:
+                    L -= fk[:, None]
+                    Es = dvs * L
+                    eh = np.einsum("ij,ij->i", dvh, L)
+                    g = v @ slopes[:, k, :] + 2.0 * (Es.sum(axis=1)[:, None] * cn - Es @ centres)
+                    g += (2.0 * eh * dw2)[:, None] * (Xb - cn)
+                    grad[start:stop, k] = g / V[:, None]
+            continue
+        rows, cols, v, dvs, dvh = weights
+        V = np.bincount(rows, v, minlength=b)
+        Vmat = sp.csr_matrix((v, (rows, cols)), shape=(b, C)) if gradient else None
+        for k in range(d):
+            L = offsets[cols, k] + np.einsum("ij,ij->i", slopes[cols, k], Xb[rows])
+            fk = np.bincount(rows, v * L, minlength=b) / V
+            f[start:stop, k] = fk
+            if gradient:
+                L -= fk[rows]
+                es = dvs * L
+                Es = sp.csr_matrix((es, (rows, cols)), shape=(b, C))
+                esum = np.bincount(rows, es, minlength=b)
+                eh = np.bincount(rows, dvh * L, minlength=b)
+                g = Vmat @ slopes[:, k, :] + 2.0 * (esum[:, None] * cn - Es @ centres)
+                g += (2.0 * eh * dw2)[:, None] * (Xb - cn)
+                grad[start:stop, k] = g / V[:, None]
+    return f, grad
+
+
+# --------------------------------------------------------------------------- fit pieces
+
+
+def fit_fields(
+    X: np.ndarray,
+    Y: np.ndarray,
+    h: float,
+    ridge: float,
+    max_centers: int,
+    rng: np.random.Generator,
+    smoothing: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Place the fields and fit their local models on all data.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+        Inputs (state units, shifted by a common origin).
+    Y : ndarray, shape (m, d)
+        Outputs.
+    h, ridge, max_centers, rng, smoothing
+        Width, slope penalty, cap on fields, random source, slope smoothing.
+
+    Returns
+    -------
+    centres : ndarray, shape (C, n)
+    intercepts : ndarray, shape (C, d)
+    slopes : ndarray, shape (C, d, n)
+    """
+    centres = FarthestPointCover(X, max_centers, rng).centres(SPACING * h)
+    stats = local_statistics(X, Y, CentreIndex(centres), h)[0]
+    intercepts, slopes = solve_local_models(stats, centres, Y.shape[1], h, ridge, smoothing)
+    return centres, intercepts, slopes
+
+
+def auto_grid(X: np.ndarray) -> np.ndarray:
+    """Candidate widths: a geometric grid times the RMS spread of the data.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+
+    Returns
+    -------
+    ndarray, shape (11,)
+        Widths (state units), increasing.
+    """
+    spread = float(np.sqrt(np.sum(np.var(X, axis=0))))
+    if spread <= 0.0:
+        spread = 1.0
+    return spread * GRID_FACTORS
+
+
+def cv_subsample(
+    groups: np.ndarray, max_points: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Indices of the CV data: trajectories thinned, then a random subset of them.
+
+    Thinning along a trajectory first keeps the spacing between trajectories, which is
+    what sets the width; whole trajectories are dropped only when that is not enough.
+
+    Parameters
+    ----------
+    groups : ndarray of int, shape (m,)
+        Trajectory id of every sample.
+    max_points : int
+        Target size of the CV data.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray of intp
+        Sorted sample indices.
+    """
+    m = len(groups)
+    if m <= max_points:
+        return np.arange(m)
+    order = np.argsort(groups, kind="stable")
+    ids, starts, counts = np.unique(groups[order], return_index=True, return_counts=True)
+    stride = max(1, min(math.ceil(m / max_points), int(counts.min()) // MIN_CV_SAMPLES_PER_GROUP))
+    kept_per = -(-counts // stride)
+    keep_groups = rng.permutation(len(ids))
+    total = np.cumsum(kept_per[keep_groups])
+    keep_groups = np.sort(keep_groups[: max(1, int(np.searchsorted(total, max_points)) + 1)])
+    idx = []
+    for g in keep_groups:
+        offset = int(rng.integers(stride))
+        idx.append(order[starts[g] + np.arange(offset % counts[g], counts[g], stride)])
+    return np.sort(np.concatenate(idx))
+
+
+def assign_folds(groups: np.ndarray, n_folds: int, rng: np.random.Generator) -> np.ndarray:
+    """Fold of every sample, whole groups per fold, folds balanced in size.
+
+    Parameters
+    ----------
+    groups : ndarray of int, shape (m,)
+    n_folds : int
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray of int, shape (m,)
+        Fold index in ``0 .. n_folds - 1``.
+    """
+    ids, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    order = rng.permutation(len(ids))
+    order = order[np.argsort(-counts[order], kind="stable")]
+    load = np.zeros(n_folds)
+    fold_of = np.empty(len(ids), dtype=int)
+    for g in order:
+        k = int(np.argmin(load))
+        fold_of[g] = k
+        load[k] += counts[g]
+    return fold_of[inverse]
+
+
+def cv_errors(
+    X: np.ndarray,
+    Y: np.ndarray,
+    folds: np.ndarray,
+    centres: np.ndarray,
+    h: float,
+    ridge: float,
+    smoothing: float = 0.0,
+) -> np.ndarray:
+    """Held-out error of each fold for one width.
+
+    The centres are placed on all CV inputs (no outputs are used to place them); each
+    fold's local models are solved from the statistics of the other folds, and fields with
+    less than ``MIN_FIELD_WEIGHT`` of training weight are left out of its prediction.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+    Y : ndarray, shape (m, d)
+        Outputs, each column scaled to unit variance.
+    folds : ndarray of int, shape (m,)
+        Non-decreasing (points sorted by fold).
+    centres : ndarray, shape (C, n)
+    h, ridge, smoothing
+        Width, slope penalty, slope smoothing.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Mean squared error per held-out fold (summed over outputs).
+    """
+    n_folds = int(folds.max()) + 1
+    fold_stats = local_statistics(X, Y, CentreIndex(centres), h, folds, n_folds)
+    errors = np.empty(n_folds)
+    for k in range(n_folds):
+        train = fold_stats[np.arange(n_folds) != k].sum(axis=0)
+        valid = train[:, 0] >= MIN_FIELD_WEIGHT
+        held = folds == k
+        if not np.any(valid):
+            errors[k] = np.mean(np.sum(Y[held] ** 2, axis=1))
+            continue
+        b0, B = solve_local_models(
+            train[valid], centres[valid], Y.shape[1], h, ridge, smoothing
+        )
+        pred, _ = blend(X[held], CentreIndex(centres[valid]), b0, B, h)
+        errors[k] = np.mean(np.sum((pred - Y[held]) ** 2, axis=1))
+    return errors
+
+
+def _clearly_worse(errors: list[np.ndarray]) -> bool:
+    """True when the last two fold-error vectors exceed the best mean by its SE."""
+    means = [e.mean() for e in errors]
+    best = int(np.argmin(means))
+    e = errors[best]
+    se = e.std(ddof=1) / math.sqrt(len(e)) if len(e) > 1 else 0.0
+    return best < len(errors) - 2 and min(means[-2:]) > means[best] + se
+
+
+def select_bandwidth(grid: np.ndarray, fold_errors: np.ndarray) -> int:
+    """One-standard-error rule: the widest width within one SE of the best mean error.
+
+    Parameters
+    ----------
+    grid : ndarray, shape (G,)
+        Candidate widths, increasing.
+    fold_errors : ndarray, shape (G, K)
+        Held-out error of every fold.
+
+    Returns
+    -------
+    int
+        Index into ``grid``.
+    """
+    mean = fold_errors.mean(axis=1)
+    K = fold_errors.shape[1]
+    se = fold_errors.std(axis=1, ddof=1) / math.sqrt(K) if K > 1 else np.zeros_like(mean)
+    best = int(np.nanargmin(mean))
+    ok = np.flatnonzero(mean <= mean[best] + se[best])
+    return int(ok.max())
+
+
+# --------------------------------------------------------------------------- estimator
+
+
+class LocalLinearRegression:
+    """Receptive fields with local linear models (LWPR prediction), batch fit, exact gradient.
+
+    Parameters
+    ----------
+    bandwidth : "cv" or float
+        Width ``h`` of the Gaussian receptive fields (state units), or ``"cv"`` to choose it
+        by cross-validation over whole held-out trajectories.
+    bandwidth_grid : sequence of float, optional
+        Candidate widths for CV; ``None`` is ``RMS spread * geomspace(0.02, 1, 11)``.
+    n_folds : int
+        CV folds (of whole groups; contiguous blocks without groups).
+    ridge : float
+        Dimensionless penalty on the local slopes, relative to ``h^2`` times the field's
+        weight; it sets slopes to zero in directions without local data.
+    max_centers : int
+        Cap on the number of receptive fields.
+    random_state : int, numpy.random.Generator or None
+        Seeds the subsamples and the first centre of the cover.
+
+    Attributes
+    ----------
+    bandwidth_ : float
+        Width used (state units).
+    cv_scores_ : dict of float to float, or None
+        Mean held-out MSE (outputs scaled to unit variance) per candidate width.
+    centers_ : ndarray, shape (C, n)
+    intercepts_ : ndarray, shape (C, d)
+    slopes_ : ndarray, shape (C, d, n)
+    n_features_in_ : int
+    """
+
+    def __init__(
+        self,
+        *,
+        bandwidth: str | float = "cv",
+        bandwidth_grid: Sequence[float] | None = None,
+        n_folds: int = 5,
+        ridge: float = 1e-2,
+        max_centers: int = 3000,
+        smoothing: float = 0.0,
+        random_state: int | np.random.Generator | None = None,
+    ) -> None:
+        self.bandwidth = bandwidth
+        self.bandwidth_grid = bandwidth_grid
+        self.n_folds = n_folds
+        self.ridge = ridge
+        self.max_centers = max_centers
+        self.smoothing = smoothing
+        self.random_state = random_state
+
+    # -- scikit-learn style parameters
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """Constructor parameters, as given."""
+        return {
+            "bandwidth": self.bandwidth,
+            "bandwidth_grid": self.bandwidth_grid,
+            "n_folds": self.n_folds,
+            "ridge": self.ridge,
+            "max_centers": self.max_centers,
+            "smoothing": self.smoothing,
+            "random_state": self.random_state,
+        }
+
+    def set_params(self, **params: Any) -> LocalLinearRegression:
+        """Set constructor parameters; returns self."""
+        valid = self.get_params()
+        for key, value in params.items():
+            if key not in valid:
+                raise ValueError(f"unknown parameter {key!r} for LocalLinearRegression")
+            setattr(self, key, value)
+        return self
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        return f"LocalLinearRegression({args})"
+
+    # -- fit
+
+    def _check_params(self) -> None:
+        bw = self.bandwidth
+        if isinstance(bw, str):
+            if bw != "cv":
+                raise ValueError(f"bandwidth must be 'cv' or a positive float, got {bw!r}")
+        elif not (isinstance(bw, (int, float, np.floating)) and math.isfinite(bw) and bw > 0):
+            raise ValueError(f"bandwidth must be 'cv' or a positive float, got {bw!r}")
+        if self.bandwidth_grid is not None:
+            grid = np.asarray(self.bandwidth_grid, dtype=float)
+            if grid.ndim != 1 or grid.size == 0 or not np.all(np.isfinite(grid) & (grid > 0)):
+                raise ValueError(
+                    "bandwidth_grid must be a non-empty 1-D sequence of positive floats, "
+                    f"got {self.bandwidth_grid!r}"
+                )
+        if isinstance(self.n_folds, bool) or not isinstance(self.n_folds, (int, np.integer)):
+            raise ValueError(f"n_folds must be an integer >= 2, got {self.n_folds!r}")
+        if self.n_folds < 2:
+            raise ValueError(f"n_folds must be an integer >= 2, got {self.n_folds!r}")
+        if not (isinstance(self.ridge, (int, float, np.floating)) and self.ridge >= 0):
+            raise ValueError(f"ridge must be a float >= 0, got {self.ridge!r}")
+        sm = self.smoothing
+        if not (isinstance(sm, (int, float, np.floating)) and math.isfinite(sm) and sm >= 0):
+            raise ValueError(f"smoothing must be a float >= 0, got {sm!r}")
+        mc = self.max_centers
+        if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or mc < 1:
+            raise ValueError(f"max_centers must be an integer >= 1, got {mc!r}")
+
+    def fit(
+        self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None
+    ) -> LocalLinearRegression:
+        """Fit the receptive fields and local models.
+
+        Parameters
+        ----------
+        X : array_like, shape (m, n)
+            Inputs (state units).
+        y : array_like, shape (m,) or (m, d)
+            Outputs.
+        groups : array_like of int, shape (m,), optional
+            Trajectory id of every sample; CV holds out whole groups. ``None`` uses
+            contiguous blocks of samples.
+
+        Returns
+        -------
+        self
+        """
+        self._check_params()
+        X = np.asarray(X, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if X.ndim != 2 or X.shape[0] < 2 or X.shape[1] < 1:
+            raise ValueError(f"X must have shape (m, n) with m >= 2, got {X.shape}")
+        if y.ndim not in (1, 2) or y.shape[0] != X.shape[0]:
+            raise ValueError(
+                f"y must have shape ({X.shape[0]},) or ({X.shape[0]}, d), got {y.shape}"
+            )
+        if y.ndim == 2 and y.shape[1] < 1:
+            raise ValueError("y has zero columns")
+        if not np.all(np.isfinite(X)):
+            bad = int(np.argwhere(~np.isfinite(X))[0, 0])
+            raise ValueError(f"X contains NaN or inf (first at row {bad})")
+        if not np.all(np.isfinite(y)):
+            bad = int(np.argwhere(~np.isfinite(y.reshape(len(y), -1)))[0, 0])
+            raise ValueError(f"y contains NaN or inf (first at row {bad})")
+        m = X.shape[0]
+        if groups is None:
+            g = None
+        else:
+            g = np.asarray(groups)
+            if g.shape != (m,):
+                raise ValueError(f"groups must have shape ({m},), got {g.shape}")
+            if not np.issubdtype(g.dtype, np.integer):
+                raise ValueError(f"groups must be integer trajectory ids, got dtype {g.dtype}")
+        rng = np.random.default_rng(self.random_state)
+        Y = y.reshape(m, -1)
+        origin = X.mean(axis=0)
+        Xs = X - origin
+
+        if self.bandwidth == "cv":
+            grid = (
+                auto_grid(Xs)
+                if self.bandwidth_grid is None
+                else np.sort(np.asarray(self.bandwidth_grid, dtype=float))
+            )
+            h, scores = self._cross_validate(Xs, Y, g, grid, rng)
+        else:
+            h, scores = float(self.bandwidth), None
+        centres, intercepts, slopes = fit_fields(
+            Xs, Y, h, float(self.ridge), int(self.max_centers), rng, float(self.smoothing)
+        )
+        self.bandwidth_ = h
+        self.cv_scores_ = scores
+        self.origin_ = origin
+        self.centers_ = centres + origin
+        self.intercepts_ = intercepts
+        self.slopes_ = slopes
+        self.n_features_in_ = X.shape[1]
+        self.n_outputs_ = Y.shape[1]
+        self.y_ndim_ = y.ndim
+        self._index()
+        return self
+
+    def _index(self) -> None:
+        # Shifted centres and their tree, rebuilt identically by fit and from_state.
+        self._index_ = CentreIndex(self.centers_ - self.origin_)
+
+    def _cross_validate(self, X, Y, groups, grid, rng):
+        m = X.shape[0]
+        if groups is None or len(np.unique(groups)) < 2:
+            # Contiguous blocks stand in for trajectories: neighbours in time stay together.
+            blocks = min(max(self.n_folds, 10 * self.n_folds), m)
+            groups = (np.arange(m) * blocks) // m
+        idx = cv_subsample(groups, MAX_CV_POINTS, rng)
+        Xc, Yc, gc = X[idx], Y[idx], groups[idx]
+        n_folds = min(self.n_folds, len(np.unique(gc)))
+        folds = assign_folds(gc, n_folds, rng)
+        by_fold = np.argsort(folds, kind="stable")
+        Xc, Yc, folds = Xc[by_fold], Yc[by_fold], folds[by_fold]
+        scale = Yc.std(axis=0)
+        Yc = (Yc - Yc.mean(axis=0)) / np.where(scale > 0, scale, 1.0)
+        # One farthest-point order serves every width: its prefixes are the covers.
+        cover = FarthestPointCover(Xc, int(self.max_centers), rng)
+        # From wide to narrow: narrow widths cost most (many fields), and once two in a row
+        # are clearly worse than the best so far, narrower ones are not worth evaluating.
+        errors = []
+        for h in grid[::-1]:
+            centres = cover.centres(SPACING * h)
+            if cover.capped and cover.radius > 2.0 * SPACING * h and len(errors) >= 3:
+                # The cap leaves holes between fields this narrow: stop here.
+                break
+            errors.append(
+                cv_errors(Xc, Yc, folds, centres, float(h), float(self.ridge), self.smoothing)
+            )
+            if len(errors) >= 3 and _clearly_worse(errors):
+                break
+        grid = grid[::-1][: len(errors)][::-1]
+        errors = np.array(errors[::-1])
+        best = select_bandwidth(grid, errors)
+        scores = {float(h): float(e) for h, e in zip(grid, errors.mean(axis=1), strict=True)}
+        return float(grid[best]), scores
+
+    # -- prediction
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "centers_"):
+            raise NotFittedError(
+                "this LocalLinearRegression is not fitted yet: call fit() or from_state()"
+            )
+
+    def _check_X(self, X: np.ndarray) -> np.ndarray:
+        self._check_fitted()
+        X = np.asarray(X, dtype=float)
+        if X.ndim != 2 or X.shape[1] != self.n_features_in_:
+            raise ValueError(
+                f"X must have shape (m, {self.n_features_in_}), got {X.shape}"
+            )
+        if not np.all(np.isfinite(X)):
+            bad = int(np.argwhere(~np.isfinite(X))[0, 0])
+            raise ValueError(f"X contains NaN or inf (first at row {bad})")
+        return X - self.origin_
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """Prediction ``f(x)``.
+
+        Parameters
+        ----------
+        X : array_like, shape (m, n)
+
+        Returns
+        -------
+        ndarray, shape (m,) or (m, d)
+            As the ``y`` given to ``fit``.
+        """
+        Xs = self._check_X(X)
+        f, _ = blend(Xs, self._index_, self.intercepts_, self.slopes_, self.bandwidth_)
+        return f[:, 0] if self.y_ndim_ == 1 else f
+
+    def gradient(self, X: np.ndarray) -> np.ndarray:
+        """Exact gradient ``d f / d x``.
+
+        Parameters
+        ----------
+        X : array_like, shape (m, n)
+
+        Returns
+        -------
+        ndarray, shape (m, n) for 1-D ``y``, (m, d, n) otherwise
+            Output units per state unit.
+        """
+        Xs = self._check_X(X)
+        _, g = blend(
+            Xs, self._index_, self.intercepts_, self.slopes_, self.bandwidth_, gradient=True
+        )
+        return g[:, 0, :] if self.y_ndim_ == 1 else g
+
+    # -- state
+
+    def get_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Numeric arrays and a JSON-serialisable header that rebuild this model exactly.
+
+        Returns
+        -------
+        arrays : dict of str to ndarray
+            ``centers`` (C, n), ``intercepts`` (C, d), ``slopes`` (C, d, n), ``origin`` (n,).
+        meta : dict
+            Format version, hyperparameters, width and CV scores.
+        """
+        self._check_fitted()
+        params = self.get_params()
+        if isinstance(params["random_state"], np.random.Generator):
+            params["random_state"] = None
+        if params["bandwidth_grid"] is not None:
+            params["bandwidth_grid"] = [float(v) for v in params["bandwidth_grid"]]
+        meta = {
+            "version": _STATE_VERSION,
+            "params": params,
+            "bandwidth": float(self.bandwidth_),
+            "cv_scores": None
+            if self.cv_scores_ is None
+            else [[h, e] for h, e in self.cv_scores_.items()],
+            "n_features_in": int(self.n_features_in_),
+            "n_outputs": int(self.n_outputs_),
+            "y_ndim": int(self.y_ndim_),
+        }
+        arrays = {
+            "centers": self.centers_.copy(),
+            "intercepts": self.intercepts_.copy(),
+            "slopes": self.slopes_.copy(),
+            "origin": self.origin_.copy(),
+        }
+        return arrays, meta
+
+    @classmethod
+    def from_state(
+        cls, arrays: dict[str, np.ndarray], meta: dict[str, Any]
+    ) -> LocalLinearRegression:
+        """Rebuild a fitted model from :meth:`get_state` output.
+
+        Raises
+        ------
+        ValueError
+            On a missing or inconsistent array or header field, or a newer format version.
+        """
+        try:
+            version = int(meta["version"])
+            n = int(meta["n_features_in"])
+            d = int(meta["n_outputs"])
+            y_ndim = int(meta["y_ndim"])
+            h = float(meta["bandwidth"])
+            params = dict(meta["params"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"regressor state: bad or missing header field ({err})") from None
+        if version > _STATE_VERSION:
+            raise ValueError(
+                f"regressor state: format version {version} is newer than supported "
+                f"({_STATE_VERSION})"
+            )
+        missing = [k for k in ("centers", "intercepts", "slopes", "origin") if k not in arrays]
+        if missing:
+            raise ValueError(f"regressor state: missing arrays {missing}")
+        centres = np.asarray(arrays["centers"], dtype=float)
+        intercepts = np.asarray(arrays["intercepts"], dtype=float)
+        slopes = np.asarray(arrays["slopes"], dtype=float)
+        origin = np.asarray(arrays["origin"], dtype=float)
+        C = centres.shape[0] if centres.ndim == 2 else -1
+        expected = {
+            "centers": (centres.shape, (C, n)),
+            "intercepts": (intercepts.shape, (C, d)),
+            "slopes": (slopes.shape, (C, d, n)),
+            "origin": (origin.shape, (n,)),
+        }
+        for name, (got, want) in expected.items():
+            if C < 1 or got != want:
+                raise ValueError(f"regressor state: {name} has shape {got}, expected {want}")
+        if y_ndim not in (1, 2) or (y_ndim == 1 and d != 1) or not (h > 0):
+            raise ValueError("regressor state: inconsistent y_ndim, n_outputs or bandwidth")
+        model = cls(**params)
+        model.bandwidth_ = h
+        scores = meta.get("cv_scores")
+        model.cv_scores_ = None if scores is None else {float(a): float(b) for a, b in scores}
+        model.origin_ = origin
+        model.centers_ = centres
+        model.intercepts_ = intercepts
+        model.slopes_ = slopes
+        model.n_features_in_ = n
+        model.n_outputs_ = d
+        model.y_ndim_ = y_ndim
+        model._index()
+        return model

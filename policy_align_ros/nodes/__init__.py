@@ -1,0 +1,1 @@
+"""nodes subpackage of policy_align_ros."""

@@ -1,0 +1,221 @@
+"""Helpers shared by the policy_align_ros nodes: parameters, message conversion, main().
+
+Units: joint positions in rad (m for prismatic joints), velocities in rad/s, times in s.
+Only this subpackage (and ``cli.py``) may import rclpy and ROS message types.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import rclpy
+import yaml
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterUninitializedException,
+)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+
+__all__ = [
+    "DEFAULT_JOINTS",
+    "LATCHED_QOS",
+    "accept",
+    "descriptor",
+    "joint_positions",
+    "optional_parameter",
+    "parse_constraint_specs",
+    "reject",
+    "run_node",
+]
+
+#: Talos upper body (talos_reduced.urdf): torso, both 7-DoF arms, grippers, head.
+DEFAULT_JOINTS: list[str] = (
+    ["torso_1_joint", "torso_2_joint"]
+    + [f"arm_left_{i}_joint" for i in range(1, 8)]
+    + ["gripper_left_joint"]
+    + [f"arm_right_{i}_joint" for i in range(1, 8)]
+    + ["gripper_right_joint", "head_1_joint", "head_2_joint"]
+)
+
+#: Reliable, transient-local, depth 1: a late subscriber still gets the last message.
+LATCHED_QOS = QoSProfile(
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+
+def descriptor(
+    description: str,
+    *,
+    read_only: bool = False,
+    float_range: tuple[float, float] | None = None,
+    int_range: tuple[int, int] | None = None,
+    constraints: str = "",
+) -> ParameterDescriptor:
+    """A ParameterDescriptor with a description and an optional range (enforced by rclpy)."""
+    desc = ParameterDescriptor(
+        description=description, read_only=read_only, additional_constraints=constraints
+    )
+    if float_range is not None:
+        desc.floating_point_range = [
+            FloatingPointRange(from_value=float(float_range[0]), to_value=float(float_range[1]))
+        ]
+    if int_range is not None:
+        desc.integer_range = [
+            IntegerRange(from_value=int(int_range[0]), to_value=int(int_range[1]), step=1)
+        ]
+    return desc
+
+
+def accept() -> SetParametersResult:
+    """A successful parameter-set result."""
+    return SetParametersResult(successful=True)
+
+
+def reject(reason: str) -> SetParametersResult:
+    """A refused parameter-set result carrying ``reason``."""
+    return SetParametersResult(successful=False, reason=reason)
+
+
+def optional_parameter(node: Node, name: str) -> Any:
+    """Value of a parameter declared without a default, or None when it was never set."""
+    try:
+        return node.get_parameter(name).value
+    except ParameterUninitializedException:
+        return None
+
+
+def parse_constraint_specs(text: str) -> list[dict]:
+    """Parse the ``constraints`` parameter: a YAML/JSON list of constraint specs.
+
+    Parameters
+    ----------
+    text : str
+        For example ``"[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"``; an
+        empty string or ``[]`` means no constraint.
+
+    Returns
+    -------
+    list of dict
+
+    Raises
+    ------
+    ValueError
+        If the text is not YAML or not a list of mappings.
+    """
+    if not text.strip():
+        return []
+    try:
+        specs = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ValueError(f"constraints: not valid YAML: {err}") from None
+    if specs is None:
+        return []
+    if isinstance(specs, dict):
+        specs = [specs]
+    if not isinstance(specs, list) or not all(isinstance(s, dict) for s in specs):
+        raise ValueError("constraints: must be a list of mappings like {type: plane, ...}")
+    return specs
+
+
+def joint_positions(msg: JointState, index: dict[str, int]) -> np.ndarray | None:
+    """Positions of the joints in ``index`` (name -> slot) from a JointState message.
+
+    Returns
+    -------
+    ndarray, shape (len(index),), or None
+        None when the message lacks one of the joints, has arrays of disagreeing lengths
+        or holds NaN/inf for a needed joint.
+    """
+    if len(msg.name) != len(msg.position):
+        return None
+    q = np.full(len(index), np.nan)
+    for name, value in zip(msg.name, msg.position, strict=True):
+        slot = index.get(name)
+        if slot is not None:
+            q[slot] = value
+    if not np.all(np.isfinite(q)):
+        return None
+    return q
+
+
+def _raise_keyboard_interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def run_node(
+    make_node: Callable[[], Node],
+    args: Sequence[str] | None = None,
+    *,
+    executor_factory: Callable[[], Any] = SingleThreadedExecutor,
+    keep_context_on_signal: bool = False,
+) -> int:
+    """``main()`` body of every node executable (ros2/demos Jazzy style).
+
+    Parameters
+    ----------
+    make_node : callable
+        Builds the node (after ``rclpy.init``).
+    args : sequence of str, optional
+        Command line (``--ros-args ...``); ``sys.argv`` when None.
+    executor_factory : callable
+        Executor class, e.g. MultiThreadedExecutor for a node with a worker callback group.
+    keep_context_on_signal : bool
+        When True, SIGINT/SIGTERM raise KeyboardInterrupt instead of shutting the context
+        down, so ``destroy_node`` can still publish (the executor's final zero command).
+
+    Returns
+    -------
+    int
+        0 on a normal or interrupted run, 1 when the node could not start (bad parameter),
+        else the result of the node's ``done`` future when it has one.
+    """
+    options = SignalHandlerOptions.NO if keep_context_on_signal else None
+    if keep_context_on_signal:
+        signal.signal(signal.SIGINT, _raise_keyboard_interrupt)
+        signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+    try:
+        rclpy.init(args=list(args) if args is not None else None,
+                   signal_handler_options=options)
+    except RuntimeError as err:  # rcl's RCLError, e.g. an unreadable --params-file
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    node = None
+    code = 0
+    try:
+        node = make_node()
+        executor = executor_factory()
+        executor.add_node(node)
+        # A node that can finish (the demonstrator) exposes a ``done`` future: its exit code.
+        done = getattr(node, "done", None)
+        if done is None:
+            executor.spin()
+        else:
+            executor.spin_until_future_complete(done)
+            code = int(done.result()) if done.done() else 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (InvalidParameterValueException, InvalidParameterTypeException, ValueError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

@@ -1,0 +1,247 @@
+"""``demonstrator``: the teacher that produces constrained demonstrations.
+
+The expert policy is ``pi(q) = -gain (q - attractor)`` (rad/s), the negative gradient of
+the quadratic potential ``phi = gain/2 ||q - attractor||^2`` in joint space (the paper's
+eq. 20 with ``W = gain/2 I``). For each of ``num_demos`` demonstrations it:
+
+1. drives the robot to a random start ``q0 ~ N(attractor, start_variance I)`` (clipped
+   to the joint limits) with a proportional controller;
+2. draws a random constraint: every frame of ``constraint_frames`` (by default both hands)
+   restricted to a plane of uniformly random orientation through its current position;
+3. calls the recorder's ``start_demo`` (std_srvs/Trigger), runs ``N(q) pi(q)`` for
+   ``demo_duration_s`` seconds, stops the robot and calls ``stop_demo``.
+
+Commands go to ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s,
+order = ``joints``); the state comes from ``/joint_states``. Progress (``k/K``) is published
+on ``~/progress`` (std_msgs/String, transient local). With ``exit_when_done`` the process
+exits after the last demonstration (status 0, or 1 when the recorder refused a call).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.task import Future
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import Trigger
+
+from policy_align_ros.experiments.demonstrators import QuadraticPotential, sample_start_states
+from policy_align_ros.kinematics import Robot, constraint_from_spec
+from policy_align_ros.kinematics.control import constrained_command
+from policy_align_ros.nodes._common import (
+    DEFAULT_JOINTS,
+    LATCHED_QOS,
+    accept,
+    descriptor,
+    joint_positions,
+    optional_parameter,
+    reject,
+    run_node,
+)
+
+__all__ = ["Demonstrator", "main", "random_plane_specs"]
+
+DEFAULT_FRAMES = ["arm_left_7_link", "arm_right_7_link"]
+
+
+def random_plane_specs(frames: Sequence[str], rng: np.random.Generator) -> list[dict]:
+    """One plane constraint spec per frame, normals uniform on the unit sphere."""
+    specs = []
+    for frame in frames:
+        normal = rng.standard_normal(3)
+        normal /= np.linalg.norm(normal)
+        specs.append({"type": "plane", "frame": frame, "normal": normal.tolist()})
+    return specs
+
+
+class Demonstrator(Node):
+    """The ``demonstrator`` node (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("demonstrator", **kwargs)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        p = self.declare_parameter
+        p("robot", "talos", descriptor("example-robot-data name or URDF path", read_only=True))
+        p("joints", DEFAULT_JOINTS, descriptor("commanded joints, in order", read_only=True))
+        p("attractor", Parameter.Type.DOUBLE_ARRAY, descriptor(
+            "minimum of the expert potential [rad]; unset = reference posture",
+            read_only=True))
+        p("gain", 1.0, descriptor("expert gain: pi = -gain (q - attractor) [1/s]",
+                                  read_only=True, float_range=(0.01, 20.0)))
+        p("start_variance", 0.1, descriptor(
+            "variance of the random start around the attractor [rad^2] (paper: 0.1)",
+            read_only=True, float_range=(0.0, 4.0)))
+        p("num_demos", 20, descriptor("number of demonstrations", read_only=True,
+                                      int_range=(1, 100000)))
+        p("demo_duration_s", 3.0, descriptor("length of one demonstration [s]",
+                                             read_only=True, float_range=(0.1, 600.0)))
+        p("constraint_frames", DEFAULT_FRAMES, descriptor(
+            "frames each restricted to a plane of random orientation per demonstration "
+            "(empty string list entry '' = unconstrained)", read_only=True))
+        p("rate_hz", 100.0, descriptor("command rate [Hz]", read_only=True,
+                                       float_range=(1.0, 1000.0)))
+        p("max_velocity", 2.0, descriptor("joint speed limit [rad/s]", read_only=True,
+                                          float_range=(0.01, 10.0)))
+        p("reach_gain", 5.0, descriptor("gain of the move to each start [1/s]",
+                                        read_only=True, float_range=(0.1, 50.0)))
+        p("reach_tolerance", 0.01, descriptor("start reached when max |q - q0| is below [rad]",
+                                              read_only=True, float_range=(1e-4, 1.0)))
+        p("reach_timeout_s", 5.0, descriptor("give up reaching a start after this [s]",
+                                             read_only=True, float_range=(0.1, 600.0)))
+        p("recorder", "/recorder", descriptor("recorder node whose start_demo/stop_demo "
+                                              "services bracket each demonstration",
+                                              read_only=True))
+        p("service_timeout_s", 30.0, descriptor("wait this long for the recorder [s]",
+                                                read_only=True, float_range=(0.1, 3600.0)))
+        p("seed", 0, descriptor("random seed", read_only=True, int_range=(0, 2**31 - 1)))
+        p("exit_when_done", True, descriptor("exit after the last demonstration",
+                                             read_only=True))
+
+        value = self.get_parameter
+        joints = list(value("joints").value)
+        self.robot = Robot.load(value("robot").value, joints)
+        attractor = optional_parameter(self, "attractor")
+        self.attractor = self.robot.neutral() if attractor is None else np.asarray(attractor)
+        if self.attractor.shape != (len(joints),):
+            raise ValueError(f"attractor: need {len(joints)} values, got "
+                             f"{self.attractor.size}")
+        self.expert = QuadraticPotential(self.attractor, weight=value("gain").value / 2.0)
+        self.frames = [f for f in value("constraint_frames").value if f]
+        for frame in self.frames:
+            self.robot.frame_id(frame)  # fail at start on a wrong frame name
+        self.rng = np.random.default_rng(value("seed").value)
+        self.num_demos = int(value("num_demos").value)
+        self.period = 1.0 / value("rate_hz").value
+        self.vmax = np.full(len(joints), float(value("max_velocity").value))
+        self.done = Future()
+        self.demos_done = 0
+        self._index = {name: i for i, name in enumerate(joints)}
+        self._q: np.ndarray | None = None
+        self._state = "wait"
+        self._since = time.monotonic()
+        self._pending: Future | None = None
+        self._constraints: list = []
+        self._q0 = self.attractor
+
+        recorder = value("recorder").value.rstrip("/")
+        self._start = self.create_client(Trigger, f"{recorder}/start_demo")
+        self._stop = self.create_client(Trigger, f"{recorder}/stop_demo")
+        self._cmd = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
+        self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
+        self.create_timer(self.period, self._on_timer)
+
+    def _on_set_parameters(self, params: Sequence[Parameter]):
+        for param in params:
+            if param.name == "joints" and (not param.value
+                                           or len(set(param.value)) != len(param.value)):
+                return reject("joints: must be a non-empty list without repeats")
+            if param.name == "attractor" and param.value is not None and not np.all(
+                    np.isfinite(param.value)):
+                return reject("attractor: contains NaN or inf")
+        return accept()
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        q = joint_positions(msg, self._index)
+        if q is not None:
+            self._q = q
+
+    # -- state machine, one step per timer tick ---------------------------------------
+    def _enter(self, state: str) -> None:
+        self._state = state
+        self._since = time.monotonic()
+
+    def _send(self, qdot: np.ndarray) -> None:
+        self._cmd.publish(Float64MultiArray(data=qdot.tolist()))
+
+    def _finish(self, code: int, why: str) -> None:
+        self._send(np.zeros(len(self._index)))
+        (self.get_logger().info if code == 0 else self.get_logger().error)(why)
+        self._enter("done")
+        if self.get_parameter("exit_when_done").value and not self.done.done():
+            self.done.set_result(code)
+
+    def _call(self, client, what: str) -> None:
+        self._pending = client.call_async(Trigger.Request())
+        self._enter(what)
+
+    def _answer(self) -> Trigger.Response | None:
+        """The pending service answer, None while waiting; finishes on refusal/timeout."""
+        if self._pending.done():
+            response = self._pending.result()
+            if response is None or not response.success:
+                why = "no answer" if response is None else response.message
+                self._finish(1, f"recorder refused {self._state}: {why}")
+                return None
+            return response
+        if time.monotonic() - self._since > self.get_parameter("service_timeout_s").value:
+            self._finish(1, f"recorder did not answer {self._state}")
+        return None
+
+    def _on_timer(self) -> None:
+        elapsed = time.monotonic() - self._since
+        lower, upper = self.robot.lower, self.robot.upper
+        if self._state == "done":
+            return
+        if self._state == "wait":
+            if self._q is not None and self._start.service_is_ready() and \
+                    self._stop.service_is_ready():
+                self._new_start()
+            elif elapsed > self.get_parameter("service_timeout_s").value:
+                self._finish(1, "no joint states or no recorder services: gave up")
+            return
+        q = self._q
+        if self._state == "reach":
+            error = q - self._q0
+            if np.max(np.abs(error)) < self.get_parameter("reach_tolerance").value or \
+                    elapsed > self.get_parameter("reach_timeout_s").value:
+                self._send(np.zeros_like(q))
+                self._constraints = [constraint_from_spec(s, self.robot)
+                                     for s in random_plane_specs(self.frames, self.rng)]
+                self._call(self._start, "start_demo")
+                return
+            pi = -self.get_parameter("reach_gain").value * error
+            self._send(constrained_command(q, pi, np.zeros((0, q.size)), lower, upper,
+                                           self.vmax, self.period))
+        elif self._state == "start_demo":
+            if self._answer() is not None:
+                self._enter("demo")
+        elif self._state == "demo":
+            if elapsed >= self.get_parameter("demo_duration_s").value:
+                self._send(np.zeros_like(q))
+                self._call(self._stop, "stop_demo")
+                return
+            pi = self.expert.policy(q[None, :])[0]
+            A = (np.vstack([c.matrix(q, pi) for c in self._constraints])
+                 if self._constraints else np.zeros((0, q.size)))
+            self._send(constrained_command(q, pi, A, lower, upper, self.vmax, self.period))
+        elif self._state == "stop_demo":
+            if self._answer() is not None:
+                self.demos_done += 1
+                self._progress.publish(String(data=f"{self.demos_done}/{self.num_demos}"))
+                self.get_logger().info(
+                    f"demonstration {self.demos_done}/{self.num_demos} recorded")
+                if self.demos_done >= self.num_demos:
+                    self._finish(0, f"all {self.num_demos} demonstrations recorded")
+                else:
+                    self._new_start()
+
+    def _new_start(self) -> None:
+        self._q0 = sample_start_states(
+            self.rng, self.attractor, 1, self.get_parameter("start_variance").value,
+            self.robot.lower, self.robot.upper)[0]
+        self._enter("reach")
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Console script ``demonstrator``."""
+    return run_node(Demonstrator, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,232 @@
+"""``recorder`` node: record ``/joint_states`` into one rosbag2 bag per demonstration.
+
+Thin adapter around :class:`policy_align_ros.data.recording.DemoRecorder`: converts
+``sensor_msgs/msg/JointState`` (header stamp in ns, falling back to the node clock when
+zero; positions in rad or m, velocities in rad/s or m/s) to plain values, declares and
+validates the parameters, and offers the services.
+
+Interface (DESIGN.md section 6):
+
+* subscribes ``/joint_states`` (reliable, keep-last ``qos_depth``, 10 s at 1 kHz by default,
+  so a burst is queued rather than lost while a bag is being written);
+* services ``~/start_demo`` and ``~/stop_demo`` (``std_srvs/srv/Trigger``); ``stop_demo``
+  answers once the bag is complete on disk, with its path as the message;
+* parameters ``dataset_dir`` (str), ``joints`` (str[], unset = those of the first
+  message), ``auto_split_gap_s`` (s, 0 = manual mode; otherwise recording starts at once
+  and splits at gaps), ``qos_depth`` (read-only), ``warn_period_s``. Changes at run time
+  are validated (``SetParametersResult(successful=False, reason=...)`` on bad values) and
+  apply to the next bag; ``joints`` cannot change while a demonstration is buffered, and
+  changing ``auto_split_gap_s`` changes the splitting, not whether recording is on.
+
+On a clean shutdown a continuous recording's last demonstration is written and an
+unfinished manual one is discarded; on SIGKILL the demonstration in progress is lost and
+every earlier bag is intact (bags are renamed into place only when complete).
+
+Skipped (malformed) messages are reported in a warning at most every ``warn_period_s``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import rclpy
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from policy_align_ros.data.messages import validate_joint_names
+from policy_align_ros.data.recording import (
+    DemoRecorder,
+    validate_dataset_dir,
+    validate_gap,
+)
+
+__all__ = ["RecorderNode", "main"]
+
+_MAX_GAP_S = 3600.0
+
+
+class RecorderNode(Node):
+    """Record joint-state demonstrations; see the module docstring for the interface."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("recorder", **kwargs)
+        self.declare_parameter("dataset_dir", "demos", ParameterDescriptor(
+            description="directory receiving one rosbag2 bag (demo_NNNN) per demonstration"))
+        joints = self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+            description="recorded joints, in order; unset or empty: those of the first "
+            "message"))
+        self.declare_parameter("auto_split_gap_s", 0.0, ParameterDescriptor(
+            description="0: manual mode (~/start_demo, ~/stop_demo); > 0: record "
+            "continuously and split demonstrations at time gaps longer than this [s]",
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=_MAX_GAP_S)]))
+        self.declare_parameter("warn_period_s", 5.0, ParameterDescriptor(
+            description="minimum time between warnings about skipped messages [s]",
+            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)]))
+        depth = self.declare_parameter("qos_depth", 10000, ParameterDescriptor(
+            description="subscription queue depth (reliable, keep last)", read_only=True,
+            integer_range=[IntegerRange(from_value=1, to_value=1_000_000, step=1)]))
+        self._recorder = DemoRecorder(
+            self.get_parameter("dataset_dir").value,
+            joints=validate_joint_names(joints.value or None),
+            auto_split_gap_s=self.get_parameter("auto_split_gap_s").value,
+            topic=self.resolve_topic_name("/joint_states"),
+        )
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth.value,
+                         reliability=ReliabilityPolicy.RELIABLE)
+        self.subscription = self.create_subscription(
+            JointState, "/joint_states", self._on_joint_state, qos)
+        self.create_service(Trigger, "~/start_demo", self._on_start)
+        self.create_service(Trigger, "~/stop_demo", self._on_stop)
+        self.create_timer(0.1, self._on_timer)
+        self._reported_skips = 0
+        self._last_warning = float("-inf")
+        if self._recorder.auto_split_gap_s > 0:
+            self._recorder.start()
+        self.get_logger().info(
+            f"recording into {self._recorder.dataset_dir} "
+            + ("continuously, split at gaps of "
+               f"{self._recorder.auto_split_gap_s} s" if self._recorder.active
+               else "on ~/start_demo")
+        )
+
+    @property
+    def recorder(self) -> DemoRecorder:
+        """The ROS-free recorder (for inspection)."""
+        return self._recorder
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        try:
+            path = self._recorder.add(stamp or self.get_clock().now().nanoseconds, msg.name,
+                                      msg.position, msg.velocity, msg.effort)
+        except (OSError, ValueError) as err:
+            self.get_logger().error(f"could not write a demonstration: {err}")
+            return
+        if path is not None:
+            self.get_logger().info(f"demonstration written (time gap): {path}")
+
+    def _on_start(
+        self, request: Trigger.Request, response: Trigger.Response
+    ) -> Trigger.Response:
+        try:
+            self._recorder.start()
+        except RuntimeError as err:
+            response.success, response.message = False, str(err)
+            return response
+        response.success, response.message = True, "recording"
+        return response
+
+    def _on_stop(
+        self, request: Trigger.Request, response: Trigger.Response
+    ) -> Trigger.Response:
+        count = self._recorder.buffered
+        try:
+            path = self._recorder.stop()
+        except (OSError, ValueError) as err:
+            response.success, response.message = False, f"writing failed: {err}"
+            return response
+        if path is None:
+            response.success = False
+            response.message = f"nothing written: {count} valid message(s) recorded"
+        else:
+            response.success, response.message = True, str(path)
+            self.get_logger().info(f"demonstration written: {path} ({count} messages)")
+        return response
+
+    def _on_timer(self) -> None:
+        try:
+            path = self._recorder.flush_if_idle()
+        except (OSError, ValueError) as err:
+            self.get_logger().error(f"could not write a demonstration: {err}")
+            path = None
+        if path is not None:
+            self.get_logger().info(f"demonstration written (stream idle): {path}")
+        self._warn_skips()
+
+    def _warn_skips(self) -> None:
+        skipped = self._recorder.skipped
+        total = sum(skipped.values())
+        now = time.monotonic()
+        period = self.get_parameter("warn_period_s").value
+        if total == self._reported_skips or now - self._last_warning < period:
+            return
+        detail = ", ".join(f"{k}={v}" for k, v in skipped.items() if v)
+        self.get_logger().warning(
+            f"skipped {total - self._reported_skips} malformed joint_states message(s) "
+            f"since the last report ({total} in total: {detail})"
+        )
+        self._reported_skips, self._last_warning = total, now
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        try:
+            for param in params:
+                if param.name == "dataset_dir":
+                    validate_dataset_dir(param.value)
+                elif param.name == "joints":
+                    if param.type_ not in (Parameter.Type.STRING_ARRAY, Parameter.Type.NOT_SET):
+                        raise ValueError("joints: must be a list of strings")
+                    validate_joint_names(param.value or None)
+                    if self._recorder.buffered:
+                        raise ValueError("joints: cannot change while a demonstration is "
+                                         "recorded")
+                elif param.name == "auto_split_gap_s":
+                    validate_gap(param.value)
+            # Validated as a whole first, so that a rejected set changes nothing.
+            for param in params:
+                if param.name == "dataset_dir":
+                    self._recorder.set_dataset_dir(param.value)
+                elif param.name == "joints":
+                    self._recorder.set_joints(param.value or None)
+                elif param.name == "auto_split_gap_s":
+                    self._recorder.set_auto_split_gap(param.value)
+        except (TypeError, ValueError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def shutdown(self) -> None:
+        """Finish cleanly: keep a continuous recording's last segment, drop a manual one."""
+        if self._recorder.auto_split_gap_s > 0:
+            path = self._recorder.stop()
+            if path is not None:
+                self.get_logger().info(f"demonstration written at shutdown: {path}")
+        else:
+            dropped = self._recorder.discard()
+            if dropped:
+                self.get_logger().warning(
+                    f"discarded an unfinished demonstration of {dropped} messages "
+                    "(~/stop_demo was not called)")
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console script ``recorder``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = RecorderNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as err:  # invalid parameters at start-up
+        print(f"recorder: error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    finally:
+        if node is not None:
+            node.shutdown()
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

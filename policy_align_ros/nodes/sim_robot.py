@@ -1,0 +1,141 @@
+"""``sim_robot``: a kinematic simulation of a robot driven by joint velocity commands.
+
+Subscribes ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s, order =
+``joints``), publishes ``/joint_states`` (sensor_msgs/JointState: rad, rad/s, stamped) at
+``rate_hz``, and offers ``~/reset`` (std_srvs/Trigger) back to ``initial_positions``.
+Commands older than ``command_timeout_s`` are dropped and the robot holds still. The
+integration itself is :class:`policy_align_ros.kinematics.sim.KinematicSim`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+from policy_align_ros.kinematics import Robot
+from policy_align_ros.kinematics.sim import KinematicSim
+from policy_align_ros.nodes._common import (
+    DEFAULT_JOINTS,
+    accept,
+    descriptor,
+    optional_parameter,
+    reject,
+    run_node,
+)
+
+__all__ = ["SimRobot", "main"]
+
+
+class SimRobot(Node):
+    """The ``sim_robot`` node (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("sim_robot", **kwargs)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.declare_parameter("robot", "talos", descriptor(
+            "example-robot-data name or URDF path of the simulated robot", read_only=True))
+        self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
+            "simulated joints, in command order; the others are locked at the reference "
+            "posture", read_only=True))
+        self.declare_parameter("initial_positions", Parameter.Type.DOUBLE_ARRAY, descriptor(
+            "start and ~/reset positions [rad], one per joint; unset = reference posture"))
+        self.declare_parameter("rate_hz", 100.0, descriptor(
+            "integration and /joint_states publishing rate [Hz]", read_only=True,
+            float_range=(1.0, 1000.0)))
+        self.declare_parameter("command_timeout_s", 0.2, descriptor(
+            "commands older than this are ignored and the robot holds still [s]",
+            float_range=(0.001, 10.0)))
+
+        joints = list(self.get_parameter("joints").value)
+        self.robot = Robot.load(self.get_parameter("robot").value, joints)
+        self.sim = KinematicSim(
+            self.robot.lower, self.robot.upper, self._initial_positions(),
+            command_timeout_s=self.get_parameter("command_timeout_s").value,
+            velocity_limit=_positive_or_inf(self.robot.velocity_limit),
+        )
+        self._period = 1.0 / self.get_parameter("rate_hz").value
+        self._last_step = time.monotonic()
+        self._bad_commands = 0
+
+        self._pub = self.create_publisher(JointState, "/joint_states", 10)
+        self.create_subscription(
+            Float64MultiArray, "/velocity_controller/commands", self._on_command, 10)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_timer(self._period, self._on_timer)
+        self.get_logger().info(
+            f"simulating {self.robot.name} with {len(joints)} joints at "
+            f"{1.0 / self._period:g} Hz")
+
+    def _initial_positions(self) -> np.ndarray:
+        values = optional_parameter(self, "initial_positions")
+        if values is None:
+            return self.robot.neutral()
+        return np.asarray(values, dtype=float)
+
+    def _on_set_parameters(self, params: Sequence[Parameter]):
+        for param in params:
+            if param.name == "joints" and len(set(param.value)) != len(param.value):
+                return reject("joints: a joint is listed twice")
+            if param.name == "initial_positions" and param.value is not None:
+                values = np.asarray(param.value, dtype=float)
+                n = len(self.get_parameter("joints").value) if self.has_parameter(
+                    "joints") else values.size
+                if values.size != n or not np.all(np.isfinite(values)):
+                    return reject(
+                        f"initial_positions: need {n} finite values, got {values.size}")
+            if param.name == "command_timeout_s" and hasattr(self, "sim"):
+                self.sim.command_timeout_s = float(param.value)
+        return accept()
+
+    def _on_command(self, msg: Float64MultiArray) -> None:
+        try:
+            self.sim.set_command(np.asarray(msg.data, dtype=float), time.monotonic())
+        except ValueError as err:
+            self._bad_commands += 1
+            self.get_logger().warning(
+                f"ignored velocity command ({self._bad_commands} so far): {err}",
+                throttle_duration_sec=2.0)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response):
+        self._publish(self.sim.reset(self._initial_positions()))
+        source = ("initial_positions" if optional_parameter(self, "initial_positions")
+                  is not None else "the reference posture")
+        response.success = True
+        response.message = f"reset {self.sim.n_joints} joints to {source}"
+        return response
+
+    def _on_timer(self) -> None:
+        now = time.monotonic()
+        # A late timer tick must not turn into one big jump: cap the step at two periods.
+        dt = min(now - self._last_step, 2.0 * self._period)
+        self._last_step = now
+        self._publish(self.sim.step(dt, now))
+
+    def _publish(self, q: np.ndarray) -> None:
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = list(self.robot.joint_names)
+        msg.position = q.tolist()
+        msg.velocity = self.sim.qdot.tolist()
+        self._pub.publish(msg)
+
+
+def _positive_or_inf(limits: np.ndarray) -> np.ndarray:
+    # URDFs often give 0 for "no velocity limit".
+    return np.where(limits > 0.0, limits, np.inf)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Console script ``sim_robot``."""
+    return run_node(SimRobot, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,73 @@
+"""Tests of ``policy-align call`` (policy_align_ros.nodes.call; domain ids 190-199)."""
+
+import argparse
+import threading
+
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_srvs.srv import SetBool, Trigger
+
+from policy_align_ros.nodes.call import run_call
+
+
+@pytest.fixture
+def services(monkeypatch):
+    """A node offering /ok (Trigger, success), /no (Trigger, failure), /flag (SetBool)."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", "190")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=190)
+    node = Node("services", context=context)
+    seen = []
+
+    def trigger(ok):
+        def handle(request, response):
+            response.success, response.message = ok, "done" if ok else "nope"
+            return response
+        return handle
+
+    def flag(request, response):
+        seen.append(request.data)
+        response.success, response.message = True, f"flag={request.data}"
+        return response
+
+    node.create_service(Trigger, "/ok", trigger(True))
+    node.create_service(Trigger, "/no", trigger(False))
+    node.create_service(SetBool, "/flag", flag)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield seen
+    finally:
+        executor.shutdown()
+        thread.join(timeout=5.0)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def _call(service, data=None, timeout=10.0):
+    return run_call(argparse.Namespace(service=service, data=data, timeout=timeout))
+
+
+def test_trigger_success_and_failure(services, capsys):
+    assert _call("/ok") == 0
+    assert "success: done" in capsys.readouterr().out
+    assert _call("no") == 1
+    assert "failure: nope" in capsys.readouterr().out
+
+
+def test_setbool_with_data(services, capsys):
+    assert _call("/flag", data="false") == 0
+    assert services == [False]
+    assert "flag=False" in capsys.readouterr().out
+
+
+def test_type_mismatch_and_missing_service(services, capsys):
+    assert _call("/flag") == 2
+    assert "give --data" in capsys.readouterr().err
+    assert _call("/ok", data="true") == 2
+    assert _call("/missing", timeout=0.5) == 3
+    assert "not available" in capsys.readouterr().err

@@ -1,0 +1,89 @@
+"""Tests of ``policy-align learn`` (policy_align_ros.data.learn.run_learn). ROS-free."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+
+from policy_align_ros.cli import main
+from policy_align_ros.data.bags import load_dataset, write_joint_state_bag
+from policy_align_ros.data.learn import parse_joints, parse_sigma, run_learn
+from policy_align_ros.learning.policy_align import PolicyAlign
+
+T0 = 1_700_000_000 * 10**9
+JOINTS = ["shoulder", "elbow", "wrist"]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """Six demonstrations of xdot = -x (phi = |x|^2 / 2) at 50 Hz, in one dataset dir."""
+    root = tmp_path_factory.mktemp("dataset")
+    rng = np.random.default_rng(0)
+    t = np.arange(60) * 0.02
+    for k in range(6):
+        x0 = rng.uniform(-1.0, 1.0, size=3)
+        q = x0[None, :] * np.exp(-t)[:, None]
+        stamps = T0 + k * 10 * 10**9 + np.round(t * 1e9).astype(np.int64)
+        write_joint_state_bag(root / f"demo_{k:04d}", JOINTS, stamps, q, -q)
+    return root
+
+
+def test_learn_from_dataset_writes_a_usable_model(dataset, tmp_path, capsys):
+    out = tmp_path / "models" / "model.npz"
+    assert main(["learn", str(dataset), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "from 6 demonstrations" in text and str(out) in text
+    model = PolicyAlign.load(out)
+    assert model.joint_names_ == JOINTS
+    # Along the demonstrations, the learnt policy points like the demonstrated -x.
+    trajs, _, _ = load_dataset(dataset)
+    x = np.concatenate([t.positions for t in trajs])
+    pi = model.policy(x)
+    cosine = np.sum(pi * -x, axis=1) / np.linalg.norm(pi, axis=1) / np.linalg.norm(x, axis=1)
+    assert np.mean(cosine) > 0.7
+
+
+def test_joint_subset_order_and_explicit_sigma(dataset, tmp_path):
+    out = tmp_path / "m.npz"
+    args = argparse.Namespace(inputs=[str(dataset / "demo_0000"), str(dataset / "demo_0003"),
+                                      str(dataset / "demo_0005")],
+                              out=str(out), joints="wrist, shoulder", sigma="0.05", gap=0.5)
+    assert run_learn(args) == 0
+    model = PolicyAlign.load(out)
+    assert model.joint_names_ == ["wrist", "shoulder"]
+    assert model.sigma2_ == pytest.approx(0.05)
+    assert model.fit_summary_["n_trajectories"] == 3
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["{tmp}/missing"], "missing: no such file"),
+        (["{ds}/demo_0000"], "needs at least 2 demonstrations"),
+        (["{ds}", "--joints", "elbow,,wrist"], "empty joint name"),
+        (["{ds}", "--joints", "knee"], "no usable demonstrations"),
+        (["{ds}", "--sigma", "huge"], "--sigma"),
+        (["{ds}", "--sigma", "-1"], "--sigma"),
+        (["{tmp}"], "not a rosbag2 bag"),
+    ],
+)
+def test_unusable_input_returns_2_with_a_message(dataset, tmp_path, capsys, argv, expected):
+    argv = [a.format(tmp=tmp_path, ds=dataset) for a in argv]
+    out = tmp_path / "model.npz"
+    assert main(["learn", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("policy-align learn: error:") and expected in err
+    assert not out.exists()
+
+
+def test_parsers():
+    assert parse_sigma("Wide") == "wide"
+    assert parse_sigma("0.5") == 0.5
+    with pytest.raises(ValueError, match="positive"):
+        parse_sigma("inf")
+    assert parse_joints(" ") is None
+    assert parse_joints("a, b") == ["a", "b"]
+    with pytest.raises(ValueError, match="twice"):
+        parse_joints("a,a")

@@ -1,0 +1,159 @@
+"""Integration tests of the ``learner`` node (own rclpy.Context, domain ids 160-169)."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from policy_align_ros.data import write_joint_state_bag
+from policy_align_ros.learning import Trajectory
+from policy_align_ros.nodes._common import LATCHED_QOS
+from policy_align_ros.nodes.learner import Learner, observed_ncpe, parse_sigma
+
+JOINTS = ["j1", "j2"]
+
+
+def _write_dataset(directory, n_demos=10, seed=0):
+    """2-D demonstrations of pi = -x under a random line constraint each (dt 0.05 s)."""
+    rng = np.random.default_rng(seed)
+    for k in range(n_demos):
+        alpha = rng.normal(size=2)
+        N = np.eye(2) - np.outer(alpha, alpha) / (alpha @ alpha)
+        x = rng.uniform(-2.0, 2.0, 2)
+        X = []
+        for _ in range(40):
+            X.append(x.copy())
+            x = x + 0.05 * (N @ -x)
+        stamps = 10**18 + k * 10**10 + np.arange(40) * 50_000_000
+        write_joint_state_bag(directory / f"demo_{k:04d}", JOINTS, stamps, np.array(X))
+
+
+class Rig:
+    def __init__(self, domain_id, **params):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = Learner(context=self.context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+        self.probe = Node("probe", context=self.context)
+        self.models: list[str] = []
+        self.probe.create_subscription(
+            String, "/learner/model", lambda m: self.models.append(m.data), LATCHED_QOS)
+        self.client = self.probe.create_client(Trigger, "/learner/learn")
+        self.executor = MultiThreadedExecutor(num_threads=3, context=self.context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.probe)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def learn(self, timeout=60.0):
+        assert self.client.wait_for_service(timeout_sec=5.0)
+        future = self.client.call_async(Trigger.Request())
+        end = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < end:
+            time.sleep(0.01)
+        return future.result()
+
+    def close(self):
+        self.executor.shutdown()
+        self.thread.join(timeout=5.0)
+        self.probe.destroy_node()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def rig():
+    made = []
+
+    def make(domain_id, **params):
+        made.append(Rig(domain_id, **params))
+        return made[-1]
+
+    yield make
+    for r in made:
+        r.close()
+
+
+def test_learn_writes_the_model_publishes_it_and_summarises(rig, tmp_path):
+    _write_dataset(tmp_path / "demos")
+    model = tmp_path / "out" / "model.npz"
+    r = rig(160, dataset_dir=str(tmp_path / "demos"), model_path=str(model))
+    response = r.learn()
+    assert response.success, response.message
+    assert model.is_file()
+    text = response.message
+    assert "of 8 training demonstrations" in text and "2 held out" in text
+    assert "sigma^2=" in text and "fit " in text and "held-out nCPE" in text
+    ncpe = float(text.split("held-out nCPE ")[1].split()[0])
+    result = r.node.last_result
+    assert result.n_heldout == 2 and result.n_train == 8 and result.sigma2 > 0
+    assert ncpe == pytest.approx(result.heldout_ncpe, abs=1e-4) and ncpe >= 0.0
+    end = time.monotonic() + 5.0
+    while not r.models and time.monotonic() < end:
+        time.sleep(0.01)
+    assert r.models == [str(model.resolve())]
+
+
+def test_learn_fails_cleanly_without_data(rig, tmp_path):
+    (tmp_path / "empty").mkdir()
+    r = rig(161, dataset_dir=str(tmp_path / "empty"), model_path=str(tmp_path / "m.npz"))
+    response = r.learn()
+    assert not response.success and response.message.startswith("learning failed")
+    r.node.set_parameters([Parameter("dataset_dir", value=str(tmp_path / "missing"))])
+    response = r.learn()
+    assert not response.success and "does not exist" in response.message
+    assert not (tmp_path / "m.npz").exists() and r.models == []
+
+
+def test_learn_fails_cleanly_with_a_single_demonstration(rig, tmp_path):
+    _write_dataset(tmp_path / "one", n_demos=1)
+    r = rig(162, dataset_dir=str(tmp_path / "one"), model_path=str(tmp_path / "m.npz"))
+    response = r.learn()
+    assert not response.success and "at least 2 demonstrations" in response.message
+
+
+def test_node_answers_parameter_requests_while_learning(rig, tmp_path):
+    _write_dataset(tmp_path / "demos", n_demos=30)
+    r = rig(163, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "m.npz"))
+    assert r.client.wait_for_service(timeout_sec=5.0)
+    future = r.client.call_async(Trigger.Request())
+    time.sleep(0.05)
+    second = r.client.call_async(Trigger.Request())
+    end = time.monotonic() + 60.0
+    while not (future.done() and second.done()) and time.monotonic() < end:
+        time.sleep(0.01)
+    answers = sorted([future.result().success, second.result().success])
+    assert answers == [False, True]
+    refused = future.result() if not future.result().success else second.result()
+    assert "already in progress" in refused.message
+
+
+def test_sigma_parameter_is_validated(rig, tmp_path):
+    r = rig(164)
+    assert not r.node.set_parameters([Parameter("sigma", value="huge")])[0].successful
+    assert r.node.set_parameters([Parameter("sigma", value="0.5")])[0].successful
+    assert parse_sigma("Narrow") == "narrow" and parse_sigma("0.25") == 0.25
+    with pytest.raises(ValueError, match="positive"):
+        parse_sigma("-1")
+
+
+def test_observed_ncpe_is_zero_for_the_true_policy_and_positive_otherwise():
+    rng = np.random.default_rng(1)
+    trajs = []
+    for _ in range(5):
+        alpha = rng.normal(size=3)
+        N = np.eye(3) - np.outer(alpha, alpha) / (alpha @ alpha)
+        x, X = rng.normal(size=3), []
+        for _ in range(30):
+            X.append(x.copy())
+            x = x + 0.01 * (N @ -x)
+        trajs.append(Trajectory(np.array(X), np.arange(30) * 0.01))
+    assert observed_ncpe(lambda X: -X, trajs) < 1e-10
+    assert observed_ncpe(lambda X: X, trajs) > 1.0

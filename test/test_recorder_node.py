@@ -1,0 +1,269 @@
+"""ROS 2 integration tests of the ``recorder`` node (domain ids 100-149).
+
+Each test owns an ``rclpy.Context`` with its own ``domain_id`` and shuts it down.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from policy_align_ros.data.bags import load_dataset, read_joint_states
+from policy_align_ros.nodes.recorder import RecorderNode
+
+T0 = 1_700_000_000 * 10**9
+QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+                 reliability=ReliabilityPolicy.RELIABLE)
+
+
+def _msg(stamp_ns: int, names, positions, velocities=()) -> JointState:
+    msg = JointState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    msg.name = list(names)
+    msg.position = [float(x) for x in positions]
+    msg.velocity = [float(x) for x in velocities]
+    return msg
+
+
+def _wait(predicate, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.01)
+
+
+class _Harness:
+    """A test node (publisher, service clients) and optionally a recorder, spun in a thread."""
+
+    def __init__(self, ctx: rclpy.Context, recorder: RecorderNode | None,
+                 recorder_name: str = "/recorder") -> None:
+        self.node = Node("recorder_test_client", context=ctx)
+        self.pub = self.node.create_publisher(JointState, "/joint_states", QOS)
+        self.start = self.node.create_client(Trigger, f"{recorder_name}/start_demo")
+        self.stop = self.node.create_client(Trigger, f"{recorder_name}/stop_demo")
+        self.recorder = recorder
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        if recorder is not None:
+            self.executor.add_node(recorder)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def ready(self, timeout: float = 20.0) -> None:
+        assert self.start.wait_for_service(timeout_sec=timeout), "no ~/start_demo"
+        assert self.stop.wait_for_service(timeout_sec=timeout), "no ~/stop_demo"
+        _wait(lambda: self.pub.get_subscription_count() >= 1, timeout, "the subscription")
+        if self.recorder is not None:
+            sub = self.recorder.subscription
+            _wait(lambda: sub.get_publisher_count() >= 1, timeout, "the publisher")
+        time.sleep(0.3)  # let both ends of the reliable match settle
+
+    def call(self, client, timeout: float = 20.0) -> Trigger.Response:
+        future = client.call_async(Trigger.Request())
+        _wait(future.done, timeout, "a service response")
+        return future.result()
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=2.0)
+        self.thread.join(timeout=5.0)
+        self.node.destroy_node()
+        if self.recorder is not None:
+            self.recorder.destroy_node()
+
+
+@contextmanager
+def _ros(domain_id: int):
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_burst_1khz_for_10s_zero_loss(tmp_path):
+    rng = np.random.default_rng(0)
+    names = [f"joint_{i}" for i in range(22)]
+    count = 10_000
+    q = rng.normal(size=(count, 22))
+    v = rng.normal(size=(count, 22))
+    stamps = T0 + np.arange(count, dtype=np.int64) * 1_000_000
+    msgs = [_msg(stamps[k], names, q[k], v[k]) for k in range(count)]
+    with _ros(101) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path))])
+        harness = _Harness(ctx, recorder)
+        try:
+            harness.ready()
+            assert harness.call(harness.start).success
+            t_start = time.perf_counter()
+            for k, msg in enumerate(msgs):
+                # Paced on an absolute schedule: late messages go out at once.
+                delay = t_start + k * 1e-3 - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+                harness.pub.publish(msg)
+            elapsed = time.perf_counter() - t_start
+            _wait(lambda: recorder.recorder.buffered == count, 30.0,
+                  f"{count} messages (have {recorder.recorder.buffered})")
+            response = harness.call(harness.stop)
+        finally:
+            harness.close()
+    print(f"published {count} messages in {elapsed:.2f} s ({count / elapsed:.0f} Hz)")
+    assert elapsed < 15.0, f"the burst took {elapsed:.1f} s, not a 1 kHz burst"
+    assert response.success, response.message
+    read = list(read_joint_states(response.message))
+    assert len(read) == count
+    assert [m[1] for m in read] == stamps.tolist()
+    np.testing.assert_array_equal(np.array([m[3] for m in read]), q)
+    np.testing.assert_array_equal(np.array([m[4] for m in read]), v)
+    assert sum(recorder.recorder.skipped.values()) == 0
+
+
+def test_writes_exactly_the_valid_messages_and_counts_the_rest(tmp_path):
+    ok = [0.1, 0.2]
+    t = [T0 + k * 10_000_000 for k in range(30)]
+    valid = [_msg(t[k], ["a", "b"], [k, -k], [1.0, 2.0]) for k in range(0, 20, 2)]
+    malformed = [
+        _msg(t[1], ["a", "b"], [0.1]),
+        _msg(t[3], ["a", "a"], ok),
+        _msg(t[5], ["c", "d"], ok),
+        _msg(t[7], ["a"], [0.1]),
+        _msg(t[9], ["a", "b"], [float("nan"), 0.0]),
+        _msg(t[2], ["a", "b"], ok),  # sent after t[10]: backwards
+    ]
+    order = valid[:6] + malformed + valid[6:]
+    with _ros(102) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path / "ds")),
+            Parameter("joints", value=["a", "b"])])
+        harness = _Harness(ctx, recorder)
+        try:
+            harness.ready()
+            empty = harness.call(harness.stop)
+            assert not empty.success and "nothing written" in empty.message
+            assert harness.call(harness.start).success
+            again = harness.call(harness.start)
+            assert not again.success and "already recording" in again.message
+            for msg in order:
+                harness.pub.publish(msg)
+                time.sleep(0.002)
+            _wait(lambda: recorder.recorder.accepted
+                  + sum(recorder.recorder.skipped.values()) == len(order), 10.0, "all messages")
+            result = recorder.set_parameters([Parameter("joints", value=["a", "b", "c"])])
+            assert not result[0].successful and "while a demonstration" in result[0].reason
+            response = harness.call(harness.stop)
+            assert response.success
+            assert response.message == str(tmp_path / "ds" / "demo_0000")
+            result = recorder.set_parameters([Parameter("auto_split_gap_s", value=-1.0)])
+            assert not result[0].successful
+            result = recorder.set_parameters([Parameter("dataset_dir", value=" ")])
+            assert not result[0].successful and "dataset_dir" in result[0].reason
+        finally:
+            harness.close()
+    assert dict(recorder.recorder.skipped) == {
+        "length_mismatch": 1, "duplicate_joints": 1, "unknown_joints": 1,
+        "missing_joints": 1, "non_finite": 1, "time_not_increasing": 1,
+    }
+    trajs, names, _ = load_dataset(response.message, gap_s=0)
+    assert names == ["a", "b"]
+    np.testing.assert_array_equal(trajs[0].positions, [[k, -k] for k in range(0, 20, 2)])
+
+
+def test_sigkill_mid_demo_keeps_earlier_demos(tmp_path):
+    dataset = tmp_path / "ds"
+    env = dict(os.environ, ROS_DOMAIN_ID="103")
+    cmd = [sys.executable, "-m", "policy_align_ros.nodes.recorder", "--ros-args",
+           "-p", f"dataset_dir:={dataset}", "-p", "joints:=[a, b]"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    rng = np.random.default_rng(3)
+    sent = []
+    try:
+        with _ros(103) as ctx:
+            harness = _Harness(ctx, None)
+            try:
+                harness.ready()
+                for demo in range(3):
+                    assert harness.call(harness.start).success
+                    q = rng.normal(size=(40, 2))
+                    for k in range(40):
+                        harness.pub.publish(_msg(T0 + (demo * 1000 + k) * 10**7, "ab", q[k]))
+                        time.sleep(0.002)
+                    sent.append(q)
+                    time.sleep(1.0)  # let the messages arrive before the service call
+                    if demo < 2:
+                        response = harness.call(harness.stop)
+                        assert response.success, response.message
+                        assert response.message == str(dataset / f"demo_{demo:04d}")
+            finally:
+                harness.close()
+        assert proc.poll() is None, proc.stderr.read().decode()
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        proc.stderr.close()
+    assert proc.returncode == -signal.SIGKILL
+    assert sorted(p.name for p in dataset.iterdir()) == ["demo_0000", "demo_0001"]
+    trajs, names, report = load_dataset(dataset, gap_s=0)
+    assert names == ["a", "b"] and len(trajs) == 2
+    for traj, q in zip(trajs, sent[:2], strict=True):
+        np.testing.assert_array_equal(traj.positions, q)
+    assert report.messages_skipped == 0
+
+
+@pytest.mark.parametrize("bad", [["joints:=[a, a]"], ["dataset_dir:=''"]])
+def test_invalid_start_up_parameters_exit_with_a_message(tmp_path, bad):
+    args = [item for p in [f"dataset_dir:={tmp_path}", *bad] for item in ("-p", p)]
+    proc = subprocess.run(
+        [sys.executable, "-m", "policy_align_ros.nodes.recorder", "--ros-args", *args],
+        env=dict(os.environ, ROS_DOMAIN_ID="104"), capture_output=True, timeout=30,
+    )
+    assert proc.returncode == 2
+    assert b"recorder: error:" in proc.stderr
+
+
+def test_continuous_mode_splits_when_the_stream_pauses(tmp_path):
+    q = np.random.default_rng(5).normal(size=(40, 2))
+    with _ros(105) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path)),
+            Parameter("auto_split_gap_s", value=0.3)])
+        harness = _Harness(ctx, recorder)
+        try:
+            harness.ready()
+            assert recorder.recorder.active  # continuous mode records from start-up
+            for k in range(20):
+                harness.pub.publish(_msg(T0 + k * 10**7, "ab", q[k]))
+                time.sleep(0.002)
+            # The idle timer closes the first demonstration while the stream is quiet.
+            _wait(lambda: len(recorder.recorder.written) == 1, 10.0, "the idle split")
+            for k in range(20, 40):
+                harness.pub.publish(_msg(T0 + 5 * 10**9 + k * 10**7, "ab", q[k]))
+                time.sleep(0.002)
+            _wait(lambda: recorder.recorder.buffered == 20, 10.0, "the second demo")
+            recorder.shutdown()  # a clean shutdown keeps the last segment
+        finally:
+            harness.close()
+    trajs, _, _ = load_dataset(tmp_path, gap_s=0)
+    assert [len(t) for t in trajs] == [20, 20]
+    np.testing.assert_array_equal(np.concatenate([t.positions for t in trajs]), q)

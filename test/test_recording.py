@@ -1,0 +1,194 @@
+"""Tests of policy_align_ros.data.recording.DemoRecorder (ROS-free recording logic)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from policy_align_ros.data import bags
+from policy_align_ros.data.bags import load_dataset, read_joint_states
+from policy_align_ros.data.recording import DemoRecorder
+
+T0 = 1_700_000_000 * 10**9
+MS = 10**6
+JOINTS = ["j1", "j2", "j3"]
+
+
+def _feed(rec, rng, count, start_ns, step_ns=MS, names=JOINTS, velocities=True):
+    """Send ``count`` valid messages; returns the (stamps, positions, velocities) sent."""
+    stamps = [start_ns + k * step_ns for k in range(count)]
+    q = rng.normal(size=(count, len(names)))
+    v = rng.normal(size=(count, len(names)))
+    for k in range(count):
+        rec.add(stamps[k], names, list(q[k]), list(v[k]) if velocities else [])
+    return np.array(stamps), q, v
+
+
+def test_manual_demo_written_exactly(tmp_path):
+    rng = np.random.default_rng(0)
+    rec = DemoRecorder(tmp_path / "ds")
+    _feed(rec, rng, 5, T0)  # not recording yet: ignored
+    rec.start()
+    stamps, q, v = _feed(rec, rng, 200, T0 + 10**9)
+    assert rec.buffered == 200
+    path = rec.stop()
+    assert path == tmp_path / "ds" / "demo_0000"
+    assert not rec.active and rec.buffered == 0
+    msgs = list(read_joint_states(path))
+    assert [m[1] for m in msgs] == list(stamps)
+    np.testing.assert_array_equal(np.array([m[3] for m in msgs]), q)
+    np.testing.assert_array_equal(np.array([m[4] for m in msgs]), v)
+    assert all(m[2] == JOINTS for m in msgs)
+    rec.start()
+    _feed(rec, rng, 10, T0 + 5 * 10**9)
+    assert rec.stop().name == "demo_0001"
+    assert rec.written == [tmp_path / "ds" / "demo_0000", tmp_path / "ds" / "demo_0001"]
+    assert rec.accepted == 210
+
+
+def test_joint_selection_and_order_by_name(tmp_path):
+    rng = np.random.default_rng(1)
+    rec = DemoRecorder(tmp_path, joints=["j3", "j1"])
+    rec.start()
+    stamps, q, _ = _feed(rec, rng, 20, T0, names=["j1", "j2", "j3", "extra"])
+    path = rec.stop()
+    trajs, names, _ = load_dataset(path)
+    assert names == ["j3", "j1"]
+    np.testing.assert_array_equal(trajs[0].positions, q[:, [2, 0]])
+    # Without a selection the first message fixes joints for the recorder's lifetime.
+    free = DemoRecorder(tmp_path / "free")
+    free.start()
+    _feed(free, rng, 3, T0, names=["b", "a"])
+    free.stop()
+    free.start()
+    _feed(free, rng, 3, T0 + 10**9, names=["a", "b", "c"])
+    assert free.joints == ["b", "a"]
+    _, names, _ = load_dataset(free.stop())
+    assert names == ["b", "a"]
+
+
+def test_malformed_messages_skipped_and_counted(tmp_path):
+    rec = DemoRecorder(tmp_path, joints=["a", "b"])
+    rec.start()
+    ok = [0.1, 0.2]
+    t = [T0 + k * MS for k in range(20)]
+    rec.add(t[0], ["a", "b"], ok, ok)
+    rec.add(t[1], ["a", "b"], [0.1])
+    rec.add(t[2], ["a", "b"], ok, [], [1.0, 2.0, 3.0])
+    rec.add(t[3], ["a", "a"], ok)
+    rec.add(t[4], ["p", "q"], ok)
+    rec.add(t[5], ["a"], [0.1])
+    rec.add(t[6], ["a", "b"], [0.1, float("nan")])
+    rec.add(t[7], ["a", "b"], ok, [float("-inf"), 0.0])
+    rec.add(t[0], ["a", "b"], ok)
+    rec.add(t[8], ["b", "a"], [0.4, 0.3])
+    rec.add(t[8], ["a", "b"], ok)
+    assert dict(rec.skipped) == {
+        "length_mismatch": 2,
+        "duplicate_joints": 1,
+        "unknown_joints": 1,
+        "missing_joints": 1,
+        "non_finite": 2,
+        "time_not_increasing": 2,
+    }
+    assert rec.accepted == 2
+    path = rec.stop()
+    msgs = list(read_joint_states(path))
+    assert [list(m[3]) for m in msgs] == [[0.1, 0.2], [0.3, 0.4]]
+    assert [len(m[4]) for m in msgs] == [2, 0]  # velocity kept only where it was sent
+
+
+def test_continuous_mode_splits_at_gaps(tmp_path):
+    rng = np.random.default_rng(2)
+    rec = DemoRecorder(tmp_path, auto_split_gap_s=0.5)
+    rec.start()
+    s1, q1, _ = _feed(rec, rng, 100, T0)
+    s2, q2, _ = _feed(rec, rng, 50, T0 + 2 * 10**9)
+    # The first demo is written when the gap is seen, before the stream stops.
+    assert [p.name for p in rec.written] == ["demo_0000"]
+    s3, q3, _ = _feed(rec, rng, 1, T0 + 4 * 10**9)  # a lone message: too short
+    assert rec.stop() is None
+    assert rec.dropped == 1
+    trajs, _, report = load_dataset(tmp_path, gap_s=0)
+    assert [len(t) for t in trajs] == [100, 50]
+    np.testing.assert_array_equal(trajs[1].positions, q2)
+    assert [d.start_ns for d in report.demos] == [s1[0], s2[0]]
+
+
+def test_flush_if_idle_closes_quiet_stream(tmp_path):
+    rng = np.random.default_rng(3)
+    rec = DemoRecorder(tmp_path, auto_split_gap_s=0.2)
+    rec.start()
+    _feed(rec, rng, 10, T0)
+    assert rec.flush_if_idle(time.monotonic()) is None  # not quiet yet
+    path = rec.flush_if_idle(time.monotonic() + 1.0)
+    assert path is not None and rec.active and rec.buffered == 0
+    manual = DemoRecorder(tmp_path / "m")
+    manual.start()
+    _feed(manual, rng, 10, T0)
+    assert manual.flush_if_idle(time.monotonic() + 100) is None  # manual demos never split
+
+
+def test_state_errors_and_parameter_validation(tmp_path):
+    rng = np.random.default_rng(4)
+    rec = DemoRecorder(tmp_path)
+    assert rec.stop() is None  # nothing recorded, nothing written
+    rec.start()
+    with pytest.raises(RuntimeError, match="already recording"):
+        rec.start()
+    _feed(rec, rng, 3, T0)
+    with pytest.raises(ValueError, match="joints: cannot change"):
+        rec.set_joints(["a"])
+    assert rec.discard() == 3 and list(tmp_path.iterdir()) == []
+    rec.set_joints(["j2"])
+    assert rec.joints == ["j2"]
+    with pytest.raises(ValueError, match="auto_split_gap_s"):
+        rec.set_auto_split_gap(-1.0)
+    with pytest.raises(ValueError, match="auto_split_gap_s"):
+        DemoRecorder(tmp_path, auto_split_gap_s=float("nan"))
+    with pytest.raises(ValueError, match="dataset_dir: must not be empty"):
+        rec.set_dataset_dir("  ")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="not a directory"):
+        DemoRecorder(tmp_path / "file")
+    with pytest.raises(ValueError, match="listed twice"):
+        DemoRecorder(tmp_path, joints=["a", "a"])
+
+
+def test_failed_write_leaves_nothing_and_recorder_goes_on(tmp_path, monkeypatch):
+    rng = np.random.default_rng(5)
+    rec = DemoRecorder(tmp_path)
+    rec.start()
+    _feed(rec, rng, 20, T0)
+    real = bags._joint_state_cdr
+    calls = {"n": 0}
+
+    def failing(*args):
+        calls["n"] += 1
+        if calls["n"] == 10:
+            raise OSError("no space left")
+        return real(*args)
+
+    monkeypatch.setattr(bags, "_joint_state_cdr", failing)
+    with pytest.raises(OSError, match="no space"):
+        rec.stop()
+    assert list(tmp_path.iterdir()) == []
+    rec.start()
+    _feed(rec, rng, 20, T0 + 10**9)
+    assert rec.stop().name == "demo_0000"
+
+
+def test_keeps_up_with_1khz(tmp_path):
+    # 22 joints as on the humanoid; a 1 kHz stream leaves 1000 us a message.
+    rec = DemoRecorder(tmp_path)
+    names = [f"joint_{i}" for i in range(22)]
+    pos = [0.1] * 22
+    rec.start()
+    t0 = time.perf_counter()
+    for k in range(5000):
+        rec.add(T0 + k * MS, names, pos, pos)
+    per_msg = (time.perf_counter() - t0) / 5000
+    assert rec.accepted == 5000
+    assert per_msg < 200e-6, f"{per_msg * 1e6:.1f} us per message"

@@ -1,0 +1,107 @@
+"""Integration tests of the ``sim_robot`` node (own rclpy.Context, domain ids 170-179)."""
+
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+from policy_align_ros.nodes.sim_robot import SimRobot
+
+JOINTS = ["arm_left_1_joint", "arm_left_2_joint", "arm_left_4_joint"]
+START = [0.1, 0.4, -0.5]
+
+
+@pytest.fixture
+def rig():
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=170)
+    nodes = []
+    try:
+        sim = SimRobot(context=context, parameter_overrides=[
+            Parameter("robot", value="talos"), Parameter("joints", value=JOINTS),
+            Parameter("initial_positions", value=START), Parameter("rate_hz", value=100.0),
+            Parameter("command_timeout_s", value=0.1)])
+        probe = Node("probe", context=context)
+        nodes += [sim, probe]
+        states: list[JointState] = []
+        probe.create_subscription(JointState, "/joint_states", states.append, 100)
+        commands = probe.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
+        reset = probe.create_client(Trigger, "/sim_robot/reset")
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(sim)
+        executor.add_node(probe)
+
+        def spin(seconds, command=None):
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                if command is not None:
+                    commands.publish(Float64MultiArray(data=list(command)))
+                executor.spin_once(timeout_sec=0.005)
+
+        yield sim, states, spin, reset, executor
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_publishes_stamped_joint_states_at_the_start_position(rig):
+    sim, states, spin, _, _ = rig
+    spin(0.3)
+    assert len(states) >= 15  # 100 Hz nominal; generous for a loaded machine
+    msg = states[-1]
+    assert list(msg.name) == JOINTS
+    np.testing.assert_allclose(msg.position, START)
+    assert msg.header.stamp.sec > 0
+
+
+def test_integrates_commands_then_holds_still_when_they_stop(rig):
+    sim, states, spin, _, _ = rig
+    spin(0.5, command=[0.2, 0.0, -0.1])
+    moved = np.array(states[-1].position) - START
+    assert 0.05 < moved[0] < 0.12 and moved[1] == 0.0 and -0.06 < moved[2] < -0.025
+    spin(0.2)  # no more commands: stale after 0.1 s
+    held = np.array(states[-1].position)
+    spin(0.2)
+    np.testing.assert_array_equal(states[-1].position, held)
+    np.testing.assert_array_equal(states[-1].velocity, 0.0)
+
+
+def test_stays_within_joint_limits(rig):
+    sim, states, spin, _, _ = rig
+    spin(0.5, command=[5.0, 5.0, 5.0])
+    q = np.array(states[-1].position)
+    assert np.all(q <= sim.robot.upper) and np.any(q == sim.robot.upper)
+
+
+def test_ignores_commands_of_the_wrong_length(rig):
+    sim, states, spin, _, _ = rig
+    spin(0.3, command=[1.0, 1.0])
+    np.testing.assert_allclose(states[-1].position, START)
+    assert sim._bad_commands > 0
+
+
+def test_reset_returns_to_the_initial_positions(rig):
+    sim, states, spin, reset, executor = rig
+    spin(0.3, command=[0.3, 0.3, 0.3])
+    assert not np.allclose(states[-1].position, START)
+    spin(0.2)
+    assert reset.wait_for_service(timeout_sec=5.0)
+    future = reset.call_async(Trigger.Request())
+    executor.spin_until_future_complete(future, timeout_sec=5.0)
+    assert future.result().success
+    spin(0.1)
+    np.testing.assert_allclose(states[-1].position, START)
+
+
+def test_bad_initial_positions_are_refused(rig):
+    sim = rig[0]
+    result = sim.set_parameters([Parameter("initial_positions", value=[0.0, 1.0])])[0]
+    assert not result.successful and "need 3 finite values" in result.reason
