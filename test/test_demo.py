@@ -28,7 +28,7 @@ def test_short_demo_runs_every_stage_and_cleans_up(tmp_path, capsys):
     code = run_demo(args)
     printed = capsys.readouterr()
     assert code == 0, printed.err
-    assert "demonstrations recorded: 3/3" in printed.out
+    assert "demonstrator finished: 3 demonstrations recorded" in printed.out
     report = (out / "report.txt").read_text()
     for item in ("demonstrations: 3 recorded", "fit time", "held-out nCPE",
                  "(a) unconstrained", "(b) unseen constraint", "held hand moved"):

@@ -182,3 +182,48 @@ def test_model_announced_on_learner_topic_is_loaded_and_checked(rig, tmp_path):
     r.models.publish(String(data=str(wrong)))
     r.spin(0.3)
     assert r.node.model_path == str(good)  # refused: trained on other joints
+
+
+def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
+    """The installed-style process (``main()``) stops the robot when interrupted."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=157)
+    probe = Node("probe", context=context)
+    proc = None
+    try:
+        model = _fit_model(tmp_path / "model.npz", JOINTS, np.zeros(len(JOINTS)))
+        commands = []
+        probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
+                                  lambda m: commands.append(np.array(m.data)), 100)
+        states = probe.create_publisher(JointState, "/joint_states", 10)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(probe)
+        code = "import sys; from policy_align_ros.nodes.executor import main; sys.exit(main())"
+        params = [f"-p{k}:={v}" for k, v in (
+            ("robot", "talos"), ("joints", "[" + ",".join(JOINTS) + "]"),
+            ("model_path", str(model)), ("start_enabled", "true"))]
+        proc = subprocess.Popen([sys.executable, "-c", code, "--ros-args", *params],
+                                env=dict(os.environ, ROS_DOMAIN_ID="157"))
+        q = np.full(len(JOINTS), 0.3)
+        end = time.monotonic() + 30.0
+        while not (commands and np.any(commands[-1])) and time.monotonic() < end:
+            states.publish(JointState(name=JOINTS, position=q.tolist()))
+            executor.spin_once(timeout_sec=0.01)
+        assert commands and np.any(commands[-1]), "the executor never commanded motion"
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10.0) == 0
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.01)
+        assert not np.any(commands[-1])
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        probe.destroy_node()
+        rclpy.try_shutdown(context=context)

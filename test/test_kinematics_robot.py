@@ -4,7 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from policy_align_ros.kinematics import Robot
+from policy_align_ros.kinematics import ROBOTS, Robot
 from policy_align_ros.kinematics.robot import robots_dir
 
 TALOS_ARM = [f"arm_left_{i}_joint" for i in range(1, 8)] + ["torso_1_joint", "torso_2_joint"]
@@ -127,3 +127,10 @@ def test_random_configuration_within_limits(talos_arm: Robot) -> None:
     qs = np.array([talos_arm.random_configuration(rng, std=2.0) for _ in range(50)])
     assert np.all(qs >= talos_arm.lower) and np.all(qs <= talos_arm.upper)
     assert np.any(qs == talos_arm.lower) or np.any(qs == talos_arm.upper)
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_every_known_name_resolves(name: str) -> None:
+    robot = Robot.load(name)
+    assert robot.urdf.is_file()
+    assert robot.nq == len(robot.joint_names) == robot.neutral().shape[0] > 0

@@ -6,6 +6,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from rcl_interfaces.srv import GetParameters
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -119,20 +120,40 @@ def test_learn_fails_cleanly_with_a_single_demonstration(rig, tmp_path):
     assert not response.success and "at least 2 demonstrations" in response.message
 
 
-def test_node_answers_parameter_requests_while_learning(rig, tmp_path):
-    _write_dataset(tmp_path / "demos", n_demos=30)
+def test_node_stays_responsive_and_refuses_a_second_run_while_learning(
+        rig, tmp_path, monkeypatch):
+    import policy_align_ros.nodes.learner as learner_module
+
+    real = learner_module.learn_dataset
+    started = threading.Event()
+
+    def slow_learn(*args, **kwargs):
+        started.set()
+        time.sleep(1.5)  # a long fit
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(learner_module, "learn_dataset", slow_learn)
+    _write_dataset(tmp_path / "demos")
     r = rig(163, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "m.npz"))
     assert r.client.wait_for_service(timeout_sec=5.0)
-    future = r.client.call_async(Trigger.Request())
-    time.sleep(0.05)
+    first = r.client.call_async(Trigger.Request())
+    assert started.wait(timeout=10.0)
+    # While the fit runs, parameter services and a second ~/learn are answered at once.
+    params = r.probe.create_client(GetParameters, "/learner/get_parameters")
+    assert params.wait_for_service(timeout_sec=5.0)
+    got = params.call_async(GetParameters.Request(names=["sigma"]))
     second = r.client.call_async(Trigger.Request())
-    end = time.monotonic() + 60.0
-    while not (future.done() and second.done()) and time.monotonic() < end:
+    end = time.monotonic() + 1.0
+    while not (got.done() and second.done()) and time.monotonic() < end:
         time.sleep(0.01)
-    answers = sorted([future.result().success, second.result().success])
-    assert answers == [False, True]
-    refused = future.result() if not future.result().success else second.result()
-    assert "already in progress" in refused.message
+    assert got.done() and got.result().values[0].string_value == "medium"
+    assert second.done() and not second.result().success
+    assert "already in progress" in second.result().message
+    assert not first.done()
+    end = time.monotonic() + 60.0
+    while not first.done() and time.monotonic() < end:
+        time.sleep(0.01)
+    assert first.result().success
 
 
 def test_sigma_parameter_is_validated(rig, tmp_path):

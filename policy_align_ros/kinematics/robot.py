@@ -15,7 +15,7 @@ name      URDF                                        reference posture (SRDF)
 ========  ==========================================  ===========================
 talos     talos_data/robots/talos_reduced.urdf        talos.srdf ``half_sitting``
 panda     panda_description/urdf/panda.urdf           panda.srdf ``default``
-ur5       ur_description/urdf/ur5_robot.urdf          ur5.srdf (none: zeros)
+ur5       ur_description/urdf/ur5_robot.urdf          none (zeros)
 human     human_description/robots/human.urdf         none (zeros clipped to limits)
 ========  ==========================================  ===========================
 """

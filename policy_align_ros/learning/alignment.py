@@ -54,31 +54,34 @@ class LocalModelTable:
     Attributes
     ----------
     rows, cols : ndarray of int, shape (nnz,)
-        Point index ``m`` and trajectory index ``k``.
+        Query point index ``m`` and trajectory index ``k``.
     q : ndarray, shape (nnz,)
         Responsibilities ``q_km`` (each row sums to 1).
     f : ndarray, shape (nnz,)
         Local predictions ``f_km = f_k(x_m)``.
+    weights : ndarray, shape (n_points,)
+        Number of samples each query point stands for (1 without merging).
     n_points, n_trajectories : int
-        ``M`` and ``K``.
+        Query points and ``K``.
     """
 
     rows: np.ndarray
     cols: np.ndarray
     q: np.ndarray
     f: np.ndarray
+    weights: np.ndarray
     n_points: int
     n_trajectories: int
 
 
-def _thin_reference(
+def thin_along_trajectories(
     X: np.ndarray, labels: np.ndarray, spacing: float
 ) -> np.ndarray:
-    """Indices of reference points kept so that consecutive ones are ~``spacing`` apart.
+    """Indices of the first sample in each ``spacing``-long piece of arc length.
 
-    Points of one trajectory that lie within ``spacing`` arc length of the previous kept
-    point change the nearest-neighbour distance by at most ``spacing``, but a robot that
-    rests at its goal produces thousands of them.
+    Every sample lies within ``spacing`` (along its trajectory) of the kept sample before
+    it, so merging changes distances by at most ``spacing``; but a robot resting at its goal
+    produces thousands of such samples, and dense sampling multiplies the work.
     """
     if spacing <= 0:
         return np.arange(len(X))
@@ -98,7 +101,7 @@ def local_model_table(
     sigma2: float,
     *,
     weight_tol: float = 1e-8,
-    merge_tol: float = 0.05,
+    merge_tol: float = 0.1,
 ) -> LocalModelTable:
     """Responsibilities and local predictions, keeping weights above ``weight_tol``.
 
@@ -116,20 +119,23 @@ def local_model_table(
         Weights ``w_k(x_m)`` below this are dropped (cut-off radius
         ``sqrt(-2 sigma^2 log weight_tol)``).
     merge_tol : float
-        Reference points of a trajectory closer than ``merge_tol * sigma`` along it are
-        merged for the neighbour search (0 keeps every point, as in the paper).
+        Samples closer than ``merge_tol * sigma`` along a trajectory are merged: into one
+        reference point of the nearest-neighbour models, and into one query point that
+        counts for all of them in the objective (0 keeps every sample, as in the paper).
 
     Returns
     -------
     LocalModelTable
     """
-    M = len(X)
     K = int(labels[-1]) + 1
     radius = float(np.sqrt(-2.0 * sigma2 * np.log(weight_tol)))
-    ref = _thin_reference(X, labels, merge_tol * np.sqrt(sigma2))
-    tree = cKDTree(X[ref])
-    ref_labels = labels[ref]
-    ref_phi = phi[ref]
+    ref = thin_along_trajectories(X, labels, merge_tol * np.sqrt(sigma2))
+    weights = np.diff(np.append(ref, len(X))).astype(float)
+    X, labels, phi = X[ref], labels[ref], phi[ref]
+    M = len(X)
+    tree = cKDTree(X)
+    ref_labels = labels
+    ref_phi = phi
 
     rows_parts = [np.arange(M)]
     cols_parts = [labels.astype(np.int64)]
@@ -140,7 +146,7 @@ def local_model_table(
     if per_point > _DENSE_FRACTION * len(ref) and M * K <= _DENSE_MAX_ENTRIES:
         # A wide kernel reaches most points: a tree search would enumerate ~M^2 pairs,
         # while one distance block per trajectory is a single matrix product.
-        searches = _nearest_per_trajectory_dense(X, labels, X[ref], ref_labels, radius)
+        searches = _nearest_per_trajectory_dense(X, labels, X, ref_labels, radius)
     else:
         searches = _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point)
     for i, k, j, d2 in searches:
@@ -154,7 +160,7 @@ def local_model_table(
     f = np.concatenate(f_parts)
     w = np.exp(-0.5 * d2 / sigma2)
     q = w / np.bincount(rows, weights=w, minlength=M)[rows]
-    return LocalModelTable(rows, cols, q, f, M, K)
+    return LocalModelTable(rows, cols, q, f, weights, M, K)
 
 
 def _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point):
@@ -243,10 +249,12 @@ def alignment_system(
         key = inverse
         share = np.bincount(key, weights=q, minlength=n_keys)[key]
     mean_f = np.bincount(key, weights=q * f, minlength=n_keys)[key]
-    a = np.bincount(cols, weights=q * (f * share - mean_f), minlength=K)
+    count = table.weights[rows]
+    a = np.bincount(cols, weights=count * q * (f * share - mean_f), minlength=K)
 
     Q = sp.csr_matrix((q, (key, cols)), shape=(n_keys, K))
-    W = (Q.T @ Q).tocsr()
+    Qw = sp.csr_matrix((count * q, (key, cols)), shape=(n_keys, K))
+    W = (Q.T @ Qw).tocsr()
     W.setdiag(0.0)
     W.eliminate_zeros()
     H = sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W

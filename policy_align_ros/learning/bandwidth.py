@@ -8,28 +8,28 @@ trajectories ``k`` and ``j``; ``d_k^min = min_{j != k} d_kj``. The paper's three
     sigma2_medium = sqrt(sigma2_narrow * sigma2_wide)      (eq. 19)
 
 Distances are in squared state units. For large data sets the heuristics work on at most
-``max_points`` points (each trajectory thinned evenly) and ``wide`` on a random sample of
-trajectory pairs; a median needs no more.
+``max_points`` points, each trajectory thinned evenly in arc length; the medians of
+closest approaches need no more.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = ["RULES", "closest_approach_matrix", "sigma2_heuristics", "resolve_sigma2"]
 
 RULES = ("narrow", "medium", "wide")
-_DENSE_LIMIT = 12_000  # points for which the full trajectory-distance matrix is cheap
-_MAX_PAIRS = 5_000
 
 
 def _thin(trajectories: list[np.ndarray], max_points: int) -> list[np.ndarray]:
+    """Keep at most ``max_points`` in total, evenly spaced in arc length per trajectory."""
     per_traj = max(2, max_points // max(len(trajectories), 1))
     out = []
     for x in trajectories:
         if len(x) > per_traj:
-            x = x[np.linspace(0, len(x) - 1, per_traj).round().astype(int)]
+            arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=1))))
+            idx = np.searchsorted(arc, np.linspace(0.0, arc[-1], per_traj))
+            x = x[np.unique(np.minimum(idx, len(x) - 1))]
         out.append(x)
     return out
 
@@ -48,54 +48,31 @@ def closest_approach_matrix(trajectories: list[np.ndarray]) -> np.ndarray:
     """
     points = np.concatenate(trajectories)
     sizes = np.array([len(x) for x in trajectories])
-    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    starts = np.concatenate(([0], np.cumsum(sizes)))
     sq_norms = np.einsum("ij,ij->i", points, points)
-    d = np.empty((len(trajectories), len(trajectories)))
-    for k, x in enumerate(trajectories):
-        block = (
-            np.einsum("ij,ij->i", x, x)[:, None] + sq_norms[None, :] - 2.0 * x @ points.T
-        )
-        d[k] = np.minimum.reduceat(block.min(axis=0), starts)
+    K = len(trajectories)
+    d = np.empty((K, K))
+    # Rows in blocks of whole trajectories: one matrix product per block, bounded memory.
+    block_rows = max(1, 4_000_000 // len(points))
+    k = 0
+    while k < K:
+        stop = k + 1
+        while stop < K and starts[stop + 1] - starts[k] <= block_rows:
+            stop += 1
+        rows = slice(starts[k], starts[stop])
+        block = sq_norms[rows, None] + sq_norms[None, :] - 2.0 * points[rows] @ points.T
+        per_col = np.minimum.reduceat(block, starts[k:stop] - starts[k], axis=0)
+        d[k:stop] = np.minimum.reduceat(per_col, starts[:-1], axis=1)
+        k = stop
     d = np.maximum(np.minimum(d, d.T), 0.0)
     np.fill_diagonal(d, np.inf)
     return d
 
 
-def _nearest_other(trajectories: list[np.ndarray]) -> np.ndarray:
-    """``d_k^min`` by a k-nearest-neighbour query that must reach another trajectory."""
-    points = np.concatenate(trajectories)
-    labels = np.repeat(np.arange(len(trajectories)), [len(x) for x in trajectories])
-    # A point's own trajectory holds at most max_len points, so max_len + 1 neighbours
-    # always include one from another trajectory.
-    kq = min(max(len(x) for x in trajectories) + 1, len(points))
-    dist, idx = cKDTree(points).query(points, k=kq)
-    foreign = labels[idx] != labels[:, None]
-    dist = np.where(foreign, dist, np.inf).min(axis=1)
-    best = np.full(len(trajectories), np.inf)
-    np.minimum.at(best, labels, dist**2)
-    return best
-
-
-def _sampled_pairs(
-    trajectories: list[np.ndarray], rng: np.random.Generator, n_pairs: int
-) -> np.ndarray:
-    K = len(trajectories)
-    j = rng.integers(0, K, size=n_pairs)
-    k = (j + rng.integers(1, K, size=n_pairs)) % K
-    trees = {}
-    out = np.empty(n_pairs)
-    for p, (a, b) in enumerate(zip(j, k, strict=True)):
-        if a not in trees:
-            trees[a] = cKDTree(trajectories[a])
-        out[p] = trees[a].query(trajectories[b], k=1)[0].min() ** 2
-    return out
-
-
 def sigma2_heuristics(
     trajectories: list[np.ndarray],
     *,
-    max_points: int = 50_000,
-    random_state: int | np.random.Generator | None = 0,
+    max_points: int = 20_000,
 ) -> dict[str, float]:
     """The paper's narrow, wide and medium kernel widths ``sigma^2``.
 
@@ -105,8 +82,6 @@ def sigma2_heuristics(
         At least two trajectories.
     max_points : int
         Thin the trajectories evenly to at most this many points in total.
-    random_state : int, Generator or None
-        Seeds the sample of trajectory pairs used for ``wide`` on large data sets.
 
     Returns
     -------
@@ -116,20 +91,9 @@ def sigma2_heuristics(
     if len(trajectories) < 2:
         raise ValueError("the sigma heuristics need at least 2 trajectories")
     thin = _thin(trajectories, max_points)
-    K = len(thin)
-    n_points = sum(len(x) for x in thin)
-    if n_points <= _DENSE_LIMIT:
-        d = closest_approach_matrix(thin)
-        nearest = d.min(axis=1)
-        pairs = d[np.triu_indices(K, 1)]
-    else:
-        nearest = _nearest_other(thin)
-        rng = np.random.default_rng(random_state)
-        if K * (K - 1) // 2 <= _MAX_PAIRS:
-            d = closest_approach_matrix(thin)
-            pairs = d[np.triu_indices(K, 1)]
-        else:
-            pairs = _sampled_pairs(thin, rng, _MAX_PAIRS)
+    d = closest_approach_matrix(thin)
+    nearest = d.min(axis=1)
+    pairs = d[np.triu_indices(len(thin), 1)]
     narrow = float(np.median(nearest))
     wide = float(np.median(pairs))
     # Coincident trajectories give a zero closest approach; keep the width positive.
@@ -139,17 +103,12 @@ def sigma2_heuristics(
     return {"narrow": narrow, "medium": float(np.sqrt(narrow * wide)), "wide": wide}
 
 
-def resolve_sigma2(
-    sigma: str | float,
-    trajectories: list[np.ndarray],
-    *,
-    random_state: int | np.random.Generator | None = 0,
-) -> float:
+def resolve_sigma2(sigma: str | float, trajectories: list[np.ndarray]) -> float:
     """Kernel width ``sigma^2`` from a rule name or a given positive value."""
     if isinstance(sigma, str):
         if sigma not in RULES:
             raise ValueError(f"sigma must be one of {RULES} or a positive float, got {sigma!r}")
-        return sigma2_heuristics(trajectories, random_state=random_state)[sigma]
+        return sigma2_heuristics(trajectories)[sigma]
     value = float(sigma)
     if not np.isfinite(value) or value <= 0:
         raise ValueError(f"sigma (sigma^2) must be a positive finite float, got {sigma!r}")

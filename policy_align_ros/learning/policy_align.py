@@ -49,8 +49,9 @@ class PolicyAlign:
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
     merge_tol : float
-        Reference points closer than ``merge_tol * sigma`` along a trajectory are merged
-        in the neighbour search (0: every point, as in the paper).
+        Samples closer than ``merge_tol * sigma`` along a trajectory are merged in the
+        alignment (0: every sample, as in the paper); it bounds the work when a robot
+        rests or is sampled densely.
     eigen_tol : float
         Eigenvalues of the alignment Hessian below this mark weakly connected groups.
     regressor : estimator, optional
@@ -68,7 +69,7 @@ class PolicyAlign:
         sigma: str | float = "medium",
         integration: str = "euler",
         weight_tol: float = 1e-8,
-        merge_tol: float = 0.05,
+        merge_tol: float = 0.1,
         eigen_tol: float = 1e-8,
         regressor=None,
         random_state: int | None = 0,
@@ -153,9 +154,7 @@ class PolicyAlign:
         X = np.concatenate([t.positions for t in trajs])
         labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
         phi_all = np.concatenate(phi)
-        self.sigma2_ = resolve_sigma2(
-            self.sigma, [t.positions for t in trajs], random_state=self.random_state
-        )
+        self.sigma2_ = resolve_sigma2(self.sigma, [t.positions for t in trajs])
         timings["sigma"] = time.perf_counter() - t0
         self._log(f"{len(trajs)} trajectories, {len(X)} samples, sigma^2 = {self.sigma2_:.4g}")
 
@@ -242,11 +241,13 @@ class PolicyAlign:
 
     def potential(self, X: np.ndarray) -> np.ndarray:
         """Learnt potential ``f(x)``, shape (m,), for states ``X`` of shape (m, n)."""
-        return self.regressor_.predict(self._check_X(X))
+        X = self._check_X(X)
+        return self.regressor_.predict(X)
 
     def policy(self, X: np.ndarray) -> np.ndarray:
         """Learnt unconstrained policy ``-grad f(x)``, shape (m, n)."""
-        return -self.regressor_.gradient(self._check_X(X))
+        X = self._check_X(X)
+        return -self.regressor_.gradient(X)
 
     # -- persistence ------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:

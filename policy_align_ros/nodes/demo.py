@@ -71,7 +71,7 @@ class DemoSettings:
 
     robot: str = "talos"
     out: Path = Path("demo_out")
-    demos: int = 16
+    demos: int = 20
     demo_duration_s: float = 3.0
     run_duration_s: float = 6.0
     rate_hz: float = 50.0
@@ -314,6 +314,16 @@ def _write_params(path: Path, s: DemoSettings, q_start: np.ndarray, attractor: n
     os.replace(tmp, path)
 
 
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    tmp = path.with_name(path.name + ".tmp")
+    fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
 def _plot(out: Path, runs: dict, dt: float, robot: Robot, frames: list[str]) -> list[Path]:
     import matplotlib
 
@@ -332,9 +342,7 @@ def _plot(out: Path, runs: dict, dt: float, robot: Robot, frames: list[str]) -> 
     ax.set_title("Distance to the attractor: learnt policy (executor) vs expert")
     ax.legend()
     fig.tight_layout()
-    paths.append(out / "demo_distance.png")
-    fig.savefig(paths[-1], dpi=120)
-    plt.close(fig)
+    paths.append(_save(fig, out / "demo_distance.png"))
 
     if frames:
         fig, axes = plt.subplots(1, len(runs), figsize=(5 * len(runs), 4.5), squeeze=False)
@@ -351,9 +359,7 @@ def _plot(out: Path, runs: dict, dt: float, robot: Robot, frames: list[str]) -> 
             ax.axis("equal")
         axes[0][0].legend(fontsize=7)
         fig.tight_layout()
-        paths.append(out / "demo_hands.png")
-        fig.savefig(paths[-1], dpi=120)
-        plt.close(fig)
+        paths.append(_save(fig, out / "demo_hands.png"))
     return paths
 
 
@@ -431,14 +437,16 @@ def _stages(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor, robo
                              f"(progress {shown or '0'}):\n{graph.tail('demonstrator')}")
         conductor.spin(0.1)
     graph.check(allow_exit=("demonstrator",))
-    conductor.spin(0.1)
-    _say(t0, f"demonstrations recorded: {conductor.progress}")
+    _say(t0, f"demonstrator finished: {s.demos} demonstrations recorded")
 
     # Stage 3: learning.
     _say(t0, "calling /learner/learn ...")
     answer = conductor.trigger("/learner/learn", timeout=150.0)
     learnt = _parse_summary(answer)
     _say(t0, f"learner: {answer}")
+    if learnt["train"] + learnt["held_out"] != s.demos:
+        raise StageError(f"the learner found {learnt['train'] + learnt['held_out']} "
+                         f"demonstrations on disk, {s.demos} were recorded")
     model_path = s.out / "model.npz"
     deadline = time.monotonic() + 10.0
     while str(model_path) not in conductor.enable(False):

@@ -11,6 +11,10 @@ eq. 20 with ``W = gain/2 I``). For each of ``num_demos`` demonstrations it:
 3. calls the recorder's ``start_demo`` (std_srvs/Trigger), runs ``N(q) pi(q)`` for
    ``demo_duration_s`` seconds, stops the robot and calls ``stop_demo``.
 
+It starts once the recorder's services exist and the recorder subscribes to
+``/joint_states``. A demonstration that the recorder refuses to write at ``stop_demo`` is
+redone (``max_retries`` in total); a refused ``start_demo`` ends the run.
+
 Commands go to ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s,
 order = ``joints``); the state comes from ``/joint_states``. Progress (``k/K``) is published
 on ``~/progress`` (std_msgs/String, transient local). With ``exit_when_done`` the process
@@ -98,6 +102,9 @@ class Demonstrator(Node):
                                               read_only=True))
         p("service_timeout_s", 30.0, descriptor("wait this long for the recorder [s]",
                                                 read_only=True, float_range=(0.1, 3600.0)))
+        p("max_retries", 3, descriptor(
+            "demonstrations the recorder refused to write are redone this often in total",
+            read_only=True, int_range=(0, 1000)))
         p("seed", 0, descriptor("random seed", read_only=True, int_range=(0, 2**31 - 1)))
         p("exit_when_done", True, descriptor("exit after the last demonstration",
                                              read_only=True))
@@ -120,6 +127,7 @@ class Demonstrator(Node):
         self.vmax = np.full(len(joints), float(value("max_velocity").value))
         self.done = Future()
         self.demos_done = 0
+        self._failures = 0
         self._index = {name: i for i, name in enumerate(joints)}
         self._q: np.ndarray | None = None
         self._state = "wait"
@@ -171,17 +179,22 @@ class Demonstrator(Node):
         self._enter(what)
 
     def _answer(self) -> Trigger.Response | None:
-        """The pending service answer, None while waiting; finishes on refusal/timeout."""
+        """The pending service answer, None while waiting; finishes on a timeout."""
         if self._pending.done():
             response = self._pending.result()
-            if response is None or not response.success:
-                why = "no answer" if response is None else response.message
-                self._finish(1, f"recorder refused {self._state}: {why}")
-                return None
+            if response is None:
+                self._finish(1, f"recorder gave no answer to {self._state}")
             return response
         if time.monotonic() - self._since > self.get_parameter("service_timeout_s").value:
             self._finish(1, f"recorder did not answer {self._state}")
         return None
+
+    def _recorder_listens(self) -> bool:
+        recorder = "/" + self.get_parameter("recorder").value.strip("/")
+        for info in self.get_subscriptions_info_by_topic("/joint_states"):
+            if f"{info.node_namespace.rstrip('/')}/{info.node_name}" == recorder:
+                return True
+        return False
 
     def _on_timer(self) -> None:
         elapsed = time.monotonic() - self._since
@@ -190,7 +203,7 @@ class Demonstrator(Node):
             return
         if self._state == "wait":
             if self._q is not None and self._start.service_is_ready() and \
-                    self._stop.service_is_ready():
+                    self._stop.service_is_ready() and self._recorder_listens():
                 self._new_start()
             elif elapsed > self.get_parameter("service_timeout_s").value:
                 self._finish(1, "no joint states or no recorder services: gave up")
@@ -209,7 +222,10 @@ class Demonstrator(Node):
             self._send(constrained_command(q, pi, np.zeros((0, q.size)), lower, upper,
                                            self.vmax, self.period))
         elif self._state == "start_demo":
-            if self._answer() is not None:
+            response = self._answer()
+            if response is not None and not response.success:
+                self._finish(1, f"recorder refused start_demo: {response.message}")
+            elif response is not None:
                 self._enter("demo")
         elif self._state == "demo":
             if elapsed >= self.get_parameter("demo_duration_s").value:
@@ -221,7 +237,19 @@ class Demonstrator(Node):
                  if self._constraints else np.zeros((0, q.size)))
             self._send(constrained_command(q, pi, A, lower, upper, self.vmax, self.period))
         elif self._state == "stop_demo":
-            if self._answer() is not None:
+            response = self._answer()
+            if response is not None and not response.success:
+                # The recorder kept nothing (e.g. its subscription was not matched yet):
+                # redo this demonstration from a new start, a few times at most.
+                self._failures += 1
+                if self._failures > self.get_parameter("max_retries").value:
+                    self._finish(1, f"recorder refused stop_demo: {response.message}")
+                else:
+                    self.get_logger().warning(
+                        f"recorder refused stop_demo ({response.message}); redoing "
+                        f"demonstration {self.demos_done + 1}")
+                    self._new_start()
+            elif response is not None:
                 self.demos_done += 1
                 self._progress.publish(String(data=f"{self.demos_done}/{self.num_demos}"))
                 self.get_logger().info(

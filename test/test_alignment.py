@@ -1,0 +1,101 @@
+"""Sparse alignment against the paper's dense formulas (policy_align_ros.learning.alignment)."""
+
+import numpy as np
+import pytest
+
+from policy_align_ros.experiments.toy import make_toy_dataset
+from policy_align_ros.learning.alignment import (
+    alignment_system,
+    dense_local_model_table,
+    dense_offsets,
+    local_model_table,
+    solve_offsets,
+    thin_along_trajectories,
+)
+from policy_align_ros.learning.potential import euler_potential
+
+
+def _problem(seed=0, K=12, N=15):
+    data = make_toy_dataset("parabola", K, N, np.random.default_rng(seed))
+    X = np.concatenate([t.positions for t in data.trajectories])
+    labels = np.repeat(np.arange(K), N)
+    phi = np.concatenate([euler_potential(t.positions) for t in data.trajectories])
+    return X, labels, phi, data
+
+
+@pytest.mark.parametrize("sigma2", [0.05, 0.3, 2.0])
+def test_sparse_offsets_agree_with_dense_formulas(sigma2):
+    X, labels, phi, _ = _problem()
+    Q, F = dense_local_model_table(X, labels, phi, sigma2)
+    b_dense = dense_offsets(Q, F)
+    table = local_model_table(X, labels, phi, sigma2, weight_tol=1e-300, merge_tol=0.0)
+    H, a, _ = alignment_system(table)
+    b_sparse = solve_offsets(H, a)
+    b_dense -= b_dense.mean()
+    assert np.linalg.norm(b_sparse - b_dense) <= 1e-8 * np.linalg.norm(b_dense)
+    # H is the paper's h_ij and a its a_k.
+    H_dense = np.diag(Q.sum(0)) - Q.T @ Q
+    np.testing.assert_allclose(H.toarray(), H_dense, rtol=1e-8, atol=1e-10)
+    a_dense = np.sum(Q * F, 0) - Q.T @ np.sum(Q * F, 1)
+    np.testing.assert_allclose(a, a_dense, rtol=1e-8, atol=1e-10)
+
+
+def test_default_cutoff_and_merging_stay_close_to_dense():
+    X, labels, phi, _ = _problem(seed=1)
+    b_dense = dense_offsets(*dense_local_model_table(X, labels, phi, 0.3))
+    b_dense -= b_dense.mean()
+    cut = local_model_table(X, labels, phi, 0.3, merge_tol=0.0)  # default weight_tol
+    b = solve_offsets(*alignment_system(cut)[:2])
+    assert np.linalg.norm(b - b_dense) <= 1e-6 * np.linalg.norm(b_dense)
+    merged = local_model_table(X, labels, phi, 0.3)  # default merge_tol
+    b = solve_offsets(*alignment_system(merged)[:2])
+    assert np.linalg.norm(b - b_dense) <= 0.05 * np.linalg.norm(b_dense)
+
+
+def test_offsets_absorb_a_constant_added_to_any_trajectory():
+    X, labels, phi, _ = _problem(seed=2)
+    shifts = np.random.default_rng(5).normal(scale=10.0, size=labels.max() + 1)
+    b0 = solve_offsets(*alignment_system(local_model_table(X, labels, phi, 0.3))[:2])
+    b1 = solve_offsets(
+        *alignment_system(local_model_table(X, labels, phi + shifts[labels], 0.3))[:2]
+    )
+    aligned0 = phi + b0[labels]
+    aligned1 = phi + shifts[labels] + b1[labels]
+    diff = aligned1 - aligned0
+    np.testing.assert_allclose(diff, diff.mean(), atol=1e-8)
+
+
+def test_aligned_potentials_match_the_truth_up_to_a_constant():
+    X, labels, phi, data = _problem(seed=3, K=30, N=30)
+    b = solve_offsets(*alignment_system(local_model_table(X, labels, phi, 0.05))[:2])
+    truth = np.concatenate(data.phi)
+    err = phi + b[labels] - truth
+    assert np.std(err) < 0.2 * np.std(truth)
+    unaligned = phi - truth
+    assert np.std(err) < 0.1 * np.std(unaligned)
+
+
+def test_merging_keeps_counts_and_resting_robot_is_cheap():
+    # A trajectory that rests at its goal for 5000 samples collapses to a few queries.
+    rest = np.zeros((5000, 2))
+    move = np.column_stack([np.linspace(-1, 0, 50), np.zeros(50)])
+    X = np.concatenate([np.concatenate([move, rest]), move[::-1] + [0.0, 0.01]])
+    labels = np.repeat([0, 1], [5050, 50])
+    keep = thin_along_trajectories(X, labels, 0.01)
+    assert len(keep) < 200
+    phi = np.concatenate([euler_potential(X[:5050]), euler_potential(X[5050:])])
+    table = local_model_table(X, labels, phi, 0.01, merge_tol=0.1)
+    assert table.weights.sum() == len(X)
+    assert table.n_points < 200
+
+
+def test_disconnected_components_are_each_zero_mean():
+    X, labels, phi, _ = _problem(seed=4)
+    far = X.copy()
+    far[labels >= 6] += 100.0  # two clouds that never see each other
+    table = local_model_table(far, labels, phi, 0.3)
+    H, a, W = alignment_system(table)
+    assert W[:6, 6:].nnz == 0
+    b = solve_offsets(H, a)
+    assert abs(b[:6].mean()) < 1e-10
+    assert abs(b[6:].mean()) < 1e-10

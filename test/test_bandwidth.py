@@ -1,0 +1,56 @@
+"""Kernel-width heuristics (policy_align_ros.learning.bandwidth)."""
+
+import numpy as np
+import pytest
+
+from policy_align_ros.learning.bandwidth import (
+    closest_approach_matrix,
+    resolve_sigma2,
+    sigma2_heuristics,
+)
+
+
+def _lines(offsets):
+    """Parallel segments along x1 at heights ``offsets`` (x2)."""
+    s = np.linspace(0.0, 1.0, 11)
+    return [np.column_stack([s, np.full_like(s, h)]) for h in offsets]
+
+
+def test_closest_approach_matches_brute_force():
+    rng = np.random.default_rng(0)
+    trajs = [rng.normal(size=(rng.integers(2, 25), 3)) for _ in range(6)]
+    d = closest_approach_matrix(trajs)
+    for k, a in enumerate(trajs):
+        for j, b in enumerate(trajs):
+            if k != j:
+                assert d[k, j] == pytest.approx(((a[:, None] - b[None]) ** 2).sum(-1).min())
+    assert np.all(np.isinf(np.diag(d)))
+
+
+def test_heuristics_on_known_geometry():
+    # Heights 0, 1, 3: nearest squared distances 1, 1, 4 -> narrow = 1;
+    # pair distances 1, 9, 4 -> wide = 4; medium = sqrt(1 * 4) = 2.
+    s2 = sigma2_heuristics(_lines([0.0, 1.0, 3.0]))
+    assert s2["narrow"] == pytest.approx(1.0)
+    assert s2["wide"] == pytest.approx(4.0)
+    assert s2["medium"] == pytest.approx(2.0)
+
+
+def test_thinning_keeps_large_sets_close_to_exact():
+    rng = np.random.default_rng(3)
+    trajs = [np.cumsum(rng.normal(scale=0.05, size=(400, 3)), axis=0) + rng.normal(size=3)
+             for _ in range(30)]
+    exact = sigma2_heuristics(trajs, max_points=10**9)
+    thin = sigma2_heuristics(trajs, max_points=3000)
+    assert thin["wide"] == pytest.approx(exact["wide"], rel=0.1)
+    assert exact["narrow"] <= thin["narrow"] <= 3 * exact["narrow"] + 0.01
+
+
+def test_resolve_rejects_bad_values():
+    trajs = _lines([0.0, 1.0])
+    assert resolve_sigma2(0.3, trajs) == 0.3
+    for bad in ("tiny", -1.0, 0.0, float("nan")):
+        with pytest.raises(ValueError, match="sigma"):
+            resolve_sigma2(bad, trajs)
+    with pytest.raises(ValueError, match="at least 2"):
+        sigma2_heuristics(trajs[:1])

@@ -1,0 +1,72 @@
+"""Model files (policy_align_ros.learning.model_io and PolicyAlign.save/load)."""
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from policy_align_ros.experiments.toy import make_toy_dataset
+from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.model_io import FORMAT_VERSION, load_npz, save_npz
+
+
+@pytest.fixture(scope="module")
+def model():
+    data = make_toy_dataset("sinusoid", 20, 25, np.random.default_rng(0))
+    return PolicyAlign(sigma="medium").fit(data.trajectories, joint_names=["j1", "j2"])
+
+
+def test_round_trip_is_exact_and_leaves_no_temporary_files(model, tmp_path):
+    path = model.save(tmp_path / "model.npz")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.npz"]
+    loaded = PolicyAlign.load(path)
+    X = np.random.default_rng(1).uniform(-2, 2, size=(30, 2))
+    np.testing.assert_array_equal(loaded.potential(X), model.potential(X))
+    np.testing.assert_array_equal(loaded.policy(X), model.policy(X))
+    assert loaded.joint_names_ == ["j1", "j2"]
+    assert loaded.sigma2_ == model.sigma2_
+    np.testing.assert_array_equal(loaded.inliers_, model.inliers_)
+    for a, b in zip(loaded.aligned_potentials_, model.aligned_potentials_, strict=True):
+        np.testing.assert_array_equal(a, b)
+    with np.load(path, allow_pickle=False) as raw:  # numeric arrays and a JSON header only
+        assert all(raw[name].dtype != object for name in raw.files)
+
+
+def test_truncated_file_names_the_file(model, tmp_path):
+    path = model.save(tmp_path / "model.npz")
+    data = path.read_bytes()
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="cut.npz"):
+        PolicyAlign.load(cut)
+
+
+def test_foreign_and_missing_files(tmp_path):
+    foreign = tmp_path / "foreign.npz"
+    np.savez(foreign, x=np.arange(3))
+    with pytest.raises(ValueError, match="foreign.npz.*not a policy_align_ros model"):
+        PolicyAlign.load(foreign)
+    text = tmp_path / "notes.npz"
+    text.write_text("hello")
+    with pytest.raises(ValueError, match="notes.npz"):
+        PolicyAlign.load(text)
+    with pytest.raises(FileNotFoundError, match="missing.npz"):
+        PolicyAlign.load(tmp_path / "missing.npz")
+
+
+def test_newer_format_version_is_refused(tmp_path):
+    path = save_npz(tmp_path / "future.npz", {"kind": "policy_align"}, {"x": np.zeros(2)})
+    with zipfile.ZipFile(path) as zf:
+        assert "__header__.npy" in zf.namelist()
+    newer = tmp_path / "newer.npz"
+    np.savez(newer, __header__=np.array(json.dumps(
+        {"format_version": FORMAT_VERSION + 1, "kind": "policy_align"})))
+    with pytest.raises(ValueError, match="newer.npz.*newer than"):
+        load_npz(newer, kind="policy_align")
+
+
+def test_object_arrays_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="pickle"):
+        save_npz(tmp_path / "bad.npz", {"kind": "x"}, {"bad": np.array([{}], dtype=object)})
+    assert not list(tmp_path.iterdir())

@@ -1,0 +1,99 @@
+"""The PolicyAlign estimator end to end (policy_align_ros.learning.policy_align)."""
+
+import numpy as np
+import pytest
+
+import policy_align_ros.learning.policy_align as pa_module
+from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
+from policy_align_ros.experiments.toy import make_toy_dataset
+from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory
+
+
+@pytest.fixture(scope="module")
+def parabola():
+    rng = np.random.default_rng(11)
+    data = make_toy_dataset("parabola", 40, 40, rng)
+    masks = holdout_masks([40] * 40, rng)
+    model = PolicyAlign(sigma="medium", random_state=0).fit(data.trajectories,
+                                                            train_mask=masks)
+    return data, masks, model
+
+
+def test_known_potential_is_recovered(parabola):
+    data, masks, model = parabola
+    scores = evaluate_policy_align(
+        model, [t.positions for t in data.trajectories], data.phi, data.pi,
+        data.nullspace, masks,
+    )
+    assert scores["alignment_nmse"] < 0.03
+    assert scores["potential_nmse"] < 0.03
+    assert scores["nupe"] < 0.1
+    assert scores["ncpe"] < 0.1
+    assert scores["discarded_pct"] <= 10.0
+
+
+def test_learnt_attributes_follow_the_contract(parabola):
+    data, _, model = parabola
+    assert model.sigma2_ > 0
+    assert model.offsets_.shape == (40,)
+    assert model.inliers_.dtype.kind == "i"
+    assert len(model.aligned_potentials_) == 40
+    X = data.trajectories[0].positions
+    assert model.potential(X).shape == (40,)
+    assert model.policy(X).shape == (40, 2)
+    assert model.policy(X[0]).shape == (1, 2)
+
+
+def test_policy_is_the_negative_gradient_of_the_potential(parabola):
+    _, _, model = parabola
+    X = np.random.default_rng(0).uniform(-1.5, 1.5, size=(20, 2))
+    eps = 1e-6
+    grad = np.stack([
+        (model.potential(X + eps * e) - model.potential(X - eps * e)) / (2 * eps)
+        for e in np.eye(2)
+    ], axis=1)
+    np.testing.assert_allclose(model.policy(X), -grad, rtol=1e-5, atol=1e-8)
+
+
+def test_policy_is_invariant_to_constants_added_to_trajectory_potentials(monkeypatch):
+    data = make_toy_dataset("parabola", 25, 30, np.random.default_rng(4))
+    reference = PolicyAlign(sigma="medium").fit(data.trajectories)
+    shifts = iter(np.random.default_rng(9).normal(scale=50.0, size=25))
+    original = pa_module.estimate_potential
+    monkeypatch.setattr(pa_module, "estimate_potential",
+                        lambda traj, method: original(traj, method) + next(shifts))
+    shifted = PolicyAlign(sigma="medium").fit(data.trajectories)
+    X = np.random.default_rng(1).uniform(-1.5, 1.5, size=(50, 2))
+    np.testing.assert_allclose(shifted.policy(X), reference.policy(X), rtol=1e-6, atol=1e-9)
+    np.testing.assert_array_equal(shifted.inliers_, reference.inliers_)
+
+
+def test_timed_trajectories_give_a_policy_per_second():
+    # Unconstrained exact flow of phi = 0.5 ||x||^2 (pi = -x), sampled at 20 Hz.
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 3.0, 0.05)
+    trajs = [Trajectory(x0[None, :] * np.exp(-t)[:, None], times=t)
+             for x0 in rng.uniform(-2, 2, size=(30, 2))]
+    model = PolicyAlign(sigma="medium").fit(trajs)
+    X = np.concatenate([tr.positions[5:40:5] for tr in trajs])
+    pi_hat = model.policy(X)
+    rel = np.linalg.norm(pi_hat + X, axis=1).mean() / np.linalg.norm(X, axis=1).mean()
+    assert rel < 0.15  # per second: ~20x smaller than per-sample units would give
+
+
+def test_errors_are_clear():
+    with pytest.raises(NotFittedError, match="not fitted"):
+        PolicyAlign().policy(np.zeros((1, 2)))
+    with pytest.raises(ValueError, match="at least 2 trajectories"):
+        PolicyAlign().fit([np.zeros((3, 2))])
+    with pytest.raises(ValueError, match="integration must be one of"):
+        PolicyAlign(integration="rk4").fit([np.zeros((3, 2)), np.ones((3, 2))])
+    data = make_toy_dataset("parabola", 6, 10, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="train_mask 1"):
+        PolicyAlign().fit(data.trajectories, train_mask=[np.ones(10, bool), np.ones(3, bool)]
+                          + [np.ones(10, bool)] * 4)
+    model = PolicyAlign().fit(data.trajectories)
+    with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
+        model.policy(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="NaN"):
+        model.policy(np.array([[np.nan, 0.0]]))

@@ -1,0 +1,62 @@
+"""Validation of demonstrations (policy_align_ros.learning.trajectory)."""
+
+import numpy as np
+import pytest
+
+from policy_align_ros.learning import Trajectory, as_trajectories
+
+
+def test_plain_arrays_become_untimed_trajectories():
+    trajs = as_trajectories([np.zeros((3, 2)), np.ones((4, 2))])
+    assert [t.n_samples for t in trajs] == [3, 4]
+    assert trajs[0].times is None
+    np.testing.assert_array_equal(trajs[1].dt, np.ones(3))
+
+
+def test_times_give_real_time_steps():
+    traj = Trajectory(np.zeros((3, 1)), times=[0.0, 0.1, 0.3])
+    np.testing.assert_allclose(traj.dt, [0.1, 0.2])
+
+
+@pytest.mark.parametrize(
+    ("positions", "times", "message"),
+    [
+        (np.zeros(5), None, "shape"),
+        (np.zeros((1, 2)), None, "at least 2 samples"),
+        (np.array([[0.0, 1.0], [np.nan, 0.0]]), None, "NaN"),
+        (np.array([[0.0], [np.inf]]), None, "NaN or inf"),
+        (np.zeros((3, 2)), [0.0, 0.2, 0.2], "increase strictly"),
+        (np.zeros((3, 2)), [0.0, 0.2], "times must have shape"),
+    ],
+)
+def test_bad_trajectory_names_index_and_problem(positions, times, message):
+    good = np.zeros((4, np.shape(positions)[-1] if np.ndim(positions) == 2 else 2))
+    items = [Trajectory(good)] if times is None else [Trajectory(good, times=np.arange(4.0))]
+    with pytest.raises(ValueError, match=message) as err:
+        if times is None:
+            as_trajectories(items + [positions])
+        else:
+            as_trajectories(items + [Trajectory(positions, times=times, name="1")])
+    assert "trajectory 1" in str(err.value)
+
+
+def test_dimension_mismatch_names_the_trajectory():
+    with pytest.raises(ValueError, match=r"trajectory 2: has dimension 3"):
+        as_trajectories([np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 3))])
+
+
+def test_velocities_must_match_positions():
+    with pytest.raises(ValueError, match="velocities"):
+        Trajectory(np.zeros((3, 2)), velocities=np.zeros((3, 1)))
+
+
+def test_empty_and_single_array_inputs_are_rejected():
+    with pytest.raises(ValueError, match="no trajectories"):
+        as_trajectories([])
+    with pytest.raises(ValueError, match="sequence of trajectories"):
+        as_trajectories(np.zeros((3, 2)))
+
+
+def test_mixing_timed_and_untimed_is_rejected():
+    with pytest.raises(ValueError, match="trajectory 1: mixes timed"):
+        as_trajectories([Trajectory(np.zeros((2, 1)), times=[0, 1]), np.zeros((2, 1))])
