@@ -204,9 +204,10 @@ def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(probe)
         code = "import sys; from policy_align_ros.nodes.executor import main; sys.exit(main())"
-        params = [f"-p{k}:={v}" for k, v in (
-            ("robot", "talos"), ("joints", "[" + ",".join(JOINTS) + "]"),
-            ("model_path", str(model)), ("start_enabled", "true"))]
+        params = []
+        for k, v in (("robot", "talos"), ("joints", "[" + ",".join(JOINTS) + "]"),
+                     ("model_path", str(model)), ("start_enabled", "true")):
+            params += ["-p", f"{k}:={v}"]
         proc = subprocess.Popen([sys.executable, "-c", code, "--ros-args", *params],
                                 env=dict(os.environ, ROS_DOMAIN_ID="157"))
         q = np.full(len(JOINTS), 0.3)

@@ -43,3 +43,4 @@ def test_main_writes_table(tmp_path) -> None:
     assert humanoid.main(args) == 0
     table = (tmp_path / "humanoid.md").read_text()
     assert "nUPE" in table and "0.1568" in table
+    assert (tmp_path / "humanoid.png").stat().st_size > 10_000

@@ -66,7 +66,8 @@ def test_integrates_commands_then_holds_still_when_they_stop(rig):
     sim, states, spin, _, _ = rig
     spin(0.5, command=[0.2, 0.0, -0.1])
     moved = np.array(states[-1].position) - START
-    assert 0.05 < moved[0] < 0.12 and moved[1] == 0.0 and -0.06 < moved[2] < -0.025
+    # 0.1 and -0.05 nominally; timer jitter on a loaded machine only loses motion.
+    assert 0.03 < moved[0] < 0.11 and moved[1] == 0.0 and -0.055 < moved[2] < -0.015
     spin(0.2)  # no more commands: stale after 0.1 s
     held = np.array(states[-1].position)
     spin(0.2)
@@ -105,3 +106,17 @@ def test_bad_initial_positions_are_refused(rig):
     sim = rig[0]
     result = sim.set_parameters([Parameter("initial_positions", value=[0.0, 1.0])])[0]
     assert not result.successful and "need 3 finite values" in result.reason
+
+
+def test_process_with_an_unknown_robot_exits_with_status_1_and_a_reason():
+    import os
+    import subprocess
+    import sys
+
+    code = "import sys; from policy_align_ros.nodes.sim_robot import main; sys.exit(main())"
+    done = subprocess.run(
+        [sys.executable, "-c", code, "--ros-args", "-p", "robot:=talso"],
+        env=dict(os.environ, ROS_DOMAIN_ID="175"), capture_output=True, text=True,
+        timeout=60)
+    assert done.returncode == 1
+    assert "unknown robot name 'talso'" in done.stderr and "talos" in done.stderr

@@ -14,9 +14,9 @@ each hand keeps its start offset along its normal, so every demonstration ends a
 own point (median 0.3 rad from ``q_c``), trajectories in 22-D seldom come within the
 narrow sigma of each other and the alignment nMSE is ~0.13 (paper: 1.6e-3); with the
 re-draws it is ~5e-3 (``switches=0`` gives the fixed-plane variant).
-Start states ``q ~ N(q_0, 0.1 I)`` clipped to the joint limits. K = 100, N = 100, narrow
-sigma, 50 data sets; errors on a held-out random 20 % of the samples of the kept
-demonstrations.
+Start states ``q ~ N(q_0, 0.1 I)`` (variance 0.1 rad^2) clipped to the joint limits.
+K = 100, N = 100, narrow sigma, 50 data sets; errors on a held-out random 20 % of the
+samples of the kept demonstrations.
 """
 
 from __future__ import annotations
@@ -145,8 +145,15 @@ def make_humanoid_dataset(seed: int, n_traj: int = 100, n_samples: int = 100,
 
 
 def evaluate_dataset(seed: int, n_traj: int = 100, n_samples: int = 100,
-                     switches: int = SWITCHES) -> dict:
-    """Generate, learn with PolicyAlign (narrow sigma) and score one data set."""
+                     switches: int = SWITCHES, figure: bool = False) -> dict:
+    """Generate, learn with PolicyAlign (narrow sigma) and score one data set.
+
+    Returns
+    -------
+    dict
+        Metric name -> float, plus ``"figure"`` (held-out ground truth and predictions)
+        when ``figure``.
+    """
     from policy_align_ros.learning import PolicyAlign, metrics
 
     t0 = time.perf_counter()
@@ -161,7 +168,7 @@ def evaluate_dataset(seed: int, n_traj: int = 100, n_samples: int = 100,
     pi_hat = model.policy(X)
     aligned = np.concatenate(
         [model.aligned_potentials_[k][test[k]] for k in model.inliers_])
-    return {
+    out = {
         "alignment nMSE": metrics.potential_nmse(aligned, gt["phi"]),
         "potential nMSE": metrics.potential_nmse(model.potential(X), gt["phi"]),
         "nCPE": metrics.ncpe(pi, pi_hat, gt["N"]),
@@ -171,10 +178,48 @@ def evaluate_dataset(seed: int, n_traj: int = 100, n_samples: int = 100,
         "time generate (s)": t1 - t0,
         "time PolicyAlign (s)": t2 - t1,
     }
+    if figure:
+        out["figure"] = {"phi": gt["phi"], "aligned": aligned, "learnt": model.potential(X),
+                         "pi": pi, "pi_hat": pi_hat}
+    return out
 
 
-def _worker(job: tuple[int, int, int]) -> dict:
-    return evaluate_dataset(*job)
+def _worker(job: tuple[int, int, int, bool]) -> dict:
+    seed, n_traj, n_samples, figure = job
+    return evaluate_dataset(seed, n_traj, n_samples, figure=figure)
+
+
+def plot_figure(data: dict, path: Path) -> None:
+    """Held-out samples of one data set: aligned and learnt potential against the truth
+    (each shifted by its mean error, as in the nMSE) and policy components."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from policy_align_ros.experiments.grasp import _save_fig
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2))
+    phi = data["phi"]
+    for ax, key, title in ((axes[0], "aligned", "aligned Euler potential"),
+                           (axes[1], "learnt", "learnt potential f(q)")):
+        pred = data[key] - np.mean(data[key] - phi)
+        ax.plot(phi, pred, ".", ms=2, alpha=0.5)
+        ax.plot([phi.min(), phi.max()], [phi.min(), phi.max()], "k-", lw=0.8)
+        ax.set_xlabel("true potential")
+        ax.set_ylabel("estimate")
+        ax.set_title(title)
+    pi, pi_hat = data["pi"].ravel(), data["pi_hat"].ravel()
+    axes[2].plot(pi, pi_hat, ".", ms=1, alpha=0.3)
+    lim = [pi.min(), pi.max()]
+    axes[2].plot(lim, lim, "k-", lw=0.8)
+    axes[2].set_xlabel("true policy component [rad/s]")
+    axes[2].set_ylabel("learnt policy component [rad/s]")
+    axes[2].set_title("unconstrained policy, all 22 joints")
+    fig.suptitle("22-DOF humanoid, held-out samples of data set 0")
+    fig.tight_layout()
+    _save_fig(fig, path)
+    plt.close(fig)
 
 
 def format_table(results: Sequence[dict]) -> str:
@@ -199,11 +244,13 @@ def run(datasets: int, jobs: int, seed: int, n_traj: int = 100, n_samples: int =
     """Evaluate ``datasets`` data sets on ``jobs`` processes."""
     from policy_align_ros.experiments.grasp import run_pool
 
-    return run_pool(_worker, [(seed + i, n_traj, n_samples) for i in range(datasets)], jobs)
+    jobs_list = [(seed + i, n_traj, n_samples, i == 0) for i in range(datasets)]
+    return run_pool(_worker, jobs_list, jobs)
 
 
 def main(args) -> int:
-    """``policy-align bench humanoid``: print the table and write ``<out>/humanoid.md``.
+    """``policy-align bench humanoid``: print the table, write ``<out>/humanoid.md`` and
+    the figure ``<out>/humanoid.png``.
 
     ``args`` has ``datasets`` (None = the paper's 50), ``jobs``, ``out``, ``seed``.
     """
@@ -228,5 +275,6 @@ def main(args) -> int:
               f"{jobs} worker(s).\n")
     print(table)
     _write_atomic(out / "humanoid.md", table)
-    print(f"wrote {out / 'humanoid.md'}", file=sys.stderr)
+    plot_figure(results[0]["figure"], out / "humanoid.png")
+    print(f"wrote {out / 'humanoid.md'} and {out / 'humanoid.png'}", file=sys.stderr)
     return 0

@@ -43,8 +43,10 @@ __all__ = [
 ]
 
 _CHUNK_PAIRS = 4_000_000  # bound on neighbour pairs held at once
-_DENSE_FRACTION = 0.1  # above this share of points in reach, distance blocks beat a tree
-_DENSE_MAX_ENTRIES = 50_000_000  # (M, K) entries a dense search may hold
+_TREE_MAX_PAIRS = 20_000_000  # above this many neighbour pairs, a tree search is too slow
+_DENSE_MAX_ENTRIES = 20_000_000  # (M, K) distances the exact dense search may compute
+_BLOCK_QUERIES = 60_000  # query points of the approximate (blocked) table
+_BLOCK_REFERENCES = 250_000  # reference points of the approximate table
 
 
 @dataclass
@@ -102,6 +104,8 @@ def local_model_table(
     *,
     weight_tol: float = 1e-8,
     merge_tol: float = 0.1,
+    max_neighbours: int = 32,
+    closest: np.ndarray | None = None,
 ) -> LocalModelTable:
     """Responsibilities and local predictions, keeping weights above ``weight_tol``.
 
@@ -122,6 +126,14 @@ def local_model_table(
         Samples closer than ``merge_tol * sigma`` along a trajectory are merged: into one
         reference point of the nearest-neighbour models, and into one query point that
         counts for all of them in the objective (0 keeps every sample, as in the paper).
+    max_neighbours : int
+        Only used when the exact table would not fit in memory (many trajectories whose
+        kernels overlap, typical near a common attractor in high dimension): each point
+        then sees the ``max_neighbours`` trajectories that come closest to its own, and
+        samples are merged more coarsely (see ``_blocked_table``).
+    closest : ndarray, shape (K, K), optional
+        Closest approaches between trajectories (``bandwidth.closest_approach_matrix``),
+        which choose those neighbours; computed on thinned trajectories when missing.
 
     Returns
     -------
@@ -130,30 +142,42 @@ def local_model_table(
     K = int(labels[-1]) + 1
     radius = float(np.sqrt(-2.0 * sigma2 * np.log(weight_tol)))
     ref = thin_along_trajectories(X, labels, merge_tol * np.sqrt(sigma2))
+    tree = cKDTree(X[ref])
+    sample = X[ref][:: max(1, len(ref) // 2000)]
+    per_point = max(1.0, tree.count_neighbors(cKDTree(sample), radius) / len(sample))
+    pairs = per_point * len(ref)
+    # Rough costs in seconds: a tree search pays per neighbour pair found, the dense search
+    # per distance computed, and is far cheaper per item (one matrix product per trajectory).
+    tree_cost = 1e-6 * pairs
+    dense_cost = 5e-10 * len(ref) ** 2 * (X.shape[1] + 10)
+    if pairs <= _TREE_MAX_PAIRS and (tree_cost <= dense_cost or len(ref) * K > _DENSE_MAX_ENTRIES):
+        mode = "tree"
+    elif len(ref) * K <= _DENSE_MAX_ENTRIES:
+        mode = "dense"
+    else:
+        return _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours,
+                              closest)
     weights = np.diff(np.append(ref, len(X))).astype(float)
     X, labels, phi = X[ref], labels[ref], phi[ref]
-    M = len(X)
-    tree = cKDTree(X)
-    ref_labels = labels
-    ref_phi = phi
+    if mode == "tree":
+        searches = _nearest_per_trajectory_tree(X, labels, tree, labels, radius, per_point)
+    else:
+        searches = _nearest_per_trajectory_dense(X, labels, X, labels, radius)
+    return _assemble(labels, phi, phi, weights, searches, sigma2, K)
 
+
+def _assemble(labels, phi_query, phi_ref, weights, searches, sigma2, K) -> LocalModelTable:
+    """Table from the own-trajectory entries (distance 0) and the neighbour searches."""
+    M = len(labels)
     rows_parts = [np.arange(M)]
     cols_parts = [labels.astype(np.int64)]
     d_parts = [np.zeros(M)]
-    f_parts = [phi.astype(float)]
-    sample = X[:: max(1, M // 2000)]
-    per_point = max(1.0, tree.count_neighbors(cKDTree(sample), radius) / len(sample))
-    if per_point > _DENSE_FRACTION * len(ref) and M * K <= _DENSE_MAX_ENTRIES:
-        # A wide kernel reaches most points: a tree search would enumerate ~M^2 pairs,
-        # while one distance block per trajectory is a single matrix product.
-        searches = _nearest_per_trajectory_dense(X, labels, X, ref_labels, radius)
-    else:
-        searches = _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point)
+    f_parts = [phi_query.astype(float)]
     for i, k, j, d2 in searches:
         rows_parts.append(i)
         cols_parts.append(k)
         d_parts.append(d2)
-        f_parts.append(ref_phi[j])
+        f_parts.append(phi_ref[j])
     rows = np.concatenate(rows_parts)
     cols = np.concatenate(cols_parts)
     d2 = np.concatenate(d_parts)
@@ -161,6 +185,60 @@ def local_model_table(
     w = np.exp(-0.5 * d2 / sigma2)
     q = w / np.bincount(rows, weights=w, minlength=M)[rows]
     return LocalModelTable(rows, cols, q, f, weights, M, K)
+
+
+def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, closest):
+    """Approximate table for large data sets whose kernels overlap massively.
+
+    Queries and references are merged along each trajectory with spacings that bound their
+    numbers (``_BLOCK_QUERIES``, ``_BLOCK_REFERENCES``), never finer than ``merge_tol``
+    sigma; each query sees the ``max_neighbours`` trajectories that approach its own most
+    closely. Weakly connected trajectories have few neighbours, so the links that outlier
+    detection looks for are kept; what is dropped are the far members of crowds.
+    """
+    from policy_align_ros.learning.bandwidth import closest_approach_matrix, thin_trajectories
+
+    K = int(labels[-1]) + 1
+    starts = np.searchsorted(labels, np.arange(K + 1))
+    if closest is None:
+        trajs = [X[starts[k]:starts[k + 1]] for k in range(K)]
+        closest = closest_approach_matrix(thin_trajectories(trajs, 20_000))
+    steps = np.linalg.norm(np.diff(X, axis=0), axis=1)
+    steps[labels[1:] != labels[:-1]] = 0.0
+    total_arc = float(steps.sum())
+    fine = merge_tol * np.sqrt(sigma2)
+    ref_spacing = max(fine, total_arc / _BLOCK_REFERENCES)
+    query_spacing = max(ref_spacing, total_arc / _BLOCK_QUERIES)
+    ref = thin_along_trajectories(X, labels, ref_spacing)
+    qry = thin_along_trajectories(X, labels, query_spacing)
+    weights = np.diff(np.append(qry, len(X))).astype(float)
+    ref_starts = np.searchsorted(labels[ref], np.arange(K + 1))
+    qry_starts = np.searchsorted(labels[qry], np.arange(K + 1))
+    R = X[ref]
+    sq_r = np.einsum("ij,ij->i", R, R)
+    neighbours = np.argsort(closest, axis=1)[:, :max_neighbours]
+    r2 = radius**2
+
+    def searches():
+        for k in range(K):
+            rows = np.arange(qry_starts[k], qry_starts[k + 1])
+            Q = X[qry[rows]]
+            cand = neighbours[k][np.isfinite(closest[k, neighbours[k]])]
+            segs = [np.arange(ref_starts[j], ref_starts[j + 1]) for j in cand]
+            cols = np.concatenate(segs)
+            d2 = np.einsum("ij,ij->i", Q, Q)[:, None] + sq_r[cols][None, :]
+            d2 -= 2.0 * Q @ R[cols].T
+            offset = 0
+            for j, seg in zip(cand, segs, strict=True):
+                block = d2[:, offset:offset + len(seg)]
+                offset += len(seg)
+                arg = np.argmin(block, axis=1)
+                best = np.maximum(block[np.arange(len(rows)), arg], 0.0)
+                keep = best <= r2
+                if keep.any():
+                    yield rows[keep], np.full(int(keep.sum()), j), seg[arg[keep]], best[keep]
+
+    return _assemble(labels[qry], phi[qry], phi[ref], weights, searches(), sigma2, K)
 
 
 def _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point):

@@ -16,12 +16,19 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RULES", "closest_approach_matrix", "sigma2_heuristics", "resolve_sigma2"]
+__all__ = [
+    "RULES",
+    "thin_trajectories",
+    "closest_approach_matrix",
+    "sigma2_from_closest",
+    "sigma2_heuristics",
+    "resolve_sigma2",
+]
 
 RULES = ("narrow", "medium", "wide")
 
 
-def _thin(trajectories: list[np.ndarray], max_points: int) -> list[np.ndarray]:
+def thin_trajectories(trajectories: list[np.ndarray], max_points: int) -> list[np.ndarray]:
     """Keep at most ``max_points`` in total, evenly spaced in arc length per trajectory."""
     per_traj = max(2, max_points // max(len(trajectories), 1))
     out = []
@@ -90,10 +97,14 @@ def sigma2_heuristics(
     """
     if len(trajectories) < 2:
         raise ValueError("the sigma heuristics need at least 2 trajectories")
-    thin = _thin(trajectories, max_points)
-    d = closest_approach_matrix(thin)
+    thin = thin_trajectories(trajectories, max_points)
+    return sigma2_from_closest(closest_approach_matrix(thin))
+
+
+def sigma2_from_closest(d: np.ndarray) -> dict[str, float]:
+    """Narrow, medium and wide ``sigma^2`` from a closest-approach matrix (K x K)."""
     nearest = d.min(axis=1)
-    pairs = d[np.triu_indices(len(thin), 1)]
+    pairs = d[np.triu_indices(len(d), 1)]
     narrow = float(np.median(nearest))
     wide = float(np.median(pairs))
     # Coincident trajectories give a zero closest approach; keep the width positive.
@@ -103,12 +114,19 @@ def sigma2_heuristics(
     return {"narrow": narrow, "medium": float(np.sqrt(narrow * wide)), "wide": wide}
 
 
-def resolve_sigma2(sigma: str | float, trajectories: list[np.ndarray]) -> float:
-    """Kernel width ``sigma^2`` from a rule name or a given positive value."""
+def resolve_sigma2(
+    sigma: str | float, trajectories: list[np.ndarray], closest: np.ndarray | None = None
+) -> float:
+    """Kernel width ``sigma^2`` from a rule name or a given positive value.
+
+    ``closest`` is a precomputed ``closest_approach_matrix`` of (thinned) trajectories.
+    """
     if isinstance(sigma, str):
         if sigma not in RULES:
             raise ValueError(f"sigma must be one of {RULES} or a positive float, got {sigma!r}")
-        return sigma2_heuristics(trajectories)[sigma]
+        if closest is None:
+            return sigma2_heuristics(trajectories)[sigma]
+        return sigma2_from_closest(closest)[sigma]
     value = float(sigma)
     if not np.isfinite(value) or value <= 0:
         raise ValueError(f"sigma (sigma^2) must be a positive finite float, got {sigma!r}")

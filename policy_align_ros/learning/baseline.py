@@ -112,9 +112,10 @@ class NaivePolicy:
         return f"NaivePolicy({args})"
 
     def _regressor(self) -> LocalLinearRegression:
-        # None keeps the regressor's own default, so the two stay in step.
+        # None keeps the regressor's own default, so the two stay in step. Velocities are
+        # values, not a potential up to an offset: CV scores plain squared errors.
         params = {k: v for k, v in self.get_params().items() if v is not None}
-        return LocalLinearRegression(**params)
+        return LocalLinearRegression(cv_criterion="mse", **params)
 
     def fit(self, trajectories: Sequence[Trajectory | np.ndarray]) -> NaivePolicy:
         """Fit on demonstrations.
@@ -173,7 +174,13 @@ class NaivePolicy:
         """
         self._check_fitted()
         arrays, reg_meta = self.regressor_.get_state()
-        return arrays, {"version": _STATE_VERSION, "kind": "naive", "regressor": reg_meta}
+        params = self.get_params()
+        if isinstance(params["random_state"], np.random.Generator):
+            params["random_state"] = None
+        if params["bandwidth_grid"] is not None:
+            params["bandwidth_grid"] = [float(v) for v in params["bandwidth_grid"]]
+        meta = {"version": _STATE_VERSION, "kind": "naive", "params": params}
+        return arrays, {**meta, "regressor": reg_meta}
 
     @classmethod
     def from_state(cls, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> NaivePolicy:
@@ -192,11 +199,15 @@ class NaivePolicy:
                 f"naive policy state: unsupported format version {version!r} "
                 f"(supported: {_STATE_VERSION})"
             )
+        if not isinstance(meta.get("regressor"), dict):
+            raise ValueError("naive policy state: missing regressor header")
         reg = LocalLinearRegression.from_state(arrays, meta["regressor"])
         if reg.y_ndim_ != 2 or reg.n_outputs_ != reg.n_features_in_:
             raise ValueError("naive policy state: regressor does not map R^n to R^n")
-        params = {k: v for k, v in meta["regressor"]["params"].items()}
-        model = cls(**params)
+        try:
+            model = cls(**meta["params"])
+        except (KeyError, TypeError) as err:
+            raise ValueError(f"naive policy state: bad parameters ({err})") from None
         model.regressor_ = reg
         model.n_features_in_ = reg.n_features_in_
         return model

@@ -28,7 +28,11 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_offsets,
 )
-from policy_align_ros.learning.bandwidth import resolve_sigma2
+from policy_align_ros.learning.bandwidth import (
+    closest_approach_matrix,
+    resolve_sigma2,
+    thin_trajectories,
+)
 from policy_align_ros.learning.outliers import weakly_connected_groups
 from policy_align_ros.learning.potential import METHODS, estimate_potential
 from policy_align_ros.learning.regression import LocalLinearRegression, NotFittedError
@@ -54,6 +58,10 @@ class PolicyAlign:
         rests or is sampled densely.
     eigen_tol : float
         Eigenvalues of the alignment Hessian below this mark weakly connected groups.
+    max_neighbours : int
+        When the exact responsibility table would not fit in memory (large data sets in
+        high dimension, whose kernels overlap near a common attractor), each sample sees
+        only the trajectories that come closest to its own, this many at most.
     regressor : estimator, optional
         Global model with ``fit(X, y, groups)``, ``predict``, ``gradient``, ``get_state``
         and ``from_state``; default ``LocalLinearRegression``, whose gradient is analytic.
@@ -71,6 +79,7 @@ class PolicyAlign:
         weight_tol: float = 1e-8,
         merge_tol: float = 0.1,
         eigen_tol: float = 1e-8,
+        max_neighbours: int = 32,
         regressor=None,
         random_state: int | None = 0,
         verbose: bool = False,
@@ -80,6 +89,7 @@ class PolicyAlign:
         self.weight_tol = weight_tol
         self.merge_tol = merge_tol
         self.eigen_tol = eigen_tol
+        self.max_neighbours = max_neighbours
         self.regressor = regressor
         self.random_state = random_state
         self.verbose = verbose
@@ -93,6 +103,7 @@ class PolicyAlign:
             "weight_tol": self.weight_tol,
             "merge_tol": self.merge_tol,
             "eigen_tol": self.eigen_tol,
+            "max_neighbours": self.max_neighbours,
             "regressor": self.regressor,
             "random_state": self.random_state,
             "verbose": self.verbose,
@@ -107,6 +118,10 @@ class PolicyAlign:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 < value < 1):
                 raise ValueError(f"{name} must be a float in (0, 1), got {value!r}")
+        if not (isinstance(self.max_neighbours, int) and self.max_neighbours >= 1):
+            raise ValueError(
+                f"max_neighbours must be a positive int, got {self.max_neighbours!r}"
+            )
         if not (isinstance(self.merge_tol, (int, float)) and 0 <= self.merge_tol < 1):
             raise ValueError(f"merge_tol must be a float in [0, 1), got {self.merge_tol!r}")
 
@@ -154,7 +169,9 @@ class PolicyAlign:
         X = np.concatenate([t.positions for t in trajs])
         labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
         phi_all = np.concatenate(phi)
-        self.sigma2_ = resolve_sigma2(self.sigma, [t.positions for t in trajs])
+        positions = [t.positions for t in trajs]
+        closest = closest_approach_matrix(thin_trajectories(positions, 20_000))
+        self.sigma2_ = resolve_sigma2(self.sigma, positions, closest)
         timings["sigma"] = time.perf_counter() - t0
         self._log(f"{len(trajs)} trajectories, {len(X)} samples, sigma^2 = {self.sigma2_:.4g}")
 
@@ -162,6 +179,7 @@ class PolicyAlign:
         table = local_model_table(
             X, labels, phi_all, self.sigma2_,
             weight_tol=self.weight_tol, merge_tol=self.merge_tol,
+            max_neighbours=self.max_neighbours, closest=closest,
         )
         _, _, W = alignment_system(table)
         self.groups_ = weakly_connected_groups(W, self.eigen_tol)
