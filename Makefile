@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint unit venv clean
+.PHONY: demo test lint unit colcon-smoke venv clean
 
 venv: $(STAMP)
 
@@ -19,12 +19,16 @@ demo: $(STAMP)
 	$(BIN)/policy-align demo --out demo_out
 
 lint: $(STAMP)
-	$(BIN)/ruff check policy_align_ros test
+	$(BIN)/ruff check policy_align_ros test tools
 
 unit: $(STAMP)
 	$(BIN)/python -m pytest -q test
 
-test: lint unit
+# colcon build of the package into a scratch workspace, then start an installed executable.
+colcon-smoke: $(STAMP)
+	PATH=$(CURDIR)/$(BIN):$$PATH tools/colcon_smoke.sh
+
+test: lint unit colcon-smoke
 
 clean:
 	rm -rf $(VENV) build install log

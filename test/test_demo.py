@@ -34,7 +34,7 @@ def test_short_demo_runs_every_stage_and_cleans_up(tmp_path, capsys):
                  "(a) unconstrained", "(b) unseen constraint", "held hand moved"):
         assert item in report
     trajs, names, _ = load_dataset([out / "demos"])
-    assert len(trajs) == 3 and len(names) == 20
+    assert len(trajs) == 3 and len(names) == 18
     assert (out / "model.npz").is_file()
     assert (out / "demo_distance.png").stat().st_size > 0
     assert (out / "demo_hands.png").stat().st_size > 0

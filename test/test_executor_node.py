@@ -152,6 +152,8 @@ def test_bad_constraints_parameter_is_refused_with_a_reason(rig):
     assert result.successful and r.node.control.constraints == []
     result = r.node.set_parameters([Parameter("max_velocity", value=-1.0)])[0]
     assert not result.successful
+    assert r.node.set_parameters([Parameter("max_velocity", value=0.2)])[0].successful
+    assert np.max(r.node.control.max_velocity) == 0.2
 
 
 def _fit_model(path, joints, center):
@@ -208,20 +210,23 @@ def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
         for k, v in (("robot", "talos"), ("joints", "[" + ",".join(JOINTS) + "]"),
                      ("model_path", str(model)), ("start_enabled", "true")):
             params += ["-p", f"{k}:={v}"]
-        proc = subprocess.Popen([sys.executable, "-c", code, "--ros-args", *params],
-                                env=dict(os.environ, ROS_DOMAIN_ID="157"))
+        log = tmp_path / "executor.log"
+        with open(log, "wb") as out:
+            proc = subprocess.Popen([sys.executable, "-c", code, "--ros-args", *params],
+                                    env=dict(os.environ, ROS_DOMAIN_ID="157"), stdout=out,
+                                    stderr=subprocess.STDOUT)
         q = np.full(len(JOINTS), 0.3)
         end = time.monotonic() + 30.0
         while not (commands and np.any(commands[-1])) and time.monotonic() < end:
             states.publish(JointState(name=JOINTS, position=q.tolist()))
             executor.spin_once(timeout_sec=0.01)
-        assert commands and np.any(commands[-1]), "the executor never commanded motion"
+        assert commands and np.any(commands[-1]), log.read_text()
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10.0) == 0
+        assert proc.wait(timeout=10.0) == 0, log.read_text()
         end = time.monotonic() + 1.0
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.01)
-        assert not np.any(commands[-1])
+        assert not np.any(commands[-1]), log.read_text()
     finally:
         if proc is not None and proc.poll() is None:
             proc.kill()

@@ -120,3 +120,11 @@ def test_process_with_an_unknown_robot_exits_with_status_1_and_a_reason():
         timeout=60)
     assert done.returncode == 1
     assert "unknown robot name 'talso'" in done.stderr and "talos" in done.stderr
+
+
+def test_command_timeout_can_be_changed_at_run_time(rig):
+    sim = rig[0]
+    assert sim.set_parameters([Parameter("command_timeout_s", value=0.5)])[0].successful
+    assert sim.sim.command_timeout_s == 0.5
+    assert not sim.set_parameters([Parameter("command_timeout_s", value=0.0)])[0].successful
+    assert sim.sim.command_timeout_s == 0.5

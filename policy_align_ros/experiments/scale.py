@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 
 __all__ = ["make_scale_dataset", "run_scale_bench", "SIZES"]
 
@@ -63,6 +63,16 @@ def _child(n_traj: int, n_samples: int, seed: int) -> dict:
     start = time.perf_counter()
     model = PolicyAlign(sigma="narrow", random_state=seed).fit(data)
     fit_s = time.perf_counter() - start
+    # Ground truth: phi = 0.05 ||x||^2, pi = -0.1 x (per second), on 5000 random samples.
+    rng = np.random.default_rng(seed + 1)
+    kept = [data[k].positions for k in model.inliers_]
+    X = np.concatenate(kept)
+    aligned = np.concatenate([model.aligned_potentials_[k] for k in model.inliers_])
+    pick = rng.choice(len(X), size=min(5000, len(X)), replace=False)
+    accuracy = {
+        "alignment_nmse": metrics.potential_nmse(aligned[pick], 0.05 * np.sum(X[pick] ** 2, 1)),
+        "nupe": metrics.nupe(-0.1 * X[pick], model.policy(X[pick])),
+    }
     return {
         "K": n_traj,
         "N": n_samples,
@@ -72,6 +82,7 @@ def _child(n_traj: int, n_samples: int, seed: int) -> dict:
         "data_mb": after_data,
         "kept": int(len(model.inliers_)),
         "responsibilities": model.fit_summary_["n_responsibilities"],
+        **accuracy,
     }
 
 

@@ -198,10 +198,18 @@ class PolicyAlign:
         Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
         ytr = np.concatenate([self.aligned_potentials_[k][masks[k]] for k in keep])
         gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
+        # Consecutive training samples give offset-free derivative observations: an
+        # increment is used only when both of its samples are training samples.
+        pairs, start = [], 0
+        for k in keep:
+            row = start + np.cumsum(masks[k]) - 1
+            both = np.flatnonzero(masks[k][:-1] & masks[k][1:])
+            pairs.append(np.column_stack([row[both], row[both] + 1]))
+            start += int(masks[k].sum())
         regressor = LocalLinearRegression(random_state=self.random_state)
         if self.regressor is not None:
             regressor = copy.deepcopy(self.regressor)
-        self.regressor_ = regressor.fit(Xtr, ytr, groups=gtr)
+        self.regressor_ = regressor.fit(Xtr, ytr, groups=gtr, increments=np.concatenate(pairs))
         timings["regression"] = time.perf_counter() - t2
         timings["total"] = time.perf_counter() - t0
         self._log(f"global model fitted on {len(Xtr)} samples ({timings['regression']:.2f} s)")

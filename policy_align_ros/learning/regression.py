@@ -46,11 +46,14 @@ gradients are useless (a test shows it). The default criterion scores the *incre
 of the prediction between consecutive held-out samples, as the potential of a trajectory
 is known only up to an offset and its estimation errors drift along it. On 2-D, 6-D and
 22-D trajectory data under random constraints (Euler potentials, true offsets), the
-gradient error was least about one grid step narrower than the CV optimum, and a
+gradient error was least 1.4 to 2 times narrower than the CV optimum, and a
 one-standard-error rule toward wider fields made it worse; hence the chosen width is the
-CV optimum divided by ``GRADIENT_NARROWING``. The best slope penalty grew with the
-dimension (about 1e-3 in 2-D and 6-D, 0.1 in 22-D), and CV of the penalty picked too small
-a one in 22-D, hence the default ``ridge = 1e-3 (n / 2)^2`` (``ridge="cv"`` is available).
+CV optimum divided by ``GRADIENT_NARROWING = 1.7``: on the paper's Table I set-ups (10
+data sets, whole PolicyAlign pipeline), no narrowing missed the paper's nUPE or nCPE in 5
+of the 6 narrow/medium rows, 1.4 in 1 row, 1.7 in none. The best slope penalty grew with
+the dimension (about 1e-3 in 2-D and 6-D, 0.1 in 22-D), and CV of the penalty picked too
+small a one in 22-D, hence the default ``ridge = 1e-3 (n / 2)^2`` (``ridge="cv"`` is
+available).
 """
 
 from __future__ import annotations
@@ -83,7 +86,7 @@ MAX_COVER_POINTS = 20000
 #: Largest number of points used for cross-validation (whole trajectories, thinned).
 MAX_CV_POINTS = 20000
 #: Largest number of points whose statistics make the final local models (thinned).
-MAX_FIT_POINTS = 200000
+MAX_FIT_POINTS = 100_000
 #: Fewest samples kept per trajectory when thinning.
 MIN_SAMPLES_PER_GROUP = 25
 #: Relative grid of candidate widths, times the RMS spread of the data.
@@ -91,7 +94,7 @@ GRID_FACTORS = np.geomspace(0.02, 2.0, 11)
 #: Candidate slope penalties when ``ridge="cv"``.
 RIDGE_GRID = (1e-3, 1e-2, 1e-1)
 #: The chosen width is the CV-optimal one divided by this (gradients want narrower).
-GRADIENT_NARROWING = 1.4
+GRADIENT_NARROWING = 1.7
 #: A local model enters a CV prediction only with this much training weight (points).
 MIN_FIELD_WEIGHT = 0.5
 #: Rows of data processed at once, to bound memory.
@@ -102,6 +105,8 @@ KDTREE_MAX_DIM = 4
 DENSE_BLOCK = 250_000
 #: A dense block of weights is made sparse below this fraction of non-zeros.
 DENSE_FRACTION = 0.1
+#: Default dimensionless weight of the directional-derivative equations (see the notes).
+DEFAULT_INCREMENT_WEIGHT = 1.0
 _STATE_VERSION = 1
 
 
@@ -186,9 +191,10 @@ class FarthestPointCover:
     """Centres in farthest-point order, giving a cover of the data for every radius.
 
     Each new centre is the (subsampled) data point farthest from the centres so far, so
-    the first ``k`` centres cover all points within ``radii[k - 1]`` and lie at least that
-    far apart: LWPR's rule of adding a receptive field where no field is active, for all
-    widths at once. The order is extended lazily, as finer covers are asked for.
+    the first ``k`` centres lie at least ``radii[k - 1]`` apart and cover every point
+    within ``radii[k]``, the distance of the next one: LWPR's rule of adding a receptive
+    field where no field is active, for all widths at once. The order is extended lazily,
+    as finer covers are asked for.
 
     Parameters
     ----------
@@ -440,6 +446,108 @@ def local_statistics(
     return out
 
 
+def increment_features(U: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Per-increment statistics ``[u u^T (upper), u s^T]``, shape (m', n (n + 1) / 2 + n d)."""
+    m, n = U.shape
+    iu, ju = np.triu_indices(n)
+    us = (U[:, :, None] * S[:, None, :]).reshape(m, -1)
+    return np.hstack([U[:, iu] * U[:, ju], us])
+
+
+def increment_statistics(
+    increments: Increments,
+    index: CentreIndex,
+    h: float,
+    folds: np.ndarray | None = None,
+    n_folds: int = 1,
+) -> np.ndarray:
+    """Weighted sums of the directional-derivative statistics of every field, per fold.
+
+    Each increment weighs on field ``j`` with the kernel weight of its midpoint.
+
+    Parameters
+    ----------
+    increments : Increments
+        ``m'`` increments, shifted by the same origin as the centres.
+    index : CentreIndex
+        The ``C`` field centres.
+    h : float
+        Field width (state units).
+    folds : ndarray of int, shape (m',), optional
+        Fold of every increment, non-decreasing; ``None`` puts all in fold 0.
+    n_folds : int
+        Number of folds ``K``.
+
+    Returns
+    -------
+    ndarray, shape (K, C, n (n + 1) / 2 + n d)
+        ``sum_i w_ij [u_i u_i^T (upper), u_i s_i^T]`` over each fold's increments.
+    """
+    M, U, S = increments.midpoints, increments.directions, increments.slopes
+    n, d = U.shape[1], S.shape[1]
+    out = np.zeros((n_folds, len(index.centres), n * (n + 1) // 2 + n * d))
+    for start, stop, W in index.weight_blocks(M, h):
+        F = increment_features(U[start:stop], S[start:stop])
+        if folds is None:
+            out[0] += W.T @ F
+            continue
+        bounds = np.searchsorted(folds[start:stop], np.arange(n_folds + 1))
+        for k in range(n_folds):
+            a, b = bounds[k], bounds[k + 1]
+            if b > a:
+                out[k] += W[a:b].T @ F[a:b]
+    return out
+
+
+class Increments:
+    """Directional-derivative observations ``grad f(midpoint) . direction ~= slope``.
+
+    Built from pairs of consecutive samples ``(x_i, y_i), (x_j, y_j)`` of one trajectory:
+    the direction is ``u = (x_j - x_i) / ||x_j - x_i||`` (unit), the slope
+    ``s = (y_j - y_i) / ||x_j - x_i||`` (output units per state unit), at the midpoint.
+    A per-trajectory offset of ``y`` cancels in ``s``.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+    Y : ndarray, shape (m, d)
+    pairs : ndarray of intp, shape (m', 2)
+        Rows ``(i, j)`` into ``X``; pairs with ``x_i = x_j`` are dropped.
+    groups : ndarray, shape (m,), optional
+        Trajectory id of every sample; the increment's is that of ``i``.
+    """
+
+    def __init__(
+        self,
+        X: np.ndarray,
+        Y: np.ndarray,
+        pairs: np.ndarray,
+        groups: np.ndarray | None = None,
+    ) -> None:
+        dX = X[pairs[:, 1]] - X[pairs[:, 0]]
+        length = np.sqrt(np.einsum("ij,ij->i", dX, dX))
+        moving = length > 0
+        pairs, dX, length = pairs[moving], dX[moving], length[moving]
+        self.pairs = pairs
+        self.midpoints = 0.5 * (X[pairs[:, 0]] + X[pairs[:, 1]])
+        self.directions = dX / length[:, None]
+        self.slopes = (Y[pairs[:, 1]] - Y[pairs[:, 0]]) / length[:, None]
+        self.groups = None if groups is None else groups[pairs[:, 0]]
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def subset(self, rows: np.ndarray) -> Increments:
+        """The increments ``rows`` (indices or a mask), as a new object."""
+        out = object.__new__(Increments)
+        out.pairs = self.pairs[rows]
+        out.midpoints = self.midpoints[rows]
+        out.directions = self.directions[rows]
+        out.slopes = self.slopes[rows]
+        out.groups = None if self.groups is None else self.groups[rows]
+        return out
+
+
 def solve_local_models(
     stats: np.ndarray,
     centres: np.ndarray,
@@ -447,8 +555,15 @@ def solve_local_models(
     h: float,
     ridge: float,
     smoothing: float = 0.0,
+    increment_stats: np.ndarray | None = None,
+    increment_weight: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted ridge least-squares local linear models from their statistics.
+
+    Directional-derivative observations (``increment_stats``) add the equations
+    ``B_j u_i = s_i`` on the slopes, each with weight ``increment_weight h^2`` times its
+    kernel weight: a slope error ``e`` costs as a value error ``e h`` would, the size of
+    its effect across the field.
 
     With ``smoothing > 0`` the slopes are shrunk toward a prior slope instead of toward
     zero: the common slope of the neighbouring fields (kernel of width ``smoothing * h``),
@@ -469,6 +584,10 @@ def solve_local_models(
         Dimensionless penalty on the slopes.
     smoothing : float
         Width of the neighbour average in units of ``h``; 0 shrinks toward zero.
+    increment_stats : ndarray, shape (C, n (n + 1) / 2 + n d), optional
+        One fold of :func:`increment_statistics`.
+    increment_weight : float
+        Dimensionless weight of the derivative equations relative to the values.
 
     Returns
     -------
@@ -490,6 +609,16 @@ def solve_local_models(
     sxy = stats[:, k + len(iu) :].reshape(C, n, d)
     cov = sxx / W[:, None, None] - mu[:, :, None] * mu[:, None, :]
     cxy = sxy / W[:, None, None] - mu[:, :, None] * ybar[:, None, :]
+    if increment_stats is not None and increment_weight > 0:
+        # The derivative equations involve the slopes only: they add to the normal
+        # equations of the slopes, in the same per-unit-of-value-weight scaling.
+        scale = (increment_weight * h * h) / W
+        suu = np.zeros((C, n, n))
+        suu[:, iu, ju] = increment_stats[:, : len(iu)]
+        suu[:, ju, iu] = increment_stats[:, : len(iu)]
+        sus = increment_stats[:, len(iu) :].reshape(C, n, d)
+        cov = cov + scale[:, None, None] * suu
+        cxy = cxy + scale[:, None, None] * sus
     # A tiny floor keeps the systems solvable with ridge=0 on degenerate data.
     lam = max(ridge, 1e-10) * h * h
     eye = np.eye(n)
@@ -610,6 +739,8 @@ def fit_fields(
     max_centers: int,
     rng: np.random.Generator,
     smoothing: float = 0.0,
+    increments: Increments | None = None,
+    increment_weight: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Place the fields and fit their local models on all data.
 
@@ -621,6 +752,10 @@ def fit_fields(
         Outputs.
     h, ridge, max_centers, rng, smoothing
         Width, slope penalty, cap on fields, random source, slope smoothing.
+    increments : Increments, optional
+        Directional-derivative observations (same origin as ``X``).
+    increment_weight : float
+        Their dimensionless weight (see :func:`solve_local_models`).
 
     Returns
     -------
@@ -629,8 +764,14 @@ def fit_fields(
     slopes : ndarray, shape (C, d, n)
     """
     centres = FarthestPointCover(X, max_centers, rng).centres(SPACING * h)
-    stats = local_statistics(X, Y, CentreIndex(centres), h)[0]
-    intercepts, slopes = solve_local_models(stats, centres, Y.shape[1], h, ridge, smoothing)
+    index = CentreIndex(centres)
+    stats = local_statistics(X, Y, index, h)[0]
+    inc = None
+    if increments is not None and len(increments) and increment_weight > 0:
+        inc = increment_statistics(increments, index, h)[0]
+    intercepts, slopes = solve_local_models(
+        stats, centres, Y.shape[1], h, ridge, smoothing, inc, increment_weight
+    )
     return centres, intercepts, slopes
 
 
@@ -732,6 +873,8 @@ def cv_errors(
     ridges: Sequence[float],
     smoothing: float = 0.0,
     groups: np.ndarray | None = None,
+    increments: tuple[Increments, np.ndarray] | None = None,
+    increment_weight: float = 0.0,
 ) -> np.ndarray:
     """Held-out error of each fold for one width and several slope penalties.
 
@@ -759,6 +902,11 @@ def cv_errors(
         Trajectory ids, samples in time order: when given, the error is that of the
         increments between consecutive held-out samples of one trajectory (the
         "increments" criterion), else the plain mean squared error.
+    increments : (Increments, ndarray of int (m',)), optional
+        Directional-derivative observations (outputs scaled as ``Y``) and their folds,
+        non-decreasing; a fold's are left out of its training models.
+    increment_weight : float
+        Their dimensionless weight.
 
     Returns
     -------
@@ -767,18 +915,29 @@ def cv_errors(
     """
     n_folds = int(folds.max()) + 1
     d = Y.shape[1]
-    fold_stats = local_statistics(X, Y, CentreIndex(centres), h, folds, n_folds)
+    index = CentreIndex(centres)
+    fold_stats = local_statistics(X, Y, index, h, folds, n_folds)
+    inc_stats = None
+    if increments is not None and len(increments[0]) and increment_weight > 0:
+        inc_stats = increment_statistics(increments[0], index, h, increments[1], n_folds)
     errors = np.empty((len(ridges), n_folds))
     for k in range(n_folds):
         train = fold_stats[np.arange(n_folds) != k].sum(axis=0)
+        train_inc = None
+        if inc_stats is not None:
+            train_inc = inc_stats[np.arange(n_folds) != k].sum(axis=0)
         valid = train[:, 0] >= MIN_FIELD_WEIGHT
         held = folds == k
         g = None if groups is None else groups[held]
         if not np.any(valid):
             errors[:, k] = _held_out_error(-Y[held], g)
             continue
+        inc_valid = None if train_inc is None else train_inc[valid]
         models = [
-            solve_local_models(train[valid], centres[valid], d, h, r, smoothing) for r in ridges
+            solve_local_models(
+                train[valid], centres[valid], d, h, r, smoothing, inc_valid, increment_weight
+            )
+            for r in ridges
         ]
         b0 = np.concatenate([m[0] for m in models], axis=1)
         B = np.concatenate([m[1] for m in models], axis=1)
@@ -820,8 +979,8 @@ def select_bandwidth(grid: np.ndarray, fold_errors: np.ndarray) -> float:
     The minimum of the mean held-out error is refined by a parabola in ``log h`` through
     the best grid point and its neighbours. Held-out errors of the *potential* are least
     at a wider width than errors of its *gradient* (the policy): on trajectory data in
-    2-D and 22-D the gradient error was least about one grid step (x1.4) narrower, and
-    a one-standard-error rule toward wider widths made it worse (see the tests' notes).
+    2-D, 6-D and 22-D the gradient error was least 1.4 to 2 times narrower, and a
+    one-standard-error rule toward wider widths made it worse (see the module notes).
 
     Parameters
     ----------
@@ -844,6 +1003,23 @@ def select_bandwidth(grid: np.ndarray, fold_errors: np.ndarray) -> float:
         if a > 0:
             log_h = float(np.clip(-b / (2.0 * a), x[0], x[2]))
     return float(np.clip(math.exp(log_h) / GRADIENT_NARROWING, grid[0], grid[-1]))
+
+
+def _check_pairs(increments: Any, m: int, groups: np.ndarray | None) -> np.ndarray:
+    """Validated increment pairs, shape (m', 2), of intp."""
+    pairs = np.asarray(increments)
+    if pairs.ndim != 2 or pairs.shape[1] != 2:
+        raise ValueError(f"increments must have shape (m', 2), got {pairs.shape}")
+    if pairs.size and not np.issubdtype(pairs.dtype, np.integer):
+        raise ValueError(f"increments must be integer row indices, got dtype {pairs.dtype}")
+    pairs = pairs.astype(np.intp, copy=False)
+    if pairs.size and (pairs.min() < 0 or pairs.max() >= m):
+        raise ValueError(f"increments: row indices must be in [0, {m}), got "
+                         f"[{pairs.min()}, {pairs.max()}]")
+    if groups is not None and np.any(groups[pairs[:, 0]] != groups[pairs[:, 1]]):
+        bad = int(np.argmax(groups[pairs[:, 0]] != groups[pairs[:, 1]]))
+        raise ValueError(f"increments: pair {bad} joins samples of different groups")
+    return pairs
 
 
 # --------------------------------------------------------------------------- estimator
@@ -912,6 +1088,7 @@ class LocalLinearRegression:
         max_centers: int = 3000,
         smoothing: float = 0.0,
         cv_criterion: str = "increments",
+        increment_weight: float = DEFAULT_INCREMENT_WEIGHT,
         random_state: int | np.random.Generator | None = None,
     ) -> None:
         self.bandwidth = bandwidth
@@ -921,6 +1098,7 @@ class LocalLinearRegression:
         self.max_centers = max_centers
         self.smoothing = smoothing
         self.cv_criterion = cv_criterion
+        self.increment_weight = increment_weight
         self.random_state = random_state
 
     # -- scikit-learn style parameters
@@ -935,6 +1113,7 @@ class LocalLinearRegression:
             "max_centers": self.max_centers,
             "smoothing": self.smoothing,
             "cv_criterion": self.cv_criterion,
+            "increment_weight": self.increment_weight,
             "random_state": self.random_state,
         }
 
@@ -986,12 +1165,20 @@ class LocalLinearRegression:
             raise ValueError(
                 f"cv_criterion must be 'increments' or 'mse', got {self.cv_criterion!r}"
             )
+        iw = self.increment_weight
+        if not (isinstance(iw, (int, float, np.floating)) and math.isfinite(iw) and iw >= 0):
+            raise ValueError(f"increment_weight must be a float >= 0, got {iw!r}")
         mc = self.max_centers
         if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or mc < 1:
             raise ValueError(f"max_centers must be an integer >= 1, got {mc!r}")
 
     def fit(
-        self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None
+        self,
+        X: np.ndarray,
+        y: np.ndarray,
+        groups: np.ndarray | None = None,
+        *,
+        increments: np.ndarray | None = None,
     ) -> LocalLinearRegression:
         """Fit the receptive fields and local models.
 
@@ -1004,6 +1191,11 @@ class LocalLinearRegression:
         groups : array_like of int, shape (m,), optional
             Trajectory id of every sample; CV holds out whole groups. ``None`` uses
             contiguous blocks of samples.
+        increments : array_like of int, shape (m', 2), optional
+            Pairs ``(i, j)`` of row indices of consecutive samples of one trajectory whose
+            ``y`` differ by the true increment of ``f`` (a per-trajectory offset of ``y``
+            cancels): each adds the equation ``grad f((x_i + x_j) / 2) . (x_j - x_i) =
+            y_j - y_i`` on the local slopes, weighted by ``increment_weight``.
 
         Returns
         -------
@@ -1035,16 +1227,23 @@ class LocalLinearRegression:
                 raise ValueError(f"groups must have shape ({m},), got {g.shape}")
             if not np.issubdtype(g.dtype, np.integer):
                 raise ValueError(f"groups must be integer trajectory ids, got dtype {g.dtype}")
+        pairs = None if increments is None else _check_pairs(increments, m, g)
         with single_blas_thread():
-            self._fit(X, y.reshape(m, -1), g)
+            self._fit(X, y.reshape(m, -1), g, pairs)
         self.y_ndim_ = y.ndim
         return self
 
-    def _fit(self, X: np.ndarray, Y: np.ndarray, g: np.ndarray | None) -> None:
+    def _fit(
+        self, X: np.ndarray, Y: np.ndarray, g: np.ndarray | None, pairs: np.ndarray | None
+    ) -> None:
         m = X.shape[0]
         rng = np.random.default_rng(self.random_state)
         origin = X.mean(axis=0)
         Xs = X - origin
+        weight = float(self.increment_weight)
+        inc = None
+        if pairs is not None and len(pairs) and weight > 0:
+            inc = Increments(Xs, Y, pairs, g)
 
         if self.bandwidth == "cv" or self.ridge == "cv":
             if self.bandwidth != "cv":
@@ -1053,18 +1252,24 @@ class LocalLinearRegression:
                 grid = auto_grid(Xs)
             else:
                 grid = np.sort(np.asarray(self.bandwidth_grid, dtype=float))
-            h, ridge, scores = self._cross_validate(Xs, Y, g, grid, rng)
+            h, ridge, scores = self._cross_validate(Xs, Y, g, grid, rng, inc)
         else:
             h, ridge, scores = float(self.bandwidth), self._ridge(X.shape[1]), None
         # Consecutive samples of a trajectory are nearly duplicates at the scale of h:
         # beyond MAX_FIT_POINTS, thinning them changes the local statistics little.
         keep = thin_trajectories(np.zeros(m, dtype=int) if g is None else g, MAX_FIT_POINTS, rng)
+        if inc is not None and len(keep) < m:
+            kept = np.zeros(m, dtype=bool)
+            kept[keep] = True
+            inc = inc.subset(kept[inc.pairs[:, 0]])
         centres, intercepts, slopes = fit_fields(
-            Xs[keep], Y[keep], h, ridge, int(self.max_centers), rng, float(self.smoothing)
+            Xs[keep], Y[keep], h, ridge, int(self.max_centers), rng, float(self.smoothing),
+            inc, weight,
         )
         self.bandwidth_ = h
         self.ridge_ = ridge
         self.cv_scores_ = scores
+        self.n_increments_ = 0 if inc is None else len(inc)
         self.origin_ = origin
         self.centers_ = centres + origin
         self.intercepts_ = intercepts
@@ -1082,7 +1287,7 @@ class LocalLinearRegression:
         # the dimension, about 1e-3 in 2-D and 6-D and 0.1 in 22-D.
         return default_ridge(n) if self.ridge is None else float(self.ridge)
 
-    def _cross_validate(self, X, Y, groups, grid, rng):
+    def _cross_validate(self, X, Y, groups, grid, rng, increments=None):
         m = X.shape[0]
         if groups is None or len(np.unique(groups)) < 2:
             # Contiguous blocks stand in for trajectories: neighbours in time stay together.
@@ -1095,7 +1300,19 @@ class LocalLinearRegression:
         by_fold = np.argsort(folds, kind="stable")
         Xc, Yc, gc, folds = Xc[by_fold], Yc[by_fold], gc[by_fold], folds[by_fold]
         scale = Yc.std(axis=0)
-        Yc = (Yc - Yc.mean(axis=0)) / np.where(scale > 0, scale, 1.0)
+        scale = np.where(scale > 0, scale, 1.0)
+        Yc = (Yc - Yc.mean(axis=0)) / scale
+        inc_cv = None
+        if increments is not None:
+            # Each increment goes with the fold of its first sample (of its trajectory).
+            fold_of = np.full(m, -1)
+            fold_of[idx[by_fold]] = folds
+            inc_folds = fold_of[increments.pairs[:, 0]]
+            rows = np.flatnonzero(inc_folds >= 0)
+            rows = rows[np.argsort(inc_folds[rows], kind="stable")]
+            sub = increments.subset(rows)
+            sub.slopes = sub.slopes / scale
+            inc_cv = (sub, inc_folds[rows])
         ridges = RIDGE_GRID if self.ridge == "cv" else (self._ridge(X.shape[1]),)
         # One farthest-point order serves every width: its prefixes are the covers.
         cover = FarthestPointCover(Xc, int(self.max_centers), rng)
@@ -1111,6 +1328,7 @@ class LocalLinearRegression:
                 cv_errors(
                     Xc, Yc, folds, centres, float(h), ridges, self.smoothing,
                     gc if self.cv_criterion == "increments" else None,
+                    inc_cv, float(self.increment_weight),
                 )
             )
             if len(errors) >= 3 and _clearly_worse([e.min(axis=0) for e in errors]):

@@ -43,13 +43,13 @@ __all__ = [
     "run_node",
 ]
 
-#: Talos upper body (talos_reduced.urdf): torso, both 7-DoF arms, grippers, head.
+#: Talos upper body (talos_reduced.urdf): torso, both 7-DoF arms and head. The grippers
+#: are left out: they do not move the hands, and their reference posture is on a limit.
 DEFAULT_JOINTS: list[str] = (
     ["torso_1_joint", "torso_2_joint"]
     + [f"arm_left_{i}_joint" for i in range(1, 8)]
-    + ["gripper_left_joint"]
     + [f"arm_right_{i}_joint" for i in range(1, 8)]
-    + ["gripper_right_joint", "head_1_joint", "head_2_joint"]
+    + ["head_1_joint", "head_2_joint"]
 )
 
 #: Reliable, transient-local, depth 1: a late subscriber still gets the last message.
@@ -215,6 +215,10 @@ def run_node(
         print(f"error: {err}", file=sys.stderr)
         code = 1
     finally:
+        if keep_context_on_signal:
+            # A second Ctrl-C must not interrupt the clean-up (the final zero command).
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -167,11 +167,11 @@ class Graph:
 
     def start(self, name: str) -> None:
         code = f"import sys; from policy_align_ros.nodes.{name} import main; sys.exit(main())"
-        log = open(self.out / "logs" / f"{name}.log", "wb")  # noqa: SIM115 - owned by Popen
-        self.procs[name] = subprocess.Popen(
-            [sys.executable, "-c", code, "--ros-args", "--params-file", str(self.params)],
-            env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        log.close()
+        # The child inherits a copy of the descriptor, so the file can be closed here.
+        with open(self.out / "logs" / f"{name}.log", "wb") as log:
+            self.procs[name] = subprocess.Popen(
+                [sys.executable, "-c", code, "--ros-args", "--params-file", str(self.params)],
+                env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
 
     def check(self, allow_exit: tuple[str, ...] = ()) -> None:
         """Raise StageError if a node died (``allow_exit`` may have ended with status 0)."""

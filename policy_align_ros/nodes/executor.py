@@ -42,7 +42,7 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Executor", "main"]
+__all__ = ["Executor", "load_policy", "main", "speed_limits"]
 
 
 def load_policy(path: str, joints: Sequence[str]) -> tuple[PolicyAlign, np.ndarray]:
@@ -65,6 +65,15 @@ def load_policy(path: str, joints: Sequence[str]) -> tuple[PolicyAlign, np.ndarr
     return model, model_permutation(model.joint_names_, joints)
 
 
+def speed_limits(urdf_limits: np.ndarray, max_velocity: float) -> np.ndarray:
+    """Per-joint speed limits (n,) in rad/s: ``max_velocity`` or the URDF's when lower.
+
+    URDFs often give 0 for "no limit", so non-positive URDF entries are ignored.
+    """
+    urdf = np.where(urdf_limits > 0.0, urdf_limits, np.inf)
+    return np.minimum(urdf, float(max_velocity))
+
+
 class Executor(Node):
     """The ``executor`` node (see the module docstring)."""
 
@@ -73,6 +82,7 @@ class Executor(Node):
         self.robot: Robot | None = None
         self.control: ControlStep | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         self.declare_parameter("robot", "talos", descriptor(
             "example-robot-data name or URDF path of the controlled robot", read_only=True))
         self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
@@ -117,30 +127,33 @@ class Executor(Node):
 
     # -- parameters -------------------------------------------------------------------
     def _speed_limits(self) -> np.ndarray:
-        urdf = np.where(self.robot.velocity_limit > 0.0, self.robot.velocity_limit, np.inf)
-        return np.minimum(urdf, self.get_parameter("max_velocity").value)
+        return speed_limits(self.robot.velocity_limit, self.get_parameter("max_velocity").value)
 
     def _constraints(self, text: str) -> list:
         return [constraint_from_spec(spec, self.robot) for spec in parse_constraint_specs(text)]
 
     def _on_set_parameters(self, params: Sequence[Parameter]):
+        """Validate only; :meth:`_after_set_parameters` applies accepted values."""
         for param in params:
             if param.name == "joints":
                 if len(set(param.value)) != len(param.value) or not param.value:
                     return reject("joints: must be a non-empty list without repeats")
             elif param.name == "constraints" and self.robot is not None:
                 try:
-                    constraints = self._constraints(param.value)
+                    self._constraints(param.value)
                 except ValueError as err:
                     return reject(str(err))
-                if self.control is not None:
-                    self.control.constraints = constraints
-                    self.get_logger().info(f"constraints now {param.value}")
-            elif param.name == "max_velocity" and self.control is not None:
-                urdf = np.where(self.robot.velocity_limit > 0.0, self.robot.velocity_limit,
-                                np.inf)
-                self.control.max_velocity = np.minimum(urdf, param.value)
         return accept()
+
+    def _after_set_parameters(self, params: Sequence[Parameter]) -> None:
+        if self.control is None:
+            return  # still declaring: __init__ builds the controller from the values
+        for param in params:
+            if param.name == "constraints":
+                self.control.constraints = self._constraints(param.value)
+                self.get_logger().info(f"constraints now {param.value}")
+            elif param.name == "max_velocity":
+                self.control.max_velocity = self._speed_limits()
 
     # -- model ------------------------------------------------------------------------
     def _load(self, path: str) -> bool:

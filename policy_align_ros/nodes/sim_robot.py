@@ -39,6 +39,7 @@ class SimRobot(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("sim_robot", **kwargs)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         self.declare_parameter("robot", "talos", descriptor(
             "example-robot-data name or URDF path of the simulated robot", read_only=True))
         self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
@@ -90,9 +91,12 @@ class SimRobot(Node):
                 if values.size != n or not np.all(np.isfinite(values)):
                     return reject(
                         f"initial_positions: need {n} finite values, got {values.size}")
+        return accept()
+
+    def _after_set_parameters(self, params: Sequence[Parameter]) -> None:
+        for param in params:
             if param.name == "command_timeout_s" and hasattr(self, "sim"):
                 self.sim.command_timeout_s = float(param.value)
-        return accept()
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         try:
