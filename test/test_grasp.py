@@ -1,6 +1,7 @@
 """Smoke and behaviour tests of policy_align_ros.experiments.grasp (tiny sizes)."""
 
 import argparse
+import json
 
 import numpy as np
 import pytest
@@ -59,3 +60,5 @@ def test_main_writes_table_and_figure(tmp_path) -> None:
     table = (tmp_path / "grasp.md").read_text()
     assert "Unseen barrier" in table and "0.2104" in table
     assert (tmp_path / "grasp.png").stat().st_size > 10_000
+    rows = json.loads((tmp_path / "grasp.json").read_text())
+    assert len(rows) == 1 and 0.0 <= rows[0]["discarded (%)"] <= 100.0

@@ -1,6 +1,7 @@
 """Smoke and behaviour tests of policy_align_ros.experiments.humanoid (tiny sizes)."""
 
 import argparse
+import json
 
 import numpy as np
 
@@ -44,3 +45,5 @@ def test_main_writes_table(tmp_path) -> None:
     table = (tmp_path / "humanoid.md").read_text()
     assert "nUPE" in table and "0.1568" in table
     assert (tmp_path / "humanoid.png").stat().st_size > 10_000
+    rows = json.loads((tmp_path / "humanoid.json").read_text())
+    assert len(rows) == 1 and rows[0]["nUPE"] > 0.0

@@ -7,6 +7,7 @@ import policy_align_ros.learning.policy_align as pa_module
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory
+from policy_align_ros.learning.regression import LocalLinearRegression
 
 
 @pytest.fixture(scope="module")
@@ -66,6 +67,34 @@ def test_policy_is_invariant_to_constants_added_to_trajectory_potentials(monkeyp
     X = np.random.default_rng(1).uniform(-1.5, 1.5, size=(50, 2))
     np.testing.assert_allclose(shifted.policy(X), reference.policy(X), rtol=1e-6, atol=1e-9)
     np.testing.assert_array_equal(shifted.inliers_, reference.inliers_)
+
+
+class _RecordingRegressor(LocalLinearRegression):
+    """Remembers what PolicyAlign passes to ``fit``."""
+
+    def fit(self, X, y, groups=None, *, increments=None):
+        self.seen_ = (np.array(X), np.array(groups), np.array(increments))
+        return super().fit(X, y, groups, increments=increments)
+
+
+def test_increments_join_consecutive_training_samples_only():
+    data = make_toy_dataset("parabola", 12, 30, np.random.default_rng(6))
+    masks = holdout_masks([30] * 12, np.random.default_rng(7))
+    model = PolicyAlign(sigma="medium", regressor=_RecordingRegressor(bandwidth=0.5))
+    model.fit(data.trajectories, train_mask=masks)
+    X, groups, pairs = model.regressor_.seen_
+    expected = 0
+    for k in model.inliers_:
+        both = masks[k][:-1] & masks[k][1:]
+        expected += int(both.sum())
+        # Every pair of trajectory k is (x_i, x_i+1) with both samples in training.
+        ours = pairs[groups[pairs[:, 0]] == k]
+        positions = data.trajectories[k].positions
+        i = np.flatnonzero(both)
+        np.testing.assert_array_equal(X[ours[:, 0]], positions[i])
+        np.testing.assert_array_equal(X[ours[:, 1]], positions[i + 1])
+    assert len(pairs) == expected > 0
+    assert np.all(groups[pairs[:, 0]] == groups[pairs[:, 1]])
 
 
 def test_timed_trajectories_give_a_policy_per_second():

@@ -107,8 +107,11 @@ def main(args: argparse.Namespace) -> int:
         r = results[key]
         lines.append(f"| {key} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['max_us']:.1f} |")
     verdict = "met" if full["p99_us"] < 1000.0 else "missed"
+    # Tails on a shared machine come from preemption: say how busy it was.
+    results["load_average_1min"] = os.getloadavg()[0]
     lines += ["", f"target p99 < 1000 us: {verdict} (p99 {full['p99_us']:.1f} us over "
-              f"{steps} steps; model fitted in {fit_s:.1f} s)"]
+              f"{steps} steps; model fitted in {fit_s:.1f} s; load average "
+              f"{results['load_average_1min']:.1f} on {os.cpu_count()} cores)"]
     text = "\n".join(lines)
     print(text)
     out = Path(getattr(args, "out", None) or "bench_out")

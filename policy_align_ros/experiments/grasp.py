@@ -30,6 +30,7 @@ global regression and the naive baseline's training).
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import sys
@@ -429,6 +430,9 @@ def main(args) -> int:
               f"{datasets} data sets in {elapsed:.0f} s with {jobs} worker(s).\n")
     print(table)
     _write_atomic(out / "grasp.md", table)
+    _write_atomic(out / "grasp.json", json.dumps(
+        [{k: v for k, v in r.items() if isinstance(v, float)} for r in results], indent=1))
     plot_figure(results[0]["rollouts"], out / "grasp.png")
-    print(f"wrote {out / 'grasp.md'} and {out / 'grasp.png'}", file=sys.stderr)
+    print(f"wrote {out / 'grasp.md'}, {out / 'grasp.json'} and {out / 'grasp.png'}",
+          file=sys.stderr)
     return 0

@@ -21,6 +21,7 @@ samples of the kept demonstrations.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Sequence
@@ -275,6 +276,9 @@ def main(args) -> int:
               f"{jobs} worker(s).\n")
     print(table)
     _write_atomic(out / "humanoid.md", table)
+    _write_atomic(out / "humanoid.json", json.dumps(
+        [{k: v for k, v in r.items() if isinstance(v, float)} for r in results], indent=1))
     plot_figure(results[0]["figure"], out / "humanoid.png")
-    print(f"wrote {out / 'humanoid.md'} and {out / 'humanoid.png'}", file=sys.stderr)
+    print(f"wrote {out / 'humanoid.md'}, {out / 'humanoid.json'} and "
+          f"{out / 'humanoid.png'}", file=sys.stderr)
     return 0

@@ -102,7 +102,7 @@ def local_model_table(
     phi: np.ndarray,
     sigma2: float,
     *,
-    weight_tol: float = 1e-8,
+    weight_tol: float = 1e-12,
     merge_tol: float = 0.1,
     max_neighbours: int = 32,
     closest: np.ndarray | None = None,

@@ -52,6 +52,8 @@ class PolicyAlign:
         Rule for the potential along each trajectory; ``"trapezoid"`` needs velocities.
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
+        Kept well below ``eigen_tol``: many tiny weights add up to a link that decides
+        whether a trajectory is an outlier.
     merge_tol : float
         Samples closer than ``merge_tol * sigma`` along a trajectory are merged in the
         alignment (0: every sample, as in the paper); it bounds the work when a robot
@@ -76,7 +78,7 @@ class PolicyAlign:
         *,
         sigma: str | float = "medium",
         integration: str = "euler",
-        weight_tol: float = 1e-8,
+        weight_tol: float = 1e-12,
         merge_tol: float = 0.1,
         eigen_tol: float = 1e-8,
         max_neighbours: int = 32,

@@ -11,7 +11,8 @@ Stages (each one failing makes the command exit non-zero):
 4. the executor drives the simulated robot from one start posture (a) unconstrained and
    (b) with the left hand held in place (3 rows, a constraint never seen in training);
 5. a report (demonstrations, discarded, fit time, held-out nCPE, final distance to the
-   attractor) is printed and written with the plots to ``OUT``.
+   attractor) is printed and written with the plots to ``OUT``; the exit status is also 1
+   when the learnt policy did not bring the robot closer to the attractor in run (a).
 
 Distances are joint-space norms ``||q - q_c||`` in rad. For reference the same runs are
 integrated offline with the true expert policy (``expert``), and the learnt policy is
@@ -397,11 +398,16 @@ def run_demo(args: argparse.Namespace) -> int:
                 _say(t0, f"plot written: {path}")
         else:
             report.pop("runs")
+        failure = report.pop("failure")
         text = _report_text(report, time.monotonic() - t0)
+        if failure:
+            text += f"\nFAILED: {failure}"
         print(text, flush=True)
         tmp = out / "report.txt.tmp"
         tmp.write_text(text + "\n")
         os.replace(tmp, out / "report.txt")
+        if failure:
+            raise StageError(failure)
         return 0
     except StageError as err:
         print(f"[demo] FAILED: {err}", file=sys.stderr, flush=True)
@@ -489,9 +495,10 @@ def _stages(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor, robo
         _say(t0, f"run {label}: distance to attractor {run['learnt_dist'][0]:.3f} -> "
                  f"{run['learnt_dist'][-1]:.3f} rad (expert {run['expert_dist'][-1]:.3f})")
     a = runs["(a) unconstrained"]
+    failure = ""
     if s.require_progress and not a["learnt_dist"][-1] < a["learnt_dist"][0]:
-        raise StageError("the learnt policy did not move the robot towards the attractor")
-    return {"settings": s, "learnt": learnt, "runs": runs,
+        failure = "the learnt policy did not move the robot towards the attractor in run (a)"
+    return {"settings": s, "learnt": learnt, "runs": runs, "failure": failure,
             "summary": {k: (float(v["learnt_dist"][0]), float(v["learnt_dist"][-1]),
                             float(v["expert_dist"][-1]), v.get("violation"))
                         for k, v in runs.items()}}

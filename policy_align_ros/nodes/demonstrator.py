@@ -7,7 +7,10 @@ eq. 20 with ``W = gain/2 I``). For each of ``num_demos`` demonstrations it:
 1. drives the robot to a random start ``q0 ~ N(attractor, start_variance I)`` (clipped
    to the joint limits) with a proportional controller;
 2. draws a random constraint: every frame of ``constraint_frames`` (by default both hands)
-   restricted to a plane of uniformly random orientation through its current position;
+   restricted to a plane of uniformly random orientation through its current position,
+   re-drawn ``plane_switches`` times at regular intervals during the demonstration (the
+   paper's switching constraints: with one plane per demonstration, every demonstration
+   ends at its own point and the potentials can hardly be aligned);
 3. calls the recorder's ``start_demo`` (std_srvs/Trigger), runs ``N(q) pi(q)`` for
    ``demo_duration_s`` seconds, stops the robot and calls ``stop_demo``.
 
@@ -87,6 +90,9 @@ class Demonstrator(Node):
         p("constraint_frames", DEFAULT_FRAMES, descriptor(
             "frames each restricted to a plane of random orientation per demonstration "
             "(empty string list entry '' = unconstrained)", read_only=True))
+        p("plane_switches", 2, descriptor(
+            "times the planes are re-drawn at regular intervals within a demonstration",
+            read_only=True, int_range=(0, 100)))
         p("rate_hz", 100.0, descriptor("command rate [Hz]", read_only=True,
                                        float_range=(1.0, 1000.0)))
         p("max_velocity", 2.0, descriptor("joint speed limit [rad/s]", read_only=True,
@@ -134,6 +140,7 @@ class Demonstrator(Node):
         self._since = time.monotonic()
         self._pending: Future | None = None
         self._constraints: list = []
+        self._segment = 0
         self._q0 = self.attractor
 
         recorder = value("recorder").value.rstrip("/")
@@ -214,8 +221,8 @@ class Demonstrator(Node):
             if np.max(np.abs(error)) < self.get_parameter("reach_tolerance").value or \
                     elapsed > self.get_parameter("reach_timeout_s").value:
                 self._send(np.zeros_like(q))
-                self._constraints = [constraint_from_spec(s, self.robot)
-                                     for s in random_plane_specs(self.frames, self.rng)]
+                self._draw_planes()
+                self._segment = 0
                 self._call(self._start, "start_demo")
                 return
             pi = -self.get_parameter("reach_gain").value * error
@@ -232,6 +239,11 @@ class Demonstrator(Node):
                 self._send(np.zeros_like(q))
                 self._call(self._stop, "stop_demo")
                 return
+            duration = self.get_parameter("demo_duration_s").value
+            segment = int(elapsed / duration * (self.get_parameter("plane_switches").value + 1))
+            if segment > self._segment:
+                self._segment = segment
+                self._draw_planes()
             pi = self.expert.policy(q[None, :])[0]
             A = (np.vstack([c.matrix(q, pi) for c in self._constraints])
                  if self._constraints else np.zeros((0, q.size)))
@@ -258,6 +270,10 @@ class Demonstrator(Node):
                     self._finish(0, f"all {self.num_demos} demonstrations recorded")
                 else:
                     self._new_start()
+
+    def _draw_planes(self) -> None:
+        self._constraints = [constraint_from_spec(s, self.robot)
+                             for s in random_plane_specs(self.frames, self.rng)]
 
     def _new_start(self) -> None:
         self._q0 = sample_start_states(

@@ -206,9 +206,9 @@ class Learner(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("learner", **kwargs)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.declare_parameter("dataset_dir", "policy_align_data/demos", descriptor(
+        self.declare_parameter("dataset_dir", "demos", descriptor(
             "directory of rosbag2 demonstrations (one bag per demonstration)"))
-        self.declare_parameter("model_path", "policy_align_data/model.npz", descriptor(
+        self.declare_parameter("model_path", "model.npz", descriptor(
             "where the learnt model is written (atomically)"))
         self.declare_parameter("sigma", "medium", descriptor(
             "kernel width: narrow, medium, wide (paper eqs. 17-19) or sigma^2 as a number"))
