@@ -21,7 +21,7 @@ JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
 HAND = "arm_left_7_link"
 
 
-def _run(domain_id, refuse_start=False, num_demos=2):
+def _run(domain_id, refuse_start=False, num_demos=2, plane_switches=0, duration=0.6):
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
     nodes = []
@@ -30,7 +30,9 @@ def _run(domain_id, refuse_start=False, num_demos=2):
                   Parameter("rate_hz", value=100.0)]
         sim = SimRobot(context=context, parameter_overrides=common)
         demo = Demonstrator(context=context, parameter_overrides=common + [
-            Parameter("num_demos", value=num_demos), Parameter("demo_duration_s", value=0.6),
+            Parameter("num_demos", value=num_demos),
+            Parameter("demo_duration_s", value=duration),
+            Parameter("plane_switches", value=plane_switches),
             Parameter("constraint_frames", value=[HAND]), Parameter("seed", value=3),
             Parameter("service_timeout_s", value=5.0)])
         probe = Node("recorder", context=context)
@@ -81,6 +83,21 @@ def test_demonstrations_are_bracketed_and_keep_the_hand_on_a_plane():
         assert s[2] < 1e-2 * s[0]  # ... within a plane
         dist = np.linalg.norm(np.array(seg) - demo.attractor, axis=1)
         assert dist[-1] < dist[0]  # towards the attractor
+
+
+def _planarity(hand):
+    s = np.linalg.svd(hand - hand.mean(axis=0), compute_uv=False)
+    return s[2] / s[0]
+
+
+def test_planes_are_redrawn_within_a_demonstration():
+    demo, sim, events, segments = _run(182, num_demos=1, plane_switches=2, duration=1.5)
+    assert demo.done.result() == 0 and events == ["start", "stop"]
+    hand = np.array([sim.robot.frame_position(q, HAND) for q in segments[0]])
+    thirds = np.array_split(hand, 3)
+    # Each third (trimmed at the switches) lies on its own plane; the whole does not.
+    assert all(_planarity(part[5:-5]) < 1e-2 for part in thirds)
+    assert _planarity(hand) > 3e-2
 
 
 def test_refused_start_ends_with_status_1():

@@ -44,6 +44,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
+from policy_align_ros.data import load_dataset
 from policy_align_ros.experiments.demonstrators import (
     QuadraticPotential,
     from_constraint,
@@ -463,7 +464,15 @@ def _stages(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor, robo
     model = PolicyAlign.load(model_path)
     learnt["ncpe_fresh"] = fresh_ncpe(model, robot, potential, s)
 
-    # Stage 4: execution, (a) unconstrained, (b) left hand held in place (unseen).
+    # Stage 4: execution from the first demonstration's start state, (a) unconstrained and
+    # (b) left hand held in place: neither was ever demonstrated (the teacher always had
+    # both hands on planes). A new random start in a 20-D joint space is far from every one
+    # of a few dozen demonstrations, where the local potential model knows nothing.
+    demos, _, _ = load_dataset([s.out / "demos"], joints=s.joints)
+    q_start = demos[0].positions[0]
+    conductor.set_parameter("/sim_robot", "initial_positions", q_start.tolist())
+    _say(t0, "executor runs start where demonstration 1 started, "
+             f"{np.linalg.norm(q_start - potential.center):.3f} rad from the attractor")
     unseen = ([{"type": "position", "frame": s.frames[0]}] if s.frames
               else [{"type": "joints", "joints": s.joints[:1]}])
     runs = {}
