@@ -129,9 +129,9 @@ DENSE_BLOCK = 250_000
 #: A dense block of weights is made sparse below this fraction of non-zeros.
 DENSE_FRACTION = 0.1
 #: Largest number of derivative equations in the final fit (a random subsample beyond).
-MAX_FIT_INCREMENTS = 20_000
+MAX_FIT_INCREMENTS = 10**7
 #: Default dimensionless weight of the directional-derivative equations (see the notes).
-DEFAULT_INCREMENT_WEIGHT = 1.0
+DEFAULT_INCREMENT_WEIGHT = 0.5
 _STATE_VERSION = 1
 
 

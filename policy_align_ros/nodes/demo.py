@@ -57,10 +57,12 @@ from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
 from policy_align_ros.nodes._common import DEFAULT_JOINTS, LATCHED_QOS, joint_positions
 from policy_align_ros.nodes.demonstrator import DEFAULT_FRAMES, random_plane_specs
+from policy_align_ros.nodes.learner import holdout_split
 
 __all__ = ["DemoSettings", "run_demo"]
 
 NODES = ("sim_robot", "recorder", "learner", "executor", "demonstrator")
+HOLDOUT_FRACTION = 0.2  # share of the demonstrations the learner scores instead of fitting
 
 
 class StageError(RuntimeError):
@@ -300,7 +302,8 @@ def _write_params(path: Path, s: DemoSettings, q_start: np.ndarray, attractor: n
         "recorder": {"dataset_dir": str(s.out / "demos"), "joints": s.joints},
         "learner": {"dataset_dir": str(s.out / "demos"),
                     "model_path": str(s.out / "model.npz"), "sigma": str(s.sigma),
-                    "joints": s.joints, "seed": s.seed},
+                    "joints": s.joints, "seed": s.seed,
+                    "holdout_fraction": HOLDOUT_FRACTION},
         "executor": {**common, "rate_hz": rate, "max_velocity": float(s.max_velocity),
                      "state_timeout_s": 0.2, "constraints": "[]"},
         "demonstrator": {**common, "rate_hz": rate, "attractor": attractor.tolist(),
@@ -464,14 +467,15 @@ def _stages(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor, robo
     model = PolicyAlign.load(model_path)
     learnt["ncpe_fresh"] = fresh_ncpe(model, robot, potential, s)
 
-    # Stage 4: execution from the first demonstration's start state, (a) unconstrained and
+    # Stage 4: execution from the first training demonstration's start, (a) unconstrained and
     # (b) left hand held in place: neither was ever demonstrated (the teacher always had
     # both hands on planes). A new random start in a 20-D joint space is far from every one
     # of a few dozen demonstrations, where the local potential model knows nothing.
     demos, _, _ = load_dataset([s.out / "demos"], joints=s.joints)
-    q_start = demos[0].positions[0]
+    first = holdout_split(len(demos), HOLDOUT_FRACTION, s.seed)[0][0]
+    q_start = demos[first].positions[0]
     conductor.set_parameter("/sim_robot", "initial_positions", q_start.tolist())
-    _say(t0, "executor runs start where demonstration 1 started, "
+    _say(t0, f"executor runs start where demonstration {first + 1} started, "
              f"{np.linalg.norm(q_start - potential.center):.3f} rad from the attractor")
     unseen = ([{"type": "position", "frame": s.frames[0]}] if s.frames
               else [{"type": "joints", "joints": s.joints[:1]}])

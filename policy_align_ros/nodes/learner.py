@@ -45,7 +45,15 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Learner", "LearnResult", "learn_dataset", "main", "observed_ncpe", "parse_sigma"]
+__all__ = [
+    "Learner",
+    "LearnResult",
+    "holdout_split",
+    "learn_dataset",
+    "main",
+    "observed_ncpe",
+    "parse_sigma",
+]
 
 SIGMA_RULES = ("narrow", "medium", "wide")
 
@@ -106,6 +114,19 @@ def observed_ncpe(policy, trajectories: Sequence) -> float:
     err = u - along[:, None] * u
     scale = float(np.sum(np.var(u, axis=0)))
     return float(np.mean(np.einsum("ij,ij->i", err, err)) / scale) if scale > 0 else float("nan")
+
+
+def holdout_split(n_demos: int, fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Indices of the training and held-out demonstrations (both sorted).
+
+    At least one demonstration is held out when there are 3 or more and ``fraction > 0``,
+    and at least two are always kept for training.
+    """
+    n_out = int(round(fraction * n_demos)) if n_demos >= 3 else 0
+    if fraction > 0 and n_demos >= 3:
+        n_out = min(max(n_out, 1), n_demos - 2)
+    order = np.random.default_rng(seed).permutation(n_demos)
+    return sorted(order[n_out:].tolist()), sorted(order[:n_out].tolist())
 
 
 @dataclass
@@ -178,13 +199,9 @@ def learn_dataset(
         raise ValueError(
             f"need at least 2 demonstrations, found {n_demos} in {dataset} "
             f"({report.summary()})")
-    rng = np.random.default_rng(seed)
-    n_out = int(round(holdout_fraction * n_demos)) if n_demos >= 3 else 0
-    if holdout_fraction > 0 and n_demos >= 3:
-        n_out = min(max(n_out, 1), n_demos - 2)
-    order = rng.permutation(n_demos)
-    test = [trajs[k] for k in sorted(order[:n_out])]
-    train = [trajs[k] for k in sorted(order[n_out:])]
+    train_idx, test_idx = holdout_split(n_demos, holdout_fraction, seed)
+    test = [trajs[k] for k in test_idx]
+    train = [trajs[k] for k in train_idx]
     start = time.perf_counter()
     model = PolicyAlign(sigma=sigma, random_state=seed).fit(train, joint_names=names)
     fit_s = time.perf_counter() - start
