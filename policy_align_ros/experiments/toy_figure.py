@@ -67,7 +67,8 @@ def plot_toy_figure(path: str | Path, seed: int = 0, sigma: str = "narrow") -> P
         ax.set(title=title, xlabel="x1", ylabel="x2")
 
     ax = fig.add_subplot(2, 3, 6)
-    sub = G[:: 7]
+    coarse = np.linspace(-2.0, 2.0, 13)
+    sub = np.column_stack([c.ravel() for c in np.meshgrid(coarse, coarse)])
     pi_true = POTENTIALS["parabola"](sub)[1]
     pi_hat = model.policy(sub)
     ax.quiver(sub[:, 0], sub[:, 1], pi_true[:, 0], pi_true[:, 1], color="0.3",
