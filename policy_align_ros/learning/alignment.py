@@ -44,6 +44,7 @@ __all__ = [
 
 _CHUNK_PAIRS = 4_000_000  # bound on neighbour pairs held at once
 _TREE_MAX_PAIRS = 20_000_000  # above this many neighbour pairs, a tree search is too slow
+_EXACT_MAX_SECONDS = 5.0  # estimated time beyond which the blocked approximation is used
 _DENSE_MAX_ENTRIES = 20_000_000  # (M, K) distances the exact dense search may compute
 _BLOCK_QUERIES = 60_000  # query points of the approximate (blocked) table
 _BLOCK_REFERENCES = 250_000  # reference points of the approximate table
@@ -127,10 +128,10 @@ def local_model_table(
         reference point of the nearest-neighbour models, and into one query point that
         counts for all of them in the objective (0 keeps every sample, as in the paper).
     max_neighbours : int
-        Only used when the exact table would not fit in memory (many trajectories whose
-        kernels overlap, typical near a common attractor in high dimension): each point
-        then sees the ``max_neighbours`` trajectories that come closest to its own, and
-        samples are merged more coarsely (see ``_blocked_table``).
+        Only used when the exact table would take too long or too much memory (many
+        trajectories whose kernels overlap, typical near a common attractor in high
+        dimension): each point then sees the ``max_neighbours`` trajectories that come
+        closest to its own, and samples are merged more coarsely (see ``_blocked_table``).
     closest : ndarray, shape (K, K), optional
         Closest approaches between trajectories (``bandwidth.closest_approach_matrix``),
         which choose those neighbours; computed on thinned trajectories when missing.
@@ -147,14 +148,16 @@ def local_model_table(
     per_point = max(1.0, tree.count_neighbors(cKDTree(sample), radius) / len(sample))
     pairs = per_point * len(ref)
     # Rough costs in seconds: a tree search pays per neighbour pair found, the dense search
-    # per distance computed, and is far cheaper per item (one matrix product per trajectory).
-    tree_cost = 1e-6 * pairs
-    dense_cost = 5e-10 * len(ref) ** 2 * (X.shape[1] + 10)
-    if pairs <= _TREE_MAX_PAIRS and (tree_cost <= dense_cost or len(ref) * K > _DENSE_MAX_ENTRIES):
-        mode = "tree"
-    elif len(ref) * K <= _DENSE_MAX_ENTRIES:
-        mode = "dense"
-    else:
+    # per distance computed (one matrix product per trajectory, far cheaper per item).
+    # The exact table is built the cheaper way when that is affordable; otherwise (many
+    # overlapping trajectories) the blocked approximation.
+    costs = {}
+    if pairs <= _TREE_MAX_PAIRS:
+        costs["tree"] = 1e-6 * pairs
+    if len(ref) * K <= _DENSE_MAX_ENTRIES:
+        costs["dense"] = 5e-10 * len(ref) ** 2 * (X.shape[1] + 10)
+    mode = min(costs, key=costs.get) if costs else None
+    if mode is None or costs[mode] > _EXACT_MAX_SECONDS:
         return _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours,
                               closest)
     weights = np.diff(np.append(ref, len(X))).astype(float)

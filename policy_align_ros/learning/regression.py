@@ -109,6 +109,12 @@ __all__ = ["LocalLinearRegression", "NotFittedError"]
 
 #: Cut-off radius of a receptive field in units of its width ``h``.
 CUTOFF = 3.0
+#: Floor of a local model of a potential: this many weighted standard deviations of its
+#: data below their mean, along its slope (see :func:`extrapolation_floors`).
+FLOOR_SPREAD = 2.0
+FLOOR_MODE = "min"
+#: Length over which a local model levels off past its floor, in the same units.
+FLOOR_SOFTNESS = 1.0
 #: Growth of the blending width with the distance from the nearest centre, far away.
 FAR_WIDENING = 0.5
 #: Spacing of the cover of centres in units of ``h``.
@@ -661,6 +667,135 @@ def neighbour_matrix(centres: np.ndarray, width: float) -> sp.csr_matrix:
 # --------------------------------------------------------------------------- prediction
 
 
+def floored(
+    u: np.ndarray, floor: np.ndarray, softness: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linear above a floor, smoothly levelling off below it, and its derivative.
+
+    ``phi(u) = u`` for ``u >= a``, ``a - w (1 - exp((u - a) / w))`` below: continuous with
+    its derivative at ``a``, decreasing by at most ``w`` past it, with a slope that decays
+    over ``w``. ``a = -inf`` leaves ``u`` linear.
+
+    Parameters
+    ----------
+    u : ndarray
+        Local model increments ``B_j (x - c_j)`` (output units).
+    floor, softness : ndarray, broadcastable to ``u``
+        ``a`` and ``w > 0`` (output units).
+
+    Returns
+    -------
+    phi, dphi_du : ndarray, shape of ``u``
+    """
+    z = np.minimum((u - floor) / softness, 0.0)
+    e = np.exp(z)
+    below = z < 0.0
+    return np.where(below, floor + softness * (e - 1.0), u), e
+
+
+def output_minima(X: np.ndarray, Y: np.ndarray, index: CentreIndex, h: float) -> np.ndarray:
+    C, d = len(index.centres), Y.shape[1]
+    out = np.full((C, d), np.inf)
+    for start, stop, W in index.weight_blocks(X, h):
+        Yb = Y[start:stop]
+        if sp.issparse(W):
+            W = W.tocoo()
+            rows, cols = W.row[W.data > 0], W.col[W.data > 0]
+            for k in range(d):
+                np.minimum.at(out[:, k], cols, Yb[rows, k])
+            continue
+        outside = W <= 0
+        for k in range(d):
+            U = np.broadcast_to(Yb[:, k:k+1], W.shape).copy()
+            U[outside] = np.inf
+            np.minimum(out[:, k], U.min(axis=0), out=out[:, k])
+    return out
+
+
+def local_minima(X: np.ndarray, index: CentreIndex, slopes: np.ndarray, h: float) -> np.ndarray:
+    """Lowest value of every local model increment ``B_j (x_i - c_j)`` over its own data.
+
+    Parameters
+    ----------
+    X : ndarray, shape (m, n)
+        Fit inputs (same origin as the centres).
+    index : CentreIndex
+        The ``C`` field centres.
+    slopes : ndarray, shape (C, d, n)
+    h : float
+        Field width (state units): field ``j``'s data are the points within ``CUTOFF h``.
+
+    Returns
+    -------
+    ndarray, shape (C, d)
+        Output units; ``+inf`` for a field without data.
+    """
+    C, d, _ = slopes.shape
+    at_centre = np.einsum("cdn,cn->cd", slopes, index.centres)
+    out = np.full((C, d), np.inf)
+    for start, stop, W in index.weight_blocks(X, h):
+        Xb = X[start:stop]
+        if sp.issparse(W):
+            W = W.tocoo()
+            rows, cols = W.row[W.data > 0], W.col[W.data > 0]
+            for k in range(d):
+                u = np.einsum("ij,ij->i", slopes[cols, k], Xb[rows]) - at_centre[cols, k]
+                np.minimum.at(out[:, k], cols, u)
+            continue
+        outside = W <= 0
+        for k in range(d):
+            U = Xb @ slopes[:, k, :].T - at_centre[None, :, k]
+            U[outside] = np.inf
+            np.minimum(out[:, k], U.min(axis=0), out=out[:, k])
+    return out
+
+
+def extrapolation_floors(
+    stats: np.ndarray, centres: np.ndarray, slopes: np.ndarray, minima=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Floors of the local models at the low end of their own data.
+
+    A local linear model of a potential is fitted on the data within its field; where
+    these end on one side (the trajectories stop at the minimum), its extrapolation keeps
+    sloping down through the minimum and the policy ``-grad f`` carries on past it. The
+    floor of field ``j`` is where its data end along its slope: ``FLOOR_SPREAD`` weighted
+    standard deviations ``s_j = sqrt(B_j Sigma_j B_j^T)`` of ``B_j x`` below its weighted
+    mean (and not above the centre, itself a sample); below, the model levels off over
+    ``FLOOR_SOFTNESS s_j`` (:func:`floored`). Ascending extrapolation stays linear, so
+    far from the data the potential still rises and ``-grad f`` points back to them.
+
+    Parameters
+    ----------
+    stats : ndarray, shape (C, p)
+        :func:`local_statistics` of the fields (same origin as ``centres``).
+    centres : ndarray, shape (C, n)
+    slopes : ndarray, shape (C, d, n)
+
+    Returns
+    -------
+    floors, softness : ndarray, shape (C, d)
+        In ``u = B_j (x - c_j)`` (output units); ``softness > 0``.
+    """
+    C, n = centres.shape
+    iu, ju = np.triu_indices(n)
+    W = stats[:, 0]
+    mu = stats[:, 1 : 1 + n] / W[:, None]
+    k = 1 + n + slopes.shape[1]
+    sxx = np.zeros((C, n, n))
+    sxx[:, iu, ju] = stats[:, k : k + len(iu)]
+    sxx[:, ju, iu] = stats[:, k : k + len(iu)]
+    cov = sxx / W[:, None, None] - mu[:, :, None] * mu[:, None, :]
+    spread = np.sqrt(np.maximum(np.einsum("cdn,cnm,cdm->cd", slopes, cov, slopes), 0.0))
+    at_mean = np.einsum("cdn,cn->cd", slopes, mu - centres)
+    floors = np.minimum(at_mean - FLOOR_SPREAD * spread, 0.0)
+    if FLOOR_MODE == "ymin":
+        floors = minima - FLOOR_SPREAD * spread
+    if FLOOR_MODE == "min":
+        floors = np.minimum(minima, 0.0) - FLOOR_SPREAD * spread
+    softness = np.maximum(FLOOR_SOFTNESS * spread, np.finfo(float).tiny)
+    return floors, softness
+
+
 def blend(
     X: np.ndarray,
     index: CentreIndex,
@@ -668,6 +803,8 @@ def blend(
     slopes: np.ndarray,
     h: float,
     gradient: bool = False,
+    floors: np.ndarray | None = None,
+    softness: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Normalised blend of the local models and its exact gradient.
 
@@ -685,6 +822,8 @@ def blend(
         Field width (state units).
     gradient : bool
         Also return ``d f / d x``.
+    floors, softness : ndarray, shape (C, d), optional
+        Floors of the local models (:func:`floored`); None keeps them linear.
 
     Returns
     -------
@@ -702,7 +841,9 @@ def blend(
     grad = np.empty((m, d, n)) if gradient else None
     # With v_j = g(rel_j; H^2(t)), rel_j = ||x - c_j||^2 - t and t = ||x - c_*||^2:
     #   d rel_j/dx = 2 (c_* - c_j),   d H^2/dx = H^2'(t) 2 (x - c_*),
-    #   grad f = [sum_j v_j B_j + sum_j (l_j - f) grad v_j] / sum_j v_j.
+    #   grad f = [sum_j v_j B_j + sum_j (l_j - f) grad v_j] / sum_j v_j;
+    # a floored model l_j = b_j + phi_j(u_j), u_j = B_j (x - c_j), replaces B_j by
+    # phi_j'(u_j) B_j.
     for start, stop, nearest, dw2, weights in index.relative_blocks(X, h, gradient):
         Xb = X[start:stop]
         b = stop - start
@@ -712,13 +853,19 @@ def blend(
             V = v.sum(axis=1)
             for k in range(d):
                 L = offsets[None, :, k] + Xb @ slopes[:, k, :].T
+                vd = v
+                if floors is not None:
+                    b0 = intercepts[None, :, k]
+                    p, dp = floored(L - b0, floors[None, :, k], softness[None, :, k])
+                    L = b0 + p
+                    vd = v * dp
                 fk = np.einsum("ij,ij->i", v, L) / V
                 f[start:stop, k] = fk
                 if gradient:
                     L -= fk[:, None]
                     Es = dvs * L
                     eh = np.einsum("ij,ij->i", dvh, L)
-                    g = v @ slopes[:, k, :] + 2.0 * (Es.sum(axis=1)[:, None] * cn - Es @ centres)
+                    g = vd @ slopes[:, k, :] + 2.0 * (Es.sum(axis=1)[:, None] * cn - Es @ centres)
                     g += (2.0 * eh * dw2)[:, None] * (Xb - cn)
                     grad[start:stop, k] = g / V[:, None]
             continue
@@ -727,6 +874,12 @@ def blend(
         Vmat = sp.csr_matrix((v, (rows, cols)), shape=(b, C)) if gradient else None
         for k in range(d):
             L = offsets[cols, k] + np.einsum("ij,ij->i", slopes[cols, k], Xb[rows])
+            if floors is not None:
+                b0 = intercepts[cols, k]
+                p, dp = floored(L - b0, floors[cols, k], softness[cols, k])
+                L = b0 + p
+                if gradient:
+                    Vmat = sp.csr_matrix((v * dp, (rows, cols)), shape=(b, C))
             fk = np.bincount(rows, v * L, minlength=b) / V
             f[start:stop, k] = fk
             if gradient:
@@ -754,7 +907,7 @@ def fit_fields(
     smoothing: float = 0.0,
     increments: Increments | None = None,
     increment_weight: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Place the fields and fit their local models on all data.
 
     Parameters
@@ -775,6 +928,8 @@ def fit_fields(
     centres : ndarray, shape (C, n)
     intercepts : ndarray, shape (C, d)
     slopes : ndarray, shape (C, d, n)
+    floors, softness : ndarray, shape (C, d)
+        :func:`extrapolation_floors` of the local models.
     """
     centres = FarthestPointCover(X, max_centers, rng).centres(SPACING * h)
     index = CentreIndex(centres)
@@ -785,7 +940,10 @@ def fit_fields(
     intercepts, slopes = solve_local_models(
         stats, centres, Y.shape[1], h, ridge, smoothing, inc, increment_weight
     )
-    return centres, intercepts, slopes
+    minima = local_minima(X, index, slopes, h) if FLOOR_MODE == "min" else None
+    if FLOOR_MODE == "ymin":
+        minima = output_minima(X, Y, index, h) - intercepts
+    return centres, intercepts, slopes, *extrapolation_floors(stats, centres, slopes, minima)
 
 
 def default_ridge(n: int) -> float:
@@ -1088,6 +1246,7 @@ class LocalLinearRegression:
         smoothing: float = 0.0,
         cv_criterion: str = "increments",
         increment_weight: float = DEFAULT_INCREMENT_WEIGHT,
+        extrapolation: str = "auto",
         random_state: int | np.random.Generator | None = None,
     ) -> None:
         self.bandwidth = bandwidth
@@ -1098,6 +1257,7 @@ class LocalLinearRegression:
         self.smoothing = smoothing
         self.cv_criterion = cv_criterion
         self.increment_weight = increment_weight
+        self.extrapolation = extrapolation
         self.random_state = random_state
 
     # -- scikit-learn style parameters
@@ -1113,6 +1273,7 @@ class LocalLinearRegression:
             "smoothing": self.smoothing,
             "cv_criterion": self.cv_criterion,
             "increment_weight": self.increment_weight,
+            "extrapolation": self.extrapolation,
             "random_state": self.random_state,
         }
 
@@ -1167,6 +1328,11 @@ class LocalLinearRegression:
         iw = self.increment_weight
         if not (isinstance(iw, (int, float, np.floating)) and math.isfinite(iw) and iw >= 0):
             raise ValueError(f"increment_weight must be a float >= 0, got {iw!r}")
+        if self.extrapolation not in ("auto", "floor", "linear"):
+            raise ValueError(
+                "extrapolation must be 'auto', 'floor' or 'linear', "
+                f"got {self.extrapolation!r}"
+            )
         mc = self.max_centers
         if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or mc < 1:
             raise ValueError(f"max_centers must be an integer >= 1, got {mc!r}")
@@ -1269,7 +1435,7 @@ class LocalLinearRegression:
                 weight *= len(pairs) / len(pairs[::stride])
                 pairs = pairs[::stride]
             inc = Increments(Xs, Y, pairs)
-        centres, intercepts, slopes = fit_fields(
+        centres, intercepts, slopes, floors, softness = fit_fields(
             Xs[keep], Y[keep], h, ridge, int(self.max_centers), rng, float(self.smoothing),
             inc, weight,
         )
@@ -1280,6 +1446,11 @@ class LocalLinearRegression:
         self.centers_ = centres + origin
         self.intercepts_ = intercepts
         self.slopes_ = slopes
+        floored_models = self.extrapolation == "floor" or (
+            self.extrapolation == "auto" and Y.shape[1] == 1
+        )
+        self.floors_ = floors if floored_models else None
+        self.softness_ = softness if floored_models else None
         self.n_features_in_ = X.shape[1]
         self.n_outputs_ = Y.shape[1]
         self._index()
@@ -1369,7 +1540,10 @@ class LocalLinearRegression:
         """
         Xs = self._check_X(X)
         with _blas_context(len(Xs)):
-            f, _ = blend(Xs, self._index_, self.intercepts_, self.slopes_, self.bandwidth_)
+            f, _ = blend(
+                Xs, self._index_, self.intercepts_, self.slopes_, self.bandwidth_,
+                floors=self.floors_, softness=self.softness_,
+            )
         return f[:, 0] if self.y_ndim_ == 1 else f
 
     def gradient(self, X: np.ndarray) -> np.ndarray:
@@ -1387,7 +1561,8 @@ class LocalLinearRegression:
         Xs = self._check_X(X)
         with _blas_context(len(Xs)):
             _, g = blend(
-                Xs, self._index_, self.intercepts_, self.slopes_, self.bandwidth_, gradient=True
+                Xs, self._index_, self.intercepts_, self.slopes_, self.bandwidth_,
+                gradient=True, floors=self.floors_, softness=self.softness_,
             )
         return g[:, 0, :] if self.y_ndim_ == 1 else g
 
