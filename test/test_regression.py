@@ -11,6 +11,7 @@ from policy_align_ros.learning.regression import (
     RIDGE_GRID,
     LocalLinearRegression,
     NotFittedError,
+    floored,
     thin_trajectories,
 )
 
@@ -169,13 +170,80 @@ def test_reproduces_a_linear_function_where_data_spread():
     X = rng.uniform(-1, 1, (2000, 3))
     a = np.array([0.5, -1.0, 2.0])
     y = X @ a + 1.0
-    reg = LocalLinearRegression(bandwidth=0.4, ridge=0.0, random_state=0).fit(X, y)
+    linear = LocalLinearRegression(
+        bandwidth=0.4, ridge=0.0, extrapolation="linear", random_state=0
+    ).fit(X, y)
     Q = rng.uniform(-0.8, 0.8, (200, 3))
-    np.testing.assert_allclose(reg.predict(Q), Q @ a + 1.0, atol=1e-6)
-    np.testing.assert_allclose(reg.gradient(Q), np.tile(a, (200, 1)), atol=1e-6)
+    np.testing.assert_allclose(linear.predict(Q), Q @ a + 1.0, atol=1e-6)
+    np.testing.assert_allclose(linear.gradient(Q), np.tile(a, (200, 1)), atol=1e-6)
+    # Floors only touch fields blended in beyond their data, with tiny weights, here.
+    reg = LocalLinearRegression(bandwidth=0.4, ridge=0.0, random_state=0).fit(X, y)
+    assert reg.floors_ is not None
+    np.testing.assert_allclose(reg.predict(Q), Q @ a + 1.0, atol=1e-3)
     # The default penalty shrinks slopes only slightly where the data spread.
     reg = LocalLinearRegression(bandwidth=0.4, random_state=0).fit(X, y)
     np.testing.assert_allclose(reg.gradient(Q), np.tile(a, (200, 1)), rtol=0.02)
+
+
+def test_floored_is_linear_above_the_floor_and_levels_off_below():
+    u = np.linspace(-3.0, 2.0, 501)
+    phi, dphi = floored(u, -1.0, 0.5)
+    above = u >= -1.0
+    np.testing.assert_array_equal(phi[above], u[above])
+    np.testing.assert_array_equal(dphi[above], 1.0)
+    assert np.all(phi > -1.5) and np.all(np.diff(phi) > 0)  # descends by less than w
+    eps = 1e-6
+    fd = (floored(u + eps, -1.0, 0.5)[0] - floored(u - eps, -1.0, 0.5)[0]) / (2 * eps)
+    np.testing.assert_allclose(dphi, fd, atol=1e-6)
+    np.testing.assert_array_equal(floored(u, -np.inf, 0.5)[0], u)
+
+
+@pytest.fixture(scope="module")
+def one_sided():
+    """Trajectories descending ||x||^2 to the origin, all from the half-plane x_0 > 0."""
+    rng = np.random.default_rng(11)
+    K, N = 20, 40
+    X = np.empty((K, N, 2))
+    for k in range(K):
+        a = rng.uniform(-0.6, 0.6)
+        x = rng.uniform(1.0, 2.0) * np.array([np.cos(a), np.sin(a)])
+        for i in range(N):
+            X[k, i] = x
+            x = 0.8 * x
+    X = X.reshape(-1, 2)
+    return X, np.sum(X**2, axis=1), np.repeat(np.arange(K), N)
+
+
+def test_descent_stops_where_the_data_end(one_sided):
+    # Linear local models at the minimum, seeing data on one side only, keep sloping
+    # down past it: gradient descent left the data (|x| > 20 after 300 steps, from starts
+    # at |x| in [1, 2]). Floored, it settled within 0.20 (2 h) of the minimum.
+    X, y, g = one_sided
+    starts = X[::40][:8]
+    final = {}
+    for mode in ("linear", "auto"):
+        reg = LocalLinearRegression(extrapolation=mode, random_state=0).fit(X, y, groups=g)
+        Q = starts.copy()
+        for _ in range(300):
+            Q = Q - 0.05 * reg.gradient(Q)
+        final[mode] = np.linalg.norm(Q, axis=1)
+    assert final["linear"].min() > 5.0
+    assert final["auto"].max() < 0.25
+
+
+def test_gradient_of_floored_model_equals_central_differences(one_sided):
+    X, y, g = one_sided
+    reg = LocalLinearRegression(bandwidth=0.15, random_state=0).fit(X, y, groups=g)
+    rng = np.random.default_rng(12)
+    # Beyond the minimum (x_0 < 0), where the floors are active, and on the data.
+    Q = np.vstack([rng.uniform([-1.0, -0.5], [0.1, 0.5], (200, 2)), X[::7]])
+    linear = LocalLinearRegression(
+        bandwidth=0.15, extrapolation="linear", random_state=0
+    ).fit(X, y, groups=g)
+    assert np.mean(reg.predict(Q[:200]) > linear.predict(Q[:200]) + 1e-3) > 0.5
+    G = reg.gradient(Q)
+    Gfd = central_differences(reg.predict, Q)
+    np.testing.assert_allclose(G, Gfd, rtol=1e-5, atol=1e-7 * np.abs(Gfd).max())
 
 
 def test_trajectory_cv_picks_smoother_model_than_pointwise_cv():
@@ -230,11 +298,17 @@ def test_multi_output_shapes_and_per_output_equivalence():
     reg = LocalLinearRegression(bandwidth=0.5, random_state=0).fit(X, Y, groups=g)
     assert reg.predict(X[:7]).shape == (7, 2)
     assert reg.gradient(X[:7]).shape == (7, 2, 3)
-    single = LocalLinearRegression(bandwidth=0.5, random_state=0).fit(X, Y[:, 1], groups=g)
-    assert single.predict(X[:7]).shape == (7,)
-    assert single.gradient(X[:7]).shape == (7, 3)
-    np.testing.assert_allclose(reg.predict(X[:50])[:, 1], single.predict(X[:50]), atol=1e-12)
-    np.testing.assert_allclose(reg.gradient(X[:50])[:, 1], single.gradient(X[:50]), atol=1e-12)
+    assert reg.floors_ is None  # "auto" floors a scalar output (a potential) only
+    for mode in ("linear", "floor"):
+        multi = LocalLinearRegression(bandwidth=0.5, extrapolation=mode, random_state=0)
+        multi.fit(X, Y, groups=g)
+        single = LocalLinearRegression(bandwidth=0.5, extrapolation=mode, random_state=0)
+        single.fit(X, Y[:, 1], groups=g)
+        assert single.predict(X[:7]).shape == (7,)
+        assert single.gradient(X[:7]).shape == (7, 3)
+        Q = np.vstack([X[:50], X[:50] * 3.0])
+        np.testing.assert_allclose(multi.predict(Q)[:, 1], single.predict(Q), atol=1e-12)
+        np.testing.assert_allclose(multi.gradient(Q)[:, 1], single.gradient(Q), atol=1e-12)
 
 
 def test_far_away_queries_are_finite(toy_model):
@@ -252,6 +326,7 @@ def test_state_round_trip_is_exact_and_pickle_free(toy, toy_model):
     with np.load(buffer, allow_pickle=False) as data:
         loaded = {k: data[k] for k in data.files}
     model = LocalLinearRegression.from_state(loaded, meta)
+    assert {"floors", "softness"} <= set(loaded)
     X = np.vstack([toy[0], [[40.0, -7.0]]])
     np.testing.assert_array_equal(model.predict(X), toy_model.predict(X))
     np.testing.assert_array_equal(model.gradient(X), toy_model.gradient(X))
@@ -278,6 +353,21 @@ def test_from_state_rejects_bad_state(toy_model):
         LocalLinearRegression.from_state({**arrays, "slopes": arrays["slopes"][:-1]}, meta)
     with pytest.raises(ValueError, match="missing"):
         LocalLinearRegression.from_state({"centers": arrays["centers"]}, meta)
+    with pytest.raises(ValueError, match="together"):
+        LocalLinearRegression.from_state({k: v for k, v in arrays.items() if k != "floors"}, meta)
+    with pytest.raises(ValueError, match="softness"):
+        LocalLinearRegression.from_state({**arrays, "softness": -arrays["softness"]}, meta)
+
+
+def test_version_1_state_loads_as_linear_models(toy, toy_model):
+    arrays, meta = toy_model.get_state()
+    old = {k: v for k, v in arrays.items() if k not in ("floors", "softness")}
+    params = {k: v for k, v in meta["params"].items() if k != "extrapolation"}
+    model = LocalLinearRegression.from_state(old, {**meta, "version": 1, "params": params})
+    assert model.floors_ is None
+    linear = LocalLinearRegression(extrapolation="linear", random_state=0)
+    linear.fit(toy[0][~toy[3]], toy[1][~toy[3]], groups=toy[2][~toy[3]])
+    np.testing.assert_allclose(model.predict(toy[0]), linear.predict(toy[0]), atol=1e-12)
 
 
 def test_same_seed_same_model(toy):
@@ -333,6 +423,7 @@ def test_params_are_stored_untouched():
         ({"cv_criterion": "r2"}, "cv_criterion"),
         ({"increment_weight": -1.0}, "increment_weight"),
         ({"increment_weight": float("nan")}, "increment_weight"),
+        ({"extrapolation": "quadratic"}, "extrapolation"),
     ],
 )
 def test_bad_parameters_raise_value_error(params, match):

@@ -324,10 +324,11 @@ def alignment_system(
         key = rows
         n_keys = M
     else:
-        # A point's share and mean prediction are taken within each group separately.
-        key, inverse = np.unique(rows * np.int64(K) + groups[cols], return_inverse=True)
-        n_keys = len(key)
-        key = inverse
+        # A point's share and mean prediction are taken within each group separately:
+        # one row of Q per (point, group) pair.
+        pair = rows * np.int64(K) + groups[cols]
+        unique_pairs, key = np.unique(pair, return_inverse=True)
+        n_keys = len(unique_pairs)
         share = np.bincount(key, weights=q, minlength=n_keys)[key]
     mean_f = np.bincount(key, weights=q * f, minlength=n_keys)[key]
     count = table.weights[rows]
