@@ -99,3 +99,26 @@ def test_disconnected_components_are_each_zero_mean():
     b = solve_offsets(H, a)
     assert abs(b[:6].mean()) < 1e-10
     assert abs(b[6:].mean()) < 1e-10
+
+
+def test_blocked_approximation_matches_the_exact_table(monkeypatch):
+    # Force the approximation used for large overlapping data on a small problem.
+    import policy_align_ros.learning.alignment as alignment
+
+    X, labels, phi, data = _problem(seed=6, K=40, N=40)
+    truth = np.concatenate(data.phi)
+    exact = solve_offsets(*alignment_system(local_model_table(X, labels, phi, 0.05))[:2])
+    monkeypatch.setattr(alignment, "_TREE_MAX_PAIRS", 0)
+    monkeypatch.setattr(alignment, "_DENSE_MAX_ENTRIES", 0)
+    monkeypatch.setattr(alignment, "_BLOCK_QUERIES", 600)  # coarser than every sample
+    table = local_model_table(X, labels, phi, 0.05, max_neighbours=8)
+    assert table.n_points <= 700
+    assert table.weights.sum() == len(X)
+    assert np.bincount(table.rows).max() <= 1 + 8  # own trajectory + max_neighbours
+    approx = solve_offsets(*alignment_system(table)[:2])
+
+    def nmse(b):
+        err = phi + b[labels] - truth
+        return np.var(err) / np.var(truth)
+
+    assert nmse(approx) < 1.5 * nmse(exact) + 1e-3
