@@ -27,6 +27,7 @@ from policy_align_ros.experiments.humanoid import HANDS, JOINTS, make_humanoid_d
 from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.kinematics.control import ControlStep, model_permutation
 from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.model_io import atomic_write_text
 
 __all__ = ["main", "percentiles_us", "time_steps"]
 
@@ -118,7 +119,5 @@ def main(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for name, content in (("executor_bench.md", text + "\n"),
                           ("executor_bench.json", json.dumps(results, indent=2) + "\n")):
-        tmp = out / (name + ".tmp")
-        tmp.write_text(content)
-        os.replace(tmp, out / name)
+        atomic_write_text(out / name, content)
     return 0

@@ -53,6 +53,7 @@ from policy_align_ros.experiments.demonstrators import (
 from policy_align_ros.kinematics import Robot, nullspace_projector
 from policy_align_ros.kinematics.constraints import barrier_rows
 from policy_align_ros.learning import Trajectory
+from policy_align_ros.learning.model_io import atomic_write_text
 
 __all__ = [
     "Panel",
@@ -371,12 +372,6 @@ def _save_fig(fig, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def run(datasets: int, jobs: int, seed: int, n_traj: int = 100, n_samples: int = 100
         ) -> list[dict]:
     """Evaluate ``datasets`` data sets on ``jobs`` processes (data set 0 carries figure
@@ -429,8 +424,8 @@ def main(args) -> int:
               f"N={getattr(args, 'n_samples', 100)}, dt={DT} s, narrow sigma; "
               f"{datasets} data sets in {elapsed:.0f} s with {jobs} worker(s).\n")
     print(table)
-    _write_atomic(out / "grasp.md", table)
-    _write_atomic(out / "grasp.json", json.dumps(
+    atomic_write_text(out / "grasp.md", table)
+    atomic_write_text(out / "grasp.json", json.dumps(
         [{k: v for k, v in r.items() if isinstance(v, float)} for r in results], indent=1))
     plot_figure(results[0]["rollouts"], out / "grasp.png")
     print(f"wrote {out / 'grasp.md'}, {out / 'grasp.json'} and {out / 'grasp.png'}",

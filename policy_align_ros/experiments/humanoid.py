@@ -38,6 +38,7 @@ from policy_align_ros.experiments.demonstrators import (
     stack_ground_truth,
 )
 from policy_align_ros.kinematics import Robot
+from policy_align_ros.learning.model_io import atomic_write_text
 
 __all__ = ["JOINTS", "REFERENCE", "hands_plane_constraint", "make_humanoid_dataset",
            "evaluate_dataset", "main"]
@@ -255,7 +256,6 @@ def main(args) -> int:
 
     ``args`` has ``datasets`` (None = the paper's 50), ``jobs``, ``out``, ``seed``.
     """
-    from policy_align_ros.experiments.grasp import _write_atomic
 
     datasets = 50 if args.datasets is None else int(args.datasets)
     if datasets < 1:
@@ -275,8 +275,8 @@ def main(args) -> int:
               f"{datasets} data sets in {elapsed:.0f} s with "
               f"{jobs} worker(s).\n")
     print(table)
-    _write_atomic(out / "humanoid.md", table)
-    _write_atomic(out / "humanoid.json", json.dumps(
+    atomic_write_text(out / "humanoid.md", table)
+    atomic_write_text(out / "humanoid.json", json.dumps(
         [{k: v for k, v in r.items() if isinstance(v, float)} for r in results], indent=1))
     plot_figure(results[0]["figure"], out / "humanoid.png")
     print(f"wrote {out / 'humanoid.md'}, {out / 'humanoid.json'} and "

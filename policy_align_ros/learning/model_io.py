@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "atomic_write_bytes"]
+__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "atomic_write_bytes", "atomic_write_text"]
 
 FORMAT_VERSION = 1
 _HEADER = "__header__"
@@ -41,6 +41,11 @@ def atomic_write_bytes(path: str | Path, writer) -> Path:
     finally:
         os.close(dir_fd)
     return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically, like :func:`atomic_write_bytes`."""
+    return atomic_write_bytes(path, lambda fh: fh.write(text.encode("utf-8")))
 
 
 def save_npz(path: str | Path, header: dict, arrays: dict[str, np.ndarray]) -> Path:

@@ -55,6 +55,7 @@ from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.kinematics.control import constrained_command
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
+from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.nodes._common import DEFAULT_JOINTS, LATCHED_QOS, joint_positions
 from policy_align_ros.nodes.demonstrator import DEFAULT_FRAMES, random_plane_specs
 from policy_align_ros.nodes.learner import holdout_split
@@ -314,9 +315,7 @@ def _write_params(path: Path, s: DemoSettings, q_start: np.ndarray, attractor: n
     }
     text = yaml.dump({k: {"ros__parameters": v} for k, v in params.items()},
                      Dumper=_NoAliasDumper, sort_keys=False)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    atomic_write_text(path, text)
 
 
 def _save(fig, path: Path) -> Path:
@@ -407,9 +406,7 @@ def run_demo(args: argparse.Namespace) -> int:
         if failure:
             text += f"\nFAILED: {failure}"
         print(text, flush=True)
-        tmp = out / "report.txt.tmp"
-        tmp.write_text(text + "\n")
-        os.replace(tmp, out / "report.txt")
+        atomic_write_text(out / "report.txt", text + "\n")
         if failure:
             raise StageError(failure)
         return 0
