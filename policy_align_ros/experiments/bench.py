@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from policy_align_ros.experiments.evaluation import METRIC_NAMES
+from policy_align_ros.learning.model_io import atomic_write_text
 
 __all__ = ["run_bench", "run_toy_bench", "parallel_map", "format_mean_std"]
 
@@ -116,9 +117,9 @@ def run_toy_bench(args: argparse.Namespace) -> int:
         + f"\n\nWall time: {elapsed:.0f} s with --jobs {args.jobs}.\n"
     )
     print(text)
-    (out / "toy.md").write_text(text)
+    atomic_write_text(out / "toy.md", text)
     raw = {f"{p}_K{k}_{r}": [res[r] for res in v] for (p, k, r), v in results.items()}
-    (out / "toy.json").write_text(json.dumps(raw, indent=1))
+    atomic_write_text(out / "toy.json", json.dumps(raw, indent=1))
     figure = plot_toy_figure(out / "toy.png", seed=args.seed)
     print(f"wrote {out / 'toy.md'}, {out / 'toy.json'} and {figure}")
     return 0

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
+from policy_align_ros.learning.model_io import atomic_write_text
 
 __all__ = ["make_scale_dataset", "run_scale_bench", "SIZES"]
 
@@ -142,8 +143,8 @@ def run_scale_bench(args: argparse.Namespace) -> int:
         f"1000x1000 is 100x the samples of 100x100 and took {last / base:.1f}x the time.\n"
     )
     print(text)
-    (out / "scale.md").write_text(text)
-    (out / "scale.json").write_text(json.dumps(raw, indent=1))
+    atomic_write_text(out / "scale.md", text)
+    atomic_write_text(out / "scale.json", json.dumps(raw, indent=1))
     return 0
 
 
