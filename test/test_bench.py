@@ -1,0 +1,35 @@
+"""``policy-align bench`` wiring and the Table I runner (policy_align_ros.experiments.bench)."""
+
+import json
+
+import numpy as np
+
+from policy_align_ros.cli import main
+from policy_align_ros.experiments.scale import _child, make_scale_dataset
+
+
+def test_toy_bench_writes_table_raw_numbers_and_figure(tmp_path, capsys):
+    assert main(["bench", "toy", "--datasets", "1", "--jobs", "1", "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "toy.md").read_text()
+    assert table.count("| ours |") == 9 and table.count("| paper |") == 9
+    raw = json.loads((tmp_path / "toy.json").read_text())
+    assert set(raw) == {f"{p}_K{k}_{r}" for p, k in [("parabola", 40), ("sinusoid", 40),
+                                                      ("sinusoid", 100)]
+                        for r in ("narrow", "medium", "wide")}
+    assert all(np.isfinite(v[0]["nupe"]) for v in raw.values())
+    assert (tmp_path / "toy.png").stat().st_size > 10_000
+    assert "Table I reproduction" in capsys.readouterr().out
+
+
+def test_bad_bench_arguments_exit_2_with_a_message(tmp_path, capsys):
+    assert main(["bench", "toy", "--jobs", "0", "--out", str(tmp_path)]) == 2
+    assert "--jobs must be at least 1" in capsys.readouterr().err
+
+
+def test_scale_data_and_child_report():
+    trajs = make_scale_dataset(6, 30, np.random.default_rng(0), dim=5)
+    assert len(trajs) == 6 and trajs[0].positions.shape == (30, 5)
+    assert trajs[0].times[1] == 100.0 / 30
+    report = _child(20, 40, seed=0)
+    assert report["K"] == 20 and report["peak_mb"] > 0
+    assert report["alignment_nmse"] < 0.05
