@@ -231,6 +231,16 @@ def test_descent_stops_where_the_data_end(one_sided):
     assert final["auto"].max() < 0.25
 
 
+def test_floors_are_the_lowest_output_of_each_fields_data(one_sided):
+    X, y, g = one_sided
+    reg = LocalLinearRegression(bandwidth=0.15, random_state=0).fit(X, y, groups=g)
+    d2 = np.sum((reg.centers_[:, None, :] - X[None]) ** 2, axis=2)
+    inside = d2 < (regression_module.CUTOFF * reg.bandwidth_) ** 2
+    lowest = np.where(inside, y[None], np.inf).min(axis=1)
+    np.testing.assert_allclose(reg.floors_[:, 0] + reg.intercepts_[:, 0], lowest, atol=1e-12)
+    assert np.all(reg.softness_ > 0)
+
+
 def test_gradient_of_floored_model_equals_central_differences(one_sided):
     X, y, g = one_sided
     reg = LocalLinearRegression(bandwidth=0.15, random_state=0).fit(X, y, groups=g)

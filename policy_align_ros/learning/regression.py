@@ -29,25 +29,27 @@ quotient rule, exactly, and is tested against finite differences.
 Floors (scalar outputs, i.e. potentials): the policy descends ``f``, and the trajectories
 of the data end at its minimum, so the fields there see data on one side only. Their
 linear models, extrapolated, keep sloping down through the minimum (on curved data they
-already undershoot the data's low end inside the field), and the blend beyond the data
-is made of such extrapolations: rollouts of ``-grad f`` passed the minimum and drifted
-away. So each local model levels off below the lowest output ``y_min,j`` of its own data,
+already undershoot the data's low end inside the field), and the blend beyond the data is
+made of such extrapolations: rollouts of ``-grad f`` passed the minimum and drifted away.
+So each local model levels off below the lowest output ``y_min,j`` of its own data,
 ``l_j(x) = beta_j0 + phi_j(B_j (x - c_j))`` with ``phi_j(u) = u`` above ``a_j = y_min,j -
 beta_j0`` and ``a_j - w_j (1 - exp((u - a_j) / w_j))`` below (:func:`floored`,
 :func:`extrapolation_floors`; ``w_j`` is ``FLOOR_SOFTNESS`` times the spread of ``B_j x``
 over the field's data). At the field's samples this moves the model only toward their
-outputs, and ascending extrapolation stays linear, so far from the data ``f`` still
-rises toward them. Measured (``FLOOR_SOFTNESS = 0.02``; 0.1 and 0.5 settled less well):
-the Talos grasp (one data set, 8 rollouts of 200 steps from new starts) ended 0.14 m
-from the target, at its closest point, against 2.7 m without floors (0.19 m closest);
-the 16 recorded 18-joint Talos demonstrations (6 s rollouts from their starts) ended at
-0.29 of the start distance to the attractor, 0.05 rad past their closest point, against
-0.48 and 0.28 rad; the grasp benchmark's nCPE (4 data sets) fell from 0.063 to 0.050
-(unseen barrier) and 0.078 to 0.066 (unconstrained); Table I (10 data sets) changed by
-at most 3% in nUPE and nCPE in the narrow and medium rows (4 of 6 rows lower nCPE).
-Floors set from the *model's* lowest value on its data, or from the spread of its data
-around their mean, either left drift (the former) or cost accuracy on the data (the
-latter, Table I nCPE up to 2 times higher).
+outputs, and ascending extrapolation stays linear, so far from the data ``f`` still rises
+and ``-grad f`` points back to them. The width is chosen by CV on the linear models (the
+floors act mostly beyond the held-out data). Measured (``FLOOR_SOFTNESS = 0.02``; 0.1 and
+0.5 settled less well): the Talos grasp (one data set, 8 rollouts of 200 steps from new
+starts) ended 0.14 m from the target, at its closest point, against 2.7 m without floors
+(0.19 m closest); the 16 recorded 18-joint Talos demonstrations (6 s rollouts from their
+starts) ended at 0.29 of the start distance to the attractor, 0.05 rad past their closest
+point, against 0.48 and 0.28 rad; the grasp benchmark's nCPE (4 data sets) fell from
+0.063 to 0.050 (unseen barrier) and 0.078 to 0.066 (unconstrained); on Table I (10 data
+sets, narrow and medium rows) nUPE and nCPE rose by at most 3% in 2 rows and fell by up
+to 14% in the other 4; the 22-D humanoid benchmark (8 data sets) was unchanged (nCPE
+0.187). Floors set from the *model's* lowest value on its data left more drift (0.13 rad
+on the Talos demonstrations), and floors inside the data (one or two spreads of ``B_j x``
+below its mean) settled better but raised Table I's nCPE 2 to 3 times.
 
 Fit
 ---
@@ -474,6 +476,7 @@ def local_statistics(
     h: float,
     folds: np.ndarray | None = None,
     n_folds: int = 1,
+    minima: np.ndarray | None = None,
 ) -> np.ndarray:
     """Weighted sums of the local sufficient statistics of every field, per fold.
 
@@ -492,6 +495,9 @@ def local_statistics(
         points in fold 0.
     n_folds : int
         Number of folds ``K``.
+    minima : ndarray, shape (C, d), optional
+        Lowered in place to the lowest output of every field's own data (the points
+        within its cut-off), in the same pass.
 
     Returns
     -------
@@ -503,6 +509,8 @@ def local_statistics(
     out = np.zeros((n_folds, len(index.centres), p))
     for start, stop, W in index.weight_blocks(X, h):
         F = _features(X[start:stop], Y[start:stop])
+        if minima is not None:
+            _lower_to_block_minima(minima, W, Y[start:stop])
         if folds is None:
             out[0] += W.T @ F
             continue
@@ -512,6 +520,21 @@ def local_statistics(
             if b > a:
                 out[k] += W[a:b].T @ F[a:b]
     return out
+
+
+def _lower_to_block_minima(minima: np.ndarray, W, Yb: np.ndarray) -> None:
+    """Lower ``minima`` (C, d) to the outputs ``Yb`` (b, d) of the points with ``W > 0``."""
+    if sp.issparse(W):
+        W = W.tocoo()
+        inside = W.data > 0
+        rows, cols = W.row[inside], W.col[inside]
+        for k in range(minima.shape[1]):
+            np.minimum.at(minima[:, k], cols, Yb[rows, k])
+        return
+    inside = W > 0
+    for k in range(minima.shape[1]):
+        lowest = np.where(inside, Yb[:, k : k + 1], np.inf).min(axis=0)
+        np.minimum(minima[:, k], lowest, out=minima[:, k])
 
 
 class Increments:
@@ -714,44 +737,6 @@ def floored(
     return np.where(below, floor + softness * (e - 1.0), u), e
 
 
-def output_minima(X: np.ndarray, Y: np.ndarray, index: CentreIndex, h: float) -> np.ndarray:
-    """Lowest output of every field's own data (the points within its cut-off).
-
-    Parameters
-    ----------
-    X : ndarray, shape (m, n)
-        Fit inputs (same origin as the centres).
-    Y : ndarray, shape (m, d)
-        Fit outputs.
-    index : CentreIndex
-        The ``C`` field centres.
-    h : float
-        Field width (state units).
-
-    Returns
-    -------
-    ndarray, shape (C, d)
-        Output units; ``+inf`` for a field without data.
-    """
-    C, d = len(index.centres), Y.shape[1]
-    out = np.full((C, d), np.inf)
-    for start, stop, W in index.weight_blocks(X, h):
-        Yb = Y[start:stop]
-        if sp.issparse(W):
-            W = W.tocoo()
-            inside = W.data > 0
-            rows, cols = W.row[inside], W.col[inside]
-            for k in range(d):
-                np.minimum.at(out[:, k], cols, Yb[rows, k])
-            continue
-        outside = W <= 0
-        for k in range(d):
-            Ymat = np.repeat(Yb[:, k : k + 1], W.shape[1], axis=1)
-            Ymat[outside] = np.inf
-            np.minimum(out[:, k], Ymat.min(axis=0), out=out[:, k])
-    return out
-
-
 def extrapolation_floors(
     stats: np.ndarray,
     centres: np.ndarray,
@@ -780,7 +765,7 @@ def extrapolation_floors(
     intercepts : ndarray, shape (C, d)
     slopes : ndarray, shape (C, d, n)
     minima : ndarray, shape (C, d)
-        :func:`output_minima`.
+        :func:`local_statistics`.
 
     Returns
     -------
@@ -941,7 +926,8 @@ def fit_fields(
     """
     centres = FarthestPointCover(X, max_centers, rng).centres(SPACING * h)
     index = CentreIndex(centres)
-    stats = local_statistics(X, Y, index, h)[0]
+    minima = np.full((len(centres), Y.shape[1]), np.inf) if floors else None
+    stats = local_statistics(X, Y, index, h, minima=minima)[0]
     inc = None
     if increments is not None and len(increments) and increment_weight > 0:
         inc = increment_statistics(increments, index, h)
@@ -950,7 +936,6 @@ def fit_fields(
     )
     if not floors:
         return centres, intercepts, slopes, None, None
-    minima = output_minima(X, Y, index, h)
     return (
         centres, intercepts, slopes,
         *extrapolation_floors(stats, centres, intercepts, slopes, minima),
