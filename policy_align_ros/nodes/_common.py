@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -155,8 +156,13 @@ def joint_positions(msg: JointState, index: dict[str, int]) -> np.ndarray | None
     return q
 
 
-def _raise_keyboard_interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+_STOP = threading.Event()
+
+
+def _request_stop(signum: int, frame: object) -> None:
+    # Only set a flag: an exception raised inside rclpy's C++ calls (e.g. while taking a
+    # message) surfaces as an unrelated RuntimeError instead of a KeyboardInterrupt.
+    _STOP.set()
 
 
 def run_node(
@@ -177,8 +183,9 @@ def run_node(
     executor_factory : callable
         Executor class, e.g. MultiThreadedExecutor for a node with a worker callback group.
     keep_context_on_signal : bool
-        When True, SIGINT/SIGTERM raise KeyboardInterrupt instead of shutting the context
-        down, so ``destroy_node`` can still publish (the executor's final zero command).
+        When True, SIGINT/SIGTERM stop the spin loop (checked every 0.1 s) instead of
+        shutting the context down, so ``destroy_node`` can still publish (the executor's
+        final zero command).
 
     Returns
     -------
@@ -188,8 +195,9 @@ def run_node(
     """
     options = SignalHandlerOptions.NO if keep_context_on_signal else None
     if keep_context_on_signal:
-        signal.signal(signal.SIGINT, _raise_keyboard_interrupt)
-        signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+        _STOP.clear()
+        signal.signal(signal.SIGINT, _request_stop)
+        signal.signal(signal.SIGTERM, _request_stop)
     try:
         rclpy.init(args=list(args) if args is not None else None,
                    signal_handler_options=options)
@@ -204,7 +212,12 @@ def run_node(
         executor.add_node(node)
         # A node that can finish (the demonstrator) exposes a ``done`` future: its exit code.
         done = getattr(node, "done", None)
-        if done is None:
+        if keep_context_on_signal:
+            while not _STOP.is_set() and not (done is not None and done.done()):
+                executor.spin_once(timeout_sec=0.1)
+            if done is not None:
+                code = int(done.result()) if done.done() else 0
+        elif done is None:
             executor.spin()
         else:
             executor.spin_until_future_complete(done)
