@@ -464,12 +464,16 @@ def _stages(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor, robo
     model = PolicyAlign.load(model_path)
     learnt["ncpe_fresh"] = fresh_ncpe(model, robot, potential, s)
 
-    # Stage 4: execution from the first training demonstration's start, (a) unconstrained and
+    # Stage 4: execution from a training demonstration's start, (a) unconstrained and
     # (b) left hand held in place: neither was ever demonstrated (the teacher always had
     # both hands on planes). A new random start in a 20-D joint space is far from every one
     # of a few dozen demonstrations, where the local potential model knows nothing.
     demos, _, _ = load_dataset([s.out / "demos"], joints=s.joints)
-    first = holdout_split(len(demos), HOLDOUT_FRACTION, s.seed)[0][0]
+    # The first training demonstration that is complete: while the processes start up, the
+    # first one can come out short (the simulator's first ticks are late).
+    train = holdout_split(len(demos), HOLDOUT_FRACTION, s.seed)[0]
+    full = 0.9 * np.median([d.n_samples for d in demos])
+    first = next((k for k in train if demos[k].n_samples >= full), train[0])
     q_start = demos[first].positions[0]
     conductor.set_parameter("/sim_robot", "initial_positions", q_start.tolist())
     _say(t0, f"executor runs start where demonstration {first + 1} started, "
