@@ -434,6 +434,7 @@ def test_params_are_stored_untouched():
         ({"increment_weight": -1.0}, "increment_weight"),
         ({"increment_weight": float("nan")}, "increment_weight"),
         ({"extrapolation": "quadratic"}, "extrapolation"),
+        ({"widths": "local"}, "widths"),
     ],
 )
 def test_bad_parameters_raise_value_error(params, match):
@@ -472,3 +473,77 @@ def test_bad_inputs_raise_clear_errors(toy_model):
         toy_model.predict(np.zeros((3, 5)))
     with pytest.raises(ValueError, match="NaN"):
         toy_model.gradient(np.array([[0.0, np.nan]]))
+
+
+@pytest.mark.parametrize("n, bandwidth", [(2, 0.3), (22, 0.8)])
+def test_gradient_with_adaptive_widths_equals_central_differences(n, bandwidth):
+    rng = np.random.default_rng(n + 2)
+    X, g = constrained_trajectories(20, 30, n, rng, scale=1.0)
+    y = np.sin(X).sum(axis=1) + 0.3 * X[:, 0] * X[:, -1]
+    reg = LocalLinearRegression(bandwidth=bandwidth, widths="adaptive", random_state=1)
+    reg.fit(X, y, groups=g)
+    assert reg.widths_.shape == (len(reg.centers_),)
+    assert np.ptp(reg.widths_) > 0  # the widths do differ
+    Q = X[rng.choice(len(X), 25, replace=False)] + 0.05 * rng.normal(size=(25, n))
+    Gfd = central_differences(reg.predict, Q)
+    np.testing.assert_allclose(reg.gradient(Q), Gfd, rtol=1e-6, atol=1e-8 * np.abs(Gfd).max())
+    far = 4.0 * rng.normal(size=(10, n))
+    np.testing.assert_allclose(
+        reg.gradient(far), central_differences(reg.predict, far), rtol=1e-5, atol=1e-7
+    )
+
+
+def test_adaptive_widths_are_narrower_where_data_are_denser():
+    rng = np.random.default_rng(11)
+    # Dense cluster at the origin, sparse ring around it.
+    dense = 0.05 * rng.normal(size=(2000, 2))
+    angle = rng.uniform(0, 2 * np.pi, 400)
+    sparse = np.column_stack([np.cos(angle), np.sin(angle)]) * rng.uniform(0.5, 2.0, (400, 1))
+    X = np.vstack([dense, sparse])
+    reg = LocalLinearRegression(bandwidth=0.2, widths="adaptive", random_state=0)
+    reg.fit(X, potential(X))
+    radius = np.linalg.norm(reg.centers_, axis=1)
+    inner, outer = reg.widths_[radius < 0.1], reg.widths_[radius > 0.5]
+    assert len(inner) and len(outer)
+    assert inner.max() < outer.min()
+    lo, hi = regression_module.ADAPT_CLIP
+    assert np.all((reg.widths_ >= lo * 0.2 - 1e-12) & (reg.widths_ <= hi * 0.2 + 1e-12))
+    assert LocalLinearRegression(bandwidth=0.2).fit(X, potential(X)).widths_ is None
+
+
+def test_state_round_trip_with_adaptive_widths(toy):
+    X, y, g, _ = toy
+    reg = LocalLinearRegression(widths="adaptive", random_state=4).fit(X, y, groups=g)
+    arrays, meta = reg.get_state()
+    assert arrays["widths"].shape == (len(reg.centers_),)
+    model = LocalLinearRegression.from_state(arrays, json.loads(json.dumps(meta)))
+    np.testing.assert_array_equal(model.widths_, reg.widths_)
+    Q = np.vstack([X[:50], [[40.0, -7.0]]])
+    np.testing.assert_array_equal(model.gradient(Q), reg.gradient(Q))
+    with pytest.raises(ValueError, match="widths"):
+        LocalLinearRegression.from_state({**arrays, "widths": arrays["widths"][:-1]}, meta)
+    with pytest.raises(ValueError, match="widths"):
+        LocalLinearRegression.from_state({**arrays, "widths": -arrays["widths"]}, meta)
+
+
+def test_version_2_state_loads_with_the_global_width(toy):
+    X, y, g, _ = toy
+    reg = LocalLinearRegression(widths="global", random_state=0).fit(X, y, groups=g)
+    arrays, meta = reg.get_state()
+    assert "widths" not in arrays
+    params = {k: v for k, v in meta["params"].items() if k != "widths"}
+    model = LocalLinearRegression.from_state(arrays, {**meta, "version": 2, "params": params})
+    assert model.widths_ is None and model.widths == "cv"
+    np.testing.assert_array_equal(model.predict(X), reg.predict(X))
+
+
+@pytest.mark.parametrize("n", [2, 22])
+def test_cv_widths_fit_the_model_of_the_chosen_option(n):
+    rng = np.random.default_rng(n + 3)
+    X, g = constrained_trajectories(30, 30, n, rng, scale=1.0)
+    y = potential(X)
+    reg = LocalLinearRegression(widths="cv", random_state=2).fit(X, y, groups=g)
+    chosen = "global" if reg.widths_ is None else "adaptive"
+    same = LocalLinearRegression(widths=chosen, random_state=2).fit(X, y, groups=g)
+    assert same.bandwidth_ == reg.bandwidth_
+    np.testing.assert_array_equal(same.gradient(X[:40]), reg.gradient(X[:40]))
