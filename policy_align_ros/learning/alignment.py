@@ -199,13 +199,17 @@ def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, cl
     closely. Weakly connected trajectories have few neighbours, so the links that outlier
     detection looks for are kept; what is dropped are the far members of crowds.
     """
-    from policy_align_ros.learning.bandwidth import closest_approach_matrix, thin_trajectories
+    from policy_align_ros.learning.bandwidth import (
+        HEURISTIC_POINTS,
+        closest_approach_matrix,
+        thin_trajectories,
+    )
 
     K = int(labels[-1]) + 1
     starts = np.searchsorted(labels, np.arange(K + 1))
     if closest is None:
         trajs = [X[starts[k]:starts[k + 1]] for k in range(K)]
-        closest = closest_approach_matrix(thin_trajectories(trajs, 20_000))
+        closest = closest_approach_matrix(thin_trajectories(trajs, HEURISTIC_POINTS))
     steps = np.linalg.norm(np.diff(X, axis=0), axis=1)
     steps[labels[1:] != labels[:-1]] = 0.0
     total_arc = float(steps.sum())

@@ -26,6 +26,8 @@ __all__ = [
 ]
 
 RULES = ("narrow", "medium", "wide")
+#: Points the closest-approach matrix is computed on (trajectories thinned beyond).
+HEURISTIC_POINTS = 20_000
 
 
 def thin_trajectories(trajectories: list[np.ndarray], max_points: int) -> list[np.ndarray]:
@@ -79,7 +81,7 @@ def closest_approach_matrix(trajectories: list[np.ndarray]) -> np.ndarray:
 def sigma2_heuristics(
     trajectories: list[np.ndarray],
     *,
-    max_points: int = 20_000,
+    max_points: int = HEURISTIC_POINTS,
 ) -> dict[str, float]:
     """The paper's narrow, wide and medium kernel widths ``sigma^2``.
 

@@ -29,11 +29,12 @@ from policy_align_ros.learning.alignment import (
     solve_offsets,
 )
 from policy_align_ros.learning.bandwidth import (
+    HEURISTIC_POINTS,
     closest_approach_matrix,
     resolve_sigma2,
     thin_trajectories,
 )
-from policy_align_ros.learning.outliers import weakly_connected_groups
+from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.potential import METHODS, estimate_potential
 from policy_align_ros.learning.regression import LocalLinearRegression, NotFittedError
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
@@ -172,7 +173,7 @@ class PolicyAlign:
         labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
         phi_all = np.concatenate(phi)
         positions = [t.positions for t in trajs]
-        closest = closest_approach_matrix(thin_trajectories(positions, 20_000))
+        closest = closest_approach_matrix(thin_trajectories(positions, HEURISTIC_POINTS))
         self.sigma2_ = resolve_sigma2(self.sigma, positions, closest)
         timings["sigma"] = time.perf_counter() - t0
         self._log(f"{len(trajs)} trajectories, {len(X)} samples, sigma^2 = {self.sigma2_:.4g}")
@@ -187,7 +188,7 @@ class PolicyAlign:
         self.groups_ = weakly_connected_groups(W, self.eigen_tol)
         H, a, _ = alignment_system(table, self.groups_)
         self.offsets_ = solve_offsets(H, a)
-        self.inliers_ = np.flatnonzero(self.groups_ == 0)
+        self.inliers_ = largest_group(self.groups_)
         self.aligned_potentials_ = [p + b for p, b in zip(phi, self.offsets_, strict=True)]
         timings["alignment"] = time.perf_counter() - t1
         self._log(
