@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from policy_align_ros.learning import model_io
 from policy_align_ros.learning.alignment import (
@@ -37,6 +38,11 @@ from policy_align_ros.learning.bandwidth import (
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.potential import METHODS, estimate_potential
 from policy_align_ros.learning.regression import LocalLinearRegression, NotFittedError
+from policy_align_ros.learning.support import (
+    query_support,
+    support_spacing,
+    support_states,
+)
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["PolicyAlign"]
@@ -217,6 +223,10 @@ class PolicyAlign:
         timings["total"] = time.perf_counter() - t0
         self._log(f"global model fitted on {len(Xtr)} samples ({timings['regression']:.2f} s)")
 
+        self.support_states_, groups = support_states([trajs[k].positions for k in keep])
+        self.support_spacing_ = support_spacing(self.support_states_, groups)
+        self._support_tree = None
+
         self.n_features_in_ = n
         self.joint_names_ = None if joint_names is None else [str(j) for j in joint_names]
         self.timed_ = trajs[0].times is not None
@@ -278,6 +288,28 @@ class PolicyAlign:
         X = self._check_X(X)
         return -self.regressor_.gradient(X)
 
+    def support_query(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """How far states lie from the demonstrated data.
+
+        Parameters
+        ----------
+        X : ndarray (m, n)
+
+        Returns
+        -------
+        d : ndarray (m,)
+            Distance to the nearest support state (thinned training state), in units of
+            ``support_spacing_`` (the spacing of the demonstrations, see
+            :mod:`policy_align_ros.learning.support`).
+        nearest : ndarray (m, n)
+            That support state.
+        """
+        X = self._check_X(X)
+        if getattr(self, "_support_tree", None) is None:
+            self._support_tree = cKDTree(self.support_states_)
+        return query_support(self._support_tree, self.support_states_,
+                             self.support_spacing_, X)
+
     # -- persistence ------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
         """Write the fitted model atomically to ``path`` (an ``.npz`` file)."""
@@ -294,6 +326,7 @@ class PolicyAlign:
             "params": params,
             "regressor": {"class": type(self.regressor_).__name__, "meta": reg_meta},
             "training": self.fit_summary_,
+            "support_spacing": self.support_spacing_,
         }
         lengths = np.array([len(p) for p in self.aligned_potentials_])
         arrays = {
@@ -302,6 +335,7 @@ class PolicyAlign:
             "inliers": self.inliers_,
             "aligned_lengths": lengths,
             "aligned_potentials": np.concatenate(self.aligned_potentials_),
+            "support_states": self.support_states_,
             **{f"regressor.{k}": v for k, v in reg_arrays.items()},
         }
         return model_io.save_npz(path, header, arrays)
@@ -331,6 +365,9 @@ class PolicyAlign:
             model.inliers_ = arrays["inliers"]
             splits = np.cumsum(arrays["aligned_lengths"])[:-1]
             model.aligned_potentials_ = np.split(arrays["aligned_potentials"], splits)
+            model.support_states_ = np.asarray(arrays["support_states"], dtype=float)
+            model.support_spacing_ = float(header["support_spacing"])
+            model._support_tree = None
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"{path}: malformed policy_align model file ({err})") from None
         return model
