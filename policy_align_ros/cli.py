@@ -40,12 +40,15 @@ def _build_parser() -> argparse.ArgumentParser:
     call.add_argument("--timeout", type=float, default=30.0, help="seconds to wait")
 
     bench = sub.add_parser("bench", help="reproduce the paper's experiments, measure speed")
-    bench.add_argument("which", choices=["toy", "grasp", "humanoid", "scale", "executor"])
+    bench.add_argument("which",
+                       choices=["toy", "grasp", "humanoid", "scale", "executor", "suite"])
     bench.add_argument("--datasets", type=int, default=None,
                        help="data sets per cell (default: the paper's number)")
     bench.add_argument("--jobs", type=int, default=2, help="worker processes")
     bench.add_argument("--out", default="bench_out", help="directory for tables and figures")
     bench.add_argument("--seed", type=int, default=0, help="base random seed")
+    bench.add_argument("--cases", default=None,
+                       help="suite only: comma-separated case names (default: all)")
     return parser
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from policy_align_ros.learning.baseline import NaivePolicy, velocity_samples
-from policy_align_ros.learning.regression import NotFittedError
+from policy_align_ros.learning.regressors.local_linear import NotFittedError
 from policy_align_ros.learning.trajectory import Trajectory
 
 RATE = 0.1  # pi(x) = -RATE x, the gradient flow of phi = 0.05 ||x||^2

@@ -7,7 +7,7 @@ import policy_align_ros.learning.policy_align as pa_module
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory
-from policy_align_ros.learning.regression import LocalLinearRegression
+from policy_align_ros.learning.regressors.local_linear import LocalLinearRegression
 
 
 @pytest.fixture(scope="module")
@@ -72,29 +72,21 @@ def test_policy_is_invariant_to_constants_added_to_trajectory_potentials(monkeyp
 class _RecordingRegressor(LocalLinearRegression):
     """Remembers what PolicyAlign passes to ``fit``."""
 
-    def fit(self, X, y, groups=None, *, increments=None):
-        self.seen_ = (np.array(X), np.array(groups), np.array(increments))
-        return super().fit(X, y, groups, increments=increments)
+    def fit(self, X, y, groups=None):
+        self.seen_ = (np.array(X), np.array(groups))
+        return super().fit(X, y, groups)
 
 
-def test_increments_join_consecutive_training_samples_only():
+def test_regressor_sees_only_training_samples_of_kept_demonstrations():
     data = make_toy_dataset("parabola", 12, 30, np.random.default_rng(6))
     masks = holdout_masks([30] * 12, np.random.default_rng(7))
     model = PolicyAlign(sigma="medium", regressor=_RecordingRegressor(bandwidth=0.5))
     model.fit(data.trajectories, train_mask=masks)
-    X, groups, pairs = model.regressor_.seen_
-    expected = 0
-    for k in model.inliers_:
-        both = masks[k][:-1] & masks[k][1:]
-        expected += int(both.sum())
-        # Every pair of trajectory k is (x_i, x_i+1) with both samples in training.
-        ours = pairs[groups[pairs[:, 0]] == k]
-        positions = data.trajectories[k].positions
-        i = np.flatnonzero(both)
-        np.testing.assert_array_equal(X[ours[:, 0]], positions[i])
-        np.testing.assert_array_equal(X[ours[:, 1]], positions[i + 1])
-    assert len(pairs) == expected > 0
-    assert np.all(groups[pairs[:, 0]] == groups[pairs[:, 1]])
+    X, groups = model.regressor_.seen_
+    expected = np.concatenate([data.trajectories[k].positions[masks[k]]
+                               for k in model.inliers_])
+    np.testing.assert_array_equal(X, expected)
+    assert set(np.unique(groups)) == set(model.inliers_)
 
 
 def test_timed_trajectories_give_a_policy_per_second():

@@ -145,6 +145,10 @@ def run_bench(args: argparse.Namespace) -> int:
         from policy_align_ros.experiments import humanoid
 
         return humanoid.main(args)
+    if args.which == "suite":
+        from policy_align_ros.experiments import suite
+
+        return suite.main(args)
     if args.which == "executor":
         from policy_align_ros.experiments import executor_bench
 

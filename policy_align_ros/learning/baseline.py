@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from policy_align_ros.learning.regression import LocalLinearRegression, NotFittedError
+from policy_align_ros.learning.regressors import LocalLinearRegression, NotFittedError
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["NaivePolicy", "velocity_samples"]

@@ -37,7 +37,11 @@ from policy_align_ros.learning.bandwidth import (
 )
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.potential import METHODS, estimate_potential
-from policy_align_ros.learning.regression import LocalLinearRegression, NotFittedError
+from policy_align_ros.learning.regressors import (
+    NotFittedError,
+    TrendKernelRegression,
+    regressor_class,
+)
 from policy_align_ros.learning.support import (
     query_support,
     support_spacing,
@@ -73,7 +77,9 @@ class PolicyAlign:
         only the trajectories that come closest to its own, this many at most.
     regressor : estimator, optional
         Global model with ``fit(X, y, groups)``, ``predict``, ``gradient``, ``get_state``
-        and ``from_state``; default ``LocalLinearRegression``, whose gradient is analytic.
+        and ``from_state`` (see :mod:`policy_align_ros.learning.regressors`); default
+        ``TrendKernelRegression``, whose gradient is analytic and whose hyperparameters
+        are chosen per data set by CV over whole held-out demonstrations.
     random_state : int or None
         Seeds every random choice (sigma heuristics on large data, the regressor's CV).
     verbose : bool
@@ -207,18 +213,10 @@ class PolicyAlign:
         Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
         ytr = np.concatenate([self.aligned_potentials_[k][masks[k]] for k in keep])
         gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
-        # Consecutive training samples give offset-free derivative observations: an
-        # increment is used only when both of its samples are training samples.
-        pairs, start = [], 0
-        for k in keep:
-            row = start + np.cumsum(masks[k]) - 1
-            both = np.flatnonzero(masks[k][:-1] & masks[k][1:])
-            pairs.append(np.column_stack([row[both], row[both] + 1]))
-            start += int(masks[k].sum())
-        regressor = LocalLinearRegression(random_state=self.random_state)
+        regressor = TrendKernelRegression(random_state=self.random_state)
         if self.regressor is not None:
             regressor = copy.deepcopy(self.regressor)
-        self.regressor_ = regressor.fit(Xtr, ytr, groups=gtr, increments=np.concatenate(pairs))
+        self.regressor_ = regressor.fit(Xtr, ytr, groups=gtr)
         timings["regression"] = time.perf_counter() - t2
         timings["total"] = time.perf_counter() - t0
         self._log(f"global model fitted on {len(Xtr)} samples ({timings['regression']:.2f} s)")
@@ -350,11 +348,8 @@ class PolicyAlign:
             reg_arrays = {
                 k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("regressor.")
             }
-            if header["regressor"]["class"] != LocalLinearRegression.__name__:
-                raise ValueError(f"unknown regressor {header['regressor']['class']!r}")
-            model.regressor_ = LocalLinearRegression.from_state(
-                reg_arrays, header["regressor"]["meta"]
-            )
+            reg_class = regressor_class(header["regressor"]["class"])
+            model.regressor_ = reg_class.from_state(reg_arrays, header["regressor"]["meta"])
             model.sigma2_ = float(header["sigma2"])
             model.n_features_in_ = int(header["n_features"])
             model.joint_names_ = header["joint_names"]

@@ -142,6 +142,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from policy_align_ros.learning.regressors._common import NotFittedError, assign_folds
+
 try:  # Optional: OpenBLAS threads slow the many small products here down a lot.
     from threadpoolctl import ThreadpoolController
 except ImportError:  # pragma: no cover - depends on the environment
@@ -216,10 +218,6 @@ def single_blas_thread() -> contextlib.AbstractContextManager:
 
 def _blas_context(n_queries: int) -> contextlib.AbstractContextManager:
     return contextlib.nullcontext() if n_queries < SMALL_QUERY else single_blas_thread()
-
-
-class NotFittedError(ValueError):
-    """Raised when a model is used before ``fit`` (or ``from_state``)."""
 
 
 # --------------------------------------------------------------------------- kernel
@@ -1148,32 +1146,6 @@ def thin_trajectories(
         for g in chosen
     ]
     return np.sort(np.concatenate(idx))
-
-
-def assign_folds(groups: np.ndarray, n_folds: int, rng: np.random.Generator) -> np.ndarray:
-    """Fold of every sample, whole groups per fold, folds balanced in size.
-
-    Parameters
-    ----------
-    groups : ndarray of int, shape (m,)
-    n_folds : int
-    rng : numpy.random.Generator
-
-    Returns
-    -------
-    ndarray of int, shape (m,)
-        Fold index in ``0 .. n_folds - 1``.
-    """
-    ids, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
-    order = rng.permutation(len(ids))
-    order = order[np.argsort(-counts[order], kind="stable")]
-    load = np.zeros(n_folds)
-    fold_of = np.empty(len(ids), dtype=int)
-    for g in order:
-        k = int(np.argmin(load))
-        fold_of[g] = k
-        load[k] += counts[g]
-    return fold_of[inverse]
 
 
 def cv_errors(

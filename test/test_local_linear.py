@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-import policy_align_ros.learning.regression as regression_module
-from policy_align_ros.learning.regression import (
+import policy_align_ros.learning.regressors.local_linear as regression_module
+from policy_align_ros.learning.regressors.local_linear import (
     RIDGE_GRID,
     LocalLinearRegression,
     NotFittedError,

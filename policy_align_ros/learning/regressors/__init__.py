@@ -1,0 +1,54 @@
+"""Global models of the potential, one module per family, and their registry.
+
+Every regressor follows the protocol of DESIGN.md section 3: ``fit(X, y, groups)``
+returning itself, ``predict(X)`` (m,), ``gradient(X)`` (m, n), ``get_state()`` ->
+``(arrays, meta)`` and the classmethod ``from_state(arrays, meta)``. A model file names
+its regressor's class; :func:`regressor_class` finds it here, so a PolicyAlign fitted with
+any registered regressor saves and loads.
+
+- :class:`TrendKernelRegression` (default): a quadratic trend shrunk toward an isotropic
+  bowl plus a Gaussian-kernel residual, hyperparameters chosen by CV over whole
+  held-out demonstrations.
+- :class:`LocalLinearRegression`: receptive fields with local linear models (the LWPR
+  family the paper uses); purely local.
+"""
+
+from __future__ import annotations
+
+from policy_align_ros.learning.regressors._common import NotFittedError
+from policy_align_ros.learning.regressors.local_linear import LocalLinearRegression
+from policy_align_ros.learning.regressors.trend_kernel import TrendKernelRegression
+
+__all__ = [
+    "REGISTRY",
+    "LocalLinearRegression",
+    "NotFittedError",
+    "TrendKernelRegression",
+    "register",
+    "regressor_class",
+]
+
+REGISTRY: dict[str, type] = {}
+
+
+def register(cls: type) -> type:
+    """Register a regressor class under its name (usable as a decorator)."""
+    for method in ("fit", "predict", "gradient", "get_state", "from_state"):
+        if not callable(getattr(cls, method, None)):
+            raise ValueError(f"register: {cls.__name__} has no method {method!r}")
+    REGISTRY[cls.__name__] = cls
+    return cls
+
+
+def regressor_class(name: str) -> type:
+    """The registered regressor class called ``name`` (ValueError listing the known ones)."""
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown regressor {name!r}; registered: {sorted(REGISTRY)}"
+        ) from None
+
+
+register(TrendKernelRegression)
+register(LocalLinearRegression)
