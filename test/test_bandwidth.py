@@ -54,3 +54,29 @@ def test_resolve_rejects_bad_values():
             resolve_sigma2(bad, trajs)
     with pytest.raises(ValueError, match="at least 2"):
         sigma2_heuristics(trajs[:1])
+
+
+def test_converging_trajectories_keep_narrow_width_at_sampling_resolution():
+    # Every trajectory settles exactly at the origin: all closest approaches are 0.
+    rng = np.random.default_rng(4)
+    t = np.linspace(0.0, 1.0, 21)[:, None]
+    trajs = [(1.0 - t) * rng.normal(size=2) for _ in range(5)]
+    steps = [np.linalg.norm(np.diff(x, axis=0), axis=1).mean() for x in trajs]
+    s2 = sigma2_heuristics(trajs)
+    assert s2["narrow"] == pytest.approx(np.median(steps) ** 2 / 4.0)
+    assert s2["narrow"] <= s2["medium"] <= s2["wide"]
+
+
+def test_policy_align_fits_demonstrations_that_meet_at_the_attractor():
+    from policy_align_ros.learning import PolicyAlign
+
+    rng = np.random.default_rng(5)
+    trajs = []
+    for _ in range(8):
+        x = [rng.uniform(-1.0, 1.0, size=2)]
+        for _ in range(60):  # phi = ||x||^2 / 2, converged to the origin within float eps
+            x.append(x[-1] * 0.5)
+        trajs.append(np.array(x))
+    model = PolicyAlign(sigma="narrow", random_state=0).fit(trajs)
+    assert np.all(np.isfinite(model.offsets_))
+    assert len(model.inliers_) == len(trajs)

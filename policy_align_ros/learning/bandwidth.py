@@ -10,6 +10,12 @@ trajectories ``k`` and ``j``; ``d_k^min = min_{j != k} d_kj``. The paper's three
 Distances are in squared state units. For large data sets the heuristics work on at most
 ``max_points`` points, each trajectory thinned evenly in arc length; the medians of
 closest approaches need no more.
+
+A closest approach is measured between samples, so it cannot resolve distances below the
+sampling step: two trajectories that meet (or both settle at the attractor, as real
+demonstrations do) give ``d_kj = 0`` exactly, and a median of zeros would make the
+alignment's kernel a delta. ``sigma2_narrow`` is therefore at least ``(s / 2)^2``, with ``s``
+the median sample spacing along the (thinned) trajectories (:func:`sampling_resolution`).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ __all__ = [
     "RULES",
     "thin_trajectories",
     "closest_approach_matrix",
+    "sampling_resolution",
     "sigma2_from_closest",
     "sigma2_heuristics",
     "resolve_sigma2",
@@ -100,18 +107,32 @@ def sigma2_heuristics(
     if len(trajectories) < 2:
         raise ValueError("the sigma heuristics need at least 2 trajectories")
     thin = thin_trajectories(trajectories, max_points)
-    return sigma2_from_closest(closest_approach_matrix(thin))
+    return sigma2_from_closest(closest_approach_matrix(thin), sampling_resolution(thin))
 
 
-def sigma2_from_closest(d: np.ndarray) -> dict[str, float]:
-    """Narrow, medium and wide ``sigma^2`` from a closest-approach matrix (K x K)."""
+def sampling_resolution(trajectories: list[np.ndarray]) -> float:
+    """Squared half sample spacing ``(s / 2)^2``, ``s`` the median mean step per trajectory.
+
+    The smallest closest approach that samples spaced ``s`` apart can resolve (squared
+    state units); 0 when no trajectory moves.
+    """
+    steps = [np.linalg.norm(np.diff(x, axis=0), axis=1).mean() for x in trajectories
+             if len(x) > 1]
+    return float(np.median(steps)) ** 2 / 4.0 if steps else 0.0
+
+
+def sigma2_from_closest(d: np.ndarray, resolution: float = 0.0) -> dict[str, float]:
+    """Narrow, medium and wide ``sigma^2`` from a closest-approach matrix (K x K).
+
+    ``resolution`` (squared state units, :func:`sampling_resolution`) bounds the narrow
+    width from below: closest approaches below it are not measurable.
+    """
     nearest = d.min(axis=1)
     pairs = d[np.triu_indices(len(d), 1)]
     narrow = float(np.median(nearest))
     wide = float(np.median(pairs))
-    # Coincident trajectories give a zero closest approach; keep the width positive.
-    floor = 1e-12 * max(wide, 1e-300)
-    narrow = max(narrow, floor)
+    # The tiny relative floor keeps the width positive when nothing moves at all.
+    narrow = max(narrow, resolution, 1e-12 * max(wide, 1e-300))
     wide = max(wide, narrow)
     return {"narrow": narrow, "medium": float(np.sqrt(narrow * wide)), "wide": wide}
 
@@ -128,7 +149,8 @@ def resolve_sigma2(
             raise ValueError(f"sigma must be one of {RULES} or a positive float, got {sigma!r}")
         if closest is None:
             return sigma2_heuristics(trajectories)[sigma]
-        return sigma2_from_closest(closest)[sigma]
+        resolution = sampling_resolution(thin_trajectories(trajectories, HEURISTIC_POINTS))
+        return sigma2_from_closest(closest, resolution)[sigma]
     value = float(sigma)
     if not np.isfinite(value) or value <= 0:
         raise ValueError(f"sigma (sigma^2) must be a positive finite float, got {sigma!r}")

@@ -1,0 +1,150 @@
+"""Quadratic trend plus kernel residual (policy_align_ros.learning.regressors.trend_kernel)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.regressors import REGISTRY, NotFittedError, TrendKernelRegression
+from policy_align_ros.learning.regressors.trend_kernel import quadratic_features
+
+
+def _descent(grad, starts, steps, dt):
+    """Gradient-descent demonstrations: X (m, n) stacked, groups (m,)."""
+    X, groups = [], []
+    for k, x in enumerate(starts):
+        path = [x]
+        for _ in range(steps - 1):
+            path.append(path[-1] - dt * grad(path[-1][None])[0])
+        X.append(np.array(path))
+        groups.append(np.full(steps, k))
+    return np.concatenate(X), np.concatenate(groups)
+
+
+def _quadratic(n, rng):
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    W = q @ np.diag(np.geomspace(0.3, 2.0, n)) @ q.T
+    c = rng.normal(scale=0.3, size=n)
+    return (lambda X: np.einsum("ij,jk,ik->i", X - c, W, X - c),
+            lambda X: 2.0 * (X - c) @ W)
+
+
+def _two_minima():
+    m = np.array([[-0.8, 0.0], [0.8, 0.1]])
+    depth = np.array([1.0, 0.6])
+
+    def value(X):
+        b = depth * np.exp(-0.5 * ((X[:, None] - m[None]) ** 2).sum(-1) / 0.25)
+        return 0.25 * (X**2).sum(1) - b.sum(1)
+
+    def grad(X):
+        d = X[:, None] - m[None]
+        b = depth * np.exp(-0.5 * (d**2).sum(-1) / 0.25)
+        return 0.5 * X + np.einsum("mk,mkn->mn", b, d) / 0.25
+
+    return value, grad
+
+
+def test_quadratic_features_give_the_frobenius_norm():
+    rng = np.random.default_rng(0)
+    Z = rng.normal(size=(4, 3))
+    F = quadratic_features(Z)
+    assert F.shape == (4, 2 + 3 + 6)
+    S = rng.normal(size=(3, 3))
+    S = S + S.T
+    iu, ju = np.triu_indices(3)
+    coef = np.where(iu == ju, S[iu, ju], math.sqrt(2.0) * S[iu, ju])
+    np.testing.assert_allclose(F[:, 5:] @ coef, np.einsum("ij,jk,ik->i", Z, S, Z))
+    assert coef @ coef == pytest.approx((S**2).sum())
+
+
+def test_gradient_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    value, grad = _two_minima()
+    X, g = _descent(grad, rng.uniform(-1.5, 1.5, size=(12, 2)), 40, 0.05)
+    model = TrendKernelRegression(trend_ridge=1e-3, length_scale=0.4, kernel_ridge=1e-4,
+                                  random_state=0).fit(X, value(X), groups=g)
+    assert len(model.alpha_) > 0
+    Q = rng.uniform(-2.0, 2.0, size=(25, 2))
+    eps = 1e-6
+    fd = np.stack([(model.predict(Q + eps * e) - model.predict(Q - eps * e)) / (2 * eps)
+                   for e in np.eye(2)], axis=1)
+    np.testing.assert_allclose(model.gradient(Q), fd, rtol=1e-6, atol=1e-7)
+
+
+def test_cv_picks_the_trend_alone_for_a_quadratic_potential():
+    rng = np.random.default_rng(2)
+    value, grad = _quadratic(5, rng)
+    X, g = _descent(grad, rng.normal(scale=1.0, size=(20, 5)), 30, 0.05)
+    y = value(X) + 1e-4 * rng.standard_normal(len(X))
+    model = TrendKernelRegression(random_state=0).fit(X, y, groups=g)
+    assert math.isinf(model.kernel_ridge_)  # no residual: a quadratic needs none
+    assert model.trend_ridge_ <= 1e-3  # the anisotropy is real and kept
+    # New starts, away from every demonstration: the global trend carries the gradient.
+    Q = rng.normal(scale=1.0, size=(200, 5))
+    err = np.linalg.norm(model.gradient(Q) - grad(Q), axis=1) ** 2
+    assert err.mean() / (np.linalg.norm(grad(Q), axis=1) ** 2).mean() < 1e-3
+
+
+def test_cv_adds_the_kernel_residual_where_a_quadratic_cannot_fit():
+    rng = np.random.default_rng(3)
+    value, grad = _two_minima()
+    X, g = _descent(grad, rng.uniform([-1.8, -1.2], [1.8, 1.2], size=(30, 2)), 60, 0.05)
+    model = TrendKernelRegression(random_state=0).fit(X, value(X), groups=g)
+    trend_only = TrendKernelRegression(trend_ridge=model.trend_ridge_, kernel_ridge=math.inf,
+                                       random_state=0).fit(X, value(X), groups=g)
+    assert math.isfinite(model.kernel_ridge_)
+    Xt, _ = _descent(grad, rng.uniform([-1.8, -1.2], [1.8, 1.2], size=(10, 2)), 60, 0.05)
+
+    def nupe(m):
+        return (np.sum((m.gradient(Xt) - grad(Xt)) ** 2)
+                / np.sum(grad(Xt) ** 2))
+
+    assert nupe(model) < 0.05 < nupe(trend_only)
+
+
+def test_state_round_trip_survives_json():
+    rng = np.random.default_rng(4)
+    value, grad = _quadratic(3, rng)
+    X, g = _descent(grad, rng.normal(size=(8, 3)), 20, 0.05)
+    model = TrendKernelRegression(trend_ridge=math.inf, kernel_ridge=1e-3, length_scale=0.5,
+                                  random_state=0).fit(X, value(X), groups=g)
+    arrays, meta = model.get_state()
+    meta = json.loads(json.dumps(meta, allow_nan=False))
+    loaded = TrendKernelRegression.from_state(arrays, meta)
+    np.testing.assert_array_equal(loaded.predict(X), model.predict(X))
+    np.testing.assert_array_equal(loaded.gradient(X), model.gradient(X))
+    assert math.isinf(loaded.trend_ridge_)
+    with pytest.raises(ValueError, match="regressor state"):
+        TrendKernelRegression.from_state({k: v for k, v in arrays.items() if k != "trend"},
+                                         meta)
+
+
+@pytest.mark.parametrize("name", sorted(REGISTRY))
+def test_every_registered_regressor_saves_and_loads_with_policy_align(name, tmp_path):
+    rng = np.random.default_rng(5)
+    _, grad = _quadratic(2, rng)
+    trajs = []
+    for x0 in rng.uniform(-1.0, 1.0, size=(10, 2)):
+        X, _ = _descent(grad, x0[None], 30, 0.05)
+        trajs.append(X)
+    model = PolicyAlign(regressor=REGISTRY[name](random_state=0), random_state=0).fit(trajs)
+    loaded = PolicyAlign.load(model.save(tmp_path / "model.npz"))
+    assert type(loaded.regressor_) is REGISTRY[name]
+    Q = rng.uniform(-1.5, 1.5, size=(30, 2))
+    np.testing.assert_allclose(loaded.policy(Q), model.policy(Q), rtol=1e-12, atol=1e-12)
+
+
+def test_errors_are_clear():
+    with pytest.raises(NotFittedError, match="not fitted"):
+        TrendKernelRegression().predict(np.zeros((1, 2)))
+    X = np.random.default_rng(6).normal(size=(20, 2))
+    for bad in ({"trend_ridge": -1.0}, {"kernel_ridge": "auto"}, {"length_scale": math.inf},
+                {"n_centres": 0}, {"n_folds": 1}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            TrendKernelRegression(**bad).fit(X, X[:, 0])
+    model = TrendKernelRegression().fit(X, X[:, 0])
+    with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
+        model.gradient(np.zeros((1, 3)))
