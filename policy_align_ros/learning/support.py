@@ -25,6 +25,8 @@ __all__ = ["SUPPORT_POINTS", "SPACING_QUANTILE", "support_states", "support_spac
 SUPPORT_POINTS = 4000
 #: Quantile of the leave-one-demonstration-out distances that defines the spacing.
 SPACING_QUANTILE = 0.9
+#: Rows of the dense distance matrix computed at once.
+_BLOCK = 512
 
 
 def support_states(trajectories: Sequence[np.ndarray], max_points: int = SUPPORT_POINTS
@@ -48,19 +50,17 @@ def support_states(trajectories: Sequence[np.ndarray], max_points: int = SUPPORT
     return np.concatenate(thinned), groups
 
 
-def support_spacing(S: np.ndarray, groups: np.ndarray, k: int = 8) -> float:
+def support_spacing(S: np.ndarray, groups: np.ndarray) -> float:
     """Spacing of the data: a quantile of the leave-one-demonstration-out distances.
 
     Parameters
     ----------
     S : ndarray (m, n)
-        Support states.
+        Support states (at most a few thousand: the distances are computed densely, in
+        blocks, which beats a k-d tree in many dimensions).
     groups : ndarray of int (m,)
         Demonstration of each support state (with a single demonstration, the spread of
         its states about their mean stands in).
-    k : int
-        Neighbours examined per state; states whose ``k`` nearest all share their
-        demonstration fall back to a search among the other demonstrations only.
 
     Returns
     -------
@@ -71,14 +71,13 @@ def support_spacing(S: np.ndarray, groups: np.ndarray, k: int = 8) -> float:
         # One demonstration: nothing to leave out, so its spread stands in for the spacing.
         spread = np.linalg.norm(S - S.mean(axis=0), axis=1)
         return float(np.quantile(spread, SPACING_QUANTILE)) or 1.0
-    tree = cKDTree(S)
-    k = min(k + 1, len(S))
-    dist, idx = tree.query(S, k=k)
-    other = groups[idx] != groups[:, None]
-    nearest = np.where(other.any(axis=1), np.where(other, dist, np.inf).min(axis=1), np.nan)
-    for i in np.flatnonzero(np.isnan(nearest)):
-        mask = groups != groups[i]
-        nearest[i] = np.sqrt(np.min(np.sum((S[mask] - S[i]) ** 2, axis=1)))
+    sq = np.einsum("ij,ij->i", S, S)
+    nearest = np.empty(len(S))
+    for start in range(0, len(S), _BLOCK):
+        rows = slice(start, start + _BLOCK)
+        d2 = sq[rows, None] - 2.0 * S[rows] @ S.T + sq[None, :]
+        d2[groups[rows, None] == groups[None, :]] = np.inf
+        nearest[rows] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
     spacing = float(np.quantile(nearest, SPACING_QUANTILE))
     if not spacing > 0:
         spacing = float(np.max(nearest)) or 1.0

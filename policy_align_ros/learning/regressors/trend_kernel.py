@@ -22,16 +22,34 @@ geometry of the state space is kept); outputs (the aligned potential) as
 Both parts are fitted jointly by penalised least squares on the mean squared error;
 ``grad_x f`` is analytic (:meth:`TrendKernelRegression.gradient`).
 
+Offsets
+-------
+The outputs are potentials estimated along each demonstration and shifted by the offsets
+the alignment found; the offsets are its least certain part, in many dimensions most of
+all (trajectories pass far from each other). So the fit may correct them: it minimises
+``sum_i (u_i - f(z_i) - b_k(i))^2 / m + offset_ridge sum_k b_k^2`` over ``f`` and per
+demonstration corrections ``b_k`` together (``offset_ridge = 0``: free offsets, the
+demonstrations then tie together through the shape of ``f`` alone; ``inf``: the
+alignment's offsets). The ``b_k`` are eliminated in closed form, so this costs no more
+than the fit without them. On a 22-D quadratic (``policy-align bench suite --cases
+quad_aniso_22 --seed 1000``), free offsets brought the trend's nUPE on new starts from
+0.24 to 0.03; see ``docs/notes/trend_kernel.md``.
+
 Choosing the hyperparameters
 ----------------------------
-``trend_ridge``, ``length_scale`` and ``kernel_ridge`` (an infinite ``kernel_ridge`` drops
-the residual, an infinite ``trend_ridge`` keeps the isotropic bowl only) are chosen by
-K-fold cross-validation in which every fold holds out *whole demonstrations* and scores
-their aligned values ``y`` (not only their increments): the aligned values carry the
-potential *across* demonstrations, which is what a policy needs at new start states. All
-fold errors come from per-fold Gram matrices (one pass over the data per length scale),
-so the search costs a few small Cholesky solves per candidate. The data are thinned
-evenly in arc length along each demonstration first (a robot at rest adds samples but no
+``trend_ridge``, ``length_scale``, ``kernel_ridge`` and ``offset_ridge`` (an infinite
+``kernel_ridge`` drops the residual, an infinite ``trend_ridge`` keeps the isotropic bowl
+only) are chosen by K-fold cross-validation in which every fold holds out *whole
+demonstrations*. A held-out demonstration is scored by its *shape*: the squared error of
+the model's values along it after the best constant shift, over the spread of its values.
+That is the error of every potential difference between its samples (start to end as
+well as step to step), which is what a policy must get right along a path from a new
+start, and it does not charge the model for the alignment's error in the held-out
+demonstration's offset. The trend's penalty and the offsets' are chosen first with the
+trend alone, then the residual's length scale and penalty at those. All fold
+errors come from per-fold sums (one pass over the data per length scale), so the search
+costs a few small Cholesky solves per candidate. The data are thinned evenly in arc
+length along each demonstration first (a robot at rest adds samples but no
 information), to at most ``max_fit_points`` samples.
 """
 
@@ -42,12 +60,13 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 
 from policy_align_ros.learning.regressors._common import (
     NotFittedError,
     assign_folds,
-    check_Xy,
     check_query,
+    check_Xy,
     thin_by_arc_length,
 )
 
@@ -57,6 +76,9 @@ __all__ = ["TrendKernelRegression", "quadratic_features"]
 TREND_RIDGE_GRID = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, math.inf)
 #: Candidate kernel penalties; ``inf`` drops the kernel residual.
 KERNEL_RIDGE_GRID = (1e-6, 1e-4, 1e-2, math.inf)
+#: Candidate offset penalties (standardised units): 0 re-fits every demonstration's offset
+#: freely, ``inf`` keeps the alignment's.
+OFFSET_RIDGE_GRID = (0.0, 1e-4, 1e-2, math.inf)
 #: Candidate length scales, as factors of the median distance between centres.
 LENGTH_FACTORS = (0.08, 0.16, 0.32, 0.64)
 #: Added to the penalty of every coefficient: keeps the solves well posed.
@@ -64,6 +86,7 @@ JITTER = 1e-9
 #: Rows per block when evaluating kernels (bounds memory on large queries).
 CHUNK = 8192
 _STATE_VERSION = 1
+_HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
 
 
 def quadratic_features(Z: np.ndarray) -> np.ndarray:
@@ -98,48 +121,79 @@ def _gaussian(Z: np.ndarray, C: np.ndarray, ell: float) -> np.ndarray:
 
 
 class _FoldGrams:
-    """Per-fold Gram matrices of a design, for values and for increments along demos.
+    """Per-fold and per-demonstration sums of a design, for CV with per-demo offsets.
 
-    ``A`` (m, p) is the design at the samples (samples of one demonstration consecutive),
-    ``u`` (m,) the targets; ``pairs`` (P, 2) index consecutive samples of a demonstration,
-    whose differences give the increment design ``A[j] - A[i]`` and targets
-    ``u[j] - u[i]``. Fold ``f`` is held out by subtracting its Grams from the totals, so
-    every score below costs one (p, p) solve per fold.
+    ``A`` (m, p) is the design at the samples, ``u`` (m,) the targets, ``demo`` (m,) the
+    demonstration of every sample as ``0..K-1`` and ``demo_fold`` (K,) the fold of every
+    demonstration. The offsets ``b_k`` are eliminated in closed form: with
+    ``c_k = 1 / (n_k + m lambda)``, the objective profiled over ``b`` has the Gram
+    ``sum_i a_i a_i' - sum_k c_k A_k A_k'`` (``A_k`` the sum of ``a_i`` over demonstration
+    ``k``), so every score below costs one (p, p) solve per fold.
     """
 
-    def __init__(self, A: np.ndarray, u: np.ndarray, folds: np.ndarray, n_folds: int,
-                 pairs: np.ndarray):
-        D = A[pairs[:, 1]] - A[pairs[:, 0]]
-        du = u[pairs[:, 1]] - u[pairs[:, 0]]
-        pair_folds = folds[pairs[:, 0]]
-        self.G, self.r, self.uu = _grams(A, u, folds, n_folds)
-        self.GD, self.rD, self.dd = _grams(D, du, pair_folds, n_folds)
-        self.count = np.bincount(folds, minlength=n_folds).astype(float)
-        self.count_D = np.bincount(pair_folds, minlength=n_folds).astype(float)
+    def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray):
+        n_demos = len(demo_fold)
+        onehot = scipy.sparse.csr_matrix(
+            (np.ones(len(u)), (demo, np.arange(len(u)))), shape=(n_demos, len(u)))
+        self.Ak = np.asarray(onehot @ A)              # (K, p) sums per demonstration
+        self.sk = onehot @ u                          # (K,)
+        self.nk = np.bincount(demo, minlength=n_demos).astype(float)
+        self.demo_fold = demo_fold
+        n_folds = int(demo_fold.max()) + 1
+        fold = demo_fold[demo]
+        if np.any(np.diff(fold) < 0):
+            raise ValueError("_FoldGrams: samples must be sorted by fold")
+        bounds = np.searchsorted(fold, np.arange(n_folds + 1))
+        rows = [slice(bounds[f], bounds[f + 1]) for f in range(n_folds)]
+        self.G = np.stack([A[r].T @ A[r] for r in rows])
+        self.r = np.stack([A[r].T @ u[r] for r in rows])
+        self.uu = np.array([u[r] @ u[r] for r in rows])
         self.G_all, self.r_all = self.G.sum(axis=0), self.r.sum(axis=0)
-        self.u_var = self.uu.sum() / self.count.sum()
-        self.du_var = max(self.dd.sum() / max(self.count_D.sum(), 1.0), 1e-300)
+        # The sums with free offsets (offset_ridge = 0: c_k = 1 / n_k) do not depend on
+        # the other folds, so they are kept per fold.
+        per_demo = self.Ak / self.nk[:, None]
+        self.G0 = np.stack([per_demo[demo_fold == f].T @ self.Ak[demo_fold == f]
+                            for f in range(n_folds)])
+        self.r0 = np.stack([per_demo[demo_fold == f].T @ self.sk[demo_fold == f]
+                            for f in range(n_folds)])
+        # Held-out error is scored against the within-demonstration spread of u.
+        self.shape_ss = max(float(self.uu.sum() - np.sum(self.sk**2 / self.nk)), 1e-300)
 
-    def score(self, penalty: np.ndarray) -> tuple[float, float]:
-        """Held-out (values, increments) mean squared errors, each over its variance."""
-        err = err_d = 0.0
-        for f in range(len(self.count)):
-            m_train = self.count.sum() - self.count[f]
-            w = _solve((self.G_all - self.G[f]) / m_train + penalty,
-                       (self.r_all - self.r[f]) / m_train)
-            if w is None:
-                return math.inf, math.inf
-            err += self.uu[f] - 2.0 * w @ self.r[f] + w @ self.G[f] @ w
-            err_d += self.dd[f] - 2.0 * w @ self.rD[f] + w @ self.GD[f] @ w
-        return (float(err / self.count.sum() / self.u_var),
-                float(err_d / max(self.count_D.sum(), 1.0) / self.du_var))
+    def scores(self, penalties: list[np.ndarray], offset_ridge: float) -> list[float]:
+        """Held-out shape error per penalty: squared residuals of the held-out
+        demonstrations about their own mean, over their spread (every held-out
+        demonstration gets its best offset)."""
+        err = np.zeros(len(penalties))
+        for f in range(len(self.G)):
+            held = self.demo_fold == f
+            if offset_ridge == 0.0:
+                G = self.G_all - self.G[f] - (self.G0.sum(axis=0) - self.G0[f])
+                r = self.r_all - self.r[f] - (self.r0.sum(axis=0) - self.r0[f])
+                m = float(self.nk[~held].sum())
+            else:
+                G, r, m = self.profiled(~held, self.G_all - self.G[f],
+                                        self.r_all - self.r[f], offset_ridge)
+            for i, penalty in enumerate(penalties):
+                w = _solve(G / m + penalty, r / m)
+                if w is None:
+                    err[i] = math.inf
+                    continue
+                ak_w = self.Ak[held] @ w
+                err[i] += (self.uu[f] - 2.0 * w @ self.r[f] + w @ self.G[f] @ w
+                           - np.sum((self.sk[held] - ak_w) ** 2 / self.nk[held]))
+        return list(err / self.shape_ss)
 
-
-def _grams(A: np.ndarray, u: np.ndarray, folds: np.ndarray, n_folds: int):
-    G = np.stack([A[folds == f].T @ A[folds == f] for f in range(n_folds)])
-    r = np.stack([A[folds == f].T @ u[folds == f] for f in range(n_folds)])
-    uu = np.array([u[folds == f] @ u[folds == f] for f in range(n_folds)])
-    return G, r, uu
+    def profiled(self, train: np.ndarray, G: np.ndarray, r: np.ndarray, offset_ridge: float
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Gram and right-hand side of demonstrations ``train`` (bool, K) whose sums are
+        ``G, r``, with their offsets eliminated; and their number of samples."""
+        m = float(self.nk[train].sum())
+        if math.isfinite(offset_ridge):
+            c = 1.0 / (self.nk[train] + m * offset_ridge)
+            Ak = self.Ak[train]
+            G = G - (Ak * c[:, None]).T @ Ak
+            r = r - Ak.T @ (c * self.sk[train])
+        return G, r, m
 
 
 def _solve(M: np.ndarray, b: np.ndarray) -> np.ndarray | None:
@@ -166,6 +220,9 @@ class TrendKernelRegression:
         the median distance between centres).
     kernel_ridge : "cv" or float
         RKHS penalty of the residual (``inf``: no residual), or ``"cv"``.
+    offset_ridge : "cv" or float
+        Penalty on corrections of every demonstration's offset (0: free; ``inf``: none),
+        or ``"cv"`` (``OFFSET_RIDGE_GRID``).
     n_centres : int
         Kernel centres (a random subset of the thinned data).
     max_fit_points : int
@@ -177,11 +234,12 @@ class TrendKernelRegression:
 
     Attributes
     ----------
-    trend_ridge_, length_scale_, kernel_ridge_ : float
+    trend_ridge_, length_scale_, kernel_ridge_, offset_ridge_ : float
         Hyperparameters used.
     cv_scores_ : dict
-        Held-out mean squared error (outputs scaled to unit variance) per evaluated
-        ``(trend_ridge, length_scale, kernel_ridge)``.
+        Held-out shape error (over the within-demonstration spread) per evaluated
+        ``(trend_ridge, length_scale, kernel_ridge, offset_ridge)``; ``length_scale`` is
+        NaN for the trend alone.
     mean_, scale_ : ndarray (n,), float
         Standardisation of the states (state units).
     y_mean_, y_scale_ : float
@@ -199,6 +257,7 @@ class TrendKernelRegression:
         trend_ridge: str | float = "cv",
         length_scale: str | float = "cv",
         kernel_ridge: str | float = "cv",
+        offset_ridge: str | float = "cv",
         n_centres: int = 300,
         max_fit_points: int = 6000,
         n_folds: int = 5,
@@ -207,6 +266,7 @@ class TrendKernelRegression:
         self.trend_ridge = trend_ridge
         self.length_scale = length_scale
         self.kernel_ridge = kernel_ridge
+        self.offset_ridge = offset_ridge
         self.n_centres = n_centres
         self.max_fit_points = max_fit_points
         self.n_folds = n_folds
@@ -218,6 +278,7 @@ class TrendKernelRegression:
             "trend_ridge": self.trend_ridge,
             "length_scale": self.length_scale,
             "kernel_ridge": self.kernel_ridge,
+            "offset_ridge": self.offset_ridge,
             "n_centres": self.n_centres,
             "max_fit_points": self.max_fit_points,
             "n_folds": self.n_folds,
@@ -237,6 +298,9 @@ class TrendKernelRegression:
                 raise ValueError(f"{name} must be 'cv' or a positive float, got {value!r}")
         if self.length_scale != "cv" and math.isinf(self.length_scale):
             raise ValueError("length_scale must be finite")
+        o = self.offset_ridge
+        if o != "cv" and (not isinstance(o, (int, float)) or not o >= 0):
+            raise ValueError(f"offset_ridge must be 'cv' or a float >= 0, got {o!r}")
         for name, low in (("n_centres", 1), ("max_fit_points", 10), ("n_folds", 2)):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or value < low:
@@ -271,49 +335,50 @@ class TrendKernelRegression:
 
         centre_idx = np.sort(rng.choice(m, size=min(self.n_centres, m), replace=False))
         C = Z[centre_idx]
+        demo_ids, demo = np.unique(groups, return_inverse=True)
+        n_folds = min(self.n_folds, len(demo_ids))
+        demo_fold = np.zeros(len(demo_ids), dtype=np.int64)
+        if n_folds >= 2:
+            demo_fold[demo] = assign_folds(groups, n_folds, rng)
+            # Samples grouped by fold: every fold's sums come from a slice, not a copy.
+            order = np.argsort(demo_fold[demo], kind="stable")
+            Z, u, demo = Z[order], u[order], demo[order]
         F = quadratic_features(Z)
-        n_groups = len(np.unique(groups))
-        n_folds = min(self.n_folds, n_groups)
-        folds = assign_folds(groups, n_folds, rng) if n_folds >= 2 else None
 
         d_med = _median_distance(C)
-        lengths = ([float(self.length_scale)] if self.length_scale != "cv"
-                   else [f * d_med for f in LENGTH_FACTORS])
-        t_grid = (TREND_RIDGE_GRID if self.trend_ridge == "cv" else (float(self.trend_ridge),))
-        k_grid = (KERNEL_RIDGE_GRID if self.kernel_ridge == "cv"
-                  else (float(self.kernel_ridge),))
-        self.cv_scores_: dict[tuple[float, float, float], float] = {}
+        lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
+        t_grid = _grid(self.trend_ridge, TREND_RIDGE_GRID)
+        k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
+        o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
+        self.cv_scores_: dict[tuple[float, float, float, float], float] = {}
 
-        if folds is None:
-            t_best = t_grid[len(t_grid) // 2]
-            k_best = k_grid[len(k_grid) // 2]
-            ell_best = lengths[len(lengths) // 2]
+        if n_folds < 2:
+            best = (t_grid[len(t_grid) // 2], lengths[len(lengths) // 2],
+                    k_grid[len(k_grid) // 2], o_grid[-1])
         else:
-            # 1. The trend alone picks its penalty ...
-            same = np.flatnonzero(groups[1:] == groups[:-1])
-            pairs = np.column_stack([same, same + 1])
-            grams = _FoldGrams(F, u, folds, n_folds, pairs)
-            for t in t_grid:
-                self.cv_scores_[(t, math.nan, math.inf)] = grams.score(self._trend_penalty(n, t))
-            t_best = min(t_grid, key=lambda t: _criterion(self.cv_scores_[(t, math.nan, math.inf)]))
-            best = (t_best, math.nan, math.inf)
+            # 1. The trend alone picks its penalty and the offsets' ...
+            grams = _FoldGrams(F, u, demo, demo_fold)
+            for o in o_grid:
+                scores = grams.scores([self._trend_penalty(n, t) for t in t_grid], o)
+                for t, score in zip(t_grid, scores, strict=True):
+                    self.cv_scores_[(t, math.nan, math.inf, o)] = score
+            best = min(self.cv_scores_, key=self.cv_scores_.get)
             # 2. ... then the residual its length scale and penalty, jointly with the trend.
             finite_k = [k for k in k_grid if math.isfinite(k)]
-            if finite_k:
-                for ell in lengths:
-                    K = _gaussian(Z, C, ell)
-                    grams = _FoldGrams(np.hstack([F, K]), u, folds, n_folds, pairs)
-                    Kcc = _gaussian(C, C, ell)
-                    for k in finite_k:
-                        key = (t_best, ell, k)
-                        self.cv_scores_[key] = grams.score(self._penalty(n, t_best, k, Kcc))
-                        if _criterion(self.cv_scores_[key]) < _criterion(self.cv_scores_[best]):
-                            best = key
-            t_best, ell_best, k_best = best
-            if math.isnan(ell_best):
-                ell_best = lengths[len(lengths) // 2]
-        self.trend_ridge_, self.length_scale_, self.kernel_ridge_ = t_best, ell_best, k_best
-        self._final_fit(F, Z, u, C, n)
+            t_best, o_best = best[0], best[3]
+            for ell in lengths if finite_k else ():
+                grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold)
+                Kcc = _gaussian(C, C, ell)
+                scores = grams.scores([self._penalty(n, t_best, k, Kcc) for k in finite_k],
+                                      o_best)
+                for k, score in zip(finite_k, scores, strict=True):
+                    self.cv_scores_[(t_best, ell, k, o_best)] = score
+            best = min(self.cv_scores_, key=self.cv_scores_.get)
+            if math.isnan(best[1]):
+                best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
+        (self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
+         self.offset_ridge_) = best
+        self._final_fit(F, Z, u, C, n, demo)
         return self
 
     @staticmethod
@@ -331,24 +396,25 @@ class TrendKernelRegression:
         P[p_t:, p_t:] = kernel_ridge * (Kcc + JITTER * np.eye(m)) + JITTER * np.eye(m)
         return P
 
-    def _final_fit(self, F: np.ndarray, Z: np.ndarray, u: np.ndarray, C: np.ndarray, n: int
-                   ) -> None:
-        m = len(u)
+    def _final_fit(self, F: np.ndarray, Z: np.ndarray, u: np.ndarray, C: np.ndarray, n: int,
+                   demo: np.ndarray) -> None:
         p_t = _n_trend(n)
         if math.isinf(self.kernel_ridge_):
-            w = _solve(F.T @ F / m + self._trend_penalty(n, self.trend_ridge_), F.T @ u / m)
+            A, P = F, self._trend_penalty(n, self.trend_ridge_)
             self.centres_ = np.zeros((0, n))
-            self.alpha_ = np.zeros(0)
         else:
             A = np.hstack([F, _gaussian(Z, C, self.length_scale_)])
             P = self._penalty(n, self.trend_ridge_, self.kernel_ridge_,
                               _gaussian(C, C, self.length_scale_))
-            w = _solve(A.T @ A / m + P, A.T @ u / m)
             self.centres_ = C
-            self.alpha_ = w[p_t:] if w is not None else None
+        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64))
+        G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all,
+                                 self.offset_ridge_)
+        w = _solve(G / m + P, r / m)
         if w is None or not np.all(np.isfinite(w)):
             raise ValueError("TrendKernelRegression: the penalised least squares failed")
         self.trend_ = w[:p_t]
+        self.alpha_ = w[p_t:]
         self._unpack()
 
     def _unpack(self) -> None:
@@ -401,7 +467,7 @@ class TrendKernelRegression:
         params = self.get_params()
         if isinstance(params["random_state"], np.random.Generator):
             params["random_state"] = None
-        for name in ("trend_ridge", "length_scale", "kernel_ridge"):
+        for name in _HYPER:
             if params[name] != "cv":
                 params[name] = _json_float(float(params[name]))
         meta = {
@@ -410,6 +476,7 @@ class TrendKernelRegression:
             "trend_ridge": _json_float(self.trend_ridge_),
             "length_scale": float(self.length_scale_),
             "kernel_ridge": _json_float(self.kernel_ridge_),
+            "offset_ridge": _json_float(self.offset_ridge_),
             "scale": self.scale_,
             "y_mean": self.y_mean_,
             "y_scale": self.y_scale_,
@@ -427,8 +494,8 @@ class TrendKernelRegression:
             if int(meta["version"]) > _STATE_VERSION:
                 raise ValueError(f"format version {meta['version']} is newer than supported")
             params = dict(meta["params"])
-            for name in ("trend_ridge", "length_scale", "kernel_ridge"):
-                if params[name] != "cv":
+            for name in _HYPER:
+                if params.get(name, "cv") != "cv":
                     params[name] = float(params[name])
             model = cls(**params)
             n = int(meta["n_features_in"])
@@ -436,6 +503,7 @@ class TrendKernelRegression:
             model.trend_ridge_ = float(meta["trend_ridge"])
             model.length_scale_ = float(meta["length_scale"])
             model.kernel_ridge_ = float(meta["kernel_ridge"])
+            model.offset_ridge_ = float(meta["offset_ridge"])
             model.scale_ = float(meta["scale"])
             model.y_mean_ = float(meta["y_mean"])
             model.y_scale_ = float(meta["y_scale"])
@@ -450,15 +518,8 @@ class TrendKernelRegression:
         return model
 
 
-def _criterion(scores: tuple[float, float]) -> float:
-    import os
-    mode = os.environ.get("PA_CRIT", "value")
-    v, d = scores
-    if mode == "value":
-        return v
-    if mode == "inc":
-        return d
-    return v + d
+def _grid(value: str | float, grid) -> list[float]:
+    return list(grid) if value == "cv" else [float(value)]
 
 
 def _json_float(value: float) -> float | str:
