@@ -1,4 +1,4 @@
-"""Tests of the LWPR-family global regressor (policy_align_ros.learning.regression)."""
+"""Tests of the LWPR-family global regressor (learning.regressors.local_linear)."""
 
 import io
 import json
@@ -49,15 +49,6 @@ def nupe(pi, pi_hat):
     return np.mean(np.sum((pi - pi_hat) ** 2, axis=1)) / np.sum(np.var(pi, axis=0))
 
 
-def consecutive_pairs(groups, mask=None):
-    """Row pairs (i, i + 1) of consecutive samples of one trajectory (both in ``mask``)."""
-    ok = groups[1:] == groups[:-1]
-    if mask is not None:
-        ok &= mask[1:] & mask[:-1]
-    i = np.flatnonzero(ok)
-    return np.column_stack([i, i + 1])
-
-
 def central_differences(fun, X, eps=1e-6):
     cols = [(fun(X + eps * e) - fun(X - eps * e)) / (2 * eps) for e in np.eye(X.shape[1])]
     return np.stack(cols, axis=-1)
@@ -97,55 +88,6 @@ def test_gradient_equals_central_differences(n, K, params):
     np.testing.assert_allclose(
         reg.gradient(far), central_differences(reg.predict, far), rtol=1e-5, atol=1e-7
     )
-
-
-@pytest.mark.parametrize("n, bandwidth", [(2, 0.3), (22, 0.8)])
-def test_gradient_with_derivative_equations_equals_central_differences(n, bandwidth):
-    rng = np.random.default_rng(n + 1)
-    X, g = constrained_trajectories(15, 30, n, rng, scale=1.0)
-    y = np.sin(X).sum(axis=1) + 0.3 * X[:, 0] * X[:, -1] + 0.1 * g
-    reg = LocalLinearRegression(bandwidth=bandwidth, increment_weight=0.5, random_state=1)
-    reg.fit(X, y, groups=g, increments=consecutive_pairs(g))
-    Q = X[rng.choice(len(X), 25, replace=False)] + 0.05 * rng.normal(size=(25, n))
-    Gfd = central_differences(reg.predict, Q)
-    np.testing.assert_allclose(reg.gradient(Q), Gfd, rtol=1e-6, atol=1e-8 * np.abs(Gfd).max())
-
-
-@pytest.mark.parametrize("max_fit_points", [None, 600])
-def test_derivative_equations_correct_gradients_under_trajectory_offsets(
-    toy, monkeypatch, max_fit_points
-):
-    # Badly aligned potentials: an unknown constant per trajectory, about the size of the
-    # potential's own spread. The increments are free of it; the values are not.
-    if max_fit_points is not None:  # also through the thinning of large data
-        monkeypatch.setattr(regression_module, "MAX_FIT_POINTS", max_fit_points)
-        monkeypatch.setattr(regression_module, "MAX_FIT_INCREMENTS", max_fit_points // 3)
-    X, y, g, held = toy
-    y = y + np.random.default_rng(1).normal(0.0, 0.03, g.max() + 1)[g]
-    train = ~held  # the held-out trajectories are the last ones: rows keep their index
-    pairs = consecutive_pairs(g[train])
-    errors = {}
-    for weight in (0.0, 1.0):
-        reg = LocalLinearRegression(bandwidth=0.6, increment_weight=weight, random_state=0)
-        reg.fit(X[train], y[train], groups=g[train], increments=pairs)
-        errors[weight] = nupe(-2 * W * X[held], -reg.gradient(X[held]))
-    # Measured: nUPE 0.181 -> 0.141 (all points), 0.412 -> 0.329 (600 points, 200 pairs).
-    assert errors[1.0] < 0.9 * errors[0.0]
-
-
-def test_zero_increment_weight_or_no_moving_pairs_change_nothing(toy):
-    X, y, g, _ = toy
-    ref = LocalLinearRegression(bandwidth=0.4, random_state=2).fit(X, y, groups=g)
-    off = LocalLinearRegression(bandwidth=0.4, increment_weight=0.0, random_state=2)
-    off.fit(X, y, groups=g, increments=consecutive_pairs(g))
-    still = LocalLinearRegression(bandwidth=0.4, increment_weight=0.5, random_state=2)
-    still.fit(X, y, groups=g, increments=np.array([[0, 0], [5, 5]]))  # zero-length
-    on = LocalLinearRegression(bandwidth=0.4, increment_weight=0.5, random_state=2)
-    on.fit(X, y, groups=g, increments=consecutive_pairs(g))
-    for model in (off, still):
-        np.testing.assert_array_equal(model.slopes_, ref.slopes_)
-        np.testing.assert_array_equal(model.intercepts_, ref.intercepts_)
-    assert not np.allclose(on.slopes_, ref.slopes_)
 
 
 def test_gradient_of_cross_validated_model_equals_central_differences(toy, toy_model):
@@ -345,14 +287,16 @@ def test_state_round_trip_is_exact_and_pickle_free(toy, toy_model):
     assert model.get_params() == {**toy_model.get_params(), "random_state": 0}
 
 
-def test_state_round_trip_with_derivative_equations(toy):
-    X, y, g, _ = toy
-    reg = LocalLinearRegression(increment_weight=2.0, random_state=5)
-    reg.fit(X, y, groups=g, increments=consecutive_pairs(g))
-    arrays, meta = reg.get_state()
-    model = LocalLinearRegression.from_state(arrays, json.loads(json.dumps(meta)))
-    assert model.increment_weight == 2.0
-    np.testing.assert_array_equal(model.gradient(X[:50]), reg.gradient(X[:50]))
+def test_state_with_the_removed_increment_weight_still_loads(toy, toy_model):
+    # Model files written before the derivative equations were removed name the parameter.
+    arrays, meta = toy_model.get_state()
+    old = {**meta, "params": {**meta["params"], "increment_weight": 0.0}}
+    model = LocalLinearRegression.from_state(arrays, json.loads(json.dumps(old)))
+    assert "increment_weight" not in model.get_params()
+    X = np.vstack([toy[0][:50], [[40.0, -7.0]]])
+    np.testing.assert_array_equal(model.gradient(X), toy_model.gradient(X))
+    with pytest.raises(TypeError):
+        LocalLinearRegression(increment_weight=0.5)
 
 
 def test_from_state_rejects_bad_state(toy_model):
@@ -431,8 +375,6 @@ def test_params_are_stored_untouched():
         ({"max_centers": 0}, "max_centers"),
         ({"smoothing": -1.0}, "smoothing"),
         ({"cv_criterion": "r2"}, "cv_criterion"),
-        ({"increment_weight": -1.0}, "increment_weight"),
-        ({"increment_weight": float("nan")}, "increment_weight"),
         ({"extrapolation": "quadratic"}, "extrapolation"),
         ({"widths": "local"}, "widths"),
     ],
@@ -458,14 +400,6 @@ def test_bad_inputs_raise_clear_errors(toy_model):
         reg.fit(X, X[:, 0], groups=np.zeros(3, dtype=int))
     with pytest.raises(ValueError, match="integer"):
         reg.fit(X, X[:, 0], groups=np.zeros(50))
-    with pytest.raises(ValueError, match=r"increments must have shape \(m', 2\)"):
-        reg.fit(X, X[:, 0], increments=np.arange(4))
-    with pytest.raises(ValueError, match="increments must be integer"):
-        reg.fit(X, X[:, 0], increments=np.zeros((3, 2)))
-    with pytest.raises(ValueError, match=r"in \[0, 50\)"):
-        reg.fit(X, X[:, 0], increments=np.array([[48, 50]]))
-    with pytest.raises(ValueError, match="pair 1 joins samples of different groups"):
-        reg.fit(X, X[:, 0], groups=np.repeat([0, 1], 25), increments=[[0, 1], [24, 25]])
     with pytest.raises(NotFittedError, match="not fitted"):
         reg.predict(X)
     assert issubclass(NotFittedError, ValueError)
@@ -547,3 +481,32 @@ def test_cv_widths_fit_the_model_of_the_chosen_option(n):
     same = LocalLinearRegression(widths=chosen, random_state=2).fit(X, y, groups=g)
     assert same.bandwidth_ == reg.bandwidth_
     np.testing.assert_array_equal(same.gradient(X[:40]), reg.gradient(X[:40]))
+
+
+@pytest.mark.parametrize(
+    "n, bandwidth, dense_fraction",
+    [(2, 0.3, None), (22, 0.8, -1.0), (22, 0.8, 2.0)],
+    ids=["kd-tree", "dense-blocks", "sparse-blocks"],
+)
+def test_equal_per_field_widths_blend_as_the_global_width(
+    monkeypatch, n, bandwidth, dense_fraction
+):
+    # One neighbour search serves both; with a common width it keeps H^2 per point, per
+    # field it folds dH_j^2/dt into every weight and bounds the support more loosely.
+    if dense_fraction is not None:  # every block dense, or every block sparse
+        monkeypatch.setattr(regression_module, "DENSE_FRACTION", dense_fraction)
+    rng = np.random.default_rng(n + 4)
+    X, g = constrained_trajectories(20, 30, n, rng, scale=1.0)
+    y = np.sin(X).sum(axis=1) + 0.3 * X[:, 0] * X[:, -1]
+    reg = LocalLinearRegression(bandwidth=bandwidth, widths="global", random_state=1)
+    reg.fit(X, y, groups=g)
+    arrays, meta = reg.get_state()
+    arrays["widths"] = np.full(len(reg.centers_), bandwidth)
+    equal = LocalLinearRegression.from_state(arrays, meta)
+    Q = np.vstack([
+        X[rng.choice(len(X), 40, replace=False)] + 0.05 * rng.normal(size=(40, n)),
+        4.0 * rng.normal(size=(10, n)),
+    ])
+    np.testing.assert_allclose(equal.predict(Q), reg.predict(Q), rtol=1e-12, atol=1e-14)
+    G = reg.gradient(Q)
+    np.testing.assert_allclose(equal.gradient(Q), G, rtol=1e-10, atol=1e-12 * np.abs(G).max())

@@ -2,132 +2,67 @@
 
 PolicyAlign (paper section III-D, eq. 16) fits a global model ``f(x)`` of the potential on
 the aligned data and uses ``pi_hat(x) = -grad f(x)`` as the policy. The paper uses LWPR;
-this module implements LWPR's prediction rule with a batch fit.
+this module implements LWPR's prediction rule with a batch fit. The measurements behind
+the design choices and defaults are in ``docs/notes/local_linear.md``.
 
 Notation and units
 ------------------
 ``x`` in ``R^n`` is a state (state units, e.g. rad or m); ``y`` in ``R^d`` an output (for
 the potential ``d = 1``, in state units^2 per second). Receptive field ``j`` has centre
-``c_j`` and the width ``h`` (state units; per field ``h_j`` with adaptive widths, see
-below). Its weight is a Gaussian with a smooth
-polynomial cut-off at ``R = CUTOFF h``, so that sums over neighbours are exact and
-sparse::
+``c_j`` and width ``h_j`` (state units): the global width ``h``, or its own with per-field
+widths. Its weight is a Gaussian with a smooth polynomial cut-off at ``R = CUTOFF h``, so
+that sums over neighbours are exact and sparse::
 
     g(s; h^2) = exp(-s / (2 h^2)) (1 - (s / R^2)^2)^2  for s < R^2, else 0;  s = ||x - c||^2
 
+Model
+-----
 Each field carries a local linear model ``l_j(x) = beta_j0 + B_j (x - c_j)`` (``B_j`` of
 shape (d, n)). The prediction is the normalised blend (LWPR)::
 
     f(x) = sum_j v_j(x) l_j(x) / sum_j v_j(x),
-    v_j(x) = g(||x - c_j||^2 - t(x); H^2(t(x))),   t(x) = min_k ||x - c_k||^2
+    v_j(x) = g(||x - c_j||^2 - t(x); H_j^2(t(x))),   t(x) = min_k ||x - c_k||^2
 
 Subtracting ``t`` cancels in the Gaussian factor and keeps every point's nearest field at
-weight 1, so the prediction stays finite far from the data; the blending width ``H`` is
-``h`` near the data and grows like ``FAR_WIDENING * sqrt(t)`` far from it, so that the
+weight 1, so the prediction stays finite far from the data; the blending width ``H_j`` is
+``h_j`` near the data and grows like ``FAR_WIDENING * sqrt(t)`` far from it, so that the
 gradient stays bounded there too (:func:`blend_width2`). ``grad f`` follows from the
 quotient rule, exactly, and is tested against finite differences.
 
-Floors (scalar outputs, i.e. potentials): the policy descends ``f``, and the trajectories
-of the data end at its minimum, so the fields there see data on one side only. Their
-linear models, extrapolated, keep sloping down through the minimum (on curved data they
-already undershoot the data's low end inside the field), and the blend beyond the data is
-made of such extrapolations: rollouts of ``-grad f`` passed the minimum and drifted away.
-So each local model levels off below the lowest output ``y_min,j`` of its own data,
-``l_j(x) = beta_j0 + phi_j(B_j (x - c_j))`` with ``phi_j(u) = u`` above ``a_j = y_min,j -
-beta_j0`` and ``a_j - w_j (1 - exp((u - a_j) / w_j))`` below (:func:`floored`,
-:func:`extrapolation_floors`; ``w_j`` is ``FLOOR_SOFTNESS`` times the spread of ``B_j x``
-over the field's data). At the field's samples this moves the model only toward their
-outputs, and ascending extrapolation stays linear, so far from the data ``f`` still rises
-and ``-grad f`` points back to them. The width is chosen by CV on the linear models (the
-floors act mostly beyond the held-out data). Measured (``FLOOR_SOFTNESS = 0.02``; 0.1 and
-0.5 settled less well): the Talos grasp (one data set, 8 rollouts of 200 steps from new
-starts) ended 0.14 m from the target, at its closest point, against 2.7 m without floors
-(0.19 m closest); the 16 recorded 18-joint Talos demonstrations (6 s rollouts from their
-starts) ended at 0.29 of the start distance to the attractor, 0.05 rad past their closest
-point, against 0.48 and 0.28 rad; the grasp benchmark's nCPE (4 data sets) fell from
-0.063 to 0.050 (unseen barrier) and 0.078 to 0.066 (unconstrained); on Table I (10 data
-sets, narrow and medium rows) nUPE and nCPE rose by at most 3% in 2 rows and fell by up
-to 14% in the other 4; the 22-D humanoid benchmark (8 data sets) was unchanged (nCPE
-0.187). Floors set from the *model's* lowest value on its data left more drift (0.13 rad
-on the Talos demonstrations), and floors inside the data (one or two spreads of ``B_j x``
-below its mean) settled better but raised Table I's nCPE 2 to 3 times.
+Floors (scalar outputs, i.e. potentials): the trajectories end at the minimum of ``f``, so
+the fields there see data on one side only, and their linear extrapolations would carry
+the descent of ``f`` past it. So each local model levels off below the lowest output
+``y_min,j`` of its own data: ``l_j(x) = beta_j0 + phi_j(B_j (x - c_j))`` with
+``phi_j(u) = u`` above ``a_j = y_min,j - beta_j0`` and ``a_j - w_j (1 - exp((u - a_j) /
+w_j))`` below, ``w_j`` being ``FLOOR_SOFTNESS`` times the spread of ``B_j x`` over the
+field's data (:func:`floored`, :func:`extrapolation_floors`). Ascending extrapolation stays
+linear, so far from the data ``-grad f`` still points back to them.
 
 Fit
 ---
 Centres: a farthest-point cover of (a subsample of) the data with spacing ``h`` (LWPR's
 rule of adding a field where none is active), capped at ``max_centers``. Each local model
 is weighted ridge least squares on the points within ``R``: with weighted mean ``mu_j`` and
-covariance ``Sigma_j``, ``(Sigma_j + ridge h^2 I) B_j^T = Cov_j(x, y)``. ``ridge`` is
-dimensionless and acts on the slopes only; directions in which the local data do not
-vary (the data lie on trajectory manifolds) get zero slope, as in LWPR's projection
-regression. Neighbours come from a k-d tree in few dimensions and from blocks of BLAS
-distances in many; the final fit uses at most ``MAX_FIT_POINTS`` samples, thinned along
-the trajectories, so it is linear in the data up to that size and constant beyond.
+covariance ``Sigma_j``, ``(Sigma_j + ridge h_j^2 I) B_j^T = Cov_j(x, y)``. ``ridge`` is
+dimensionless and acts on the slopes only; directions in which the local data do not vary
+(the data lie on trajectory manifolds) get zero slope, as in LWPR's projection regression;
+its default is ``1e-3 (n / 2)^2``. Neighbours come from a k-d tree in few dimensions and
+from blocks of BLAS distances in many; the final fit uses at most ``MAX_FIT_POINTS``
+samples, thinned along the trajectories, so its cost stops growing beyond that size.
 
-Per-field widths (``widths``): one global ``h`` over-smooths where the data are dense
-(near the attractor, where all trajectories end), so field ``j`` may get its own
-``h_j = h clip((rho_j / median rho) ** a, lo, hi)``, with ``rho_j`` the distance from its
-centre to its ``k``-th nearest sample (:func:`adaptive_widths`; ``a = 0.5``, ``k = 30``,
-``(lo, hi) = (0.5, 1)``: fields only narrow). The Gaussian, the cut-off and the blending
-width ``H_j^2`` then use ``h_j``, and the gradient stays exact. Measured with ``--datasets
-4`` (humanoid, grasp) and 10 (Table I), PolicyAlign nUPE / nCPE: on the 22-joint humanoid
-0.303 / 0.181 global, 0.214 / 0.121 adaptive (a uniform 0.75 h: 0.246 / 0.132; clip (0.5,
-2): 0.252 / 0.179; a = 1: 0.42 / 0.44; k = 100: 0.208 / 0.117); grasp nCPE unseen barrier
-/ unconstrained 0.050 / 0.066 global, 0.040 / 0.063 adaptive. But on Table I (2-D)
-adaptive raised nCPE in every row (by 25% to 65%), missing the paper's nCPE in the
-parabola medium row (0.0257 vs 0.0224). So the default ``widths="cv"`` compares the CV
-error of both at the CV-optimal grid width and keeps the lower: it took adaptive on all
-humanoid and grasp data sets (same numbers as above; grasp 0.041 / 0.063) and mostly
-global on Table I, where all narrow and medium rows stay within the paper's means (nCPE
-at most 6% above global: parabola medium 0.0209 vs 0.0201, sinusoid K = N = 100 medium
-0.0224 vs 0.0212). The extra CV evaluation made the humanoid's PolicyAlign fit 1.8 s
-instead of 1.4 s. The Talos demonstration rollouts quoted above were measured with the
-global width.
+Per-field widths (``widths``): field ``j`` may get ``h_j = h clip((rho_j / median rho) **
+a, lo, hi)``, with ``rho_j`` the distance from its centre to its ``k``-th nearest sample
+(:func:`adaptive_widths`; fields only narrow, where the data are dense).
 
-Derivative equations (optional): two consecutive samples ``i, j`` of one trajectory give
-``grad f(m_ij) . u_ij ~= s_ij`` at the midpoint ``m_ij``, with the unit direction
-``u_ij = (x_j - x_i) / ||x_j - x_i||`` and the slope ``s_ij = (y_j - y_i) / ||x_j - x_i||``,
-free of the unknown offset of the trajectory's potential. Each adds ``B_j u_ij = s_ij`` to
-field ``j``'s weighted ridge problem, with the kernel weight of the midpoint times
-``increment_weight h^2``, so that a slope error ``e`` costs what a value error ``e h`` (its
-effect across the field) would: ``(Sigma_j + w h^2 S_uu,j / W_j + ridge h^2 I) B_j^T =
-Cov_j(x, y) + w h^2 S_us,j / W_j`` with the field's value weight ``W_j``. The increments
-starting at a kept sample are used, at most about ``MAX_FIT_INCREMENTS`` of them (every
-``s``-th along the trajectories, weighted up to the same total), so they add little to the
-fit time (a random subsample instead left holes: nUPE 0.487 vs 0.458 on 10^6 22-D samples).
-
-Choice of the width (and the measurements behind the defaults)
----------------------------------------------------------------
-``h`` is chosen by K-fold cross-validation over whole held-out trajectories: errors along
-one trajectory are correlated, so point-wise CV picks far too narrow fields, whose
-gradients are useless (a test shows it). The default criterion scores the *increments*
-of the prediction between consecutive held-out samples, as the potential of a trajectory
-is known only up to an offset and its estimation errors drift along it. On 2-D, 6-D and
-22-D trajectory data under random constraints (Euler potentials, true offsets), the
-gradient error was least 1.4 to 2 times narrower than the CV optimum, and a
-one-standard-error rule toward wider fields made it worse; hence the chosen width is the
-CV optimum divided by ``GRADIENT_NARROWING = 1.7``: on the paper's Table I set-ups (10
-data sets, whole PolicyAlign pipeline), no narrowing missed the paper's nUPE or nCPE in 5
-of the 6 narrow/medium rows, 1.4 in 1 row, 1.7 in none. The best slope penalty grew with
-the dimension (about 1e-3 in 2-D and 6-D, 0.1 in 22-D), and CV of the penalty picked too
-small a one in 22-D, hence the default ``ridge = 1e-3 (n / 2)^2`` (``ridge="cv"`` is
-available).
-
-Weight of the derivative equations, measured through the whole PolicyAlign pipeline
-(held-out 20% of the samples), nUPE / nCPE: on the 22-D scale data (K = N = 100, sigma
-"narrow", 3 seeds) 0.321 / 0.233 without them, 0.314 / 0.222 at weight 0.3, 0.312 / 0.219
-at 0.5, 0.310 / 0.217 at 1, 0.311 / 0.223 at 3, 0.320 / 0.243 at 10; on the 22-joint
-humanoid benchmark (4 data sets) 0.304 / 0.181 without, 0.304 / 0.170 at 0.3, 0.306 /
-0.167 at 0.5, 0.315 / 0.168 at 1. The alignment is accurate there, so they add little to
-the values. On the paper's Table I set-ups (10 data sets) weight 0.5 lowered both errors in
-all 6 narrow and medium rows (nCPE by 4% to 21%) and in the wide-sigma rows, where the
-alignment is poor, by up to a quarter. Yet in closed loop they hurt: rolling the learnt
-policy out for 6 s from the starts of 16 recorded 18-joint Talos demonstrations (the ROS
-demo's data) ended at 0.93 of the start distance to the attractor on average (11 of 16
-closer) with weight 0.5, against 0.49 (16 of 16) without; hence the default 0 (off).
-The width is chosen by CV on
-the values alone: with the derivative equations in the CV as well, the 22-D policy was no
-better (0.312 / 0.220 at weight 1) and the CV slower.
+Choice of the width
+-------------------
+``h`` is chosen by K-fold cross-validation over whole held-out trajectories, as errors
+along one trajectory are correlated. The default criterion scores the *increments* of the
+prediction between consecutive held-out samples, since the potential of a trajectory is
+known only up to an offset. The chosen width is the CV optimum divided by
+``GRADIENT_NARROWING``, as the gradient wants narrower fields than the values. With
+``widths="cv"`` (default), per-field widths are kept when their CV error at the
+CV-optimal width is lower than that of the global width.
 """
 
 from __future__ import annotations
@@ -188,10 +123,6 @@ KDTREE_MAX_DIM = 4
 DENSE_BLOCK = 250_000
 #: A dense block of weights is made sparse below this fraction of non-zeros.
 DENSE_FRACTION = 0.1
-#: Largest number of derivative equations in the final fit (a random subsample beyond).
-MAX_FIT_INCREMENTS = 20_000
-#: Default dimensionless weight of the directional-derivative equations (see the notes).
-DEFAULT_INCREMENT_WEIGHT = 0.0
 #: Per-field widths (``widths="adaptive"``): exponent of the local spacing ratio,
 #: neighbour rank defining the spacing, and the clip of the ratio (see :func:`adaptive_widths`).
 ADAPT_EXPONENT = 0.5
@@ -200,6 +131,10 @@ ADAPT_CLIP = (0.5, 1.0)
 #: 2 added the optional arrays ``floors`` and ``softness`` (version 1: linear models);
 #: 3 the optional per-field ``widths`` (without them a state has the global width).
 _STATE_VERSION = 3
+#: Constructor parameters of earlier versions, ignored when a saved state has them, so that
+#: older model files still load: ``increment_weight`` (removed derivative equations, which
+#: were off by default; a state with a positive weight loads with its fitted models as is).
+_REMOVED_PARAMS = ("increment_weight",)
 
 
 def single_blas_thread() -> contextlib.AbstractContextManager:
@@ -417,11 +352,11 @@ class CentreIndex:
             w = kernel(self._exact(Xb, rows, cols), h2, derivative=False)
             yield start, start + b, sp.csr_matrix((w, (rows, cols)), shape=(b, C))
 
-    def relative_blocks(self, X: np.ndarray, h: float, derivative: bool = True):
+    def relative_blocks(self, X: np.ndarray, h: float | np.ndarray, derivative: bool = True):
         """Blending weights of every point on the centres, by blocks.
 
-        ``v_j = g(rel_j; H^2)`` with ``rel_j = ||x - c_j||^2 - t``, ``t = d_min(x)^2``, and
-        the width ``H^2 = blend_width2(t, h)``, which equals ``h^2`` near the data and
+        ``v_j = g(rel_j; H_j^2)`` with ``rel_j = ||x - c_j||^2 - t``, ``t = d_min(x)^2``, and
+        the width ``H_j^2 = blend_width2(t, h_j)``, which equals ``h_j^2`` near the data and
         grows with the distance far from it. Every point keeps at least its nearest centre
         (``v = 1``), however far it is.
 
@@ -429,9 +364,9 @@ class CentreIndex:
         ----------
         X : ndarray, shape (m, n)
         h : float or ndarray, shape (C,)
-            Field width, common or per field (state units). Per field, each field has its
-            own ``H_j^2 = blend_width2(t, h_j)``, and ``d H_j^2 / d t`` is folded into the
-            returned ``dv/dH^2`` (``dwidth`` is then 1).
+            Field width, common or per field (state units). Per field, ``d H_j^2 / d t``
+            differs between fields, so it is folded into the returned ``dv/dH^2`` and
+            ``dwidth`` is 1.
         derivative : bool
             Also compute the derivatives (else they are None).
 
@@ -448,9 +383,9 @@ class CentreIndex:
             ``(rows, cols, v, dv/drel, dv/dH^2)``, each (nnz,).
         """
         hs = np.asarray(h, dtype=float)
-        if hs.ndim > 0:
-            yield from self._relative_blocks_per_field(X, hs, derivative)
-            return
+        per_field = hs.ndim > 0
+        hmax = float(hs.max())
+        a2 = FAR_WIDENING * FAR_WIDENING
         starts, step = self._starts(X.shape[0])
         for start in starts:
             Xb = X[start : start + step]
@@ -459,76 +394,58 @@ class CentreIndex:
                 d2 = self._sqdist(Xb)
                 nearest = np.argmin(d2, axis=1)
                 t = d2[np.arange(b), nearest]
-                w2, dw2 = blend_width2(t, h)
-                rel = d2 - t[:, None]
-                mask = rel < (CUTOFF * CUTOFF) * w2[:, None]
-                if mask.mean() > DENSE_FRACTION:
-                    rel = np.maximum(rel, 0.0, out=rel)
-                    weights = self._kernel(rel, w2[:, None], derivative)
-                    yield start, start + b, nearest, dw2 if derivative else None, weights
-                    continue
-                rows, cols = np.nonzero(mask)
             else:
                 dmin, nearest = self.tree.query(Xb, k=1)
                 nearest = np.asarray(nearest, dtype=np.intp)
-                w2, dw2 = blend_width2(dmin * dmin, h)
-                lists = self.tree.query_ball_point(
-                    Xb, np.sqrt(dmin * dmin + (CUTOFF * CUTOFF) * w2), return_sorted=False
-                )
+                t = dmin * dmin
+            # Support of every field: rel < CUTOFF^2 H_j^2. Per field, H^2 is not monotonic
+            # in h, but H_j^2 <= h_j^2 + a^2 t bounds it.
+            reach = hmax * hmax + a2 * t if per_field else blend_width2(t, hmax)[0]
+            reach *= CUTOFF * CUTOFF
+            if self.tree is None:
+                rel = d2 - t[:, None]
+                mask = rel < reach[:, None]
+                if mask.mean() > DENSE_FRACTION:
+                    rel = np.maximum(rel, 0.0, out=rel)
+                    yield start, start + b, nearest, *self._weights(rel, t, hs, derivative)
+                    continue
+                rows, cols = np.nonzero(mask)
+            else:
+                lists = self.tree.query_ball_point(Xb, np.sqrt(t + reach), return_sorted=False)
                 lens = np.fromiter(map(len, lists), dtype=np.intp, count=len(lists))
                 chain = itertools.chain.from_iterable(lists)
                 rows = np.repeat(np.arange(b), lens)
                 cols = np.fromiter(chain, dtype=np.intp, count=int(lens.sum()))
             # Exact pairwise distances: the weights are then exactly smooth functions of x.
             t = self._exact(Xb, np.arange(b), nearest)
-            w2, dw2 = blend_width2(t, h)
             rel = np.maximum(self._exact(Xb, rows, cols) - t[rows], 0.0)
             rel[cols == nearest[rows]] = 0.0
-            weights = self._kernel(rel, w2[rows], derivative)
-            yield start, start + b, nearest, dw2 if derivative else None, (rows, cols, *weights)
-
-    def _relative_blocks_per_field(self, X: np.ndarray, hs: np.ndarray, derivative: bool):
-        # As relative_blocks, with H_j^2 = blend_width2(t, h_j): since
-        # H_j^2 <= h_j^2 + FAR_WIDENING^2 t, the cut-off CUTOFF^2 (h_max^2 + a^2 t) bounds
-        # every field's support.
-        a2 = FAR_WIDENING * FAR_WIDENING
-        hmax2 = float(hs.max()) ** 2
-        starts, step = self._starts(X.shape[0])
-        for start in starts:
-            Xb = X[start : start + step]
-            b = len(Xb)
-            if self.tree is None:
-                d2 = self._sqdist(Xb)
-                nearest = np.argmin(d2, axis=1)
-                t = d2[np.arange(b), nearest]
-                rel = d2 - t[:, None]
-                mask = rel < (CUTOFF * CUTOFF) * (hmax2 + a2 * t)[:, None]
-                rows, cols = np.nonzero(mask)
-            else:
-                dmin, nearest = self.tree.query(Xb, k=1)
-                nearest = np.asarray(nearest, dtype=np.intp)
-                t = dmin * dmin
-                lists = self.tree.query_ball_point(
-                    Xb, np.sqrt(t + (CUTOFF * CUTOFF) * (hmax2 + a2 * t)), return_sorted=False
-                )
-                lens = np.fromiter(map(len, lists), dtype=np.intp, count=len(lists))
-                chain = itertools.chain.from_iterable(lists)
-                rows = np.repeat(np.arange(b), lens)
-                cols = np.fromiter(chain, dtype=np.intp, count=int(lens.sum()))
-            t = self._exact(Xb, np.arange(b), nearest)
-            w2, dw2 = blend_width2(t[rows], hs[cols])
-            rel = np.maximum(self._exact(Xb, rows, cols) - t[rows], 0.0)
-            rel[cols == nearest[rows]] = 0.0
-            v, dvs, dvh = self._kernel(rel, w2, derivative)
-            if derivative:
-                # d v_j / d t through H_j^2, so that the blend's common factor is 1.
-                dvh = dvh * dw2
-            ones = np.ones(b) if derivative else None
-            yield start, start + b, nearest, ones, (rows, cols, v, dvs, dvh)
+            dwidth, weights = self._weights(rel, t, hs, derivative, rows, cols)
+            yield start, start + b, nearest, dwidth, (rows, cols, *weights)
 
     @staticmethod
-    def _kernel(s, h2, derivative):
-        return kernel(s, h2) if derivative else (kernel(s, h2, derivative=False), None, None)
+    def _weights(rel, t, hs, derivative, rows=None, cols=None):
+        """``dwidth`` and the weights ``(v, dv/drel, dv/dH^2)`` of a block.
+
+        ``rel`` is dense, (b, C), without ``rows`` and ``cols``, else per pair (nnz,).
+        """
+        if hs.ndim == 0:
+            # A common width is the per-field case with all h_j equal, but H^2 is then one
+            # per point: computing it per pair and folding dH^2/dt into every weight would
+            # slow the common case down for nothing.
+            w2, dw2 = blend_width2(t, float(hs))
+            w2 = w2[:, None] if rows is None else w2[rows]
+        elif rows is None:
+            w2, dw2 = blend_width2(t[:, None], hs[None, :])
+        else:
+            w2, dw2 = blend_width2(t[rows], hs[cols])
+        if not derivative:
+            return None, (kernel(rel, w2, derivative=False), None, None)
+        v, dvs, dvh = kernel(rel, w2)
+        if hs.ndim == 0:
+            return dw2, (v, dvs, dvh)
+        # dH_j^2/dt differs between fields: folded in here, the blend's common factor is 1.
+        return np.ones(len(t)), (v, dvs, dvh * dw2)
 
 
 # --------------------------------------------------------------------------- local fits
@@ -610,80 +527,6 @@ def _lower_to_block_minima(minima: np.ndarray, W, Yb: np.ndarray) -> None:
         np.minimum(minima[:, k], lowest, out=minima[:, k])
 
 
-class Increments:
-    """Directional-derivative observations ``grad f(midpoint) . direction ~= slope``.
-
-    Built from pairs of consecutive samples ``(x_i, y_i), (x_j, y_j)`` of one trajectory:
-    the direction is ``u = (x_j - x_i) / ||x_j - x_i||`` (unit), the slope
-    ``s = (y_j - y_i) / ||x_j - x_i||`` (output units per state unit), at the midpoint.
-    A per-trajectory offset of ``y`` cancels in ``s``.
-
-    Parameters
-    ----------
-    X : ndarray, shape (m, n)
-    Y : ndarray, shape (m, d)
-    pairs : ndarray of intp, shape (m', 2)
-        Rows ``(i, j)`` into ``X``; pairs with ``x_i = x_j`` are dropped.
-    """
-
-    def __init__(
-        self,
-        X: np.ndarray,
-        Y: np.ndarray,
-        pairs: np.ndarray,
-    ) -> None:
-        dX = X[pairs[:, 1]] - X[pairs[:, 0]]
-        length = np.sqrt(np.einsum("ij,ij->i", dX, dX))
-        moving = length > 0
-        pairs, dX, length = pairs[moving], dX[moving], length[moving]
-        self.pairs = pairs
-        self.midpoints = X[pairs[:, 0]] + 0.5 * dX
-        self.directions = dX / length[:, None]
-        self.slopes = (Y[pairs[:, 1]] - Y[pairs[:, 0]]) / length[:, None]
-
-    def __len__(self) -> int:
-        return len(self.pairs)
-
-
-def increment_features(U: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """Per-increment statistics ``[u u^T (upper), u s^T]``, shape (m', n (n + 1) / 2 + n d)."""
-    m, n = U.shape
-    iu, ju = np.triu_indices(n)
-    us = (U[:, :, None] * S[:, None, :]).reshape(m, -1)
-    return np.hstack([U[:, iu] * U[:, ju], us])
-
-
-def increment_statistics(
-    increments: Increments,
-    index: CentreIndex,
-    h: float,
-) -> np.ndarray:
-    """Weighted sums of the directional-derivative statistics of every field.
-
-    Each increment weighs on field ``j`` with the kernel weight of its midpoint.
-
-    Parameters
-    ----------
-    increments : Increments
-        ``m'`` increments, shifted by the same origin as the centres.
-    index : CentreIndex
-        The ``C`` field centres.
-    h : float
-        Field width (state units).
-
-    Returns
-    -------
-    ndarray, shape (C, n (n + 1) / 2 + n d)
-        ``sum_i w_ij [u_i u_i^T (upper), u_i s_i^T]``.
-    """
-    M, U, S = increments.midpoints, increments.directions, increments.slopes
-    n, d = U.shape[1], S.shape[1]
-    out = np.zeros((len(index.centres), n * (n + 1) // 2 + n * d))
-    for start, stop, W in index.weight_blocks(M, h):
-        out += W.T @ increment_features(U[start:stop], S[start:stop])
-    return out
-
-
 def solve_local_models(
     stats: np.ndarray,
     centres: np.ndarray,
@@ -691,15 +534,8 @@ def solve_local_models(
     h: float,
     ridge: float,
     smoothing: float = 0.0,
-    increment_stats: np.ndarray | None = None,
-    increment_weight: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted ridge least-squares local linear models from their statistics.
-
-    Directional-derivative observations (``increment_stats``) add the equations
-    ``B_j u_i = s_i`` on the slopes, each with weight ``increment_weight h^2`` times its
-    kernel weight: a slope error ``e`` costs as a value error ``e h`` would, the size of
-    its effect across the field.
 
     With ``smoothing > 0`` the slopes are shrunk toward a prior slope instead of toward
     zero: the common slope of the neighbouring fields (kernel of width ``smoothing * h``),
@@ -721,10 +557,6 @@ def solve_local_models(
         Dimensionless penalty on the slopes.
     smoothing : float
         Width of the neighbour average in units of ``h``; 0 shrinks toward zero.
-    increment_stats : ndarray, shape (C, n (n + 1) / 2 + n d), optional
-        One fold of :func:`increment_statistics`.
-    increment_weight : float
-        Dimensionless weight of the derivative equations relative to the values.
 
     Returns
     -------
@@ -746,16 +578,6 @@ def solve_local_models(
     sxy = stats[:, k + len(iu) :].reshape(C, n, d)
     cov = sxx / W[:, None, None] - mu[:, :, None] * mu[:, None, :]
     cxy = sxy / W[:, None, None] - mu[:, :, None] * ybar[:, None, :]
-    if increment_stats is not None and increment_weight > 0:
-        # The derivative equations involve the slopes only: they add to the normal
-        # equations of the slopes, in the same per-unit-of-value-weight scaling.
-        scale = (increment_weight * h * h) / W
-        suu = np.zeros((C, n, n))
-        suu[:, iu, ju] = increment_stats[:, : len(iu)]
-        suu[:, ju, iu] = increment_stats[:, : len(iu)]
-        sus = increment_stats[:, len(iu) :].reshape(C, n, d)
-        cov = cov + scale[:, None, None] * suu
-        cxy = cxy + scale[:, None, None] * sus
     # A tiny floor keeps the systems solvable with ridge=0 on degenerate data.
     lam = np.reshape(max(ridge, 1e-10) * np.square(h), (-1, 1, 1))
     eye = np.eye(n)
@@ -969,8 +791,6 @@ def fit_fields(
     max_centers: int,
     rng: np.random.Generator,
     smoothing: float = 0.0,
-    increments: Increments | None = None,
-    increment_weight: float = 0.0,
     floors: bool = False,
     adaptive: bool = False,
 ) -> tuple[
@@ -986,10 +806,6 @@ def fit_fields(
         Outputs.
     h, ridge, max_centers, rng, smoothing
         Width, slope penalty, cap on fields, random source, slope smoothing.
-    increments : Increments, optional
-        Directional-derivative observations (same origin as ``X``).
-    increment_weight : float
-        Their dimensionless weight (see :func:`solve_local_models`).
     floors : bool
         Also compute the :func:`extrapolation_floors` of the local models.
     adaptive : bool
@@ -1011,12 +827,7 @@ def fit_fields(
     hw = h if widths is None else widths
     minima = np.full((len(centres), Y.shape[1]), np.inf) if floors else None
     stats = local_statistics(X, Y, index, hw, minima=minima)[0]
-    inc = None
-    if increments is not None and len(increments) and increment_weight > 0:
-        inc = increment_statistics(increments, index, hw)
-    intercepts, slopes = solve_local_models(
-        stats, centres, Y.shape[1], hw, ridge, smoothing, inc, increment_weight
-    )
+    intercepts, slopes = solve_local_models(stats, centres, Y.shape[1], hw, ridge, smoothing)
     if not floors:
         return centres, intercepts, slopes, None, None, widths
     return (
@@ -1251,7 +1062,7 @@ def select_bandwidth(grid: np.ndarray, fold_errors: np.ndarray) -> float:
     the best grid point and its neighbours. Held-out errors of the *potential* are least
     at a wider width than errors of its *gradient* (the policy): on trajectory data in
     2-D, 6-D and 22-D the gradient error was least 1.4 to 2 times narrower, and a
-    one-standard-error rule toward wider widths made it worse (see the module notes).
+    one-standard-error rule toward wider widths made it worse (``docs/notes/local_linear.md``).
 
     Parameters
     ----------
@@ -1276,23 +1087,6 @@ def select_bandwidth(grid: np.ndarray, fold_errors: np.ndarray) -> float:
     return float(np.clip(math.exp(log_h) / GRADIENT_NARROWING, grid[0], grid[-1]))
 
 
-def _check_pairs(increments: Any, m: int, groups: np.ndarray | None) -> np.ndarray:
-    """Validated increment pairs, shape (m', 2), of intp."""
-    pairs = np.asarray(increments)
-    if pairs.ndim != 2 or pairs.shape[1] != 2:
-        raise ValueError(f"increments must have shape (m', 2), got {pairs.shape}")
-    if pairs.size and not np.issubdtype(pairs.dtype, np.integer):
-        raise ValueError(f"increments must be integer row indices, got dtype {pairs.dtype}")
-    pairs = pairs.astype(np.intp, copy=False)
-    if pairs.size and (pairs.min() < 0 or pairs.max() >= m):
-        raise ValueError(f"increments: row indices must be in [0, {m}), got "
-                         f"[{pairs.min()}, {pairs.max()}]")
-    if groups is not None and np.any(groups[pairs[:, 0]] != groups[pairs[:, 1]]):
-        bad = int(np.argmax(groups[pairs[:, 0]] != groups[pairs[:, 1]]))
-        raise ValueError(f"increments: pair {bad} joins samples of different groups")
-    return pairs
-
-
 # --------------------------------------------------------------------------- estimator
 
 
@@ -1312,7 +1106,8 @@ class LocalLinearRegression:
     ridge : None, "cv" or float
         Dimensionless penalty on the local slopes (relative to ``h^2``); it sets slopes to
         zero in directions without local data. ``None`` is ``1e-3 (n / 2)^2`` (measured,
-        see the module notes); ``"cv"`` chooses it from ``RIDGE_GRID`` with the width.
+        see ``docs/notes/local_linear.md``); ``"cv"`` chooses it from ``RIDGE_GRID`` with
+        the width.
     max_centers : int
         Cap on the number of receptive fields.
     smoothing : float
@@ -1321,10 +1116,6 @@ class LocalLinearRegression:
     cv_criterion : "increments" or "mse"
         Held-out score: squared errors of the increments along each held-out trajectory
         (for a potential, known up to an offset per trajectory), or of the values.
-    increment_weight : float
-        Dimensionless weight of the derivative equations given by ``fit(increments=...)``
-        relative to the values (a slope error ``e`` weighs as a value error ``e h``); 0
-        ignores them. The default 0 was measured (see the module notes).
     extrapolation : "auto", "floor" or "linear"
         "floor" levels every local model off below the lowest output of its own data
         (:func:`extrapolation_floors`), so that descending ``f`` stops where the data
@@ -1336,8 +1127,8 @@ class LocalLinearRegression:
         local data spacing ``rho_j`` at its centre (:func:`adaptive_widths`), ``h`` still
         chosen by CV with a common width; "cv" (default) takes "adaptive" when it has
         the lower CV error at the CV-optimal width (one more CV evaluation), else
-        "global" (see the module notes). Needs ``bandwidth="cv"`` or ``ridge="cv"``;
-        with a fixed width and penalty, "cv" means "global".
+        "global" (see ``docs/notes/local_linear.md``). Needs ``bandwidth="cv"`` or
+        ``ridge="cv"``; with a fixed width and penalty, "cv" means "global".
     random_state : int, numpy.random.Generator or None
         Seeds the subsamples, the folds and the first centre of the cover.
 
@@ -1381,7 +1172,6 @@ class LocalLinearRegression:
         max_centers: int = 3000,
         smoothing: float = 0.0,
         cv_criterion: str = "increments",
-        increment_weight: float = DEFAULT_INCREMENT_WEIGHT,
         extrapolation: str = "auto",
         widths: str = "cv",
         random_state: int | np.random.Generator | None = None,
@@ -1393,7 +1183,6 @@ class LocalLinearRegression:
         self.max_centers = max_centers
         self.smoothing = smoothing
         self.cv_criterion = cv_criterion
-        self.increment_weight = increment_weight
         self.extrapolation = extrapolation
         self.widths = widths
         self.random_state = random_state
@@ -1410,7 +1199,6 @@ class LocalLinearRegression:
             "max_centers": self.max_centers,
             "smoothing": self.smoothing,
             "cv_criterion": self.cv_criterion,
-            "increment_weight": self.increment_weight,
             "extrapolation": self.extrapolation,
             "widths": self.widths,
             "random_state": self.random_state,
@@ -1464,9 +1252,6 @@ class LocalLinearRegression:
             raise ValueError(
                 f"cv_criterion must be 'increments' or 'mse', got {self.cv_criterion!r}"
             )
-        iw = self.increment_weight
-        if not (isinstance(iw, (int, float, np.floating)) and math.isfinite(iw) and iw >= 0):
-            raise ValueError(f"increment_weight must be a float >= 0, got {iw!r}")
         if self.extrapolation not in ("auto", "floor", "linear"):
             raise ValueError(
                 "extrapolation must be 'auto', 'floor' or 'linear', "
@@ -1485,8 +1270,6 @@ class LocalLinearRegression:
         X: np.ndarray,
         y: np.ndarray,
         groups: np.ndarray | None = None,
-        *,
-        increments: np.ndarray | None = None,
     ) -> LocalLinearRegression:
         """Fit the receptive fields and local models.
 
@@ -1499,11 +1282,6 @@ class LocalLinearRegression:
         groups : array_like of int, shape (m,), optional
             Trajectory id of every sample; CV holds out whole groups. ``None`` uses
             contiguous blocks of samples.
-        increments : array_like of int, shape (m', 2), optional
-            Pairs ``(i, j)`` of row indices of consecutive samples of one trajectory whose
-            ``y`` differ by the true increment of ``f`` (a per-trajectory offset of ``y``
-            cancels): each adds the equation ``grad f((x_i + x_j) / 2) . (x_j - x_i) =
-            y_j - y_i`` on the local slopes, weighted by ``increment_weight``.
 
         Returns
         -------
@@ -1535,15 +1313,12 @@ class LocalLinearRegression:
                 raise ValueError(f"groups must have shape ({m},), got {g.shape}")
             if not np.issubdtype(g.dtype, np.integer):
                 raise ValueError(f"groups must be integer trajectory ids, got dtype {g.dtype}")
-        pairs = None if increments is None else _check_pairs(increments, m, g)
         with single_blas_thread():
-            self._fit(X, y.reshape(m, -1), g, pairs)
+            self._fit(X, y.reshape(m, -1), g)
         self.y_ndim_ = y.ndim
         return self
 
-    def _fit(
-        self, X: np.ndarray, Y: np.ndarray, g: np.ndarray | None, pairs: np.ndarray | None
-    ) -> None:
+    def _fit(self, X: np.ndarray, Y: np.ndarray, g: np.ndarray | None) -> None:
         m = X.shape[0]
         rng = np.random.default_rng(self.random_state)
         origin = X.mean(axis=0)
@@ -1556,7 +1331,6 @@ class LocalLinearRegression:
                 grid = auto_grid(Xs)
             else:
                 grid = np.sort(np.asarray(self.bandwidth_grid, dtype=float))
-            # The width is chosen on the values alone (see the module notes).
             h, ridge, scores = self._cross_validate(Xs, Y, g, grid, rng)
         else:
             h, ridge, scores = float(self.bandwidth), self._ridge(X.shape[1]), None
@@ -1564,28 +1338,14 @@ class LocalLinearRegression:
         # Consecutive samples of a trajectory are nearly duplicates at the scale of h:
         # beyond MAX_FIT_POINTS, thinning them changes the local statistics little.
         keep = thin_trajectories(np.zeros(m, dtype=int) if g is None else g, MAX_FIT_POINTS, rng)
-        weight = float(self.increment_weight)
-        inc = None
-        if pairs is not None and weight > 0:
-            # Thinned like the samples: the increments starting at a kept sample.
-            kept = np.zeros(m, dtype=bool)
-            kept[keep] = True
-            pairs = pairs[kept[pairs[:, 0]]]
-            if len(pairs) > MAX_FIT_INCREMENTS:
-                # Their statistics cost as much as the values': every s-th one along the
-                # trajectories, weighted up to the same total, keeps the fit time (22-D,
-                # 10^6 samples: +60% without) and, unlike a random subsample, the coverage.
-                stride = math.ceil(len(pairs) / MAX_FIT_INCREMENTS)
-                weight *= len(pairs) / len(pairs[::stride])
-                pairs = pairs[::stride]
-            inc = Increments(Xs, Y, pairs)
-        # A scalar output is taken for a potential, which is descended (see the notes).
+        # A scalar output is taken for a potential, which is descended: floors stop the
+        # descent where the data end (module docstring).
         floored_models = self.extrapolation == "floor" or (
             self.extrapolation == "auto" and Y.shape[1] == 1
         )
         centres, intercepts, slopes, floors, softness, widths = fit_fields(
             Xs[keep], Y[keep], h, ridge, int(self.max_centers), rng, float(self.smoothing),
-            inc, weight, floored_models, self.adaptive_,
+            floored_models, self.adaptive_,
         )
         self.widths_ = widths
         self.bandwidth_ = h
@@ -1609,7 +1369,7 @@ class LocalLinearRegression:
         self._index_ = CentreIndex(self.centers_ - self.origin_)
 
     def _ridge(self, n: int) -> float:
-        # Measured on trajectory data (see the module notes): the best penalty grows with
+        # Measured on trajectory data (docs/notes/local_linear.md): the best penalty grows with
         # the dimension, about 1e-3 in 2-D and 6-D and 0.1 in 22-D.
         return default_ridge(n) if self.ridge is None else float(self.ridge)
 
@@ -1831,6 +1591,8 @@ class LocalLinearRegression:
             raise ValueError("regressor state: softness must be positive")
         if y_ndim not in (1, 2) or (y_ndim == 1 and d != 1) or not (h > 0):
             raise ValueError("regressor state: inconsistent y_ndim, n_outputs or bandwidth")
+        for name in _REMOVED_PARAMS:
+            params.pop(name, None)
         model = cls(**params)
         model.bandwidth_ = h
         model.ridge_ = ridge
