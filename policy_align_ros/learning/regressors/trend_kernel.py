@@ -159,12 +159,17 @@ class _FoldGrams:
         # Held-out error is scored against the within-demonstration spread of u.
         self.shape_ss = max(float(self.uu.sum() - np.sum(self.sk**2 / self.nk)), 1e-300)
 
-    def scores(self, penalties: list[np.ndarray], offset_ridge: float) -> list[float]:
-        """Held-out shape error per penalty: squared residuals of the held-out
-        demonstrations about their own mean, over their spread (every held-out
-        demonstration gets its best offset)."""
-        err = np.zeros(len(penalties))
-        for f in range(len(self.G)):
+    def scores(self, penalties: list[np.ndarray], offset_ridge: float
+               ) -> list[tuple[float, float]]:
+        """Held-out shape error per penalty, and its standard error over the folds.
+
+        The shape error sums the squared residuals of the held-out demonstrations about
+        their own mean (every held-out demonstration gets its best offset), over their
+        spread.
+        """
+        n_folds = len(self.G)
+        err = np.zeros((len(penalties), n_folds))
+        for f in range(n_folds):
             held = self.demo_fold == f
             if offset_ridge == 0.0:
                 G = self.G_all - self.G[f] - (self.G0.sum(axis=0) - self.G0[f])
@@ -176,12 +181,16 @@ class _FoldGrams:
             for i, penalty in enumerate(penalties):
                 w = _solve(G / m + penalty, r / m)
                 if w is None:
-                    err[i] = math.inf
+                    err[i, f] = math.inf
                     continue
                 ak_w = self.Ak[held] @ w
-                err[i] += (self.uu[f] - 2.0 * w @ self.r[f] + w @ self.G[f] @ w
-                           - np.sum((self.sk[held] - ak_w) ** 2 / self.nk[held]))
-        return list(err / self.shape_ss)
+                err[i, f] = (self.uu[f] - 2.0 * w @ self.r[f] + w @ self.G[f] @ w
+                             - np.sum((self.sk[held] - ak_w) ** 2 / self.nk[held]))
+        # Per fold scaled so that the mean over folds is the total error over the spread.
+        err *= n_folds / self.shape_ss
+        with np.errstate(invalid="ignore"):
+            se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
+        return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]
 
     def profiled(self, train: np.ndarray, G: np.ndarray, r: np.ndarray, offset_ridge: float
                  ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -240,6 +249,8 @@ class TrendKernelRegression:
         Held-out shape error (over the within-demonstration spread) per evaluated
         ``(trend_ridge, length_scale, kernel_ridge, offset_ridge)``; ``length_scale`` is
         NaN for the trend alone.
+    cv_best_ : tuple or None
+        The key of ``cv_scores_`` chosen (None without cross-validation).
     mean_, scale_ : ndarray (n,), float
         Standardisation of the states (state units).
     y_mean_, y_scale_ : float
@@ -351,6 +362,7 @@ class TrendKernelRegression:
         k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
         o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
         self.cv_scores_: dict[tuple[float, float, float, float], float] = {}
+        self.cv_best_ = None
 
         if n_folds < 2:
             best = (t_grid[len(t_grid) // 2], lengths[len(lengths) // 2],
@@ -358,10 +370,12 @@ class TrendKernelRegression:
         else:
             # 1. The trend alone picks its penalty and the offsets' ...
             grams = _FoldGrams(F, u, demo, demo_fold)
+            se: dict[tuple[float, float, float, float], float] = {}
             for o in o_grid:
                 scores = grams.scores([self._trend_penalty(n, t) for t in t_grid], o)
-                for t, score in zip(t_grid, scores, strict=True):
-                    self.cv_scores_[(t, math.nan, math.inf, o)] = score
+                for t, (score, error) in zip(t_grid, scores, strict=True):
+                    self.cv_scores_[(t, math.nan, math.inf, o)], se[t, math.nan, math.inf, o] \
+                        = score, error
             best = min(self.cv_scores_, key=self.cv_scores_.get)
             # 2. ... then the residual its length scale and penalty, jointly with the trend.
             finite_k = [k for k in k_grid if math.isfinite(k)]
@@ -371,9 +385,11 @@ class TrendKernelRegression:
                 Kcc = _gaussian(C, C, ell)
                 scores = grams.scores([self._penalty(n, t_best, k, Kcc) for k in finite_k],
                                       o_best)
-                for k, score in zip(finite_k, scores, strict=True):
+                for k, (score, error) in zip(finite_k, scores, strict=True):
                     self.cv_scores_[(t_best, ell, k, o_best)] = score
-            best = min(self.cv_scores_, key=self.cv_scores_.get)
+                    se[t_best, ell, k, o_best] = error
+            best = _simplest_within_one_se(self.cv_scores_, se, t_best, o_best)
+            self.cv_best_ = best
             if math.isnan(best[1]):
                 best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
         (self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
@@ -514,8 +530,26 @@ class TrendKernelRegression:
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"regressor state: bad or missing field ({err})") from None
         model.cv_scores_ = {}
+        model.cv_best_ = None
         model._unpack()
         return model
+
+
+def _simplest_within_one_se(scores: dict, se: dict, trend_ridge: float, offset_ridge: float
+                            ) -> tuple[float, float, float, float]:
+    """The simplest residual whose CV score is within one standard error of the best.
+
+    Among the candidates at the chosen trend and offset penalties, no residual is simpler
+    than any, a larger kernel penalty simpler than a smaller one, and a longer length
+    scale simpler than a shorter one: differences within the folds' noise do not buy a
+    more flexible model.
+    """
+    keys = [k for k in scores if k[0] == trend_ridge and k[3] == offset_ridge]
+    best = min(keys, key=scores.get)
+    bound = scores[best] + (se[best] if math.isfinite(se[best]) else 0.0)
+    within = [k for k in keys if scores[k] <= bound]
+    return min(within, key=lambda k: (math.isfinite(k[2]), -k[2],
+                                      0.0 if math.isnan(k[1]) else -k[1]))
 
 
 def _grid(value: str | float, grid) -> list[float]:
