@@ -49,6 +49,9 @@ def _build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--seed", type=int, default=0, help="base random seed")
     bench.add_argument("--cases", default=None,
                        help="suite only: comma-separated case names (default: all)")
+    bench.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                       help="suite only: a TrendKernelRegression parameter of the new model "
+                            "(repeatable), e.g. offset_ridge=inf, for ablations")
     return parser
 
 

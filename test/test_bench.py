@@ -33,3 +33,26 @@ def test_scale_data_and_child_report():
     report = _child(20, 40, seed=0)
     assert report["K"] == 20 and report["peak_mb"] > 0
     assert report["alignment_nmse"] < 0.05
+
+
+def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys):
+    args = ["bench", "suite", "--cases", "quad_iso_2", "--datasets", "1", "--jobs", "1",
+            "--seed", "3", "--set", "n_centres=50", "--out", str(tmp_path)]
+    assert main(args) == 0
+    table = (tmp_path / "suite.md").read_text()
+    assert "| quad_iso_2 | 2 | 50 Hz | previous |" in table
+    assert "| quad_iso_2 | 2 | 50 Hz | new |" in table
+    assert "n_centres=50" in table and "CV pick within 20 %" in table
+    (result,) = json.loads((tmp_path / "suite.json").read_text())
+    new = result["models"]["new"]
+    # A 2-D quadratic from new starts: the new model must be accurate and settle at the goal.
+    assert new["demo_nupe"] < 0.05 and new["free_rel_max"] < 0.05
+    assert result["cv"]["best_candidate_nupe"] <= result["cv"]["picked_nupe"]
+    assert "suite" in capsys.readouterr().out.lower()
+
+
+def test_suite_rejects_unknown_cases_and_settings(tmp_path, capsys):
+    assert main(["bench", "suite", "--cases", "nope", "--out", str(tmp_path)]) == 2
+    assert "unknown suite case" in capsys.readouterr().err
+    assert main(["bench", "suite", "--set", "bogus=1", "--out", str(tmp_path)]) == 2
+    assert "expected NAME=VALUE" in capsys.readouterr().err

@@ -394,9 +394,30 @@ def _candidate_check(model: PolicyAlign, demos, masks, X, pi) -> dict[str, float
             "pick_within_20pct": bool(scores[picked] <= 1.2 * best)}
 
 
-def run_case(task: tuple[str, int]) -> dict:
+def parse_settings(items: list[str]) -> dict[str, str | float]:
+    """``["offset_ridge=inf", ...]`` as TrendKernelRegression keyword arguments."""
+    known = set(TrendKernelRegression().get_params()) - {"random_state"}
+    out: dict[str, str | float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in known:
+            raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME one of "
+                             f"{sorted(known)}")
+        if value == "cv":
+            out[name] = value
+            continue
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"--set {item!r}: {value!r} is neither 'cv' nor a number") from None
+        out[name] = int(number) if name in ("n_centres", "max_fit_points", "n_folds") else number
+    return out
+
+
+def run_case(task: tuple) -> dict:
     """Generate one data set of a case, fit, and measure both global models."""
-    name, seed = task
+    name, seed = task[:2]
+    settings = task[2] if len(task) > 2 else {}
     case = CASES[name]
     rng = np.random.default_rng(seed)
     problem = case.make(rng)
@@ -409,8 +430,8 @@ def run_case(task: tuple[str, int]) -> dict:
                         for x0 in starts]}
 
     t0 = time.perf_counter()
-    base = PolicyAlign(sigma=problem.sigma, regressor=TrendKernelRegression(random_state=seed),
-                       random_state=seed)
+    base = PolicyAlign(sigma=problem.sigma, random_state=seed,
+                       regressor=TrendKernelRegression(random_state=seed, **settings))
     base.fit([d.trajectory for d in train], train_mask=masks)
     total = time.perf_counter() - t0
     regression_time = base.fit_summary_["timings_s"]["regression"]
@@ -487,15 +508,17 @@ def main(args: argparse.Namespace) -> int:
     if unknown:
         raise ValueError(f"unknown suite case(s) {unknown}; known: {sorted(CASES)}")
     n_sets = args.datasets or 3
-    tasks = [(name, args.seed + i) for i in range(n_sets) for name in names]
+    settings = parse_settings(getattr(args, "set", None) or [])
+    tasks = [(name, args.seed + i, settings) for i in range(n_sets) for name in names]
     # Slow cases first, so that the worker pool stays busy.
     tasks.sort(key=lambda t: -CASES[t[0]].n)
     t0 = time.perf_counter()
     results = parallel_map(run_case, tasks, args.jobs, "suite")
     table = format_table(results)
     took = time.perf_counter() - t0
+    changed = "".join(f", {k}={v}" for k, v in settings.items())
     text = (f"Suite, seeds {args.seed}..{args.seed + n_sets - 1}, {len(tasks)} data sets, "
-            f"{took:.0f} s with --jobs {args.jobs}\n\n{table}\n")
+            f"{took:.0f} s with --jobs {args.jobs}{changed}\n\n{table}\n")
     print(text)
     out = Path(args.out)
     atomic_write_text(out / "suite.md", text)
