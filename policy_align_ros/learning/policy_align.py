@@ -9,7 +9,11 @@ times (per step otherwise).
 1. estimate ``phi_hat_k`` along each trajectory (``integration``);
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
 3. align each group (``b = -pinv(H) a`` restricted to the group) and keep the largest;
-4. fit the global regressor on the kept, aligned data.
+4. fit the global regressor on the kept, aligned data. The default,
+   :class:`~policy_align_ros.learning.regressors.TrendKernelRegression`, may correct the
+   offsets of step 3 jointly with its model (its ``offset_ridge``, chosen by
+   cross-validation over whole demonstrations); ``aligned_potentials_`` keep the
+   alignment's offsets.
 """
 
 from __future__ import annotations
