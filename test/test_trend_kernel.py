@@ -8,7 +8,7 @@ import pytest
 
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.regressors import REGISTRY, NotFittedError, TrendKernelRegression
-from policy_align_ros.learning.regressors.trend_kernel import quadratic_features
+from policy_align_ros.learning.regressors.trend_kernel import CURVATURE_FLOOR, quadratic_features
 
 
 def _descent(grad, starts, steps, dt):
@@ -148,3 +148,19 @@ def test_errors_are_clear():
     model = TrendKernelRegression().fit(X, X[:, 0])
     with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
         model.gradient(np.zeros((1, 3)))
+
+
+def test_trend_keeps_a_minimum_when_the_data_suggest_a_saddle():
+    # phi = x1^2 - 0.3 x2^2 seen along paths: a least-squares quadratic would be a saddle,
+    # whose negative curvature sends rollouts away from the data.
+    rng = np.random.default_rng(7)
+    X = rng.uniform(-1.0, 1.0, size=(400, 2))
+    y = X[:, 0] ** 2 - 0.3 * X[:, 1] ** 2
+    g = np.repeat(np.arange(20), 20)
+    model = TrendKernelRegression(trend_ridge=1e-6, kernel_ridge=math.inf, offset_ridge=math.inf,
+                                  random_state=0).fit(X, y, groups=g)
+    H = model._p * np.eye(2) + 2.0 * model._S
+    lam = np.linalg.eigvalsh(H)
+    assert lam[0] >= 0.99 * CURVATURE_FLOOR * lam[-1] > 0
+    # The curvature the data do support is kept.
+    assert lam[-1] == pytest.approx(2.0 * model.scale_**2 / model.y_scale_, rel=0.05)

@@ -81,6 +81,8 @@ KERNEL_RIDGE_GRID = (1e-6, 1e-4, 1e-2, math.inf)
 OFFSET_RIDGE_GRID = (0.0, 1e-4, 1e-2, math.inf)
 #: Candidate length scales, as factors of the median distance between centres.
 LENGTH_FACTORS = (0.08, 0.16, 0.32, 0.64)
+#: Smallest eigenvalue of the trend's Hessian, relative to its largest (keeps a minimum).
+CURVATURE_FLOOR = 0.01
 #: Added to the penalty of every coefficient: keeps the solves well posed.
 JITTER = 1e-9
 #: Rows per block when evaluating kernels (bounds memory on large queries).
@@ -131,7 +133,9 @@ class _FoldGrams:
     ``k``), so every score below costs one (p, p) solve per fold.
     """
 
-    def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray):
+    def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
+                 n: int):
+        self.n = n
         n_demos = len(demo_fold)
         onehot = scipy.sparse.csr_matrix(
             (np.ones(len(u)), (demo, np.arange(len(u)))), shape=(n_demos, len(u)))
@@ -179,7 +183,7 @@ class _FoldGrams:
                 G, r, m = self.profiled(~held, self.G_all - self.G[f],
                                         self.r_all - self.r[f], offset_ridge)
             for i, penalty in enumerate(penalties):
-                w = _solve(G / m + penalty, r / m)
+                w = _convex_solve(G / m + penalty, r / m, self.n)
                 if w is None:
                     err[i, f] = math.inf
                     continue
@@ -203,6 +207,45 @@ class _FoldGrams:
             G = G - (Ak * c[:, None]).T @ Ak
             r = r - Ak.T @ (c * self.sk[train])
         return G, r, m
+
+
+def _convex_solve(M: np.ndarray, b: np.ndarray, n: int) -> np.ndarray | None:
+    """Solve ``M w = b`` for the coefficients, keeping the trend's Hessian positive definite.
+
+    The trend decides the policy far from the data: a saddle sends rollouts away along
+    its negative-curvature directions (on the suite's arm case, to hundreds of spacings
+    from the data). So when the solved trend's Hessian ``H = p I + 2 S`` has an eigenvalue
+    below ``CURVATURE_FLOOR`` times its largest, those eigenvalues are raised to that
+    bound, the quadratic part is fixed there, and the other coefficients (constant,
+    linear part, kernel weights) are solved again given it.
+    """
+    w = _solve(M, b)
+    if w is None:
+        return None
+    p_t = _n_trend(n)
+    H = w[1 + n] * np.eye(n) + 2.0 * _symmetric(w[2 + n:p_t], n)
+    lam, V = np.linalg.eigh(H)
+    floor = CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0)
+    if lam[0] >= floor:
+        return w
+    S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
+    iu, ju = np.triu_indices(n)
+    quad = np.arange(1 + n, p_t)
+    w[2 + n:p_t] = np.where(iu == ju, 1.0, math.sqrt(2.0)) * S[iu, ju]
+    rest = np.setdiff1d(np.arange(len(w)), quad)
+    w_rest = _solve(M[np.ix_(rest, rest)], b[rest] - M[np.ix_(rest, quad)] @ w[quad])
+    if w_rest is None:
+        return None
+    w[rest] = w_rest
+    return w
+
+
+def _symmetric(coef: np.ndarray, n: int) -> np.ndarray:
+    """The symmetric ``S`` whose scaled upper triangle is ``coef`` (see quadratic_features)."""
+    iu, ju = np.triu_indices(n)
+    S = np.zeros((n, n))
+    S[iu, ju] = np.where(iu == ju, coef, coef / math.sqrt(2.0))
+    return S + S.T - np.diag(np.diag(S))
 
 
 def _solve(M: np.ndarray, b: np.ndarray) -> np.ndarray | None:
@@ -369,7 +412,7 @@ class TrendKernelRegression:
                     k_grid[len(k_grid) // 2], o_grid[-1])
         else:
             # 1. The trend alone picks its penalty and the offsets' ...
-            grams = _FoldGrams(F, u, demo, demo_fold)
+            grams = _FoldGrams(F, u, demo, demo_fold, n)
             se: dict[tuple[float, float, float, float], float] = {}
             for o in o_grid:
                 scores = grams.scores([self._trend_penalty(n, t) for t in t_grid], o)
@@ -381,7 +424,8 @@ class TrendKernelRegression:
             finite_k = [k for k in k_grid if math.isfinite(k)]
             t_best, o_best = best[0], best[3]
             for ell in lengths if finite_k else ():
-                grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold)
+                grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold,
+                                   n)
                 Kcc = _gaussian(C, C, ell)
                 scores = grams.scores([self._penalty(n, t_best, k, Kcc) for k in finite_k],
                                       o_best)
@@ -423,10 +467,10 @@ class TrendKernelRegression:
             P = self._penalty(n, self.trend_ridge_, self.kernel_ridge_,
                               _gaussian(C, C, self.length_scale_))
             self.centres_ = C
-        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64))
+        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n)
         G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all,
                                  self.offset_ridge_)
-        w = _solve(G / m + P, r / m)
+        w = _convex_solve(G / m + P, r / m, n)
         if w is None or not np.all(np.isfinite(w)):
             raise ValueError("TrendKernelRegression: the penalised least squares failed")
         self.trend_ = w[:p_t]
@@ -436,11 +480,7 @@ class TrendKernelRegression:
     def _unpack(self) -> None:
         n = self.n_features_in_
         t = self.trend_
-        iu, ju = np.triu_indices(n)
-        S = np.zeros((n, n))
-        coef = t[2 + n:]
-        S[iu, ju] = np.where(iu == ju, coef, coef / math.sqrt(2.0))
-        self._S = S + S.T - np.diag(np.diag(S))
+        self._S = _symmetric(t[2 + n:], n)
         self._c, self._b, self._p = float(t[0]), t[1:1 + n], float(t[1 + n])
 
     # -- prediction -------------------------------------------------------------------
