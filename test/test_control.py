@@ -1,4 +1,7 @@
-"""Tests of policy_align_ros.kinematics.control (the executor's ROS-free control law)."""
+"""Tests of policy_align_ros.kinematics.control (the executor's ROS-free control law).
+
+Arming, ramps and staleness run on an injected clock (tick counts), never on wall time.
+"""
 
 import numpy as np
 import pytest
@@ -7,10 +10,12 @@ from hypothesis import strategies as st
 
 from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.kinematics.control import (
+    ArmedController,
     ControlStep,
     constrained_command,
     limit_locks,
     model_permutation,
+    ramp_toward,
     velocity_scale,
 )
 
@@ -140,3 +145,343 @@ def test_bad_control_step_arguments():
         ControlStep(LOWER, UPPER, 0.0, DT)
     with pytest.raises(ValueError, match="dt"):
         ControlStep(LOWER, UPPER, VMAX, 0.0)
+
+
+# -- ramps and arming (ArmedController), driven by an injected clock ---------------------
+DT_NS = 10_000_000  # 10 ms period
+ACC = 2.0  # rad/s^2
+STEP_TOL = 1e-12
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(0, 3),
+       max_delta=st.floats(1e-4, 1.0))
+def test_ramp_toward_bounds_every_joint_and_keeps_the_constraints(seed, k, max_delta):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(k, N))
+    P = constrained_projector(A)
+    previous = P @ rng.normal(size=N)
+    target = P @ rng.normal(scale=3.0, size=N)
+    command, alpha, forced = ramp_toward(previous, target, P, max_delta)
+    assert 0.0 <= alpha <= 1.0
+    assert np.max(np.abs(command - previous)) <= max_delta + STEP_TOL
+    np.testing.assert_allclose(A @ command, 0.0, atol=1e-10)
+    np.testing.assert_allclose(forced, 0.0, atol=1e-12)
+    if alpha == 1.0:
+        np.testing.assert_array_equal(command, target)
+    else:  # as far as allowed: some joint uses its whole budget
+        assert np.max(np.abs(command - previous)) == pytest.approx(max_delta)
+
+
+def test_ramp_toward_lets_a_new_constraint_force_its_change_but_no_more():
+    previous = np.array([0.4, 0.4, 0.0, 0.1, 0.0, 0.0])
+    A = np.array([[1.0, 0, 0, 0, 0, 0]])  # joint 0 newly locked
+    P = constrained_projector(A)
+    target = np.array([0.0, 0.5, 0.3, 0.1, 0.0, 0.0])
+    command, alpha, forced = ramp_toward(previous, target, P, 0.02)
+    np.testing.assert_allclose(forced, [-0.4, 0, 0, 0, 0, 0], atol=1e-15)
+    assert command[0] == pytest.approx(0.0, abs=1e-15)  # the constraint wins at once
+    change = np.abs(command - previous)
+    assert np.all(change[1:] <= 0.02 + STEP_TOL) and 0.0 < alpha < 1.0
+
+
+def constrained_projector(A):
+    from policy_align_ros.kinematics import nullspace_projector
+
+    return nullspace_projector(A, N)
+
+
+class _Row:
+    """A fixed constraint row, switchable on and off."""
+
+    def __init__(self, row, active=True):
+        self.row = np.asarray(row, dtype=float)[None, :]
+        self.active = active
+
+    def matrix(self, q, qdot=None):
+        return self.row if self.active else np.zeros((0, self.row.shape[1]))
+
+
+class _Run:
+    """An ArmedController and a perfect velocity-controlled robot, on a counted clock."""
+
+    def __init__(self, step, q0, max_acceleration=ACC, timeout_s=0.05, skew_s=0.0):
+        self.control = ArmedController(step, max_acceleration, timeout_s, skew_s)
+        self.q = np.asarray(q0, dtype=float).copy()
+        self.k = 1000  # tick count; the clock is k * DT_NS
+        self.sent: list[np.ndarray] = []
+        self.events: list[tuple[str, str]] = []
+
+    @property
+    def now(self):
+        return self.k * DT_NS
+
+    def keep(self, out):
+        self.events += out.events
+        if out.command is not None:
+            self.sent.append(out.command)
+        return out
+
+    def state(self, stamp_ns=None):
+        return self.keep(self.control.joint_state(
+            self.q.copy(), self.now if stamp_ns is None else stamp_ns, self.now))
+
+    def tick(self, states=True):
+        """One period: a joint state, then the control step; the robot then moves."""
+        if states:
+            self.state()
+        out = self.keep(self.control.tick(self.now))
+        if out.command is not None:
+            self.q += out.command * DT_NS / 1e9
+        self.k += 1
+        return out
+
+    def arm(self):
+        accepted, reason, out = self.control.arm(self.now)
+        self.keep(out)
+        return accepted, reason
+
+
+def _assert_ramped(commands, max_delta, start=None):
+    """Every consecutive change of every joint within ``max_delta`` (from ``start``)."""
+    seq = np.array(([start] if start is not None else []) + list(commands))
+    steps = np.abs(np.diff(seq, axis=0))
+    assert steps.max() <= max_delta + STEP_TOL, (steps.max(), int(steps.max(axis=1).argmax()))
+
+
+def test_every_step_of_a_talos_run_respects_max_acceleration_and_the_constraint():
+    joints = [f"arm_left_{i}_joint" for i in range(1, 8)]
+    robot = Robot.load("talos", joints)
+    plane = constraint_from_spec({"type": "plane", "frame": "arm_left_7_link",
+                                  "normal": [0.3, -0.2, 1.0]}, robot)
+    center = robot.neutral()
+    step = ControlStep(robot.lower, robot.upper, np.full(7, 0.5), DT_NS / 1e9,
+                       constraints=[plane], policy=lambda X: -5.0 * (X - center))
+    run = _Run(step, center + np.array([-0.3, 0.3, 0.3, -0.3, 0.3, 0.3, 0.3]))
+    run.state()
+    assert run.arm() == (True, "enabled")
+    for _ in range(150):
+        out = run.tick()
+        assert out.command is not None and out.zero_reason == ""
+        A = step.constraint_matrix(run.q - out.command * DT_NS / 1e9)
+        np.testing.assert_allclose(A @ out.command, 0.0, atol=1e-9)
+    max_delta = ACC * DT_NS / 1e9
+    # The first command after enable starts from zero, and so does the check.
+    _assert_ramped(run.sent, max_delta, start=np.zeros(7))
+    assert np.max(np.abs(run.sent[0])) == pytest.approx(max_delta)
+    assert np.max(np.abs(run.sent)) == pytest.approx(0.5)  # reached full speed
+    assert not [e for e in run.events if "forces" in e[1]]
+    # Disable: ramp down at the same rate, publishing until exactly zero, then silence.
+    run.keep(run.control.disarm("disabled by ~/enable"))
+    n_before = len(run.sent)
+    for _ in range(60):
+        run.tick()
+    down = run.sent[n_before - 1:]
+    _assert_ramped(down, max_delta)
+    assert not np.any(down[-1]) and np.all(np.any(np.array(down[:-1]), axis=1))
+    # As fast as allowed: no more steps than the largest joint speed needs.
+    assert len(down) - 1 <= np.ceil(np.max(np.abs(down[0])) / max_delta) + 1
+    assert run.tick().command is None and not run.control.armed
+    assert any(level == "info" and text.startswith("armed") for level, text in run.events)
+    assert any(text.startswith("disarmed: disabled") for _, text in run.events)
+
+
+def test_a_newly_active_constraint_forcing_a_larger_change_is_logged():
+    policy = _Linear(np.full(N, 0.9))  # heads towards the upper limits: all joints move
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=policy)
+    run = _Run(step, np.zeros(N))
+    run.control.context = "constraints [lock joint 0]"
+    run.state()
+    run.arm()
+    for _ in range(40):
+        run.tick()
+    assert run.sent[-1][0] > 0.3
+    lock = _Row([1.0, 0, 0, 0, 0, 0])
+    step.constraints = [lock]
+    before = run.sent[-1]
+    run.tick()
+    after = run.sent[-1]
+    assert after[0] == pytest.approx(0.0, abs=1e-12)  # the constraint holds at once
+    assert np.all(np.abs(after - before)[1:] <= ACC * DT + STEP_TOL)
+    warnings = [text for level, text in run.events if level == "warning"]
+    assert len(warnings) == 1 and "forces a command change" in warnings[0]
+    assert "joint 0" in warnings[0]
+    for _ in range(100):  # further steps are ramped again and not reported again
+        run.tick()
+    _assert_ramped(run.sent[-101:], ACC * DT)
+    assert len([e for e in run.events if e[0] == "warning"]) == 1
+
+
+def test_arming_is_refused_without_a_model_or_fresh_joint_states():
+    step = ControlStep(LOWER, UPPER, VMAX, DT)
+    run = _Run(step, np.zeros(N), timeout_s=0.05)
+    assert run.arm() == (False, "no model loaded")
+    step.policy = _Linear(np.full(N, 0.5))
+    accepted, reason = run.arm()
+    assert not accepted and "no valid joint state" in reason
+    run.state()
+    run.k += 6  # 60 ms later: stale by arrival
+    accepted, reason = run.arm()
+    assert not accepted and "stale" in reason
+    assert run.tick(states=False).command is None  # disarmed and silent: nothing sent
+    run.state()
+    assert run.arm() == (True, "enabled")
+    assert run.tick().command is not None
+
+
+def test_stale_joint_states_stop_at_once_and_the_controller_stays_disarmed():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N), timeout_s=0.05)
+    run.state()
+    run.arm()
+    for _ in range(30):
+        run.tick()
+    assert np.any(run.sent[-1])
+    outs = [run.tick(states=False) for _ in range(6)]
+    assert [o.command is None for o in outs[:5]] == [False] * 5
+    assert not np.any(outs[5].command) and "stale" in outs[5].zero_reason
+    assert not run.control.armed and run.control.faulted
+    for _ in range(20):  # fresh states again: no motion without a new arm
+        assert run.tick().command is None
+    assert run.arm() == (True, "enabled")
+    _assert_ramped([o for o in run.sent[-1:]] + [run.tick().command], ACC * DT)
+
+
+@pytest.mark.parametrize("stamp, key", [
+    (0, "zero_stamp"),
+    (-10_000_000_000, "stamp_too_old"),  # relative to now: 10 s old
+    (+200_000_000, "stamp_in_future"),   # 0.2 s ahead, skew allowed 0.05 s
+    ("back", "stamp_backwards"),
+])
+def test_untrustworthy_stamps_stop_at_once_and_disarm(stamp, key):
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N), timeout_s=0.05, skew_s=0.05)
+    run.state()
+    run.arm()
+    for _ in range(20):
+        run.tick()
+    assert np.any(run.sent[-1])
+    if stamp == "back":
+        stamp_ns = run.now - 3 * DT_NS  # still fresh by age, but before the last stamp
+    else:
+        stamp_ns = stamp if stamp == 0 else run.now + stamp
+    out = run.state(stamp_ns)
+    assert out.rejected == key
+    assert out.command is not None and not np.any(out.command)
+    assert not run.control.armed
+    assert any(level == "warning" and "zero command at once" in text
+               for level, text in out.events)
+    assert run.tick().command is None  # later good states do not re-arm it
+
+
+def test_a_repeated_stamp_is_no_news_and_goes_stale():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N), timeout_s=0.05)
+    run.state()
+    stamp = run.now
+    run.arm()
+    outs = []
+    for _ in range(8):
+        out = run.state(stamp)
+        assert out.rejected == "" and out.command is None
+        outs.append(run.tick(states=False))
+    assert np.any(outs[3].command)
+    assert not np.any(outs[-1].command) and "stale" in outs[-1].zero_reason
+
+
+def test_a_backwards_clock_jump_disarms_and_needs_fresh_states():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(10):
+        run.tick()
+    run.k -= 500  # the simulation restarted: /clock 5 s back
+    out = run.control.tick(run.now)
+    assert not np.any(out.command) and "clock jumped back by 4.99" in out.zero_reason
+    accepted, reason = run.arm()
+    assert not accepted and "no valid joint state" in reason
+    run.state()  # the restarted sim's stamps are accepted again
+    assert run.arm() == (True, "enabled")
+
+
+def test_broken_joint_states_stop_at_once():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(10):
+        run.tick()
+    out = run.control.reject_state("untrustworthy joint state: duplicate_joints")
+    assert not np.any(out.command) and not run.control.armed
+    assert "duplicate_joints" in run.control.zero_reason
+    # Already at zero and silent: a second broken message publishes nothing more.
+    assert run.control.reject_state("untrustworthy joint state: non_finite").command is None
+
+
+def test_model_swap_ramps_down_and_stays_disarmed():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(40):
+        run.tick()
+    n_before = len(run.sent)
+    run.keep(run.control.set_policy(_Linear(np.full(N, -0.9)), reason="model swap to b"))
+    assert not run.control.armed and run.control.zero_reason == "model swap to b"
+    for _ in range(60):
+        run.tick()
+    down = run.sent[n_before - 1:]
+    _assert_ramped(down, ACC * DT)
+    assert not np.any(down[-1]) and len(down) > 20
+    # The new model never moved the robot: every command kept the old direction.
+    assert np.all(np.array(down) >= 0.0)
+    assert run.tick().command is None and not run.control.faulted
+
+
+def test_a_policy_fault_ramps_down():
+    policy = _Linear(np.full(N, 0.9))
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=policy)
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(40):
+        run.tick()
+    step.policy = lambda X: np.full_like(X, np.nan)
+    for _ in range(60):
+        run.tick()
+    _assert_ramped(run.sent, ACC * DT, start=np.zeros(N))
+    assert not np.any(run.sent[-1]) and run.control.faulted
+    assert run.control.zero_reason == "policy output not finite"
+
+
+def test_joints_brake_before_their_limits_within_the_ramp():
+    # Joint 0 runs into its upper limit at full speed: the braking cap slows it in time,
+    # so no step needs more than the ramp allows and the limit is never crossed.
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.array([5.0, 0, 0, 0, 0, 0])))
+    run = _Run(step, np.array([0.5, 0, 0, 0, 0, 0]))
+    run.state()
+    run.arm()
+    for _ in range(300):
+        run.tick()
+        assert run.q[0] <= UPPER[0] + 1e-12
+    _assert_ramped(run.sent, ACC * DT, start=np.zeros(N))
+    assert run.q[0] > 0.99 and not [e for e in run.events if "forces" in e[1]]
+
+
+def test_velocity_scale_brakes_for_limits_when_given_an_acceleration():
+    q = np.array([0.9, 0, 0, 0, 0, 0])  # 0.1 rad from the upper limit
+    v = np.array([0.5, 0, 0, 0, 0, 0])
+    assert velocity_scale(q, v, DT, LOWER, UPPER, VMAX) == 1.0
+    s = velocity_scale(q, v, DT, LOWER, UPPER, VMAX, max_acceleration=2.0)
+    assert s * 0.5 == pytest.approx(np.sqrt(2.0 * 0.1))
+
+
+def test_bad_armed_controller_settings():
+    step = ControlStep(LOWER, UPPER, VMAX, DT)
+    with pytest.raises(ValueError, match="max_acceleration"):
+        ArmedController(step, 0.0, 0.1)
+    with pytest.raises(ValueError, match="state_timeout_s"):
+        ArmedController(step, 1.0, float("nan"))
+    with pytest.raises(ValueError, match="max_clock_skew_s"):
+        ArmedController(step, 1.0, 0.1, -1.0)

@@ -1,13 +1,24 @@
-"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159)."""
+"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-203).
+
+Assertions count control ticks and messages, never wall-clock speed: waits are "until a
+condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
+itself is tested without a graph in test_control.py.
+"""
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.duration import Duration
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
@@ -18,6 +29,9 @@ from policy_align_ros.nodes.executor import Executor
 
 JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
 PLANE = "[{type: plane, frame: arm_left_7_link, normal: [0.3, -0.2, 1.0]}]"
+ACC = 5.0  # rad/s^2 in the rig: full speed (0.5 rad/s) after 10 periods of 10 ms
+PERIOD = 0.01
+STEP_TOL = 1e-12
 
 
 class Rig:
@@ -26,15 +40,20 @@ class Rig:
     def __init__(self, domain_id: int, **params):
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
-        overrides = {"robot": "talos", "joints": JOINTS, "rate_hz": 100.0,
-                     "state_timeout_s": 0.1, "constraints": PLANE, **params}
+        # A generous state timeout: a loaded machine must not turn into stale states.
+        overrides = {"robot": "talos", "joints": JOINTS, "rate_hz": 1.0 / PERIOD,
+                     "state_timeout_s": 0.5, "max_acceleration": ACC, "constraints": PLANE,
+                     **params}
         self.node = Executor(context=self.context, parameter_overrides=[
             Parameter(k, value=v) for k, v in overrides.items()])
         self.probe = Node("probe", context=self.context)
         self.commands: list[np.ndarray] = []
+        self.diagnostics: list[DiagnosticArray] = []
         self.probe.create_subscription(
             Float64MultiArray, "/velocity_controller/commands",
-            lambda m: self.commands.append(np.array(m.data)), 100)
+            lambda m: self.commands.append(np.array(m.data)), 1000)
+        self.probe.create_subscription(DiagnosticArray, "/diagnostics",
+                                       self.diagnostics.append, 100)
         self.states = self.probe.create_publisher(JointState, "/joint_states", 10)
         self.models = self.probe.create_publisher(String, "/learner/model", LATCHED_QOS)
         self.enable_client = self.probe.create_client(SetBool, "/executor/enable")
@@ -42,13 +61,28 @@ class Rig:
         self.executor.add_node(self.node)
         self.executor.add_node(self.probe)
         self.q = self.node.robot.neutral() + 0.2
+        self.stamp = None  # None: stamp with the node clock
+
+    def publish_state(self, **fields) -> None:
+        msg = JointState(name=JOINTS, position=self.q.tolist(), **fields)
+        msg.header.stamp = (self.node.get_clock().now().to_msg() if self.stamp is None
+                            else self.stamp)
+        self.states.publish(msg)
 
     def spin(self, seconds: float, publish_states: bool = True) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             if publish_states:
-                msg = JointState(name=JOINTS, position=self.q.tolist())
-                self.states.publish(msg)
+                self.publish_state()
+            self.executor.spin_once(timeout_sec=0.005)
+
+    def spin_until(self, condition, timeout: float = 10.0, publish_states: bool = True,
+                   what: str = "condition") -> None:
+        end = time.monotonic() + timeout
+        while not condition():
+            assert time.monotonic() < end, f"timed out waiting for {what}"
+            if publish_states:
+                self.publish_state()
             self.executor.spin_once(timeout_sec=0.005)
 
     def enable(self, on: bool) -> SetBool.Response:
@@ -82,61 +116,117 @@ def _attractor_policy(center):
     return lambda X: -(X - center)
 
 
-def test_no_model_gives_zero_commands(rig):
+def _assert_ramped(commands, start=None):
+    """Each joint's command changes by at most max_acceleration x period per message."""
+    seq = np.array(([start] if start is not None else []) + list(commands))
+    assert np.abs(np.diff(seq, axis=0)).max() <= ACC * PERIOD + STEP_TOL
+
+
+_FITTED: dict[tuple, bytes] = {}
+
+
+def _fit_model(path, joints, center):
+    """A model file at ``path`` trained on ``joints`` around ``center``.
+
+    Fitted once per (joints, center) and copied: a fit takes seconds on a loaded machine.
+    """
+    key = (tuple(joints), np.asarray(center, dtype=float).tobytes())
+    if key not in _FITTED:
+        rng = np.random.default_rng(0)
+        trajs = []
+        for _ in range(8):
+            q = center + rng.normal(scale=0.3, size=len(joints))
+            t = np.arange(40) * 0.05
+            trajs.append(center + (q - center) * np.exp(-t)[:, None])
+        model = PolicyAlign(sigma="medium").fit(
+            [Trajectory(x, t) for x in trajs], joint_names=joints)
+        model.save(path)
+        _FITTED[key] = Path(path).read_bytes()
+    else:
+        Path(path).write_bytes(_FITTED[key])
+    return path
+
+
+def test_enable_is_refused_without_a_model_and_with_stale_joint_states(rig):
     r = rig(150)
-    assert "no model" in r.enable(True).message
-    r.spin(0.3)
-    assert len(r.commands) >= 10
-    assert all(not np.any(c) for c in r.commands)
+    response = r.enable(True)
+    assert not response.success and "no model loaded" in response.message
+    r.spin(0.2)
+    assert r.commands == []  # disarmed: the topic is left alone
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin(0.1, publish_states=False)
+    r.stamp = r.node.get_clock().now().to_msg()
+    r.publish_state()  # one state, then nothing: stale after state_timeout_s
+    r.spin(0.7, publish_states=False)
+    response = r.enable(True)
+    assert not response.success and "stale" in response.message
+    r.stamp = None
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.enable(True).success
+    r.spin_until(lambda: len(r.commands) >= 5, what="commands")
 
 
-def test_commands_follow_the_policy_and_satisfy_the_constraint(rig):
+def test_commands_ramp_follow_the_policy_and_satisfy_the_constraint(rig):
     r = rig(151)
-    r.node.control.policy = _attractor_policy(r.node.robot.neutral())
-    r.enable(True)
-    r.spin(0.3)
-    moving = [c for c in r.commands if np.linalg.norm(c) > 1e-6]
-    assert len(moving) >= 10
-    A = r.node.control.constraint_matrix(r.q)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.enable(True).success
+    r.spin_until(lambda: len(r.commands) >= 30, what="30 commands")
+    # Every step, starting from zero at enable: the first command too.
+    _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
+    assert np.max(np.abs(r.commands[0])) == pytest.approx(ACC * PERIOD)
+    A = r.node.controller.step.constraint_matrix(r.q)
     assert A.shape == (1, len(JOINTS))
-    for c in moving:
+    for c in r.commands:
         assert np.abs(A @ c).max() < 1e-9 * max(1.0, np.linalg.norm(c))
         assert np.abs(c).max() <= 0.5 + 1e-12
     # The policy pulls back towards the neutral posture: a descent direction of the potential.
-    assert float(moving[-1] @ (r.q - r.node.robot.neutral())) < 0
+    assert float(r.commands[-1] @ (r.q - r.node.robot.neutral())) < 0
 
 
-def test_stale_joint_states_give_zero_commands(rig):
-    r = rig(152)
-    r.node.control.policy = _attractor_policy(r.node.robot.neutral())
-    r.enable(True)
-    r.spin(0.2)
-    assert np.any(r.commands[-1])
-    r.commands.clear()
-    r.spin(0.4, publish_states=False)  # nothing new for 0.4 s > state_timeout_s
-    assert len(r.commands) >= 10 and not np.any(r.commands[-1])
+def test_stale_joint_states_stop_at_once_and_disarm(rig):
+    r = rig(152, state_timeout_s=0.3)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
+    assert r.enable(True).success
+    r.spin_until(lambda: len(r.commands) >= 20 and np.max(np.abs(r.commands[-1])) > 0.1,
+                 what="motion")
+    r.spin_until(lambda: not r.node.controller.armed, publish_states=False, what="disarm")
+    r.spin(0.1, publish_states=False)
+    # Straight to zero (no ramp without a trusted state), then silence.
+    assert not np.any(r.commands[-1]) and np.max(np.abs(r.commands[-2])) > 0.1
+    assert "stale" in r.node.controller.zero_reason
+    count = len(r.commands)
+    r.spin(0.3)  # fresh states again: it stays disarmed
+    assert len(r.commands) == count and not r.node.controller.armed
 
 
-def test_disable_sends_one_zero_command_then_stays_silent(rig):
+def test_disable_ramps_down_to_zero_then_stays_silent(rig):
     r = rig(153)
-    r.node.control.policy = _attractor_policy(r.node.robot.neutral())
-    r.enable(True)
-    r.spin(0.2)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
+    assert r.enable(True).success
+    r.spin_until(lambda: len(r.commands) >= 20, what="motion")
     assert np.any(r.commands[-1])
-    assert r.enable(False).success
+    response = r.enable(False)
+    assert response.success and response.message.startswith("disabled")
+    r.spin_until(lambda: not r.node.controller.publishing, what="ramp down")
     r.spin(0.1)
+    _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
     assert not np.any(r.commands[-1])
-    r.commands.clear()
+    count = len(r.commands)
     r.spin(0.3)
-    assert r.commands == []
+    assert len(r.commands) == count
 
 
 def test_shutdown_sends_a_zero_command(rig):
     r = rig(154)
-    r.node.control.policy = _attractor_policy(r.node.robot.neutral())
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
     r.enable(True)
-    r.spin(0.2)
-    assert np.any(r.commands[-1])
+    r.spin_until(lambda: len(r.commands) >= 5 and np.any(r.commands[-1]), what="motion")
     r.executor.remove_node(r.node)
     r.node.destroy_node()
     r.node = None
@@ -144,46 +234,50 @@ def test_shutdown_sends_a_zero_command(rig):
     assert not np.any(r.commands[-1])
 
 
-def test_bad_constraints_parameter_is_refused_with_a_reason(rig):
+def test_bad_parameters_are_refused_with_a_reason(rig):
     r = rig(155)
-    result = r.node.set_parameters([Parameter("constraints", value="[{type: plane}]")])[0]
+    node = r.node
+    result = node.set_parameters([Parameter("constraints", value="[{type: plane}]")])[0]
     assert not result.successful and "frame" in result.reason
-    result = r.node.set_parameters([Parameter("constraints", value="[]")])[0]
-    assert result.successful and r.node.control.constraints == []
-    result = r.node.set_parameters([Parameter("max_velocity", value=-1.0)])[0]
-    assert not result.successful
-    assert r.node.set_parameters([Parameter("max_velocity", value=0.2)])[0].successful
-    assert np.max(r.node.control.max_velocity) == 0.2
-
-
-def _fit_model(path, joints, center):
-    rng = np.random.default_rng(0)
-    trajs = []
-    for _ in range(8):
-        q = center + rng.normal(scale=0.3, size=len(joints))
-        t = np.arange(40) * 0.05
-        trajs.append(center + (q - center) * np.exp(-t)[:, None])
-    model = PolicyAlign(sigma="medium").fit(
-        [Trajectory(x, t) for x in trajs], joint_names=joints)
-    model.save(path)
-    return path
+    result = node.set_parameters([Parameter("constraints", value="[]")])[0]
+    assert result.successful and node.controller.step.constraints == []
+    for name, bad in (("max_velocity", -1.0), ("max_acceleration", 0.0),
+                      ("max_acceleration", 1000.0), ("max_acceleration", float("nan")),
+                      ("state_timeout_s", 0.0), ("max_clock_skew_s", -0.1)):
+        result = node.set_parameters([Parameter(name, value=bad)])[0]
+        assert not result.successful and result.reason, (name, bad)
+    assert node.set_parameters([Parameter("max_velocity", value=0.2)])[0].successful
+    assert np.max(node.controller.step.max_velocity) == 0.2
+    assert node.set_parameters([Parameter("max_acceleration", value=3.0)])[0].successful
+    assert node.controller.max_acceleration == 3.0
+    assert node.set_parameters([Parameter("max_clock_skew_s", value=0.2)])[0].successful
+    assert node.controller.max_clock_skew_s == pytest.approx(0.2)
+    assert not node.set_parameters([Parameter("rate_hz", value=50.0)])[0].successful
+    # Every numeric parameter documents its range.
+    for desc in node.describe_parameters(["max_velocity", "max_acceleration",
+                                          "state_timeout_s", "max_clock_skew_s", "rate_hz"]):
+        assert desc.description and len(desc.floating_point_range) == 1, desc.name
 
 
 def test_model_announced_on_learner_topic_is_loaded_and_checked(rig, tmp_path):
     r = rig(156)
-    center = r.node.robot.neutral()
+    center = np.zeros(len(JOINTS))
+    # Fitted first: a fit blocks this thread, and the joint states with it.
     good = _fit_model(tmp_path / "good.npz", JOINTS, center)
-    r.models.publish(String(data=str(good)))
-    r.spin(0.3)
-    assert r.node.model_path == str(good) and r.node.control.policy is not None
-    r.enable(True)
-    r.spin(0.3)
-    assert np.linalg.norm(r.commands[-1]) > 1e-6
     wrong = _fit_model(tmp_path / "wrong.npz", [j.replace("left", "right") for j in JOINTS],
                        center)
+    r.models.publish(String(data=str(good)))
+    r.spin_until(lambda: r.node.model_path == str(good), what="model loaded")
+    assert r.node.controller.step.policy is not None
+    assert r.node.get_parameter("model_path").value == str(good)
+    assert r.enable(True).success
+    r.spin_until(lambda: r.commands and np.linalg.norm(r.commands[-1]) > 1e-6,
+                 what="motion")
     r.models.publish(String(data=str(wrong)))
     r.spin(0.3)
     assert r.node.model_path == str(good)  # refused: trained on other joints
+    assert r.node.get_parameter("model_path").value == str(good)
+    assert r.node.controller.armed  # a refused model changes nothing
 
 
 def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
@@ -208,7 +302,8 @@ def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
         code = "import sys; from policy_align_ros.nodes.executor import main; sys.exit(main())"
         params = []
         for k, v in (("robot", "talos"), ("joints", "[" + ",".join(JOINTS) + "]"),
-                     ("model_path", str(model)), ("start_enabled", "true")):
+                     ("model_path", str(model)), ("start_enabled", "true"),
+                     ("state_timeout_s", "1.0")):
             params += ["-p", f"{k}:={v}"]
         log = tmp_path / "executor.log"
         with open(log, "wb") as out:
@@ -218,7 +313,9 @@ def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
         q = np.full(len(JOINTS), 0.3)
         end = time.monotonic() + 30.0
         while not (commands and np.any(commands[-1])) and time.monotonic() < end:
-            states.publish(JointState(name=JOINTS, position=q.tolist()))
+            msg = JointState(name=JOINTS, position=q.tolist())
+            msg.header.stamp = probe.get_clock().now().to_msg()
+            states.publish(msg)
             executor.spin_once(timeout_sec=0.01)
         assert commands and np.any(commands[-1]), log.read_text()
         proc.send_signal(signal.SIGINT)
@@ -227,9 +324,164 @@ def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.01)
         assert not np.any(commands[-1]), log.read_text()
+        assert "armed: following the policy" in log.read_text()
     finally:
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
         probe.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_model_path_set_at_run_time_loads_the_model_or_is_refused(rig, tmp_path):
+    r = rig(158)
+    center = np.zeros(len(JOINTS))
+    # Fitted first: a fit blocks this thread, and the joint states with it.
+    other = _fit_model(tmp_path / "other.npz", JOINTS, center)
+    result = r.node.set_parameters([Parameter("model_path", value=str(tmp_path / "no.npz"))])
+    assert not result[0].successful and "no.npz" in result[0].reason
+    assert r.node.controller.step.policy is None and r.node.model_path == ""
+    wrong = _fit_model(tmp_path / "wrong.npz", [j.replace("left", "right") for j in JOINTS],
+                       center)
+    result = r.node.set_parameters([Parameter("model_path", value=str(wrong))])[0]
+    assert not result.successful and "joints" in result.reason
+    good = _fit_model(tmp_path / "good.npz", JOINTS, center)
+    assert r.node.set_parameters([Parameter("model_path", value=str(good))])[0].successful
+    assert r.node.model_path == str(good) and r.node.controller.step.policy is not None
+    result = r.node.set_parameters([Parameter("model_path", value="")])[0]
+    assert not result.successful and r.node.model_path == str(good)
+    # A swap while armed ramps down and leaves the executor disarmed.
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
+    assert r.enable(True).success
+    r.spin_until(lambda: len(r.commands) >= 15, what="motion")
+    assert r.node.set_parameters([Parameter("model_path", value=str(other))])[0].successful
+    assert not r.node.controller.armed and "model swap" in r.node.controller.zero_reason
+    r.spin_until(lambda: not r.node.controller.publishing, what="ramp down")
+    r.spin(0.2)
+    assert not np.any(r.commands[-1]) and not r.node.controller.armed
+    _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
+
+
+def test_broken_or_badly_stamped_joint_states_stop_at_once_and_are_counted(rig):
+    r = rig(159)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+
+    def moving():
+        r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
+        assert r.enable(True).success
+        r.spin_until(lambda: len(r.commands) >= 15 and np.max(np.abs(r.commands[-1])) > 0.04,
+                     what="motion")
+
+    # The same joint twice, the second with another value.
+    moving()
+    msg = JointState(name=[*JOINTS, JOINTS[0]], position=[*r.q.tolist(), 1.0])
+    msg.header.stamp = r.node.get_clock().now().to_msg()
+    r.states.publish(msg)
+    r.spin_until(lambda: not r.node.controller.armed, publish_states=False, what="disarm")
+    r.spin(0.1, publish_states=False)
+    assert not np.any(r.commands[-1]) and "duplicate_joints" in r.node.controller.zero_reason
+    assert r.node.rejected_states["duplicate_joints"] == 1
+    # NaN, then a stamp 10 s old, then a zero stamp: each one stops it.
+    for bad, key in ((dict(position=[np.nan] * len(JOINTS)), "non_finite"),
+                     (dict(stamp_age_s=10.0), "stamp_too_old"),
+                     (dict(stamp_age_s=None), "zero_stamp")):
+        moving()
+        msg = JointState(name=JOINTS, position=bad.get("position", r.q.tolist()))
+        if "stamp_age_s" not in bad:
+            msg.header.stamp = r.node.get_clock().now().to_msg()
+        elif bad["stamp_age_s"] is not None:
+            msg.header.stamp = (r.node.get_clock().now()
+                                - Duration(seconds=bad["stamp_age_s"])).to_msg()
+        r.states.publish(msg)
+        r.spin_until(lambda: not r.node.controller.armed, publish_states=False,
+                     what=f"disarm on {key}")
+        r.spin(0.1, publish_states=False)
+        assert not np.any(r.commands[-1]), key
+        assert r.node.rejected_states[key] == 1, r.node.rejected_states
+
+
+def test_sim_time_drives_the_ticks_and_a_backwards_clock_disarms(rig):
+    r = rig(200, use_sim_time=True)
+    clock_pub = r.probe.create_publisher(Clock, "/clock", 10)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    sim_ns = 1000 * 1_000_000_000
+
+    def advance(periods: int) -> None:
+        """Step /clock by whole periods, one joint state each (stamped with sim time).
+
+        While the executor publishes, each step waits for that period's command, so a
+        slow machine delays the test instead of merging ticks.
+        """
+        nonlocal sim_ns
+        for _ in range(periods):
+            sim_ns += int(PERIOD * 1e9)
+            stamp = Time(nanoseconds=sim_ns).to_msg()
+            clock_pub.publish(Clock(clock=stamp))
+            r.stamp = stamp
+            r.spin_until(lambda t=sim_ns: r.node._now_ns() == t, publish_states=False,
+                         what="the node clock to follow /clock")
+            r.publish_state()
+            count = len(r.commands)
+            if r.node.controller.publishing:
+                r.spin_until(lambda c=count: len(r.commands) > c, publish_states=False,
+                             what="this period's command")
+            else:
+                for _ in range(3):
+                    r.executor.spin_once(timeout_sec=0.002)
+
+    advance(5)
+    assert r.node._now_ns() == sim_ns  # the node clock is the simulation's
+    assert r.enable(True).success
+    r.commands.clear()
+    advance(40)
+    r.spin(0.2, publish_states=False)  # wall time passes, sim time does not: no ticks
+    # One command per simulated period, and none while only wall time passed.
+    assert len(r.commands) == 40
+    _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
+    count = len(r.commands)
+    sim_ns -= 5_000_000_000  # the simulation restarts: /clock jumps back 5 s
+    advance(3)
+    r.spin(0.1, publish_states=False)
+    assert not r.node.controller.armed and "clock jumped back" in r.node.controller.zero_reason
+    assert not np.any(r.commands[-1]) and len(r.commands) > count
+    count = len(r.commands)
+    advance(10)
+    assert len(r.commands) == count  # stays disarmed
+
+
+def test_diagnostics_report_arming_model_zero_reason_and_ramp(rig, tmp_path):
+    good = _fit_model(tmp_path / "good.npz", JOINTS, np.zeros(len(JOINTS)))
+    r = rig(201, model_path=str(good))
+
+    def latest():
+        status = r.diagnostics[-1].status[0]
+        return status, {kv.key: kv.value for kv in status.values}
+
+    r.spin_until(lambda: r.diagnostics, what="diagnostics")
+    status, values = latest()
+    assert values["armed"] == "false" and values["model"] == str(good)
+    assert values["zero_reason"] == "not enabled yet" and "ramp_scale" in values
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
+    assert r.enable(True).success
+    r.spin_until(lambda: latest()[1]["armed"] == "true", what="armed diagnostics")
+    status, values = latest()
+    assert status.level == status.OK and values["zero_reason"] == ""
+    r.spin_until(lambda: not r.node.controller.armed, publish_states=False, what="stale")
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics, publish_states=False, what="diagnostics")
+    status, values = latest()
+    assert status.level == status.WARN and values["armed"] == "false"
+    assert "stale" in values["zero_reason"] and "stale" in values["joint_states"]
+    assert float(values["ramp_scale"]) == 1.0
+
+
+def test_a_model_path_that_does_not_load_at_start_stops_the_node(tmp_path):
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=202)
+    try:
+        with pytest.raises(InvalidParameterValueException, match="missing.npz"):
+            Executor(context=context, parameter_overrides=[
+                Parameter("joints", value=JOINTS),
+                Parameter("model_path", value=str(tmp_path / "missing.npz"))])
+    finally:
         rclpy.try_shutdown(context=context)

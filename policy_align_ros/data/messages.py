@@ -26,6 +26,13 @@ Selected joints are either given or taken from the first accepted message; joint
 message beyond the selected ones are ignored, so foreign streams with extra joints in
 any order are matched by name. The per-message work is plain Python and O(n), with the
 name-to-index mapping cached, so that a 1 kHz stream costs a few microseconds a message.
+
+:meth:`JointSelector.select` (lists, for the bag reader and the recorder) and
+:meth:`JointSelector.vector` (a numpy vector, for the executor and the other live nodes)
+apply these same rules; they are the one JointState-to-vector conversion of the package.
+Of the reasons, :data:`UNTRUSTWORTHY` mark a message that is broken (a live consumer
+should stop acting on the stream), while ``unknown_joints`` and ``missing_joints`` mark a
+message meant for someone else (another publisher's joints on a shared topic).
 """
 
 from __future__ import annotations
@@ -33,8 +40,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 __all__ = [
     "SKIP_REASONS",
+    "UNTRUSTWORTHY",
     "JointSelector",
     "StreamClock",
     "validate_joint_names",
@@ -48,6 +58,10 @@ SKIP_REASONS: tuple[str, ...] = (
     "non_finite",
     "time_not_increasing",
 )
+
+#: Skip reasons of a broken message (as opposed to one carrying other joints).
+UNTRUSTWORTHY: frozenset[str] = frozenset({"length_mismatch", "duplicate_joints",
+                                           "non_finite"})
 
 #: Outcomes of :meth:`StreamClock.step`.
 SAME, NEW, SKIP = 0, 1, 2
@@ -104,11 +118,17 @@ class JointSelector:
     def __init__(self, joints: Sequence[str] | None = None) -> None:
         self.joints: list[str] | None = validate_joint_names(joints)
         self._cache: dict[tuple[str, ...], list[int] | str] = {}
+        # Index arrays for :meth:`vector`, keyed like ``_cache`` and cleared with it.
+        self._arrays: dict[tuple[str, ...], np.ndarray] = {}
 
     def set_joints(self, joints: Sequence[str] | None) -> None:
         """Change the selection (``None``: from the next accepted message)."""
         self.joints = validate_joint_names(joints)
+        self._clear()
+
+    def _clear(self) -> None:
         self._cache.clear()
+        self._arrays.clear()
 
     def _indices(self, names: Sequence[str]) -> list[int] | str:
         key = tuple(names)
@@ -130,7 +150,7 @@ class JointSelector:
             else:
                 result = found
         if len(self._cache) >= _CACHE_LIMIT:
-            self._cache.clear()
+            self._clear()
         self._cache[key] = result
         return result
 
@@ -174,7 +194,50 @@ class JointSelector:
         if self.joints is None:
             self.joints = list(names)
             # Entries computed while the selection was open are no longer valid.
-            self._cache.clear()
+            self._clear()
+
+    def vector(
+        self,
+        names: Sequence[str],
+        positions: Sequence[float],
+        velocities: Sequence[float] = (),
+        efforts: Sequence[float] = (),
+    ) -> np.ndarray | str:
+        """Validate one message and return the selected positions as a vector.
+
+        Same rules and reasons as :meth:`select`, in numpy: a message's arrays
+        (``array.array`` in rclpy's JointState) are read through the buffer protocol
+        without a Python loop over the joints.
+
+        Parameters
+        ----------
+        names : sequence of str, length m
+        positions : sequence of float, length m
+            rad (revolute) or m (prismatic).
+        velocities, efforts : sequence of float, length 0 or m
+
+        Returns
+        -------
+        ndarray, shape (n,), or str
+            Selected positions in selection order (a new array), or the skip reason (one
+            of :data:`SKIP_REASONS` except ``time_not_increasing``).
+        """
+        m = len(names)
+        if len(positions) != m or len(velocities) not in (0, m) or len(efforts) not in (0, m):
+            return "length_mismatch"
+        key = tuple(names)
+        idx = self._arrays.get(key)
+        if idx is None:
+            found = self._indices(key)
+            if isinstance(found, str):
+                return found
+            idx = self._arrays[key] = np.asarray(found, dtype=np.intp)
+        q = np.asarray(positions, dtype=float)[idx]
+        if not np.isfinite(q).all():
+            return "non_finite"
+        if len(velocities) and not np.isfinite(np.asarray(velocities, dtype=float)[idx]).all():
+            return "non_finite"
+        return q
 
 
 class StreamClock:

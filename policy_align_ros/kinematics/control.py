@@ -16,11 +16,30 @@ Two safety rules shape the command:
 
 Anything that prevents a safe command (non-finite state, no policy, a policy returning
 non-finite values) gives zeros and a reason.
+
+:class:`ArmedController` wraps a :class:`ControlStep` with what makes it safe to leave
+running next to a real robot, all on time stamps passed in (integer nanoseconds of the
+caller's clock, a ROS node clock in the executor), so it runs and is tested without a
+graph and honours simulated time:
+
+* *arming*: commands follow the policy only between :meth:`ArmedController.arm` (refused
+  without a model or with stale joint states) and the next disarm, which a disable, a
+  model swap or any fault causes; nothing re-arms on its own;
+* *acceleration ramp*: each joint's command changes by at most ``max_acceleration * dt``
+  per step (:func:`ramp_toward`: ramp first, then project onto the constraints' null
+  space). A disarm ramps the command down to zero the same way; only untrustworthy or
+  lost joint states (and a clock jumping backwards) stop it at once, because without a
+  trusted ``q`` there is no safe command to ramp through;
+* *staleness*: joint states count as fresh by their arrival time and by their header
+  stamp; zero stamps, stamps too old or too far in the future, and stamps going backwards
+  are untrustworthy.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -28,10 +47,15 @@ import numpy as np
 from policy_align_ros.kinematics.projection import nullspace_projector
 
 __all__ = [
+    "ArmedController",
     "ControlStep",
+    "Output",
+    "STAMP_REJECTIONS",
     "constrained_command",
     "limit_locks",
     "model_permutation",
+    "project_with_locks",
+    "ramp_toward",
     "velocity_scale",
 ]
 
@@ -76,6 +100,7 @@ def velocity_scale(
     lower: np.ndarray,
     upper: np.ndarray,
     max_velocity: np.ndarray,
+    max_acceleration: float | None = None,
 ) -> float:
     """Largest ``s in [0, 1]`` such that ``s v`` respects speed and position limits.
 
@@ -89,6 +114,11 @@ def velocity_scale(
         Joint limits.
     max_velocity : ndarray, shape (n,)
         Per-joint speed limits (> 0, may be inf).
+    max_acceleration : float, optional
+        Units of ``q`` per s^2. When given, a joint heading for a limit at distance ``r``
+        is also held to ``sqrt(max_acceleration * r)``, the speed from which braking at
+        half that deceleration stops it at the limit: the other half is left to the
+        acceleration ramp, which lags a falling target.
 
     Returns
     -------
@@ -98,10 +128,14 @@ def velocity_scale(
     speed = np.abs(v)
     with np.errstate(divide="ignore", invalid="ignore"):
         s_speed = np.where(speed > 0.0, max_velocity / speed, np.inf)
-        room = np.where(v > 0.0, upper - q, np.where(v < 0.0, q - lower, np.inf))
-        s_pos = np.where(speed > 0.0, np.maximum(room, 0.0) / (speed * dt), np.inf)
-    return float(np.clip(min(np.min(s_speed, initial=np.inf), np.min(s_pos, initial=np.inf)),
-                         0.0, 1.0))
+        room = np.maximum(np.where(v > 0.0, upper - q, np.where(v < 0.0, q - lower, np.inf)),
+                          0.0)
+        s_pos = np.where(speed > 0.0, room / (speed * dt), np.inf)
+        s = min(np.min(s_speed, initial=np.inf), np.min(s_pos, initial=np.inf))
+        if max_acceleration is not None:
+            s_brake = np.where(speed > 0.0, np.sqrt(max_acceleration * room) / speed, np.inf)
+            s = min(s, np.min(s_brake, initial=np.inf))
+    return float(np.clip(s, 0.0, 1.0))
 
 
 def constrained_command(
@@ -112,6 +146,7 @@ def constrained_command(
     upper: np.ndarray,
     max_velocity: np.ndarray,
     dt: float,
+    max_acceleration: float | None = None,
 ) -> np.ndarray:
     """Project ``pi`` onto the constraints' null space, lock limit joints, then scale.
 
@@ -127,6 +162,8 @@ def constrained_command(
         Joint limits and speed limits.
     dt : float
         Control period (s).
+    max_acceleration : float, optional
+        Braking limit near joint limits (see :func:`velocity_scale`).
 
     Returns
     -------
@@ -135,9 +172,38 @@ def constrained_command(
         joints, so ``A qdot = 0`` up to round-off, no speed limit is exceeded and no joint
         crosses a limit within ``dt``.
     """
+    v, _ = project_with_locks(q, pi, A, lower, upper)
+    return velocity_scale(q, v, dt, lower, upper, max_velocity, max_acceleration) * v
+
+
+def project_with_locks(
+    q: np.ndarray,
+    pi: np.ndarray,
+    A: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``N' pi`` and ``N'``: the projector of ``A`` plus unit rows of the locked joints.
+
+    Parameters
+    ----------
+    q, pi : ndarray, shape (n,)
+        Positions and the velocity to project (units of ``q`` per second).
+    A : ndarray, shape (k, n)
+        Constraint matrix at ``q`` (k >= 0).
+    lower, upper : ndarray, shape (n,)
+        Joint limits.
+
+    Returns
+    -------
+    v : ndarray, shape (n,)
+        The projected velocity, exactly 0 on locked joints.
+    projector : ndarray, shape (n, n)
+        ``N'``, so that a later command can be projected onto the same space.
+    """
     n = q.shape[0]
-    rows = A
-    v = nullspace_projector(rows) @ pi
+    P = nullspace_projector(A, n)
+    v = P @ pi
     locked = np.zeros(n, dtype=bool)
     # Each pass locks at least one more joint, so this ends after at most n passes.
     for _ in range(n):
@@ -145,10 +211,64 @@ def constrained_command(
         if not np.any(new):
             break
         locked |= new
-        rows = np.vstack([A, np.eye(n)[locked]])
-        v = nullspace_projector(rows) @ pi
+        P = nullspace_projector(np.vstack([A, np.eye(n)[locked]]))
+        v = P @ pi
     v[locked] = 0.0  # exact zeros where the projection leaves round-off
-    return velocity_scale(q, v, dt, lower, upper, max_velocity) * v
+    return v, P
+
+
+def ramp_toward(
+    previous: np.ndarray,
+    target: np.ndarray,
+    projector: np.ndarray,
+    max_delta: float,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """One acceleration-limited step from ``previous`` towards ``target``.
+
+    Ramp first, then project: ``c = P (previous + alpha (target - previous))`` with the
+    largest ``alpha in [0, 1]`` that keeps every ``|c_i - previous_i| <= max_delta``. One
+    ``alpha`` for all joints keeps the step's direction, so ``c`` satisfies the
+    constraints whenever ``P`` projects onto their null space and ``P target = target``
+    (``target`` from :func:`project_with_locks` with the same ``P``, or zero).
+
+    The projection itself may force a change: ``P previous - previous`` is the part of
+    the previous command that the current constraints forbid (a constraint that has just
+    become active, or changed). On a joint where that forced change alone exceeds
+    ``max_delta`` the bound becomes the forced change, since the constraint wins; the
+    caller can report it from the returned ``forced``.
+
+    Parameters
+    ----------
+    previous, target : ndarray, shape (n,)
+        Last command sent and the wanted command (rad/s).
+    projector : ndarray, shape (n, n)
+        ``P``, the null-space projector of the constraints in force now.
+    max_delta : float
+        Largest change per joint in this step (rad/s): ``max_acceleration * dt``.
+
+    Returns
+    -------
+    command : ndarray, shape (n,)
+        ``c`` (rad/s); exactly ``target`` when ``alpha`` is 1.
+    alpha : float
+        The ramp scale: the fraction of the wanted change made in this step (1 = on
+        target, < 1 = acceleration-limited).
+    forced : ndarray, shape (n,)
+        ``P previous - previous`` (rad/s).
+    """
+    base = projector @ previous
+    forced = base - previous
+    d = target - base
+    # Per joint, the largest alpha with |forced_i + alpha d_i| <= bound_i; bound_i >=
+    # |forced_i|, so alpha = 0 is always allowed and the minimum is >= 0.
+    bound = np.maximum(max_delta, np.abs(forced))
+    size = np.abs(d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.where(size > 0.0, (bound - np.sign(d) * forced) / size, np.inf)
+    alpha = float(np.clip(np.min(room, initial=np.inf), 0.0, 1.0))
+    if alpha == 1.0:
+        return target.copy(), 1.0, forced
+    return base + alpha * d, alpha, forced
 
 
 def model_permutation(model_joints: Sequence[str] | None, joints: Sequence[str]) -> np.ndarray:
@@ -204,6 +324,10 @@ class ControlStep:
         (for example ``PolicyAlign.policy``). None means no model: commands are zeros.
     permutation : array_like of int, shape (n,), optional
         From :func:`model_permutation`; identity when omitted.
+    max_acceleration : float, optional
+        rad/s^2; when given, joints heading for a position limit are slowed in time to
+        brake at that rate (see :func:`velocity_scale`). The step itself has no memory:
+        limiting the change between steps is :class:`ArmedController`'s job.
     """
 
     def __init__(
@@ -215,6 +339,7 @@ class ControlStep:
         constraints: Sequence[ConstraintModel] = (),
         policy: PolicyFn | None = None,
         permutation: np.ndarray | None = None,
+        max_acceleration: float | None = None,
     ) -> None:
         self.lower = np.asarray(lower, dtype=float)
         self.upper = np.asarray(upper, dtype=float)
@@ -230,7 +355,9 @@ class ControlStep:
         self.permutation = (
             np.arange(n) if permutation is None else np.asarray(permutation, dtype=int)
         )
+        self.max_acceleration = max_acceleration
         self._zeros = np.zeros(n)
+        self._eye = np.eye(n)
 
     @property
     def n_joints(self) -> int:
@@ -257,21 +384,404 @@ class ControlStep:
         reason : str
             Empty on a normal command, else why the command is zero.
         """
+        qdot, reason, _ = self.evaluate(q)
+        return qdot, reason
+
+    def evaluate(self, q: np.ndarray) -> tuple[np.ndarray, str, np.ndarray]:
+        """As :meth:`__call__`, plus the projector ``N'`` (n, n) the command lies in.
+
+        ``N'`` projects onto the null space of the constraints and the locked joints at
+        ``q`` (the identity when the command is zero for a reason), so a ramp can project
+        the previous command onto the same space (:func:`ramp_toward`).
+        """
         if self.policy is None:
-            return self._zeros.copy(), "no model loaded"
+            return self._zeros.copy(), "no model loaded", self._eye
         q = np.asarray(q, dtype=float)
         if q.shape != (self.n_joints,) or not np.all(np.isfinite(q)):
-            return self._zeros.copy(), "joint positions missing or not finite"
+            return self._zeros.copy(), "joint positions missing or not finite", self._eye
         p = self.permutation
         pi_model = np.asarray(self.policy(q[p][None, :]), dtype=float).reshape(-1)
         if pi_model.shape != (self.n_joints,) or not np.all(np.isfinite(pi_model)):
-            return self._zeros.copy(), "policy output not finite"
+            return self._zeros.copy(), "policy output not finite", self._eye
         pi = np.empty(self.n_joints)
         pi[p] = pi_model
         A = self.constraint_matrix(q, pi)
         if not np.all(np.isfinite(A)):
-            return self._zeros.copy(), "constraint matrix not finite"
-        qdot = constrained_command(
-            q, pi, A, self.lower, self.upper, self.max_velocity, self.dt
-        )
-        return qdot, ""
+            return self._zeros.copy(), "constraint matrix not finite", self._eye
+        v, P = project_with_locks(q, pi, A, self.lower, self.upper)
+        s = velocity_scale(q, v, self.dt, self.lower, self.upper, self.max_velocity,
+                           self.max_acceleration)
+        return s * v, "", P
+
+    def hold_projector(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray | None:
+        """Projector (n, n) for a command ``qdot`` (n,) at ``q`` (n,) without the policy.
+
+        What a ramp towards zero projects onto: the constraints at ``q`` (barriers judged
+        by ``qdot``) and the joints that ``qdot`` pushes out of their limits. None when the
+        constraint matrix is not finite.
+        """
+        A = self.constraint_matrix(q, qdot)
+        if not np.all(np.isfinite(A)):
+            return None
+        return project_with_locks(q, qdot, A, self.lower, self.upper)[1]
+
+
+@dataclass
+class Output:
+    """What one call of :class:`ArmedController` asks its caller to do.
+
+    Attributes
+    ----------
+    command : ndarray, shape (n,), or None
+        Command to publish now (rad/s, controller order); None: publish nothing.
+    zero_reason : str
+        Why the command is zero or going to zero; empty while following the policy.
+    ramp_scale : float
+        Fraction of the wanted change made in the last step (1: on target).
+    events : list of (str, str)
+        ``(level, text)`` lines to log, level ``"info"`` or ``"warning"``.
+    rejected : str
+        Set by :meth:`ArmedController.joint_state` when it refused the state for its
+        stamp: one of :data:`STAMP_REJECTIONS` (the log line has the details).
+    """
+
+    command: np.ndarray | None
+    zero_reason: str
+    ramp_scale: float
+    events: list[tuple[str, str]] = field(default_factory=list)
+    rejected: str = ""
+
+
+#: Keys of :attr:`Output.rejected`: stamp zero, earlier than the last one, older than
+#: ``state_timeout_s + max_clock_skew_s``, later than the clock by ``max_clock_skew_s``.
+STAMP_REJECTIONS: tuple[str, ...] = ("zero_stamp", "stamp_backwards", "stamp_too_old",
+                                     "stamp_in_future")
+
+#: Commands smaller than this (rad/s) are round-off: they are sent as exact zeros.
+_ROUNDOFF = 1e-12
+
+#: Minimum time between two reports of a constraint forcing a larger change (ns).
+_FORCED_REPORT_NS = 1_000_000_000
+
+
+class ArmedController:
+    """Arming, staleness and acceleration ramps around a :class:`ControlStep`.
+
+    Times are integer nanoseconds of the caller's clock (the executor node's clock, so
+    simulated time works); nothing here reads a clock. Per control period the caller
+    passes the latest valid joint state (:meth:`joint_state`), reports broken ones
+    (:meth:`reject_state`) and calls :meth:`tick`; every call returns an :class:`Output`
+    whose ``command``, when not None, must be published at once.
+
+    Parameters
+    ----------
+    step : ControlStep
+        The control law (policy, constraints, limits, period ``dt`` in s).
+    max_acceleration : float
+        Per-joint acceleration bound of the command (rad/s^2), > 0.
+    state_timeout_s : float
+        Joint states older than this (by arrival, or by stamp beyond the allowed skew)
+        are stale (s), > 0.
+    max_clock_skew_s : float
+        Allowed offset between the joint states' stamps and this clock (s), >= 0.
+    joint_names : sequence of str, optional
+        Names used in log lines (controller order).
+
+    Attributes
+    ----------
+    armed : bool
+        Whether commands follow the policy.
+    command : ndarray, shape (n,)
+        The last command published (rad/s).
+    faulted : bool
+        Whether the last disarm was caused by a fault (joint states, clock, policy output)
+        rather than requested; cleared when armed again.
+    context : str
+        Appended to arm and disarm log lines (the caller puts the model and the
+        constraint specs there).
+    """
+
+    def __init__(
+        self,
+        step: ControlStep,
+        max_acceleration: float,
+        state_timeout_s: float,
+        max_clock_skew_s: float = 0.0,
+        joint_names: Sequence[str] | None = None,
+    ) -> None:
+        self.step = step
+        self.max_acceleration = max_acceleration
+        self.state_timeout_s = state_timeout_s
+        self.max_clock_skew_s = max_clock_skew_s
+        n = step.n_joints
+        self.joint_names = (list(joint_names) if joint_names is not None
+                            else [f"joint {i}" for i in range(n)])
+        self.armed = False
+        self.faulted = False
+        self.command = np.zeros(n)
+        self.context = ""
+        self.zero_reason = "not enabled yet"
+        self.ramp_scale = 1.0
+        # Nothing left to publish: disarmed and the zero command has gone out.
+        self._silent = True
+        self._q: np.ndarray | None = None
+        self._stamp_ns: int | None = None
+        self._arrival_ns: int | None = None
+        self._last_now_ns: int | None = None
+        self._forced_reported_ns: int | None = None
+        self._forced_suppressed = 0
+        self._events: list[tuple[str, str]] = []
+
+    # -- settings -------------------------------------------------------------------
+    @property
+    def max_acceleration(self) -> float:
+        """Acceleration bound (rad/s^2); also the step's braking limit near joint limits."""
+        return self.step.max_acceleration
+
+    @max_acceleration.setter
+    def max_acceleration(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"max_acceleration: must be finite and > 0, got {value}")
+        self.step.max_acceleration = value
+
+    @property
+    def state_timeout_s(self) -> float:
+        """Joint-state timeout (s)."""
+        return self._timeout_ns / 1e9
+
+    @state_timeout_s.setter
+    def state_timeout_s(self, value: float) -> None:
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"state_timeout_s: must be finite and > 0, got {value}")
+        self._timeout_ns = round(value * 1e9)
+
+    @property
+    def max_clock_skew_s(self) -> float:
+        """Allowed stamp-to-clock offset (s)."""
+        return self._skew_ns / 1e9
+
+    @max_clock_skew_s.setter
+    def max_clock_skew_s(self, value: float) -> None:
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"max_clock_skew_s: must be finite and >= 0, got {value}")
+        self._skew_ns = round(value * 1e9)
+
+    @property
+    def max_delta(self) -> float:
+        """Largest change of a joint's command in one step (rad/s)."""
+        return self.max_acceleration * self.step.dt
+
+    @property
+    def publishing(self) -> bool:
+        """Whether :meth:`tick` still publishes (armed, or ramping down to zero)."""
+        return not self._silent
+
+    # -- joint states ---------------------------------------------------------------
+    def joint_state(self, q: np.ndarray, stamp_ns: int, now_ns: int) -> Output:
+        """Take a validated joint state ``q`` (n,) stamped ``stamp_ns``, received ``now_ns``.
+
+        A stamp that is zero, older than ``state_timeout_s + max_clock_skew_s``, more than
+        ``max_clock_skew_s`` in the future or earlier than the last one makes the state
+        untrustworthy: the command goes to zero at once and the controller disarms. A
+        stamp equal to the last one is ignored (a repeat is no news).
+        """
+        jumped = self._clock(now_ns)
+        if jumped is not None:
+            return jumped
+        stamp_ns = int(stamp_ns)
+        last = self._stamp_ns
+        if last is not None and stamp_ns == last:
+            return self._output(None)
+        key, problem = "", ""
+        if stamp_ns <= 0:
+            key, problem = "zero_stamp", "joint state without a header stamp"
+        elif now_ns - stamp_ns > self._timeout_ns + self._skew_ns:
+            key = "stamp_too_old"
+            problem = (f"joint state stamp {(now_ns - stamp_ns) / 1e9:.3f} s old "
+                       f"(> state_timeout_s + max_clock_skew_s)")
+        elif stamp_ns - now_ns > self._skew_ns:
+            key = "stamp_in_future"
+            problem = (f"joint state stamp {(stamp_ns - now_ns) / 1e9:.3f} s in the future "
+                       f"(> max_clock_skew_s)")
+        elif last is not None and stamp_ns < last:
+            key = "stamp_backwards"
+            problem = f"joint state stamp went backwards by {(last - stamp_ns) / 1e9:.3f} s"
+        if problem:
+            out = self.reject_state(problem)
+            out.rejected = key
+            return out
+        self._q = np.asarray(q, dtype=float)
+        self._stamp_ns = stamp_ns
+        self._arrival_ns = int(now_ns)
+        return self._output(None)
+
+    def reject_state(self, reason: str) -> Output:
+        """A broken joint state (NaN, duplicate names, bad lengths, bad stamp) arrived.
+
+        The last good state is forgotten, so arming needs a fresh valid one, and the
+        command goes to zero at once.
+        """
+        self._forget_state()
+        return self.fault(reason)
+
+    def state_problem(self, now_ns: int) -> str:
+        """Why the joint states are not fresh at ``now_ns``; empty when they are."""
+        if self._q is None:
+            return "no valid joint state received"
+        age = now_ns - self._arrival_ns
+        if age > self._timeout_ns:
+            return f"joint states stale: last received {age / 1e9:.3f} s ago"
+        age = now_ns - self._stamp_ns
+        if age > self._timeout_ns + self._skew_ns:
+            return f"joint states stale: last stamp {age / 1e9:.3f} s old"
+        return ""
+
+    def _forget_state(self) -> None:
+        self._q = None
+        self._stamp_ns = None
+        self._arrival_ns = None
+
+    def _clock(self, now_ns: int) -> Output | None:
+        """Check that the clock runs forwards; a jump back (restarted sim) disarms."""
+        last = self._last_now_ns
+        self._last_now_ns = int(now_ns)
+        if last is None or now_ns >= last:
+            return None
+        self._forget_state()
+        self._forced_reported_ns = None
+        return self.fault(f"clock jumped back by {(last - now_ns) / 1e9:.3f} s "
+                          f"(restarted simulation?)")
+
+    # -- arming ---------------------------------------------------------------------
+    def arm(self, now_ns: int) -> tuple[bool, str, Output]:
+        """Request to follow the policy.
+
+        Returns
+        -------
+        (accepted, reason, output)
+            Refused, with the reason, without a model or with stale joint states.
+        """
+        jumped = self._clock(now_ns)
+        if self.step.policy is None:
+            return False, "no model loaded", jumped or self._output(None)
+        problem = self.state_problem(now_ns)
+        if problem:
+            return False, problem, jumped or self._output(None)
+        if self.armed:
+            return True, "already enabled", self._output(None)
+        self.armed = True
+        self.faulted = False
+        self._silent = False
+        self.zero_reason = ""
+        # The ramp starts from the last command sent (zero, or partway down a ramp).
+        self._log("info", "armed: following the policy")
+        return True, "enabled", self._output(None)
+
+    def disarm(self, reason: str) -> Output:
+        """Stop following the policy and ramp the command down to zero (``reason`` logged)."""
+        if self.armed:
+            self.armed = False
+            self.zero_reason = reason
+            self._log("info", f"disarmed: {reason}; ramping down at "
+                              f"{self.max_acceleration:g} rad/s^2")
+        return self._output(None)
+
+    def fault(self, reason: str) -> Output:
+        """Zero command at once and disarm (nothing to publish when already silent)."""
+        if self._silent:
+            return self._output(None)
+        was_armed = self.armed
+        self.armed = False
+        self.faulted = True
+        self._silent = True
+        self.zero_reason = reason
+        self.ramp_scale = 1.0
+        self.command = np.zeros(self.step.n_joints)
+        self._log("warning", f"{'disarmed' if was_armed else 'ramp-down cut short'}: "
+                             f"{reason}; zero command at once")
+        return self._output(self.command.copy())
+
+    def set_policy(self, policy: PolicyFn | None, permutation: np.ndarray | None = None,
+                   reason: str = "model swap") -> Output:
+        """Swap the model; an armed controller disarms and ramps down (``reason``)."""
+        out = self.disarm(reason)
+        self.step.policy = policy
+        self.step.permutation = (np.arange(self.step.n_joints) if permutation is None
+                                 else np.asarray(permutation, dtype=int))
+        return out
+
+    # -- the control period ---------------------------------------------------------
+    def tick(self, now_ns: int) -> Output:
+        """One control period at ``now_ns``: the command to publish, if any."""
+        jumped = self._clock(now_ns)
+        if jumped is not None:
+            return jumped
+        if self._silent:
+            return self._output(None)
+        problem = self.state_problem(now_ns)
+        if problem:
+            return self.fault(problem)
+        q = self._q
+        step = self.step
+        previous = self.command
+        projector = None
+        if self.armed:
+            target, reason, projector = step.evaluate(q)
+            if reason:
+                # The policy cannot be trusted here, but q and the constraints still
+                # can: ramp down like a disable.
+                self.disarm(reason)
+                self.faulted = True
+        if not self.armed:
+            target = np.zeros(step.n_joints)
+            projector = step.hold_projector(q, previous)
+            if projector is None:
+                return self.fault("constraint matrix not finite")
+        command, alpha, forced = ramp_toward(previous, target, projector, self.max_delta)
+        # Round-off of the projection (1e-17 rad/s on a joint locked at its limit) would
+        # read as "pushed outwards" below and stop every joint.
+        command[np.abs(command) < _ROUNDOFF] = 0.0
+        # Safety net, rarely active: the projection of the previous command may exceed a
+        # speed limit, or it may head for a position limit faster than the target did.
+        s = velocity_scale(q, command, step.dt, step.lower, step.upper, step.max_velocity)
+        if s < 1.0:
+            command = s * command
+        self._report_forced(command - previous, forced, s, now_ns)
+        self.command = command
+        self.ramp_scale = alpha
+        if not self.armed and not np.any(command):
+            self._silent = True
+            self._log("info", f"command at zero ({self.zero_reason})")
+        return self._output(command.copy())
+
+    def _report_forced(self, change: np.ndarray, forced: np.ndarray, s: float,
+                       now_ns: int) -> None:
+        size_all = np.abs(change)
+        size = float(size_all.max(initial=0.0))
+        limit = self.max_delta
+        if size <= limit * (1.0 + 1e-9) + 1e-12:
+            return
+        worst = int(np.argmax(size_all))
+        # Throttled on the caller's clock: a barrier can stay in contact for many steps.
+        last = self._forced_reported_ns
+        if last is not None and now_ns - last < _FORCED_REPORT_NS:
+            self._forced_suppressed += 1
+            return
+        cause = ("speed or position limit" if s < 1.0 else
+                 "newly active or changed constraint")
+        more = (f" ({self._forced_suppressed} more since the last report)"
+                if self._forced_suppressed else "")
+        self._forced_reported_ns = int(now_ns)
+        self._forced_suppressed = 0
+        self._events.append(("warning", (
+            f"{cause} forces a command change of {size:.4g} rad/s on "
+            f"{self.joint_names[worst]} in one step (ramp allows {limit:.4g}; largest "
+            f"forced part {float(np.max(np.abs(forced))):.4g}){more}")))
+
+    def _log(self, level: str, text: str) -> None:
+        self._events.append((level, f"{text}{'; ' + self.context if self.context else ''}"))
+
+    def _output(self, command: np.ndarray | None) -> Output:
+        events, self._events = self._events, []
+        return Output(command, self.zero_reason, self.ramp_scale, events)

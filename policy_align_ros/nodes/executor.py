@@ -7,20 +7,42 @@ At ``rate_hz`` it publishes ``qdot = s N(q) pi_hat(q)`` (rad/s, order = ``joints
 ``policy_align_ros.kinematics.constraint_from_spec``) and ``s`` keeps every joint under
 ``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.kinematics.control`).
 
+Safety (the logic is ROS-free, :class:`policy_align_ros.kinematics.control.ArmedController`;
+docs/executor_safety.md explains it for robot owners):
+
+* the executor is *armed* only by ``~/enable`` (std_srvs/SetBool) true, which is refused,
+  with the reason, while no model is loaded or the joint states are stale; a disable, a
+  model swap and any fault disarm it, and it stays disarmed until enabled again. Every arm
+  and disarm is logged with the model and the constraints in force;
+* each joint's command changes by at most ``max_acceleration * period`` per period, both
+  when following the policy and when ramping down to zero after a disarm (published until
+  the command is zero, then the topic is left alone);
+* joint states that are lost (older than ``state_timeout_s`` by arrival or stamp), broken
+  (a joint twice, NaN/inf, arrays of other lengths; counted, warned about at most every
+  2 s) or untrustworthy by their header stamp (zero, too old, too far ahead of the node
+  clock beyond ``max_clock_skew_s``, going backwards) send a zero command at once and
+  disarm; so does the node clock jumping backwards (a restarted simulation);
+* all timing uses the node clock, so ``use_sim_time`` works;
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second and on arming changes)
+  reports the arming state, the model, why the command is zero and the ramp scale.
+
 A ros2_control JointGroupVelocityController holds its last command forever, so the
-executor publishes zeros when disabled (``~/enable``, std_srvs/SetBool), while joint states
-are older than ``state_timeout_s``, while no model is loaded, and when it shuts down. The
-model is loaded from ``model_path`` at start and again whenever ``/learner/model``
-(std_msgs/String, transient local) announces a file; a model trained on other joints is
-refused.
+executor also publishes a zero when it shuts down; pair it with a controller-side command
+timeout for the case it is killed. The model is loaded from ``model_path`` at start (a
+file that does not load stops the node) and whenever ``model_path`` is set, which
+``/learner/model`` (std_msgs/String, transient local) announcements do: a model that does
+not load, or was trained on other joints, is refused with the reason and the current one
+stays.
 """
 
 from __future__ import annotations
 
-import time
+import math
+from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -28,21 +50,32 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
 
+from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
 from policy_align_ros.kinematics import Robot, constraint_from_spec
-from policy_align_ros.kinematics.control import ControlStep, model_permutation
+from policy_align_ros.kinematics.control import (
+    ArmedController,
+    ControlStep,
+    Output,
+    model_permutation,
+)
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     LATCHED_QOS,
     accept,
     descriptor,
-    joint_positions,
     parse_constraint_specs,
     reject,
     run_node,
 )
 
 __all__ = ["Executor", "load_policy", "main", "speed_limits"]
+
+#: Period of the /diagnostics status (s of node clock); arming changes go out at once.
+DIAGNOSTICS_PERIOD_S = 1.0
+#: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
+_FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
+                     "max_clock_skew_s")
 
 
 def load_policy(path: str, joints: Sequence[str]) -> tuple[PolicyAlign, np.ndarray]:
@@ -80,7 +113,10 @@ class Executor(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("executor", **kwargs)
         self.robot: Robot | None = None
-        self.control: ControlStep | None = None
+        self.controller: ArmedController | None = None
+        self.model_path = ""
+        # A model loaded while validating ``model_path``, applied once the set succeeds.
+        self._staged: tuple[str, PolicyAlign, np.ndarray] | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self.declare_parameter("robot", "talos", descriptor(
@@ -92,38 +128,60 @@ class Executor(Node):
         joints = list(self.get_parameter("joints").value)
         self.robot = Robot.load(self.get_parameter("robot").value, joints)
         self.declare_parameter("model_path", "", descriptor(
-            "model file (.npz) loaded at start; empty = wait for /learner/model"))
+            "model file (.npz); setting it loads the model or is refused with the reason; "
+            "empty at start = wait for /learner/model"))
         self.declare_parameter("max_velocity", 0.5, descriptor(
             "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
             float_range=(0.001, 10.0)))
+        self.declare_parameter("max_acceleration", 2.0, descriptor(
+            "largest change of a joint's command per second [rad/s^2], also when ramping "
+            "down after a disable or a model swap", float_range=(0.01, 100.0)))
         self.declare_parameter("state_timeout_s", 0.1, descriptor(
-            "joint states older than this give zero commands [s]", float_range=(0.001, 10.0)))
+            "joint states older than this (by arrival or header stamp) stop and disarm [s]",
+            float_range=(0.001, 10.0)))
+        self.declare_parameter("max_clock_skew_s", 0.05, descriptor(
+            "allowed offset between joint-state stamps and the node clock [s]",
+            float_range=(0.0, 10.0)))
         self.declare_parameter("constraints", "[]", descriptor(
             "YAML list of constraint specs in force, e.g. "
             "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
         self.declare_parameter("start_enabled", False, descriptor(
-            "publish policy commands from the start (else wait for ~/enable)",
-            read_only=True))
+            "arm at the first fresh joint state when model_path loaded at start (else "
+            "wait for ~/enable)", read_only=True))
 
-        self._index = {name: i for i, name in enumerate(joints)}
         self._period = 1.0 / self.get_parameter("rate_hz").value
-        self.control = ControlStep(
+        step = ControlStep(
             self.robot.lower, self.robot.upper, self._speed_limits(), self._period,
             constraints=self._constraints(self.get_parameter("constraints").value))
-        self.enabled = bool(self.get_parameter("start_enabled").value)
-        self.model_path = ""
-        self._q: np.ndarray | None = None
-        self._q_time = -np.inf
-        self._zero_reason = ""
+        self.controller = ArmedController(
+            step, self.get_parameter("max_acceleration").value,
+            self.get_parameter("state_timeout_s").value,
+            self.get_parameter("max_clock_skew_s").value, joint_names=joints)
+        self._selector = JointSelector(joints)
+        #: Rejected joint-state messages by reason, over the node's lifetime.
+        self.rejected_states: Counter[str] = Counter()
+        self._last = Output(None, self.controller.zero_reason, 1.0)
 
         self._pub = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        if self._staged is not None:
+            self._apply_staged()
+        self._update_context()
+        self._arm_at_start = bool(self.get_parameter("start_enabled").value)
+        if self._arm_at_start and self.controller.step.policy is None:
+            self.get_logger().warning(
+                "start_enabled ignored: no model_path loaded at start; call ~/enable once "
+                "a model is loaded")
+            self._arm_at_start = False
         self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
         self.create_subscription(String, "/learner/model", self._on_model, LATCHED_QOS)
         self.create_service(SetBool, "~/enable", self._on_enable)
+        # Timers run on the node clock (rclpy's default), hence on /clock with use_sim_time.
         self.create_timer(self._period, self._on_timer)
-        path = self.get_parameter("model_path").value
-        if path:
-            self._load(path)
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+
+    def _now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
 
     # -- parameters -------------------------------------------------------------------
     def _speed_limits(self) -> np.ndarray:
@@ -133,95 +191,185 @@ class Executor(Node):
         return [constraint_from_spec(spec, self.robot) for spec in parse_constraint_specs(text)]
 
     def _on_set_parameters(self, params: Sequence[Parameter]):
-        """Validate only; :meth:`_after_set_parameters` applies accepted values."""
+        """Validate (and load a new model); :meth:`_after_set_parameters` applies."""
         for param in params:
             if param.name == "joints":
                 if len(set(param.value)) != len(param.value) or not param.value:
                     return reject("joints: must be a non-empty list without repeats")
+            elif param.name in _FLOAT_PARAMETERS:
+                if not math.isfinite(param.value):
+                    return reject(f"{param.name}: must be finite, got {param.value}")
             elif param.name == "constraints" and self.robot is not None:
                 try:
                     self._constraints(param.value)
                 except ValueError as err:
                     return reject(str(err))
+            elif param.name == "model_path":
+                result = self._stage_model(param.value)
+                if result is not None:
+                    return result
         return accept()
 
-    def _after_set_parameters(self, params: Sequence[Parameter]) -> None:
-        if self.control is None:
-            return  # still declaring: __init__ builds the controller from the values
-        for param in params:
-            if param.name == "constraints":
-                self.control.constraints = self._constraints(param.value)
-                self.get_logger().info(f"constraints now {param.value}")
-            elif param.name == "max_velocity":
-                self.control.max_velocity = self._speed_limits()
-
-    # -- model ------------------------------------------------------------------------
-    def _load(self, path: str) -> bool:
+    def _stage_model(self, path: str):
+        """Load ``path`` for a ``model_path`` set; a refusal result, or None when loaded."""
+        self._staged = None
+        if not path:
+            if self.controller is None:
+                return None  # the default at start: wait for /learner/model
+            return reject("model_path: empty; the loaded model stays (disable with "
+                          "~/enable to stop)")
         try:
             model, perm = load_policy(path, self.robot.joint_names)
         except (ValueError, OSError) as err:
-            self.get_logger().error(f"model not loaded: {err}")
-            return False
-        self.control.policy = model.policy
-        self.control.permutation = perm
+            return reject(f"model_path: not loaded: {err}")
+        self._staged = (path, model, perm)
+        return None
+
+    def _after_set_parameters(self, params: Sequence[Parameter]) -> None:
+        if self.controller is None:
+            return  # still declaring: __init__ builds the controller from the values
+        control = self.controller
+        for param in params:
+            if param.name == "constraints":
+                control.step.constraints = self._constraints(param.value)
+                self._update_context()
+                self.get_logger().info(f"constraints now {param.value}")
+            elif param.name == "max_velocity":
+                control.step.max_velocity = self._speed_limits()
+            elif param.name == "max_acceleration":
+                control.max_acceleration = param.value
+            elif param.name == "state_timeout_s":
+                control.state_timeout_s = param.value
+            elif param.name == "max_clock_skew_s":
+                control.max_clock_skew_s = param.value
+            elif param.name == "model_path" and self._staged is not None:
+                self._apply_staged()
+
+    # -- model ------------------------------------------------------------------------
+    def _apply_staged(self) -> None:
+        path, model, perm = self._staged
+        self._staged = None
+        self._arm_at_start = False  # a swapped model is never armed without ~/enable
+        out = self.controller.set_policy(model.policy, perm, reason=f"model swap to {path}")
         self.model_path = path
+        self._update_context()
         self.get_logger().info(f"model loaded from {path}")
-        return True
+        self._emit(out)
 
     def _on_model(self, msg: String) -> None:
-        self._load(msg.data)
+        result = self.set_parameters([Parameter("model_path", value=msg.data)])[0]
+        if not result.successful:
+            self.get_logger().error(
+                f"model announced on /learner/model refused: {result.reason}")
+
+    def _update_context(self) -> None:
+        constraints = self.get_parameter("constraints").value
+        self.controller.context = (f"model {self.model_path or '(none)'}; "
+                                   f"constraints {constraints}")
 
     # -- inputs -----------------------------------------------------------------------
     def _on_joint_state(self, msg: JointState) -> None:
-        q = joint_positions(msg, self._index)
-        if q is None:
-            self.get_logger().warning(
-                "joint state without all configured joints or with NaN: ignored",
-                throttle_duration_sec=2.0)
+        now = self._now_ns()
+        q = self._selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
+        if isinstance(q, str):
+            self._count_rejected(q)
+            if q in UNTRUSTWORTHY:
+                self._emit(self.controller.reject_state(f"untrustworthy joint state: {q}"))
             return
-        self._q = q
-        self._q_time = time.monotonic()
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        out = self.controller.joint_state(q, stamp, now)
+        if out.rejected:
+            self._count_rejected(out.rejected)
+        self._emit(out)
+        if self._arm_at_start and not out.rejected:
+            accepted, _, out = self.controller.arm(now)
+            self._arm_at_start = not accepted
+            self._emit(out)
+
+    def _count_rejected(self, reason: str) -> None:
+        self.rejected_states[reason] += 1
+        total = sum(self.rejected_states.values())
+        text = f"joint state rejected: {reason} ({total} rejected so far)"
+        # Another publisher's joints on the same topic are normal; everything else is not.
+        if reason == "unknown_joints":
+            self.get_logger().debug(text, throttle_duration_sec=2.0)
+        else:
+            self.get_logger().warning(text, throttle_duration_sec=2.0)
 
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
-        was = self.enabled
-        self.enabled = bool(request.data)
-        if was and not self.enabled:
-            self.publish_zeros("disabled")
-        response.success = True
-        model = f"model {self.model_path}" if self.control.policy else "no model loaded yet"
-        response.message = f"{'enabled' if self.enabled else 'disabled'} ({model})"
+        self._arm_at_start = False
+        model = f"model {self.model_path}" if self.model_path else "no model loaded"
+        if request.data:
+            accepted, reason, out = self.controller.arm(self._now_ns())
+            response.success = accepted
+            response.message = (f"enabled ({model})" if accepted
+                                else f"refused: {reason} ({model})")
+        else:
+            out = self.controller.disarm("disabled by ~/enable")
+            response.success = True
+            response.message = f"disabled ({model})"
+        self._emit(out)
+        self.publish_diagnostics()
         return response
 
     # -- output -----------------------------------------------------------------------
-    def command(self) -> tuple[np.ndarray, str]:
-        """The command to publish now and, when it is zero for safety, the reason."""
-        n = len(self._index)
-        if not self.enabled:
-            return np.zeros(n), "disabled"
-        if self._q is None or time.monotonic() - self._q_time > self.get_parameter(
-                "state_timeout_s").value:
-            return np.zeros(n), "joint states stale"
-        return self.control(self._q)
-
     def _on_timer(self) -> None:
-        if not self.enabled:
-            # Disabled: the topic belongs to someone else (the zeros went out on disable).
-            return
-        qdot, reason = self.command()
-        if reason and reason != self._zero_reason:
-            self.get_logger().warning(f"publishing zeros: {reason}")
-        self._zero_reason = reason
-        self._pub.publish(Float64MultiArray(data=qdot.tolist()))
+        self._emit(self.controller.tick(self._now_ns()))
+
+    def _emit(self, out: Output) -> None:
+        """Publish the command the controller asks for and log its events."""
+        if out.command is not None:
+            self._pub.publish(Float64MultiArray(data=out.command.tolist()))
+        logger = self.get_logger()
+        for level, text in out.events:
+            # One call site per severity: rclpy keys its logging context on the caller.
+            if level == "warning":
+                logger.warning(text)
+            else:
+                logger.info(text)
+        self._last = out
+
+    def publish_diagnostics(self) -> None:
+        """Publish the executor's status on ``/diagnostics``."""
+        control = self.controller
+        problem = control.state_problem(self._now_ns())
+        if control.armed:
+            level, message = DiagnosticStatus.OK, "armed: following the policy"
+        elif control.publishing:
+            level = DiagnosticStatus.WARN if control.faulted else DiagnosticStatus.OK
+            message = f"disarmed, ramping down: {control.zero_reason}"
+        else:
+            level = DiagnosticStatus.WARN if control.faulted else DiagnosticStatus.OK
+            message = f"disarmed, command zero: {control.zero_reason}"
+        values = {
+            "armed": str(control.armed).lower(),
+            "model": self.model_path or "(none)",
+            "zero_reason": control.zero_reason,
+            "ramp_scale": f"{control.ramp_scale:.3f}",
+            "max_abs_command_rad_s": f"{float(np.max(np.abs(control.command))):.4f}",
+            "max_acceleration_rad_s2": f"{control.max_acceleration:g}",
+            "constraints": self.get_parameter("constraints").value,
+            "joint_states": problem or "fresh",
+            "rejected_joint_states": ", ".join(
+                f"{k}={v}" for k, v in sorted(self.rejected_states.items())) or "0",
+        }
+        status = DiagnosticStatus(
+            level=level, name=f"{self.get_name()}: arming", message=message,
+            hardware_id=str(self.get_parameter("robot").value),
+            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
 
     def publish_zeros(self, why: str) -> None:
         """Publish one zero command and wait briefly for subscribers to acknowledge it."""
-        self._pub.publish(Float64MultiArray(data=[0.0] * len(self._index)))
+        self._pub.publish(Float64MultiArray(data=[0.0] * self.controller.step.n_joints))
         self._pub.wait_for_all_acked(Duration(seconds=0.2))
         self.get_logger().info(f"published zero command ({why})")
 
     def destroy_node(self) -> None:
         """Stop the robot (zero command) before the node goes away."""
-        if self.context.ok() and hasattr(self, "_pub"):
+        if self.context.ok() and hasattr(self, "_pub") and self.controller is not None:
             self.publish_zeros("shutdown")
         super().destroy_node()
 

@@ -1,0 +1,58 @@
+"""Tests of policy_align_ros.data.messages' JointState-to-vector conversion (ROS-free)."""
+
+from array import array
+
+import numpy as np
+import pytest
+
+from policy_align_ros.data.messages import SKIP_REASONS, UNTRUSTWORTHY, JointSelector
+
+
+def test_vector_matches_joints_by_name_and_ignores_extra_joints():
+    sel = JointSelector(["b", "a"])
+    q = sel.vector(["a", "x", "b"], array("d", [1.0, 9.0, 2.0]), array("d", [0.1, 0.2, 0.3]))
+    assert isinstance(q, np.ndarray) and q.dtype == float
+    np.testing.assert_array_equal(q, [2.0, 1.0])
+    # A new array every time: the caller may keep it while the message buffer is reused.
+    buf = array("d", [1.0, 2.0])
+    q = sel.vector(["a", "b"], buf)
+    buf[0] = 5.0
+    np.testing.assert_array_equal(q, [2.0, 1.0])
+
+
+@pytest.mark.parametrize("names, positions, velocities, efforts, reason", [
+    # A joint twice, the second with another value: which one would be the truth?
+    (["a", "b", "a"], [1.0, 2.0, 3.0], [], [], "duplicate_joints"),
+    (["a", "b", "a"], [1.0, 2.0, 1.0], [], [], "duplicate_joints"),
+    (["a", "b"], [1.0], [], [], "length_mismatch"),
+    (["a", "b"], [1.0, 2.0, 3.0], [], [], "length_mismatch"),
+    (["a", "b"], [1.0, 2.0], [0.0], [], "length_mismatch"),
+    (["a", "b"], [1.0, 2.0], [], [0.0, 0.0, 0.0], "length_mismatch"),
+    (["a", "b"], [1.0, float("nan")], [], [], "non_finite"),
+    (["a", "b"], [1.0, float("inf")], [], [], "non_finite"),
+    (["a", "b"], [1.0, 2.0], [0.0, float("nan")], [], "non_finite"),
+    (["x", "y"], [1.0, 2.0], [], [], "unknown_joints"),
+    (["a", "x"], [1.0, 2.0], [], [], "missing_joints"),
+])
+def test_vector_rejects_what_select_rejects(names, positions, velocities, efforts, reason):
+    sel = JointSelector(["a", "b"])
+    assert sel.vector(names, positions, velocities, efforts) == reason
+    # One set of rules: the list conversion (recorder, bags) gives the same reason.
+    assert sel.select(names, positions, velocities, efforts) == reason
+    assert reason in SKIP_REASONS
+    assert (reason in UNTRUSTWORTHY) == (reason not in ("unknown_joints", "missing_joints"))
+
+
+def test_vector_ignores_nan_in_joints_it_does_not_use():
+    sel = JointSelector(["a"])
+    np.testing.assert_array_equal(sel.vector(["a", "z"], [1.0, float("nan")]), [1.0])
+
+
+def test_vector_after_a_cached_name_list_changes_selection():
+    sel = JointSelector(["a", "b"])
+    np.testing.assert_array_equal(sel.vector(["b", "a"], [2.0, 1.0]), [1.0, 2.0])
+    sel.set_joints(["b"])
+    np.testing.assert_array_equal(sel.vector(["b", "a"], [2.0, 1.0]), [2.0])
+    for k in range(100):  # more name lists than the cache holds: still right
+        names = ["b", f"extra_{k}"]
+        np.testing.assert_array_equal(sel.vector(names, [float(k), 0.0]), [float(k)])
