@@ -5,6 +5,7 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align demo [--robot NAME] [--out DIR]
     policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
     policy-align call SERVICE [--data true|false]
+    policy-align param get|set NODE NAME [VALUE]
     policy-align bench toy|grasp|humanoid|scale|executor [--datasets N] [--jobs J] [--out DIR]
 """
 
@@ -39,6 +40,14 @@ def _build_parser() -> argparse.ArgumentParser:
                       help="SetBool request value (omit for Trigger)")
     call.add_argument("--timeout", type=float, default=30.0, help="seconds to wait")
 
+    param = sub.add_parser("param", help="get or set a parameter of a running node")
+    param.add_argument("action", choices=["get", "set"])
+    param.add_argument("node", help="node name, for example /executor")
+    param.add_argument("name", help="parameter name, for example max_velocity")
+    param.add_argument("value", nargs="?", default=None,
+                       help="set only: the value, read as the parameter's type")
+    param.add_argument("--timeout", type=float, default=10.0, help="seconds to wait")
+
     bench = sub.add_parser("bench", help="reproduce the paper's experiments, measure speed")
     bench.add_argument("which",
                        choices=["toy", "grasp", "humanoid", "scale", "executor", "suite"])
@@ -72,9 +81,13 @@ def main(argv: list[str] | None = None) -> int:
 
             return run_demo(args)
         if args.command == "call":
-            from policy_align_ros.nodes.call import run_call
+            from policy_align_ros.client.call import run_call
 
             return run_call(args)
+        if args.command == "param":
+            from policy_align_ros.client.param import run_param
+
+            return run_param(args)
     except KeyboardInterrupt:
         return 130
     except (ValueError, FileNotFoundError) as err:

@@ -1,4 +1,4 @@
-"""Tests of ``policy-align call`` (policy_align_ros.nodes.call; domain ids 190-199)."""
+"""Tests of ``policy-align call`` (policy_align_ros.client.call; domain ids 190-199)."""
 
 import argparse
 import threading
@@ -9,7 +9,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
-from policy_align_ros.nodes.call import run_call
+from policy_align_ros.client.call import run_call
 
 
 @pytest.fixture

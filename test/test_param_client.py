@@ -1,0 +1,88 @@
+"""Tests of ``policy-align param`` (policy_align_ros.client.param; domain ids 230-239)."""
+
+import argparse
+import threading
+
+import pytest
+import rclpy
+from rcl_interfaces.msg import ParameterType, SetParametersResult
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from policy_align_ros.client.param import parse_value, run_param
+
+
+@pytest.fixture
+def target(monkeypatch):
+    """A node ``/target`` with a double (refusing negatives), a string and a bool array."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", "230")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=230)
+    node = Node("target", context=context)
+    node.declare_parameter("gain", 1.5)
+    node.declare_parameter("spec", "[]")
+    node.declare_parameter("flags", [True, False])
+
+    def check(params):
+        for p in params:
+            if p.name == "gain" and p.value < 0:
+                return SetParametersResult(successful=False, reason="gain must be >= 0")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(check)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield node
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        thread.join(timeout=5.0)
+
+
+def _run(action, name, value=None, node="/target", timeout=10.0):
+    return run_param(argparse.Namespace(action=action, node=node, name=name, value=value,
+                                        timeout=timeout))
+
+
+def test_get_prints_value_and_type(target, capsys):
+    assert _run("get", "gain") == 0
+    assert capsys.readouterr().out.strip() == "gain: 1.5 (double)"
+
+
+def test_set_reads_the_value_as_the_parameters_type(target, capsys):
+    assert _run("set", "gain", "2") == 0  # an integer is accepted for a double
+    assert target.get_parameter("gain").value == 2.0
+    yaml_text = "[{type: plane, frame: hand, normal: [0, 0, 1]}]"
+    assert _run("set", "spec", yaml_text) == 0  # a string keeps the text as it is
+    assert target.get_parameter("spec").value == yaml_text
+    assert _run("set", "flags", "[false, true]") == 0
+    assert list(target.get_parameter("flags").value) == [False, True]
+
+
+def test_refusals_and_errors_have_their_exit_status(target, capsys):
+    assert _run("set", "gain", "-1") == 1
+    assert "gain must be >= 0" in capsys.readouterr().err
+    assert target.get_parameter("gain").value == 1.5
+    assert _run("set", "gain", "fast") == 2
+    assert "is not a double" in capsys.readouterr().err
+    assert _run("get", "nope") == 2
+    assert "no parameter 'nope'" in capsys.readouterr().err
+    assert _run("set", "gain") == 2
+    assert _run("get", "gain", node="/absent", timeout=0.5) == 3
+    assert "not available" in capsys.readouterr().err
+
+
+def test_parse_value_rejects_wrong_types():
+    assert parse_value("3", ParameterType.PARAMETER_INTEGER) == 3
+    assert parse_value("[1, 2.5]", ParameterType.PARAMETER_DOUBLE_ARRAY) == [1.0, 2.5]
+    for text, type_id in (("true", ParameterType.PARAMETER_DOUBLE),
+                          ("1.5", ParameterType.PARAMETER_INTEGER),
+                          ("1", ParameterType.PARAMETER_BOOL),
+                          ("3", ParameterType.PARAMETER_STRING_ARRAY),
+                          ("[a", ParameterType.PARAMETER_STRING_ARRAY)):
+        with pytest.raises(ValueError):
+            parse_value(text, type_id)
