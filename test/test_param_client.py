@@ -1,4 +1,4 @@
-"""Tests of ``policy-align param`` (policy_align_ros.client.param; domain ids 230-239)."""
+"""Tests of ``policy-align param`` (policy_align_ros.client.param; domain id 220)."""
 
 import argparse
 import threading
@@ -15,9 +15,9 @@ from policy_align_ros.client.param import parse_value, run_param
 @pytest.fixture
 def target(monkeypatch):
     """A node ``/target`` with a double (refusing negatives), a string and a bool array."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", "230")
+    monkeypatch.setenv("ROS_DOMAIN_ID", "220")
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=230)
+    rclpy.init(context=context, domain_id=220)
     node = Node("target", context=context)
     node.declare_parameter("gain", 1.5)
     node.declare_parameter("spec", "[]")

@@ -10,6 +10,8 @@ colcon build --base-paths "$repo" --build-base "$ws/build" --install-base "$ws/i
   --event-handlers console_direct- > "$ws/colcon.log" 2>&1 || { cat "$ws/colcon.log"; exit 1; }
 exe="$ws/install/policy_align_ros/lib/policy_align_ros/sim_robot"
 test -x "$exe" || { echo "colcon smoke: $exe not installed"; exit 1; }
+launch="$ws/install/policy_align_ros/share/policy_align_ros/launch/policy_align.launch.py"
+test -f "$launch" || { echo "colcon smoke: $launch not installed"; exit 1; }
 set +u; source "$ws/install/setup.bash"; set -u
 export ROS_DOMAIN_ID=$(( 230 + RANDOM % 2 ))
 "$exe" > "$ws/node.log" 2>&1 &

@@ -1,0 +1,51 @@
+"""Launch the policy_align_ros graph in a ROS 2 Jazzy workspace.
+
+    ros2 launch policy_align_ros policy_align.launch.py [sim:=true] [demonstrator:=false]
+        [use_sim_time:=false]
+
+Starts ``recorder``, ``learner`` and ``executor`` with their parameter files from the
+package's ``config/``; ``sim:=true`` adds ``sim_robot`` (a kinematic simulator in place
+of the robot) and ``demonstrator:=true`` the scripted expert. On a real robot leave
+``sim`` false and remap ``/velocity_controller/commands`` to your forward command
+controller's topic (and see the README on what to pair the executor with).
+"""
+
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.substitutions import FindPackageShare
+
+from launch import LaunchDescription
+
+PACKAGE = "policy_align_ros"
+#: Always started; each executable reads ``config/<name>.yaml``.
+CORE_NODES = ("recorder", "learner", "executor")
+#: Started when the launch argument of the same name is true.
+OPTIONAL_NODES = {"sim": "sim_robot", "demonstrator": "demonstrator"}
+
+
+def _node(executable: str, condition=None) -> Node:
+    params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", f"{executable}.yaml"])
+    return Node(
+        package=PACKAGE,
+        executable=executable,
+        name=executable,
+        parameters=[params, {"use_sim_time": LaunchConfiguration("use_sim_time")}],
+        output="screen",
+        condition=condition,
+    )
+
+
+def generate_launch_description() -> LaunchDescription:
+    return LaunchDescription([
+        DeclareLaunchArgument("sim", default_value="true",
+                              description="start sim_robot instead of a real robot"),
+        DeclareLaunchArgument("demonstrator", default_value="false",
+                              description="start the scripted expert"),
+        DeclareLaunchArgument("use_sim_time", default_value="false",
+                              description="run every node on /clock"),
+        *[_node(name) for name in CORE_NODES],
+        *[_node(name, IfCondition(LaunchConfiguration(arg)))
+          for arg, name in OPTIONAL_NODES.items()],
+    ])
