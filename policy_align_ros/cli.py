@@ -6,7 +6,8 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
     policy-align call SERVICE [--data true|false]
     policy-align param get|set NODE NAME [VALUE]
-    policy-align bench toy|grasp|humanoid|scale|executor [--datasets N] [--jobs J] [--out DIR]
+    policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
+        [--seed S] [--out DIR] [--cases a,b] [--set NAME=VALUE]
 """
 
 from __future__ import annotations
