@@ -128,3 +128,40 @@ def test_command_timeout_can_be_changed_at_run_time(rig):
     assert sim.sim.command_timeout_s == 0.5
     assert not sim.set_parameters([Parameter("command_timeout_s", value=0.0)])[0].successful
     assert sim.sim.command_timeout_s == 0.5
+
+
+def test_publishes_its_clock_one_period_per_tick_and_stamps_states_with_it():
+    from rosgraph_msgs.msg import Clock
+
+    from policy_align_ros.nodes.sim_robot import SIM_CLOCK_START_NS
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=178)
+    nodes = []
+    try:
+        sim = SimRobot(context=context, parameter_overrides=[
+            Parameter("joints", value=JOINTS), Parameter("initial_positions", value=START),
+            Parameter("rate_hz", value=100.0), Parameter("publish_clock", value=True),
+            Parameter("real_time_factor", value=5.0)])
+        probe = Node("probe", context=context,
+                     parameter_overrides=[Parameter("use_sim_time", value=True)])
+        nodes += [sim, probe]
+        clocks, states = [], []
+        probe.create_subscription(Clock, "/clock", clocks.append, 1000)
+        probe.create_subscription(JointState, "/joint_states", states.append, 1000)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(sim)
+        executor.add_node(probe)
+        while len(clocks) < 30:  # count ticks, not wall time
+            executor.spin_once(timeout_sec=0.05)
+        ns = [c.clock.sec * 10**9 + c.clock.nanosec for c in clocks]
+        assert ns[0] > SIM_CLOCK_START_NS
+        assert set(np.diff(ns)) == {10_000_000}  # exactly one period per tick
+        stamps = {s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for s in states}
+        assert stamps <= set(ns)
+        # A node on sim time reads the simulated clock.
+        assert SIM_CLOCK_START_NS < probe.get_clock().now().nanoseconds <= ns[-1]
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

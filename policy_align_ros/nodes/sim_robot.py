@@ -5,16 +5,28 @@ Subscribes ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s,
 ``rate_hz``, and offers ``~/reset`` (std_srvs/Trigger) back to ``initial_positions``.
 Commands older than ``command_timeout_s`` are dropped and the robot holds still. The
 integration itself is :class:`policy_align_ros.kinematics.sim.KinematicSim`.
+
+Simulated time: with ``publish_clock`` the node owns the graph's time. Every tick advances
+it by exactly one period (``1 / rate_hz``), publishes it on ``/clock``
+(rosgraph_msgs/Clock) and stamps the joint states with it; ticks come
+``real_time_factor`` times faster than real time, so the graph runs faster (or slower)
+than real time. Other nodes follow with ``use_sim_time:=true``. The simulated clock starts
+at 1 s (a zero stamp reads as "no stamp"), so a restarted simulation makes the clock jump
+backwards, which the executor treats as a reason to disarm. Without ``publish_clock``
+the node's own clock times everything (it honours ``use_sim_time`` like every node).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
+from rclpy.clock import Clock as RclClock
+from rclpy.clock import ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
@@ -30,7 +42,10 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["SimRobot", "main"]
+__all__ = ["SIM_CLOCK_START_NS", "SimRobot", "main"]
+
+#: The simulated clock's first reading [ns] (not 0: a zero stamp means "unstamped").
+SIM_CLOCK_START_NS = 1_000_000_000
 
 
 class SimRobot(Node):
@@ -53,6 +68,11 @@ class SimRobot(Node):
         self.declare_parameter("command_timeout_s", 0.2, descriptor(
             "commands older than this are ignored and the robot holds still [s]",
             float_range=(0.001, 10.0)))
+        self.declare_parameter("publish_clock", False, descriptor(
+            "own the graph's time: publish /clock, one period per tick", read_only=True))
+        self.declare_parameter("real_time_factor", 1.0, descriptor(
+            "with publish_clock: simulated seconds per wall-clock second", read_only=True,
+            float_range=(0.1, 100.0)))
 
         joints = list(self.get_parameter("joints").value)
         self.robot = Robot.load(self.get_parameter("robot").value, joints)
@@ -62,17 +82,36 @@ class SimRobot(Node):
             velocity_limit=_positive_or_inf(self.robot.velocity_limit),
         )
         self._period = 1.0 / self.get_parameter("rate_hz").value
-        self._last_step = time.monotonic()
+        self._sim_clock = bool(self.get_parameter("publish_clock").value)
+        self._sim_ns = SIM_CLOCK_START_NS
+        self._last_step = self._now()
         self._bad_commands = 0
 
+        self._clock_pub = (self.create_publisher(Clock, "/clock", 10)
+                           if self._sim_clock else None)
         self._pub = self.create_publisher(JointState, "/joint_states", 10)
         self.create_subscription(
             Float64MultiArray, "/velocity_controller/commands", self._on_command, 10)
         self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_timer(self._period, self._on_timer)
+        factor = self.get_parameter("real_time_factor").value if self._sim_clock else 1.0
+        # With a simulated clock the ticks are paced by the wall clock, whatever
+        # use_sim_time says: this node is the source of /clock.
+        self.create_timer(self._period / factor, self._on_timer,
+                          clock=self._wall_clock() if self._sim_clock else None)
         self.get_logger().info(
             f"simulating {self.robot.name} with {len(joints)} joints at "
-            f"{1.0 / self._period:g} Hz")
+            f"{1.0 / self._period:g} Hz"
+            + (f", publishing /clock at {factor:g}x real time" if self._sim_clock else ""))
+
+    @staticmethod
+    def _wall_clock() -> RclClock:
+        return RclClock(clock_type=ClockType.STEADY_TIME)
+
+    def _now(self) -> float:
+        """Seconds on the simulated clock (``publish_clock``) or the node's clock."""
+        if self._sim_clock:
+            return self._sim_ns * 1e-9
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _initial_positions(self) -> np.ndarray:
         values = optional_parameter(self, "initial_positions")
@@ -100,7 +139,7 @@ class SimRobot(Node):
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         try:
-            self.sim.set_command(np.asarray(msg.data, dtype=float), time.monotonic())
+            self.sim.set_command(np.asarray(msg.data, dtype=float), self._now())
         except ValueError as err:
             self._bad_commands += 1
             self.get_logger().warning(
@@ -116,15 +155,23 @@ class SimRobot(Node):
         return response
 
     def _on_timer(self) -> None:
-        now = time.monotonic()
+        if self._sim_clock:
+            self._sim_ns += int(round(self._period * 1e9))
+            self._clock_pub.publish(Clock(clock=self._stamp()))
+        now = self._now()
         # A late timer tick must not turn into one big jump: cap the step at two periods.
-        dt = min(now - self._last_step, 2.0 * self._period)
+        dt = min(max(now - self._last_step, 0.0), 2.0 * self._period)
         self._last_step = now
         self._publish(self.sim.step(dt, now))
 
+    def _stamp(self):
+        if self._sim_clock:
+            return Time(nanoseconds=self._sim_ns).to_msg()
+        return self.get_clock().now().to_msg()
+
     def _publish(self, q: np.ndarray) -> None:
         msg = JointState()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = self._stamp()
         msg.name = list(self.robot.joint_names)
         msg.position = q.tolist()
         msg.velocity = self.sim.qdot.tolist()
