@@ -60,6 +60,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.blas
 import scipy.sparse
 
 from policy_align_ros.learning.regressors._common import (
@@ -134,12 +135,13 @@ class _FoldGrams:
     """
 
     def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
-                 n: int):
+                 n: int, base: _FoldGrams | None = None):
+        """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
+        shared by every length scale), so only the blocks of the new columns are summed."""
         self.n = n
         n_demos = len(demo_fold)
         onehot = scipy.sparse.csr_matrix(
             (np.ones(len(u)), (demo, np.arange(len(u)))), shape=(n_demos, len(u)))
-        self.Ak = np.asarray(onehot @ A)              # (K, p) sums per demonstration
         self.sk = onehot @ u                          # (K,)
         self.nk = np.bincount(demo, minlength=n_demos).astype(float)
         self.demo_fold = demo_fold
@@ -149,7 +151,18 @@ class _FoldGrams:
             raise ValueError("_FoldGrams: samples must be sorted by fold")
         bounds = np.searchsorted(fold, np.arange(n_folds + 1))
         rows = [slice(bounds[f], bounds[f + 1]) for f in range(n_folds)]
-        self.G = np.stack([A[r].T @ A[r] for r in rows])
+        q = 0 if base is None else base.G.shape[1]
+        new = A[:, q:]
+        Ak = np.asarray(onehot @ new)
+        self.Ak = Ak if base is None else np.hstack([base.Ak, Ak])  # (K, p) per-demo sums
+        p = A.shape[1]
+        self.G = np.empty((n_folds, p, p))
+        for f, r in enumerate(rows):
+            self.G[f, q:, q:] = _gram(new[r])
+            if base is not None:
+                self.G[f, :q, :q] = base.G[f]
+                self.G[f, :q, q:] = A[r, :q].T @ new[r]
+                self.G[f, q:, :q] = self.G[f, :q, q:].T
         self.r = np.stack([A[r].T @ u[r] for r in rows])
         self.uu = np.array([u[r] @ u[r] for r in rows])
         self.G_all, self.r_all = self.G.sum(axis=0), self.r.sum(axis=0)
@@ -207,6 +220,14 @@ class _FoldGrams:
             G = G - (Ak * c[:, None]).T @ Ak
             r = r - Ak.T @ (c * self.sk[train])
         return G, r, m
+
+
+def _gram(A: np.ndarray) -> np.ndarray:
+    """``A' A`` (p, p) through the symmetric rank-k update (half the work of ``A.T @ A``)."""
+    if A.shape[0] == 0:
+        return np.zeros((A.shape[1], A.shape[1]))
+    upper = scipy.linalg.blas.dsyrk(1.0, np.asarray(A, dtype=float), trans=1)
+    return np.triu(upper) + np.triu(upper, 1).T
 
 
 def _convex_solve(M: np.ndarray, b: np.ndarray, n: int) -> np.ndarray | None:
@@ -412,7 +433,7 @@ class TrendKernelRegression:
                     k_grid[len(k_grid) // 2], o_grid[-1])
         else:
             # 1. The trend alone picks its penalty and the offsets' ...
-            grams = _FoldGrams(F, u, demo, demo_fold, n)
+            trend_grams = grams = _FoldGrams(F, u, demo, demo_fold, n)
             se: dict[tuple[float, float, float, float], float] = {}
             for o in o_grid:
                 scores = grams.scores([self._trend_penalty(n, t) for t in t_grid], o)
@@ -425,7 +446,7 @@ class TrendKernelRegression:
             t_best, o_best = best[0], best[3]
             for ell in lengths if finite_k else ():
                 grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold,
-                                   n)
+                                   n, base=trend_grams)
                 Kcc = _gaussian(C, C, ell)
                 scores = grams.scores([self._penalty(n, t_best, k, Kcc) for k in finite_k],
                                       o_best)
