@@ -6,6 +6,10 @@ directories of the runs: ``suite/suite.md``, ``toy/toy.md``, ``grasp/grasp.md``,
 ``demo/report.txt``. Figures are
 copied to ``docs/``. The README then shows exactly what the commands printed. Outputs
 missing from OUT_DIR leave their blocks and figures as they are.
+
+``python tools/update_readme.py --params`` regenerates the parameter tables (block
+``params``) from the descriptors the nodes declare (policy_align_ros.client.param_table);
+``test/test_readme.py`` fails when they disagree with the code.
 """
 
 from __future__ import annotations
@@ -29,6 +33,22 @@ FIGURES = {"toy/toy.png": "toy.png", "grasp/grasp.png": "grasp.png",
            "demo/demo_distance.png": "demo_distance.png", "demo/demo_hands.png": "demo_hands.png"}
 
 
+def replace_block(text: str, name: str, body: str) -> str:
+    """``text`` with the lines between ``<!-- BEGIN name -->`` and ``<!-- END name -->``
+    replaced by ``body``."""
+    pattern = re.compile(rf"(<!-- BEGIN {name} -->\n).*?(<!-- END {name} -->)", re.S)
+    if not pattern.search(text):
+        raise SystemExit(f"README.md has no markers for {name}")
+    return pattern.sub(lambda m: m.group(1) + body + "\n" + m.group(2), text)
+
+
+def update_params(readme: Path = Path("README.md")) -> int:
+    from policy_align_ros.client.param_table import parameter_tables
+
+    readme.write_text(replace_block(readme.read_text(), "params", parameter_tables()))
+    return 0
+
+
 def main(out: Path, readme: Path = Path("README.md")) -> int:
     text = readme.read_text()
     for name, (source, fence) in BLOCKS.items():
@@ -39,10 +59,7 @@ def main(out: Path, readme: Path = Path("README.md")) -> int:
         body = re.sub(r"^#+ ", "### ", body, count=1) if fence is None else body
         if fence:
             body = f"{fence}\n{body}\n{fence}"
-        pattern = re.compile(rf"(<!-- BEGIN {name} -->\n).*?(<!-- END {name} -->)", re.S)
-        if not pattern.search(text):
-            raise SystemExit(f"README.md has no markers for {name}")
-        text = pattern.sub(lambda m, b=body: m.group(1) + b + "\n" + m.group(2), text)
+        text = replace_block(text, name, body)
     readme.write_text(text)
     for source, target in FIGURES.items():
         if (out / source).exists():
@@ -52,5 +69,5 @@ def main(out: Path, readme: Path = Path("README.md")) -> int:
 
 if __name__ == "__main__":
     if len(sys.argv) != 2:
-        raise SystemExit("usage: python tools/update_readme.py OUT_DIR")
-    sys.exit(main(Path(sys.argv[1])))
+        raise SystemExit("usage: python tools/update_readme.py OUT_DIR | --params")
+    sys.exit(update_params() if sys.argv[1] == "--params" else main(Path(sys.argv[1])))
