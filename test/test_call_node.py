@@ -1,11 +1,8 @@
 """Tests of ``policy-align call`` (policy_align_ros.client.call; domain ids 190-199)."""
 
 import argparse
-import threading
 
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
@@ -13,11 +10,10 @@ from policy_align_ros.client.call import run_call
 
 
 @pytest.fixture
-def services(monkeypatch):
+def services(monkeypatch, ros_context, ros_spin):
     """A node offering /ok (Trigger, success), /no (Trigger, failure), /flag (SetBool)."""
     monkeypatch.setenv("ROS_DOMAIN_ID", "190")
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=190)
+    context = ros_context(190)
     node = Node("services", context=context)
     seen = []
 
@@ -35,17 +31,8 @@ def services(monkeypatch):
     node.create_service(Trigger, "/ok", trigger(True))
     node.create_service(Trigger, "/no", trigger(False))
     node.create_service(SetBool, "/flag", flag)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    try:
+    with ros_spin(context, node):
         yield seen
-    finally:
-        executor.shutdown()
-        thread.join(timeout=5.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def _call(service, data=None, timeout=10.0):

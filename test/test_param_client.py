@@ -1,23 +1,19 @@
-"""Tests of ``policy-align param`` (policy_align_ros.client.param; domain id 220)."""
+"""Tests of ``policy-align param`` (policy_align_ros.client.param; domain id 191)."""
 
 import argparse
-import threading
 
 import pytest
-import rclpy
 from rcl_interfaces.msg import ParameterType, SetParametersResult
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from policy_align_ros.client.param import parse_value, run_param
 
 
 @pytest.fixture
-def target(monkeypatch):
+def target(monkeypatch, ros_context, ros_spin):
     """A node ``/target`` with a double (refusing negatives), a string and a bool array."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", "220")
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=220)
+    monkeypatch.setenv("ROS_DOMAIN_ID", "191")
+    context = ros_context(191)
     node = Node("target", context=context)
     node.declare_parameter("gain", 1.5)
     node.declare_parameter("spec", "[]")
@@ -30,17 +26,8 @@ def target(monkeypatch):
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(check)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    try:
+    with ros_spin(context, node):
         yield node
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        thread.join(timeout=5.0)
 
 
 def _run(action, name, value=None, node="/target", timeout=10.0):

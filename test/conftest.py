@@ -1,0 +1,90 @@
+"""Shared fixtures of the ROS 2 tests.
+
+Every ROS test owns an ``rclpy.Context`` on its own DDS domain, so tests (and a demo running
+beside them) never see each other's topics. Domain ids are given per module (see each
+module's docstring; all within Fast DDS's valid range 0-232); ``ros_context`` refuses an id
+that another test module already used in this session: two modules sharing an id is the
+mistake that makes a test see another's nodes when test runs overlap.
+
+* ``ros_context(domain_id)`` -> an initialised context, shut down after the test.
+* ``spun(context, *nodes)`` -> the nodes spinning in a background executor, stopped after
+  the test (a context manager, for rigs that build their own nodes).
+* ``wait_for(predicate, timeout)`` -> poll until true; the timeout only bounds a failure, it
+  never decides a pass, so no assertion depends on the machine's speed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+
+_USED_DOMAINS: dict[int, str] = {}
+
+
+@pytest.fixture
+def ros_context(request):
+    """Factory: ``ros_context(domain_id)`` returns a fresh, initialised ``rclpy.Context``."""
+    import rclpy
+
+    made = []
+
+    def make(domain_id: int):
+        if not 0 <= domain_id <= 232:
+            raise ValueError(f"domain_id {domain_id} outside Fast DDS's range 0-232")
+        owner = _USED_DOMAINS.setdefault(domain_id, request.module.__name__)
+        if owner != request.module.__name__:
+            raise ValueError(f"domain_id {domain_id} already used by {owner}")
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=domain_id)
+        made.append(context)
+        return context
+
+    yield make
+    for context in made:
+        rclpy.try_shutdown(context=context)
+
+
+@contextlib.contextmanager
+def spun(context, *nodes) -> Iterator[None]:
+    """Spin ``nodes`` in a background executor of ``context`` until the block ends."""
+    from rclpy.executors import MultiThreadedExecutor
+
+    executor = MultiThreadedExecutor(context=context)
+    for node in nodes:
+        executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        executor.shutdown()
+        thread.join(timeout=5.0)
+        for node in nodes:
+            node.destroy_node()
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float = 20.0, step: float = 0.02
+             ) -> bool:
+    """Poll ``predicate`` until it is true or ``timeout`` seconds pass; its last value."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return bool(predicate())
+        time.sleep(step)
+    return True
+
+
+@pytest.fixture
+def ros_spin():
+    """The ``spun`` context manager, as a fixture."""
+    return spun
+
+
+@pytest.fixture
+def wait():
+    """The ``wait_for`` poller, as a fixture."""
+    return wait_for
