@@ -70,3 +70,11 @@ def test_object_arrays_are_refused(tmp_path):
     with pytest.raises(ValueError, match="pickle"):
         save_npz(tmp_path / "bad.npz", {"kind": "x"}, {"bad": np.array([{}], dtype=object)})
     assert not list(tmp_path.iterdir())
+
+
+def test_bytes_that_are_no_archive_are_not_called_a_pickle(tmp_path):
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"junk")
+    with pytest.raises(ValueError, match="junk.npz: truncated or not a model file") as err:
+        load_npz(junk, "policy_align")
+    assert "pickle" not in str(err.value)

@@ -73,6 +73,9 @@ def load_npz(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: model file not found")
+    if not zipfile.is_zipfile(path):
+        # np.load would take any other bytes for a pickle and say so, which misleads.
+        raise ValueError(f"{path}: truncated or not a model file (not an .npz archive)")
     try:
         with np.load(path, allow_pickle=False) as data:
             if _HEADER not in data.files:
