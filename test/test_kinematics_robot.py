@@ -134,3 +134,18 @@ def test_every_known_name_resolves(name: str) -> None:
     robot = Robot.load(name)
     assert robot.urdf.is_file()
     assert robot.nq == len(robot.joint_names) == robot.neutral().shape[0] > 0
+
+
+def test_locked_posture_and_urdf_hash(talos_arm: Robot) -> None:
+    import hashlib
+
+    full = Robot.load("talos")
+    assert full.locked_posture == {}
+    assert set(talos_arm.locked_posture) == set(full.joint_names) - set(TALOS_ARM)
+    q_ref = dict(zip(full.joint_names, full.neutral(), strict=True))
+    for joint, values in talos_arm.locked_posture.items():
+        assert values == [pytest.approx(q_ref[joint])]
+    moved = Robot.load("talos", joints=TALOS_ARM, reference={"arm_right_4_joint": -1.0})
+    assert moved.locked_posture["arm_right_4_joint"] == [-1.0]
+    expect = hashlib.sha256(talos_arm.urdf.read_bytes()).hexdigest()
+    assert talos_arm.urdf_sha256() == expect != Robot.load("panda").urdf_sha256()

@@ -23,6 +23,7 @@ human     human_description/robots/human.urdf         none (zeros clipped to lim
 from __future__ import annotations
 
 import difflib
+import hashlib
 import importlib.metadata
 import os
 import sysconfig
@@ -151,6 +152,9 @@ class Robot:
         self.velocity_limit = np.array(model.velocityLimit, dtype=float)[idx]
         self._q_ref = np.array(q_ref, dtype=float)[idx]
         self.frame_names: list[str] = [f.name for f in model.frames]
+        #: Posture (joint -> its ``nq`` configuration values) at which every joint outside
+        #: the subset is locked; filled by :meth:`load`.
+        self.locked_posture: dict[str, list[float]] = {}
         self._frame_ids: dict[str, int] = {}
         for fid, frame in enumerate(model.frames):
             self._frame_ids.setdefault(frame.name, fid)
@@ -214,8 +218,14 @@ class Robot:
         lock = [full.getJointId(j) for j in names if j not in keep]
         model = pin.buildReducedModel(full, lock, q_full) if lock else full
         tree_keep = [n for n in names if n in keep]
-        return cls(model, _subset(full, q_full, tree_keep), name=str(name_or_urdf),
-                   urdf=urdf, joint_order=keep)
+        robot = cls(model, _subset(full, q_full, tree_keep), name=str(name_or_urdf),
+                    urdf=urdf, joint_order=keep)
+        robot.locked_posture = _locked_posture(full, q_full, keep)
+        return robot
+
+    def urdf_sha256(self) -> str:
+        """Hex SHA-256 of the URDF file's bytes (identifies the kinematic description)."""
+        return hashlib.sha256(Path(self.urdf).read_bytes()).hexdigest()
 
     def neutral(self) -> np.ndarray:
         """Reference posture of the joint subset, shape (n,)."""
@@ -297,6 +307,17 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"Robot({self.name!r}, n={self.nq})"
+
+
+def _locked_posture(full: pin.Model, q_full: np.ndarray, keep: Sequence[str]
+                    ) -> dict[str, list[float]]:
+    out = {}
+    for jid in range(1, full.njoints):
+        name = full.names[jid]
+        if name not in keep:
+            jm = full.joints[jid]
+            out[name] = [float(v) for v in q_full[jm.idx_q:jm.idx_q + jm.nq]]
+    return out
 
 
 def _subset(full: pin.Model, q_full: np.ndarray, keep: list[str]) -> np.ndarray:

@@ -1,0 +1,399 @@
+"""Tests of policy_align_ros.kinematics.task_space (frame states, Jacobian, joint map)."""
+
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from policy_align_ros.kinematics import (
+    FrameStateDefinition,
+    Robot,
+    TaskSpaceMap,
+    TaskSpacePolicy,
+    constraint_from_spec,
+    nullspace_projector,
+    parse_state_spec,
+)
+from policy_align_ros.kinematics.robot import robots_dir
+from policy_align_ros.kinematics.task_space import (
+    damped_pinv,
+    secondary_velocity,
+    task_to_joint_velocity,
+)
+
+ARM = [f"arm_left_{i}_joint" for i in range(1, 8)] + ["torso_1_joint", "torso_2_joint"]
+HAND = "gripper_left_base_link"
+ELBOW = "arm_left_4_link"
+
+
+@pytest.fixture(scope="module")
+def robot() -> Robot:
+    return Robot.load("talos", joints=ARM)
+
+
+@pytest.fixture(scope="module")
+def hand_map(robot: Robot) -> TaskSpaceMap:
+    return TaskSpaceMap(robot, [HAND])
+
+
+def _joint_trajectory(robot: Robot, m: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    steps = 0.05 * rng.standard_normal((m, robot.nq))
+    return robot.clip(robot.neutral() + np.cumsum(steps, axis=0))
+
+
+class Attractor:
+    """``pi_x(x) = -2 w (x - c)``, the policy of ``phi_x = w ||x - c||^2``, for tests."""
+
+    def __init__(self, center: np.ndarray, w: float = 0.5) -> None:
+        self.center, self.w = np.asarray(center, dtype=float), w
+
+    def policy(self, X: np.ndarray) -> np.ndarray:
+        return -2.0 * self.w * (np.asarray(X) - self.center)
+
+
+def test_states_of_recorded_joint_trajectories_match_forward_kinematics(robot: Robot
+                                                                        ) -> None:
+    smap = TaskSpaceMap(robot, [HAND, ELBOW])
+    Q = _joint_trajectory(robot, 40, seed=1)
+    X = smap.states(Q)
+    assert X.shape == (40, 6)
+    expect = np.array([np.r_[robot.frame_position(q, HAND), robot.frame_position(q, ELBOW)]
+                       for q in Q])
+    np.testing.assert_allclose(X, expect, atol=1e-12)
+    np.testing.assert_allclose(smap(Q[3]), expect[3], atol=1e-12)
+    # The positions really change along the trajectory (the check is not vacuous).
+    assert np.ptp(X, axis=0).max() > 0.05
+
+
+def test_states_refuse_bad_joint_rows(hand_map: TaskSpaceMap) -> None:
+    Q = np.tile(hand_map.robot.neutral(), (3, 1))
+    Q[2, 4] = np.nan
+    with pytest.raises(ValueError, match="Q: row 2 contains NaN"):
+        hand_map.states(Q)
+    with pytest.raises(ValueError, match=r"Q: must have shape \(m, 9\)"):
+        hand_map.states(np.zeros((3, 8)))
+    with pytest.raises(ValueError, match=r"q: must have shape \(9,\)"):
+        hand_map.kinematics(np.zeros(4))
+
+
+def test_jacobian_matches_finite_differences_with_pin_integrate(robot: Robot) -> None:
+    smap = TaskSpaceMap(robot, [HAND, ELBOW])
+    model, data = robot.model, robot.model.createData()
+    fids = [robot.frame_id(HAND), robot.frame_id(ELBOW)]
+    iq = [model.joints[model.getJointId(j)].idx_q for j in robot.joint_names]
+    iv = [model.joints[model.getJointId(j)].idx_v for j in robot.joint_names]
+
+    def positions(q_pin: np.ndarray) -> np.ndarray:
+        pin.forwardKinematics(model, data, q_pin)
+        pin.updateFramePlacements(model, data)
+        return np.concatenate([data.oMf[f].translation for f in fids])
+
+    h = 1e-6
+    for q in _joint_trajectory(robot, 3, seed=2):
+        x, J = smap.kinematics(q)
+        q_pin = pin.neutral(model)
+        q_pin[iq] = q
+        np.testing.assert_allclose(x, positions(q_pin), atol=1e-12)
+        fd = np.empty_like(J)
+        for col, v in enumerate(iv):
+            dv = np.zeros(model.nv)
+            dv[v] = h
+            plus = positions(pin.integrate(model, q_pin, dv))
+            minus = positions(pin.integrate(model, q_pin, -dv))
+            fd[:, col] = (plus - minus) / (2 * h)
+        np.testing.assert_allclose(J, fd, atol=1e-7)
+        assert np.abs(J).max() > 0.1
+
+
+def test_root_frame_must_be_fixed_to_the_world(robot: Robot) -> None:
+    base = TaskSpaceMap(robot, [HAND], root_frame="base_link")
+    q = robot.neutral()
+    np.testing.assert_allclose(base.states(q), robot.frame_position(q, HAND), atol=1e-12)
+    with pytest.raises(ValueError, match="root_frame: 'arm_left_2_link' moves with"):
+        TaskSpaceMap(robot, [HAND], root_frame="arm_left_2_link")
+    with pytest.raises(ValueError, match="root_frame: unknown frame 'nowhere'"):
+        TaskSpaceMap(robot, [HAND], root_frame="nowhere")
+    with pytest.raises(ValueError, match="frame: unknown frame 'hand'"):
+        TaskSpaceMap(robot, ["hand"])
+    with pytest.raises(ValueError, match="listed twice"):
+        TaskSpaceMap(robot, [HAND, HAND])
+
+
+def _step_velocity(smap: TaskSpaceMap, q: np.ndarray, qdot: np.ndarray, h: float = 1e-6
+                   ) -> np.ndarray:
+    return (smap.states(q + h * qdot) - smap.states(q - h * qdot)) / (2 * h)
+
+
+def test_command_moves_frames_along_policy_unconstrained(robot: Robot,
+                                                         hand_map: TaskSpaceMap) -> None:
+    q = robot.neutral()
+    x = hand_map.states(q)
+    pol = Attractor(x + np.array([0.1, -0.05, 0.08]))
+    tsp = TaskSpacePolicy(pol, hand_map)
+    qdot = tsp.command(q)
+    pi_x = pol.policy(x[None])[0]
+    np.testing.assert_allclose(_step_velocity(hand_map, q, qdot), pi_x, atol=1e-6)
+    # An Euler step moves the hand along pi_x to first order: the error is O(dt^2).
+    errs = [np.linalg.norm(hand_map.states(q + dt * qdot) - x - dt * pi_x)
+            for dt in (1e-2, 1e-3)]
+    assert errs[0] < 0.02 * 1e-2 * np.linalg.norm(pi_x)
+    assert 50.0 < errs[0] / errs[1] < 200.0
+    out = tsp(np.stack([q, q]))
+    assert out.shape == (2, robot.nq)
+    np.testing.assert_allclose(out[1], qdot)
+
+
+def test_command_under_a_plane_constraint_moves_along_projected_policy(
+        robot: Robot, hand_map: TaskSpaceMap) -> None:
+    normal = np.array([0.0, 0.6, 0.8])
+    plane = constraint_from_spec({"type": "plane", "frame": HAND, "normal": normal.tolist()},
+                                 robot)
+    for q in _joint_trajectory(robot, 3, seed=4):
+        x = hand_map.states(q)
+        pol = Attractor(x + np.array([0.1, 0.1, -0.1]))
+        qdot = TaskSpacePolicy(pol, hand_map, plane).command(q)
+        A = plane.matrix(q)
+        assert np.abs(A @ qdot).max() < 1e-10
+        N_x = np.eye(3) - np.outer(normal, normal)
+        expect = N_x @ pol.policy(x[None])[0]
+        np.testing.assert_allclose(_step_velocity(hand_map, q, qdot), expect, atol=1e-6)
+
+
+def test_held_elbow_height_keeps_still_while_hand_follows_policy(robot: Robot,
+                                                          hand_map: TaskSpaceMap) -> None:
+    hold = constraint_from_spec({"type": "position", "frame": ELBOW, "axes": ["z"]}, robot)
+    elbow = TaskSpaceMap(robot, [ELBOW])
+    q = robot.neutral()
+    x = hand_map.states(q)
+    pol = Attractor(x + np.array([0.05, 0.05, 0.05]))
+    qdot = TaskSpacePolicy(pol, hand_map, hold).command(q)
+    A = hold.matrix(q)
+    assert np.abs(A @ qdot).max() < 1e-10
+    assert abs(_step_velocity(elbow, q, qdot)[2]) < 1e-8
+    # Hand and elbow height leave J N_A well conditioned here, so the hand is exact.
+    J = hand_map.jacobian(q)
+    assert np.linalg.svd(J @ nullspace_projector(A), compute_uv=False).min() > 0.05
+    np.testing.assert_allclose(_step_velocity(hand_map, q, qdot), pol.policy(x[None])[0],
+                               atol=1e-6)
+
+
+def test_locked_joint_is_a_constraint_row_not_a_zeroed_component(robot: Robot,
+                                                                 hand_map: TaskSpaceMap
+                                                                 ) -> None:
+    locked = ["arm_left_4_joint", "torso_1_joint"]
+    lock = constraint_from_spec({"type": "joints", "joints": locked}, robot)
+    q = robot.neutral()
+    x = hand_map.states(q)
+    pol = Attractor(x + np.array([0.05, -0.05, 0.05]))
+    qdot = TaskSpacePolicy(pol, hand_map, lock).command(q)
+    idx = [robot.joint_names.index(j) for j in locked]
+    assert np.abs(qdot[idx]).max() < 1e-12
+    # The other joints take over the task: the hand still follows pi_x exactly, which
+    # zeroing the locked components of the unconstrained command would not give.
+    np.testing.assert_allclose(_step_velocity(hand_map, q, qdot), pol.policy(x[None])[0],
+                               atol=1e-6)
+    free = TaskSpacePolicy(pol, hand_map).command(q)
+    zeroed = free.copy()
+    zeroed[idx] = 0.0
+    assert np.linalg.norm(_step_velocity(hand_map, q, zeroed) - pol.policy(x[None])[0]) > 1e-3
+
+
+def test_joint_at_a_limit_is_not_pushed_out(robot: Robot, hand_map: TaskSpaceMap) -> None:
+    q = robot.neutral()
+    j = robot.joint_names.index("arm_left_4_joint")
+    q[j] = robot.upper[j]
+    x = hand_map.states(q)
+    # Ask for motion the unconstrained map does with that joint going up past its limit.
+    for d in np.eye(3).tolist() + (-np.eye(3)).tolist():
+        pol = Attractor(x + 0.1 * np.array(d))
+        free = task_to_joint_velocity(hand_map.jacobian(q), pol.policy(x[None])[0],
+                                      np.zeros((0, robot.nq)))
+        if free[j] > 1e-3:
+            break
+    else:
+        pytest.fail("no direction pushes the elbow out of its limit")
+    qdot = TaskSpacePolicy(pol, hand_map, limit_gain=0.0).command(q)
+    assert qdot[j] <= 1e-12
+
+
+def test_damping_bounds_qdot_at_a_constraint_induced_singularity() -> None:
+    # J and A are each well conditioned (singular values 1), but J N_A loses rank as
+    # eps -> 0: the constraint row nearly kills the task's second direction.
+    J = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    xdot = np.array([0.1, 0.1])
+    norms, undamped = [], []
+    for eps in np.logspace(-1, -8, 8):
+        A = np.array([[0.0, 1.0, eps]])
+        assert np.linalg.svd(A, compute_uv=False).min() > 0.99
+        qdot = task_to_joint_velocity(J, xdot, A, threshold=0.05, damping=0.05)
+        assert abs((A @ qdot).item()) < 1e-12
+        norms.append(np.linalg.norm(qdot))
+        raw = task_to_joint_velocity(J, xdot, A, threshold=0.0, damping=0.0)
+        undamped.append(np.linalg.norm(raw))
+    # Bounded by |xdot| / damping; the undamped inverse grows like 1 / eps.
+    assert max(norms) <= np.linalg.norm(xdot) / 0.05 + 1e-9
+    assert undamped[-2] > 1e4
+    # Far from the singularity (eps = 0.1 gives s_min ~ 0.1 > threshold) it is exact.
+    np.testing.assert_allclose(norms[0], undamped[0])
+
+
+def test_damping_bounds_qdot_with_the_elbow_held_on_talos(robot: Robot,
+                                                         hand_map: TaskSpaceMap) -> None:
+    # Holding the elbow leaves the hand about 1.6 mm/rad of motion along one direction:
+    # a singularity of J N_A that neither J nor A has.
+    hold = constraint_from_spec({"type": "position", "frame": ELBOW}, robot)
+    q = robot.neutral()
+    A, J = hold.matrix(q), hand_map.jacobian(q)
+    assert np.linalg.svd(J, compute_uv=False).min() > 0.1
+    assert np.linalg.svd(A, compute_uv=False).min() > 0.02
+    assert np.linalg.svd(J @ nullspace_projector(A), compute_uv=False).min() < 0.002
+    x = hand_map.states(q)
+    for d in np.eye(3):
+        pol = Attractor(x + 0.1 * d)
+        qdot = TaskSpacePolicy(pol, hand_map, hold, rest_gain=0.0, limit_gain=0.0).command(q)
+        assert np.abs(A @ qdot).max() < 1e-10
+        assert np.linalg.norm(qdot) <= np.linalg.norm(pol.policy(x[None])) / 0.05 + 1e-9
+
+
+def test_damped_pinv_is_exact_above_threshold_and_continuous() -> None:
+    rng = np.random.default_rng(5)
+    B = rng.standard_normal((3, 5))
+    pinv, basis = damped_pinv(B, threshold=1e-3, damping=1e-3)
+    np.testing.assert_allclose(pinv, np.linalg.pinv(B), atol=1e-12)
+    np.testing.assert_allclose(basis @ basis.T, np.linalg.pinv(B) @ B, atol=1e-12)
+    gains = [damped_pinv(np.array([[s]]), 0.05, 0.05)[0][0, 0]
+             for s in (0.05 - 1e-9, 0.05 + 1e-9)]
+    assert abs(gains[0] - gains[1]) < 1e-5
+    assert damped_pinv(np.zeros((0, 4)))[0].shape == (4, 0)
+
+
+def test_secondary_velocity_pulls_to_rest_away_from_limits_and_is_clamped() -> None:
+    lower, upper = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    z = secondary_velocity(np.array([0.1, 0.0]), np.zeros(2), lower, upper, rest_gain=1.0)
+    np.testing.assert_allclose(z, [-0.1, 0.0])
+    near = secondary_velocity(np.array([0.95, -0.99]), np.array([0.95, -0.99]), lower,
+                              upper, limit_gain=1.0, limit_margin=0.1, max_speed=10.0)
+    np.testing.assert_allclose(near, [-0.75, 0.95])  # margins 0.2 rad wide
+    big = secondary_velocity(np.array([0.0, 0.0]), np.array([5.0, 5.0]), lower, upper,
+                             rest_gain=1.0, max_speed=0.5)
+    assert np.linalg.norm(big) == pytest.approx(0.5)
+
+
+def _circle_rollout(robot: Robot, smap: TaskSpaceMap, steps: int, **gains: float
+                    ) -> tuple[np.ndarray, float, float]:
+    """Hand tracks a 6 cm circle (period 2 s) for ``steps`` Euler steps of 10 ms."""
+    q0 = robot.neutral()
+    x0 = smap.states(q0)
+    clock = {"t": 0.0}
+    w = 2 * np.pi / 2.0
+
+    def circle(X: np.ndarray) -> np.ndarray:
+        t = clock["t"]
+        target = x0 + 0.06 * np.array([np.cos(w * t) - 1.0, 0.0, np.sin(w * t)])
+        feed = 0.06 * w * np.array([-np.sin(w * t), 0.0, np.cos(w * t)])
+        return (feed + 5.0 * (target - X[0]))[None]
+
+    tsp = TaskSpacePolicy(circle, smap, **gains)
+    q, dt, span = q0.copy(), 0.01, robot.upper - robot.lower
+    dist, margin, err = [], 1.0, 0.0
+    for k in range(steps):
+        clock["t"] = k * dt
+        q = q + dt * tsp.command(q)
+        margin = min(margin, float(np.min(np.minimum(q - robot.lower, robot.upper - q) / span)))
+        if k % 200 == 199:  # once per period, at the same point of the circle
+            dist.append(np.linalg.norm(q - q0))
+            err = max(err, float(np.linalg.norm(smap.states(q) - x0)))
+    return np.array(dist), margin, err
+
+
+def test_self_motion_does_not_drift_to_joint_limits(robot: Robot,
+                                                    hand_map: TaskSpaceMap) -> None:
+    dist, margin, err = _circle_rollout(robot, hand_map, 3000)
+    # Over 15 periods the posture returns to the same place each period: no drift.
+    assert np.ptp(dist[2:]) < 1e-3
+    assert margin > 0.02
+    assert err < 5e-3  # the secondary term does not disturb the task
+    # Without the secondary term the same task drifts (so the check above can fail).
+    free, _, err_free = _circle_rollout(robot, hand_map, 3000, rest_gain=0.0, limit_gain=0.0)
+    assert free[-1] - free[0] > 0.3
+    assert err_free < 5e-3
+
+
+def test_policy_dimension_and_bad_gains_are_refused(hand_map: TaskSpaceMap) -> None:
+    class Fitted:
+        n_features_in_ = 6
+
+        def policy(self, X: np.ndarray) -> np.ndarray:
+            return np.zeros_like(X)
+
+    with pytest.raises(ValueError, match="policy: learnt on 6-D states, the state map "
+                                         "gives 3-D"):
+        TaskSpacePolicy(Fitted(), hand_map)
+    with pytest.raises(ValueError, match="damping: must be a finite number >= 0"):
+        TaskSpacePolicy(Attractor(np.zeros(3)), hand_map, damping=-1.0)
+    with pytest.raises(ValueError, match=r"rest: must be a finite \(9,\) posture"):
+        TaskSpacePolicy(Attractor(np.zeros(3)), hand_map, rest=np.zeros(3))
+    with pytest.raises(ValueError, match="policy: must be callable"):
+        TaskSpacePolicy(3.0, hand_map)
+
+
+def test_non_finite_task_policy_gives_zero_command(hand_map: TaskSpaceMap) -> None:
+    tsp = TaskSpacePolicy(lambda X: np.full_like(X, np.nan), hand_map)
+    np.testing.assert_array_equal(tsp.command(hand_map.robot.neutral()), 0.0)
+
+
+def test_definition_round_trips_and_matches_same_robot(robot: Robot) -> None:
+    defn = FrameStateDefinition.from_robot(robot, [HAND, ELBOW])
+    assert defn.dim == 6
+    text = json.dumps(defn.to_dict())
+    back = FrameStateDefinition.from_dict(json.loads(text))
+    assert back == defn
+    back.check(robot)
+    urdf = robots_dir() / "talos_data" / "robots" / "talos_reduced.urdf"
+    same = Robot.load(str(urdf), joints=ARM, reference={
+        j: v[0] for j, v in robot.locked_posture.items() if len(v) == 1})
+    defn.check(same)
+    loaded = defn.load_robot()
+    assert loaded.joint_names == ARM
+
+
+def test_definition_check_names_what_differs(robot: Robot) -> None:
+    defn = FrameStateDefinition.from_robot(robot, [HAND])
+    with pytest.raises(ValueError, match=r"joints differ \(missing \['torso_2_joint'\]"):
+        defn.check(Robot.load("talos", joints=ARM[:-1]))
+    with pytest.raises(ValueError, match="same joints in another order"):
+        defn.check(Robot.load("talos", joints=ARM[::-1]))
+    with pytest.raises(ValueError, match=r"locked posture differs at \['arm_right_4_joint'\]"):
+        defn.check(Robot.load("talos", joints=ARM, reference={"arm_right_4_joint": -1.0}))
+    with pytest.raises(ValueError, match="URDF differs"):
+        defn.check(Robot.load("panda"))
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"type": "joints"}, "field 'type' must be 'frames'"),
+    ({"frames": "gripper"}, "field 'frames' must be a non-empty list"),
+    ({"frames": []}, "field 'frames' must be a non-empty list"),
+    ({"urdf_sha256": 5}, "field 'urdf_sha256' must be a non-empty string"),
+    ({"locked_posture": {"a": ["x"]}}, r"locked_posture\['a'\] must be a list of numbers"),
+    ({"locked_posture": {"a": [float("nan")]}}, r"locked_posture\['a'\] is not finite"),
+    ({"locked_posture": None}, "field 'locked_posture' must be a dict"),
+    (None, "field 'root_frame' is missing"),
+])
+def test_definition_from_dict_refuses_bad_fields(robot: Robot, change, message) -> None:
+    data = FrameStateDefinition.from_robot(robot, [HAND]).to_dict()
+    if change is None:
+        del data["root_frame"]
+    else:
+        data.update(change)
+    with pytest.raises(ValueError, match=message):
+        FrameStateDefinition.from_dict(data)
+
+
+def test_parse_state_spec() -> None:
+    assert parse_state_spec("joints") is None
+    assert parse_state_spec("frames:a,b") == ["a", "b"]
+    for bad in ("hands", "frames:", "frames:a,,b", "frames:a,a"):
+        with pytest.raises(ValueError, match="state:"):
+            parse_state_spec(bad)
