@@ -101,3 +101,86 @@ def test_start_states_and_masks_are_seeded() -> None:
     assert gt["X"].shape == (8, 2) and gt["N"].shape == (8, 2, 2)
     np.testing.assert_allclose(gt["pi"], pot.policy(gt["X"]))
     np.testing.assert_array_equal(gt["demo"], [0] * 4 + [2] * 4)
+
+
+HANDS = ["gripper_left_base_link", "gripper_right_base_link"]
+ARMS = ([f"arm_left_{i}_joint" for i in range(1, 8)]
+        + [f"arm_right_{i}_joint" for i in range(1, 8)] + ["torso_1_joint", "torso_2_joint"])
+
+
+@pytest.fixture(scope="module")
+def hands():
+    from policy_align_ros.kinematics import TaskSpaceMap
+
+    robot = Robot.load("talos", joints=ARMS)
+    smap = TaskSpaceMap(robot, HANDS)
+    return robot, smap
+
+
+def test_task_space_expert_hand_trajectories_follow_projected_policy(hands) -> None:
+    from policy_align_ros.experiments.demonstrators import TaskSpaceExpert, task_space_rollout
+
+    robot, smap = hands
+    q0 = robot.neutral()
+    x0 = smap.states(q0)
+    target = x0 + np.array([0.1, 0.05, 0.1, 0.1, -0.05, 0.05])
+    expert = TaskSpaceExpert(smap, target, weight=0.5)
+    normal = np.array([0.0, 0.6, 0.8])
+
+    def plane_on_left_hand_after_1s(x, t, pi):
+        return np.r_[normal, np.zeros(3)][None] if t >= 1.0 else np.zeros((0, 6))
+
+    errors = []
+    for dt in (0.02, 0.01):
+        demo = task_space_rollout(q0, expert, plane_on_left_hand_after_1s, int(3.0 / dt), dt,
+                                  name="a")
+        X, V = demo.trajectory.positions, demo.trajectory.velocities
+        # The recorded hand states are the forward kinematics of the joint states.
+        np.testing.assert_allclose(X, smap.states(demo.joints.positions), atol=1e-12)
+        # Ground truth: pi_x = -grad phi_x = -2 W (x - c), velocity N_x pi_x.
+        np.testing.assert_allclose(demo.policy, -(X - target), atol=1e-12)
+        np.testing.assert_allclose(V, np.einsum("mij,mj->mi", demo.projectors, demo.policy),
+                                   atol=1e-12)
+        assert np.all(demo.n_active[: int(1.0 / dt)] == 0)
+        assert np.all(demo.n_active[int(1.0 / dt):] == 1)
+        # The hands really move along N_x pi_x: finite differences of the hand states
+        # match the expert's velocity to first order in dt.
+        fd = np.diff(X, axis=0) / dt
+        errors.append(np.abs(fd - V[:-1]).max())
+        assert errors[-1] < 0.02 * np.abs(V).max()
+        # The constrained hand does not leave its plane (A_x xdot = 0 to O(dt^2) a step).
+        height = X[int(1.0 / dt):, :3] @ normal
+        assert np.ptp(height) < dt**2 * np.abs(V).max()
+        assert np.all(np.diff(demo.potential) <= 1e-12)
+    assert 1.6 < errors[0] / errors[1] < 2.4  # first-order (Euler) discretisation
+
+
+def test_task_space_expert_reaches_the_targets_and_refuses_bad_shapes(hands) -> None:
+    from policy_align_ros.experiments.demonstrators import TaskSpaceExpert, task_space_rollout
+
+    robot, smap = hands
+    q0 = robot.neutral()
+    target = smap.states(q0) + np.array([0.05, 0.05, 0.05, 0.05, -0.05, 0.05])
+    demo = task_space_rollout(q0, TaskSpaceExpert(smap, target, 1.0), None, 400, 0.01)
+    final = demo.trajectory.positions[-1].reshape(2, 3) - target.reshape(2, 3)
+    assert np.linalg.norm(final, axis=1).max() < 1e-3
+    with pytest.raises(ValueError, match=r"center: must have shape \(6,\) for 2 frames"):
+        TaskSpaceExpert(smap, np.zeros(3))
+    with pytest.raises(ValueError, match=r"rest: must have shape \(16,\)"):
+        TaskSpaceExpert(smap, target, rest=np.zeros(3))
+    with pytest.raises(ValueError, match="n_samples: must be >= 2"):
+        task_space_rollout(q0, TaskSpaceExpert(smap, target), None, 1, 0.01)
+
+
+def test_joint_space_expert_seen_in_hand_space_is_not_the_hand_gradient(hands) -> None:
+    # Why the task-space expert exists: a joint-space expert on the same hand potential
+    # moves the hands with -J J^T grad phi_x, which is not -grad phi_x (nor parallel).
+    robot, smap = hands
+    q = robot.neutral()
+    x, J = smap.kinematics(q)
+    target = x + np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.1])
+    joint_expert = TaskSpacePotential(robot, HANDS, target, weight=0.5)
+    seen = J @ joint_expert.policy(q[None])[0]
+    wanted = -(x - target)
+    cos = seen @ wanted / (np.linalg.norm(seen) * np.linalg.norm(wanted))
+    assert cos < 0.99

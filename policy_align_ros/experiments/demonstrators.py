@@ -11,6 +11,15 @@ A constraint generator is any callable ``constraint(x, t, pi) -> A``: it sees th
 the time (s, from the demonstration start) and the intended policy (needed by unilateral
 barriers that only block approaching motion). :func:`demo_step` runs one step, so a ROS
 node can drive the same expert one control period at a time.
+
+Hand-space demonstrations (:class:`TaskSpaceExpert`, :func:`task_space_rollout`): the
+state is ``x`` (3F,), the stacked positions (m) of ``F`` frames, the expert's potential
+``phi_x`` is a quadratic in ``x`` and its motion is ``xdot = N_x pi_x(x)`` with
+``pi_x = -grad phi_x`` and ``N_x`` the projector of hand-space constraint rows
+``A_x`` (k, 3F), realised on the robot through the frames' Jacobian ``J`` (3F, n) by the
+joint velocity of :func:`policy_align_ros.kinematics.task_space.task_to_joint_velocity`.
+A joint-space expert seen in hand space is not a gradient field there, so it cannot
+stand in for a hand-space one.
 """
 
 from __future__ import annotations
@@ -20,7 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from policy_align_ros.kinematics import Constraint, Robot, nullspace_projector
+from policy_align_ros.kinematics import Constraint, Robot, TaskSpaceMap, nullspace_projector
+from policy_align_ros.kinematics.control import velocity_scale
+from policy_align_ros.kinematics.task_space import (
+    joint_velocity_within_limits,
+    secondary_velocity,
+)
 from policy_align_ros.learning import Trajectory
 
 __all__ = [
@@ -28,6 +42,9 @@ __all__ = [
     "Demonstration",
     "QuadraticPotential",
     "TaskSpacePotential",
+    "TaskSpaceExpert",
+    "TaskSpaceDemonstration",
+    "task_space_rollout",
     "StepResult",
     "demo_step",
     "rollout",
@@ -390,3 +407,178 @@ def stack_ground_truth(demos: Sequence[Demonstration], masks: Sequence[np.ndarra
         parts["phi"].append(d.potential[m])
         parts["demo"].append(np.full(int(m.sum()), k))
     return {key: np.concatenate(val) for key, val in parts.items()}
+
+
+class TaskSpaceExpert:
+    """An expert whose potential lives in hand space, driven through the joints.
+
+    ``phi_x(x) = (x - x_c)^T W (x - x_c)`` over the stacked frame positions ``x`` (3F,),
+    ``pi_x = -grad phi_x`` (m/s); under hand-space constraint rows ``A_x`` (k, 3F) the
+    frames move with ``xdot = N_x pi_x``. The joint velocity realising it solves
+    ``min ||J qdot - N_x pi_x||`` subject to ``A_x J qdot = 0`` and any joint-space rows
+    ``A_q`` (k', n), with a secondary term toward ``rest`` and away from joint limits in the
+    self-motion space.
+
+    Parameters
+    ----------
+    state_map : TaskSpaceMap
+        Joints -> stacked frame positions (and the Jacobian).
+    center : array_like, shape (3F,)
+        Targets of the frames, m.
+    weight : float or array_like (3F,) or (3F, 3F)
+        ``W`` (positive definite), 1/s when ``dt`` is in s.
+    rest : array_like, shape (n,), optional
+        Rest posture of the redundant joints (default the robot's reference posture).
+    rest_gain, limit_gain, limit_margin, max_secondary, threshold, damping : float
+        As for :class:`~policy_align_ros.kinematics.task_space.TaskSpacePolicy`.
+    """
+
+    def __init__(self, state_map: TaskSpaceMap, center: Sequence[float],
+                 weight: float | np.ndarray = 0.5, *, rest: np.ndarray | None = None,
+                 rest_gain: float = 0.5, limit_gain: float = 1.0, limit_margin: float = 0.1,
+                 max_secondary: float = 0.5, threshold: float = 0.05,
+                 damping: float = 0.05) -> None:
+        self.state_map = state_map
+        self.potential = QuadraticPotential(center, weight)
+        if self.potential.n != state_map.dim:
+            raise ValueError(f"center: must have shape ({state_map.dim},) for "
+                             f"{len(state_map.frames)} frames, got ({self.potential.n},)")
+        robot = state_map.robot
+        self.rest = robot.neutral() if rest is None else np.asarray(rest, dtype=float)
+        if self.rest.shape != (robot.nq,):
+            raise ValueError(f"rest: must have shape ({robot.nq},), got {self.rest.shape}")
+        self.secondary = {"rest_gain": rest_gain, "limit_gain": limit_gain,
+                          "limit_margin": limit_margin, "max_speed": max_secondary}
+        self.solve = {"threshold": threshold, "damping": damping}
+
+    @property
+    def n(self) -> int:
+        """Joint dimension."""
+        return self.state_map.n
+
+    @property
+    def dim(self) -> int:
+        """Hand-space dimension ``3F``."""
+        return self.state_map.dim
+
+    def value(self, Q: np.ndarray) -> np.ndarray:
+        """``phi_x`` at the hand states of joint rows ``Q`` (m, n); returns (m,)."""
+        return self.potential.value(self.state_map.states(_rows(Q, self.n)))
+
+    def task_policy(self, X: np.ndarray) -> np.ndarray:
+        """``pi_x = -grad phi_x`` at hand-state rows ``X`` (m, 3F); returns (m, 3F), m/s."""
+        return self.potential.policy(X)
+
+    def command(self, q: np.ndarray, A_x: np.ndarray | None = None,
+                A_q: np.ndarray | None = None) -> tuple[np.ndarray, StepResult]:
+        """Joint velocity realising ``xdot = N_x pi_x`` at ``q`` (n,).
+
+        Parameters
+        ----------
+        q : numpy.ndarray, shape (n,)
+        A_x : numpy.ndarray, shape (k, 3F), optional
+            Hand-space constraint rows (none: ``N_x = I``).
+        A_q : numpy.ndarray, shape (k', n), optional
+            Further joint-space rows (for example locked joints).
+
+        Returns
+        -------
+        qdot : numpy.ndarray, shape (n,)
+            rad/s; zero on joints pushed against a limit.
+        step : StepResult
+            In hand space: ``x_next`` is ``x + xdot`` for a unit step (callers scale),
+            ``velocity = N_x pi_x``, ``projector = N_x``, ``policy = pi_x``, ``A = A_x``.
+        """
+        q = np.asarray(q, dtype=float)
+        x, J = self.state_map.kinematics(q)
+        pi_x = self.task_policy(x[None])[0]
+        A_x = np.zeros((0, self.dim)) if A_x is None else np.asarray(A_x, float)
+        A_x = A_x.reshape(-1, self.dim)
+        N_x = nullspace_projector(A_x, n=self.dim)
+        xdot = N_x @ pi_x
+        rows = [A_x @ J]
+        if A_q is not None:
+            rows.append(np.asarray(A_q, dtype=float).reshape(-1, self.n))
+        robot = self.state_map.robot
+        z = secondary_velocity(q, self.rest, robot.lower, robot.upper, **self.secondary)
+        qdot = joint_velocity_within_limits(q, J, xdot, np.vstack(rows), z, robot.lower,
+                                            robot.upper, **self.solve)
+        return qdot, StepResult(x + xdot, xdot, N_x, pi_x, A_x)
+
+
+@dataclass
+class TaskSpaceDemonstration(Demonstration):
+    """A hand-space demonstration: the :class:`Demonstration` fields are in hand space.
+
+    ``trajectory`` holds the hand states ``x_i = x(q_i)`` (N, 3F) with the expert's
+    velocities ``N_x pi_x`` (N, 3F); ``policy`` is ``pi_x`` (N, 3F), ``projectors`` are
+    ``N_x`` (N, 3F, 3F) and ``potential`` is ``phi_x(x_i)``.
+
+    Attributes
+    ----------
+    joints : Trajectory
+        The joint trajectory ``q_i`` (N, n) (what a robot's joint states record) with the
+        joint velocities sent (N, n), rad/s.
+    """
+
+    joints: Trajectory | None = None
+
+
+#: ``constraint(x (3F,), t [s], pi_x (3F,)) -> A_x (k, 3F)``, hand-space rows.
+TaskConstraintFn = ConstraintFn
+
+
+def task_space_rollout(q0: np.ndarray, expert: TaskSpaceExpert,
+                       constraint: TaskConstraintFn | None, n_samples: int, dt: float,
+                       *, name: str | None = None) -> TaskSpaceDemonstration:
+    """Record ``n_samples`` states of a hand-space expert driven through the joints.
+
+    Each step sends ``qdot`` from :meth:`TaskSpaceExpert.command` for ``dt`` seconds,
+    scaled down (never redirected) only if a joint would otherwise cross a limit or its
+    velocity limit within the step.
+
+    Parameters
+    ----------
+    q0 : numpy.ndarray, shape (n,)
+        Start posture (rad).
+    expert : TaskSpaceExpert
+    constraint : TaskConstraintFn or None
+        Hand-space constraint generator (None: unconstrained).
+    n_samples : int
+        ``N`` >= 2.
+    dt : float
+        Sample period, s.
+    name : str, optional
+
+    Returns
+    -------
+    TaskSpaceDemonstration
+    """
+    if n_samples < 2:
+        raise ValueError(f"n_samples: must be >= 2, got {n_samples}")
+    if not dt > 0:
+        raise ValueError(f"dt: must be > 0 s, got {dt}")
+    robot = expert.state_map.robot
+    q = robot.clip(np.asarray(q0, dtype=float).copy())
+    n, d = expert.n, expert.dim
+    Q, Qd = np.empty((n_samples, n)), np.empty((n_samples, n))
+    X, V, P = (np.empty((n_samples, d)) for _ in range(3))
+    Ns = np.empty((n_samples, d, d))
+    k = np.empty(n_samples, dtype=int)
+    vmax = np.where(np.isfinite(robot.velocity_limit) & (robot.velocity_limit > 0),
+                    robot.velocity_limit, np.inf)
+    for i in range(n_samples):
+        x = expert.state_map.states(q)
+        A_x = None
+        if constraint is not None:
+            A_x = constraint(x, i * dt, expert.task_policy(x[None])[0])
+        qdot, step = expert.command(q, A_x)
+        s = velocity_scale(q, qdot, dt, robot.lower, robot.upper, vmax)
+        Q[i], Qd[i] = q, s * qdot
+        X[i], V[i], P[i], Ns[i], k[i] = x, s * step.velocity, step.policy, step.projector, \
+            step.A.shape[0]
+        q = robot.clip(q + dt * s * qdot)
+    times = dt * np.arange(n_samples)
+    return TaskSpaceDemonstration(Trajectory(X, times, V, name=name), P, Ns,
+                                  expert.potential.value(X), k,
+                                  joints=Trajectory(Q, times, Qd, name=name))

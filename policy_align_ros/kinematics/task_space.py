@@ -49,6 +49,7 @@ __all__ = [
     "damped_pinv",
     "secondary_velocity",
     "task_to_joint_velocity",
+    "joint_velocity_within_limits",
     "parse_state_spec",
 ]
 
@@ -498,6 +499,48 @@ def task_to_joint_velocity(J: np.ndarray, xdot: np.ndarray, A: np.ndarray,
     return qdot
 
 
+def joint_velocity_within_limits(q: np.ndarray, J: np.ndarray, xdot: np.ndarray,
+                                 A: np.ndarray, z: np.ndarray | None, lower: np.ndarray,
+                                 upper: np.ndarray, *, threshold: float = 0.05,
+                                 damping: float = 0.05) -> np.ndarray:
+    """:func:`task_to_joint_velocity` with joints at a limit locked by rows of ``A``.
+
+    A joint at (or beyond) a position limit that the command would push further out gets
+    a unit row ``e_j^T`` in ``A`` and the problem is solved again, so the task is
+    redistributed over the joints that can still move (zeroing the component afterwards
+    would break both the task and ``A qdot = 0``).
+
+    Parameters
+    ----------
+    q : numpy.ndarray, shape (n,)
+        Joint positions (rad or m).
+    J, xdot, A, z
+        As in :func:`task_to_joint_velocity`.
+    lower, upper : numpy.ndarray, shape (n,)
+        Joint limits.
+    threshold, damping : float
+        See :func:`damped_pinv`.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        rad/s.
+    """
+    n = q.shape[0]
+    A = np.asarray(A, dtype=float).reshape(-1, n)
+    solve = {"threshold": threshold, "damping": damping}
+    qdot = task_to_joint_velocity(J, xdot, A, z, **solve)
+    locked = np.zeros(n, dtype=bool)
+    # Each pass locks at least one more joint, so this ends after at most n passes.
+    for _ in range(n):
+        new = limit_locks(q, qdot, lower, upper) & ~locked
+        if not np.any(new):
+            break
+        locked |= new
+        qdot = task_to_joint_velocity(J, xdot, np.vstack([A, np.eye(n)[locked]]), z, **solve)
+    return qdot
+
+
 class TaskSpacePolicy:
     """A task-space policy run as a joint-space one: ``q`` -> ``qdot`` (rad/s).
 
@@ -585,17 +628,8 @@ class TaskSpacePolicy:
             A = np.asarray(self.constraint.matrix(q, free), dtype=float).reshape(-1, n)
             if not np.all(np.isfinite(A)):
                 return np.zeros(n)
-        qdot = task_to_joint_velocity(J, pi_x, A, z, **solve)
-        locked = np.zeros(n, dtype=bool)
-        # Each pass locks at least one more joint, so this ends after at most n passes.
-        for _ in range(n):
-            new = limit_locks(q, qdot, self.lower, self.upper) & ~locked
-            if not np.any(new):
-                break
-            locked |= new
-            qdot = task_to_joint_velocity(J, pi_x, np.vstack([A, np.eye(n)[locked]]), z,
-                                          **solve)
-        return qdot
+        return joint_velocity_within_limits(q, J, pi_x, A, z, self.lower, self.upper,
+                                            **solve)
 
     def __call__(self, Q: np.ndarray) -> np.ndarray:
         """Joint velocities (m, n) at rows ``Q`` (m, n) (or (n,) -> (n,))."""
