@@ -437,3 +437,58 @@ def test_policy_learnt_in_hand_space_reaches_targets_from_new_starts() -> None:
         final = np.linalg.norm((smap.states(q) - target).reshape(2, 3), axis=1)
         assert np.all(start > 0.1)
         assert np.all(final < 0.03), final  # measured 1.9 and 4.1 mm
+
+
+def test_policy_for_state_accepts_reordered_joints_and_refuses_other_robots(
+        robot: Robot, hand_map: TaskSpaceMap) -> None:
+    from policy_align_ros.kinematics.task_space import policy_for_state
+
+    q = robot.neutral()
+    x = hand_map.states(q)
+    pol = Attractor(x + np.array([0.05, 0.0, 0.05]))
+    state = hand_map.definition.to_dict()
+    direct = TaskSpacePolicy(pol, hand_map).command(q)
+    # The executor's robot lists the same joints in another order: same motion.
+    order = ARM[::-1]
+    other = Robot.load("talos", joints=order)
+    perm = [ARM.index(j) for j in order]
+    got = policy_for_state(pol, state, other)(q[perm][None])[0]
+    np.testing.assert_allclose(got, direct[perm], atol=1e-12)
+    # A rest posture recorded in the state definition is used (in the robot's order).
+    rest = {j: float(v) + 0.1 for j, v in zip(ARM, q, strict=True)}
+    tsp = policy_for_state(pol, {**state, "rest": rest}, other)
+    np.testing.assert_allclose(tsp.rest, q[perm] + 0.1)
+    with pytest.raises(ValueError, match="field 'rest' lacks joints"):
+        policy_for_state(pol, {**state, "rest": {}}, other)
+    with pytest.raises(ValueError, match="field 'rest' must map joints to numbers"):
+        policy_for_state(pol, {**state, "rest": dict.fromkeys(ARM)}, other)
+    with pytest.raises(ValueError, match=r"state definition does not match the robot: "
+                                         r"joints differ \(missing \['torso_2_joint'\]"):
+        policy_for_state(pol, state, Robot.load("talos", joints=ARM[:-1]))
+    with pytest.raises(ValueError, match="URDF differs"):
+        policy_for_state(pol, state, Robot.load("panda"))
+    with pytest.raises(ValueError, match="same joints in another order"):
+        FrameStateDefinition.from_dict(state).check(other)
+
+
+def test_constraint_may_be_a_callable_such_as_the_executors(robot: Robot,
+                                                            hand_map: TaskSpaceMap) -> None:
+    from policy_align_ros.kinematics.control import ControlStep
+
+    plane = constraint_from_spec({"type": "plane", "frame": HAND, "normal": [0, 0, 1]}, robot)
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 10.0), 0.01, [plane])
+    q = robot.neutral()
+    pol = Attractor(hand_map.states(q) + np.array([0.05, 0.05, 0.05]))
+    tsp = TaskSpacePolicy(pol, hand_map, step.constraint_matrix)
+    qdot = tsp.command(q)
+    np.testing.assert_allclose(qdot, TaskSpacePolicy(pol, hand_map, plane).command(q))
+    assert abs((plane.matrix(q) @ qdot).item()) < 1e-12
+    # The executor's step, given the task-space policy, leaves its command as it is.
+    step.policy = tsp
+    command, reason = step(q)
+    assert reason == ""
+    np.testing.assert_allclose(command, qdot, atol=1e-12)
+    step.constraints = []  # a parameter change is seen at the next call
+    np.testing.assert_allclose(tsp.command(q), TaskSpacePolicy(pol, hand_map).command(q))
+    with pytest.raises(ValueError, match="constraint: must have matrix"):
+        TaskSpacePolicy(pol, hand_map, 3)

@@ -51,6 +51,7 @@ __all__ = [
     "task_to_joint_velocity",
     "joint_velocity_within_limits",
     "parse_state_spec",
+    "policy_for_state",
 ]
 
 #: Default root frame: Pinocchio's world frame of a fixed-base model.
@@ -180,12 +181,13 @@ class FrameStateDefinition:
                    frames=tuple(_frame_list(data["frames"])), root_frame=data["root_frame"],
                    locked_posture=clean, urdf_sha256=data["urdf_sha256"])
 
-    def check(self, robot: Robot) -> None:
+    def check(self, robot: Robot, *, same_order: bool = True) -> None:
         """Raise ValueError naming what differs between this definition and ``robot``.
 
-        Compared: the URDF's hash, the joints and their order, the frames and root frame
-        (they must exist) and the posture of the locked joints. A robot loaded by
-        name and one loaded from the same URDF file match.
+        Compared: the URDF's hash, the joints (and their order unless ``same_order`` is
+        False: frame positions do not depend on it), the frames and root frame (they must
+        exist) and the posture of the locked joints. A robot loaded by name and one
+        loaded from the same URDF file match.
         """
         problems = []
         sha = robot.urdf_sha256()
@@ -193,7 +195,8 @@ class FrameStateDefinition:
             problems.append(f"URDF differs (model: robot {self.robot!r} sha256 "
                             f"{self.urdf_sha256[:12]}..., here: robot {robot.name!r} sha256 "
                             f"{sha[:12]}...)")
-        if list(robot.joint_names) != list(self.joints):
+        if (list(robot.joint_names) != list(self.joints) if same_order
+                else sorted(robot.joint_names) != sorted(self.joints)):
             missing = [j for j in self.joints if j not in robot.joint_names]
             extra = [j for j in robot.joint_names if j not in self.joints]
             what = (f"missing {missing}, extra {extra}" if missing or extra
@@ -554,9 +557,10 @@ class TaskSpacePolicy:
         Task-space policy ``X`` (m, 3F) -> (m, 3F) in m/s, e.g. a fitted ``PolicyAlign``
         learnt on the map's states.
     state_map : TaskSpaceMap
-    constraint : object with ``matrix(q, qdot) -> (k, n)``, optional
-        Joint-space constraints in force (for example the executor's); barriers are
-        judged with the velocity the task asks for without them.
+    constraint : object with ``matrix(q, qdot) -> (k, n)``, or such a callable, optional
+        Joint-space constraints in force (for example the executor's
+        ``ControlStep.constraint_matrix``, which follows its parameter changes); barriers
+        are judged with the velocity the task asks for without them.
     rest : array_like, shape (n,), optional
         Rest posture of the redundant joints (default the robot's reference posture),
         for example the demonstrations' mean final posture.
@@ -573,6 +577,10 @@ class TaskSpacePolicy:
                  limit_gain: float = 1.0, limit_margin: float = 0.1,
                  max_secondary: float = 0.5, threshold: float = 0.05,
                  damping: float = 0.05) -> None:
+        if constraint is not None and not hasattr(constraint, "matrix"):
+            if not callable(constraint):
+                raise ValueError("constraint: must have matrix(q, qdot) or be callable")
+            constraint = _RowsFn(constraint)
         fn = getattr(policy, "policy", policy)
         if not callable(fn):
             raise ValueError("policy: must be callable or have a policy(X) method")
@@ -640,3 +648,61 @@ class TaskSpacePolicy:
 
     policy = __call__
 
+
+
+class _RowsFn:
+    """A ``(q, qdot) -> A`` callable seen as a constraint model."""
+
+    def __init__(self, fn: Callable[[np.ndarray, np.ndarray | None], np.ndarray]) -> None:
+        self.matrix = fn
+
+
+def policy_for_state(model: Any, state: Mapping[str, Any], robot: Robot,
+                     constraint: ConstraintModel | Callable | None = None, *,
+                     rest: np.ndarray | None = None, **options: float) -> TaskSpacePolicy:
+    """The joint-space policy callable of a model learnt on frame states.
+
+    What an executor does with a model whose header's state definition is
+    ``{"type": "frames", ...}``: check the definition against its own ``robot`` (same
+    URDF, joints in any order, frames, locked posture), then map the task-space policy to
+    joint velocities in the robot's joint order under ``constraint``.
+
+    Parameters
+    ----------
+    model : object with ``policy(X (m, 3F)) -> (m, 3F)``
+        The fitted task-space model.
+    state : dict
+        The model header's state definition (:meth:`FrameStateDefinition.to_dict`); its
+        optional ``rest`` (dict joint -> rad) is the rest posture unless ``rest`` is given.
+    robot : Robot
+        The executor's robot, in its joint order.
+    constraint : constraint model or callable ``(q, qdot) -> A (k, n)``, optional
+    rest : array_like, shape (n,), optional
+        Rest posture in the robot's joint order.
+    **options
+        Gains and damping of :class:`TaskSpacePolicy`.
+
+    Returns
+    -------
+    TaskSpacePolicy
+        Taking and returning rows in ``robot.joint_names`` order.
+
+    Raises
+    ------
+    ValueError
+        If the definition is malformed or does not match ``robot`` (naming what differs).
+    """
+    definition = FrameStateDefinition.from_dict(state)
+    definition.check(robot, same_order=False)
+    smap = TaskSpaceMap(robot, definition.frames, definition.root_frame)
+    if rest is None and isinstance(state.get("rest"), Mapping):
+        named = state["rest"]
+        missing = [j for j in robot.joint_names if j not in named]
+        if missing:
+            raise ValueError(f"state definition: field 'rest' lacks joints {missing}")
+        try:
+            rest = np.array([float(named[j]) for j in robot.joint_names])
+        except (TypeError, ValueError):
+            raise ValueError("state definition: field 'rest' must map joints to "
+                             "numbers") from None
+    return TaskSpacePolicy(model, smap, constraint, rest=rest, **options)
