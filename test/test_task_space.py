@@ -492,3 +492,10 @@ def test_constraint_may_be_a_callable_such_as_the_executors(robot: Robot,
     np.testing.assert_allclose(tsp.command(q), TaskSpacePolicy(pol, hand_map).command(q))
     with pytest.raises(ValueError, match="constraint: must have matrix"):
         TaskSpacePolicy(pol, hand_map, 3)
+
+
+def test_non_finite_constraint_rows_give_zero_command(hand_map: TaskSpaceMap) -> None:
+    q = hand_map.robot.neutral()
+    pol = Attractor(hand_map.states(q) + 0.05)
+    tsp = TaskSpacePolicy(pol, hand_map, lambda q, qdot: np.full((1, q.size), np.inf))
+    np.testing.assert_array_equal(tsp.command(q), 0.0)
