@@ -405,6 +405,7 @@ def test_policy_learnt_in_hand_space_reaches_targets_from_new_starts() -> None:
         sample_start_states,
         task_space_rollout,
     )
+    from policy_align_ros.kinematics.task_space import LearningStateMap, policy_for_state
     from policy_align_ros.learning import PolicyAlign
 
     hands = ["gripper_left_base_link", "gripper_right_base_link"]
@@ -426,8 +427,16 @@ def test_policy_learnt_in_hand_space_reaches_targets_from_new_starts() -> None:
     starts = sample_start_states(rng, q0, 20, 0.05, robot.lower, robot.upper)
     demos = [task_space_rollout(s, expert, one_plane(k), 150, 0.02, name=str(k))
              for k, s in enumerate(starts)]
-    model = PolicyAlign().fit([d.trajectory for d in demos])
-    policy = TaskSpacePolicy(model, smap)
+    # What `policy-align learn --state frames:...` does: map the recorded joint
+    # trajectories to hand states, fit, and store the state definition for the executor.
+    learn_map = LearningStateMap(robot, hands)
+    trajs = [learn_map(d.joints) for d in demos]
+    np.testing.assert_allclose(trajs[0].positions, demos[0].trajectory.positions, atol=1e-12)
+    model = PolicyAlign().fit(trajs)
+    state = json.loads(json.dumps(learn_map.definition()))
+    policy = policy_for_state(model, state, robot)
+    np.testing.assert_allclose(policy.rest, np.mean([d.joints.positions[-1] for d in demos],
+                                                    axis=0))
     new = sample_start_states(np.random.default_rng(99), q0, 2, 0.05, robot.lower, robot.upper)
     for q in new:
         assert not np.any(np.all(np.isclose(starts, q), axis=1))
@@ -499,3 +508,24 @@ def test_non_finite_constraint_rows_give_zero_command(hand_map: TaskSpaceMap) ->
     pol = Attractor(hand_map.states(q) + 0.05)
     tsp = TaskSpacePolicy(pol, hand_map, lambda q, qdot: np.full((1, q.size), np.inf))
     np.testing.assert_array_equal(tsp.command(q), 0.0)
+
+
+def test_learning_state_map_maps_positions_and_velocities(robot: Robot) -> None:
+    from policy_align_ros.kinematics.task_space import LearningStateMap
+    from policy_align_ros.learning import Trajectory
+
+    lmap = LearningStateMap(robot, [HAND])
+    assert lmap.definition().get("rest") is None
+    Q = _joint_trajectory(robot, 30, seed=7)
+    times = 0.01 * np.arange(30)
+    V = np.gradient(Q, times, axis=0)
+    out = lmap(Trajectory(Q, times, V, name="d0"))
+    assert out.name == "d0"
+    np.testing.assert_array_equal(out.times, times)
+    np.testing.assert_allclose(out.positions, lmap.map.states(Q), atol=1e-12)
+    np.testing.assert_allclose(out.velocities[5], lmap.map.jacobian(Q[5]) @ V[5])
+    np.testing.assert_allclose(lmap(Q[:10]), out.positions[:10])
+    rest = lmap.definition()["rest"]
+    np.testing.assert_allclose([rest[j] for j in ARM], (Q[-1] + Q[9]) / 2)
+    with pytest.raises(ValueError, match="trajectory d1: has 3 joints, the state map expects 9"):
+        lmap(Trajectory(np.zeros((4, 3)), name="d1"))

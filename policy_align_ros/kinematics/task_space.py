@@ -41,6 +41,7 @@ import pinocchio as pin
 from policy_align_ros.kinematics.control import ConstraintModel, limit_locks
 from policy_align_ros.kinematics.projection import DEFAULT_RCOND, nullspace_projector
 from policy_align_ros.kinematics.robot import Robot, closest_names
+from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = [
     "FrameStateDefinition",
@@ -52,6 +53,7 @@ __all__ = [
     "joint_velocity_within_limits",
     "parse_state_spec",
     "policy_for_state",
+    "LearningStateMap",
 ]
 
 #: Default root frame: Pinocchio's world frame of a fixed-base model.
@@ -706,3 +708,57 @@ def policy_for_state(model: Any, state: Mapping[str, Any], robot: Robot,
             raise ValueError("state definition: field 'rest' must map joints to "
                              "numbers") from None
     return TaskSpacePolicy(model, smap, constraint, rest=rest, **options)
+
+
+class LearningStateMap:
+    """Joint trajectories -> frame-state trajectories, for a learning pipeline.
+
+    A callable: a joint trajectory (a :class:`Trajectory` or an (m, n) array, joints in
+    ``robot.joint_names`` order) in, the same in task space out (positions (m, 3F) in m;
+    joint velocities, when given, mapped through ``J(q)``). :meth:`definition` gives the
+    JSON-able state definition for the model header, with ``rest``: the mean final posture
+    (joint -> rad) of the trajectories mapped so far, the executor's default rest posture
+    for the redundant joints.
+
+    Parameters
+    ----------
+    robot : Robot
+    frames : sequence of str
+    root_frame : str
+    """
+
+    def __init__(self, robot: Robot, frames: Sequence[str], root_frame: str = WORLD
+                 ) -> None:
+        self.map = TaskSpaceMap(robot, frames, root_frame)
+        self._finals: list[np.ndarray] = []
+
+    @property
+    def joint_names(self) -> list[str]:
+        """Joint order the map expects."""
+        return list(self.map.robot.joint_names)
+
+    def __call__(self, traj: Trajectory | np.ndarray) -> Trajectory | np.ndarray:
+        """Map one joint trajectory; see the class docstring. Raises ValueError."""
+        if not isinstance(traj, Trajectory):
+            X = self.map.states(traj)
+            self._finals.append(np.asarray(traj, dtype=float).reshape(-1, self.map.n)[-1])
+            return X
+        Q = traj.positions
+        if Q.shape[1] != self.map.n:
+            raise ValueError(f"trajectory {traj.name}: has {Q.shape[1]} joints, the state "
+                             f"map expects {self.map.n} ({', '.join(self.joint_names)})")
+        X = self.map.states(Q)
+        V = None
+        if traj.velocities is not None:
+            V = np.array([self.map.jacobian(q) @ v for q, v in zip(Q, traj.velocities,
+                                                                  strict=True)])
+        self._finals.append(Q[-1].copy())
+        return Trajectory(X, traj.times, V, name=traj.name)
+
+    def definition(self) -> dict[str, Any]:
+        """JSON-able state definition (``{"type": "frames", ..., "rest": {...}}``)."""
+        out = self.map.definition.to_dict()
+        if self._finals:
+            mean = np.mean(self._finals, axis=0)
+            out["rest"] = {j: float(v) for j, v in zip(self.joint_names, mean, strict=True)}
+        return out
