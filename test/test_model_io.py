@@ -1,6 +1,9 @@
 """Model files (policy_align_ros.learning.model_io and PolicyAlign.save/load)."""
 
+import errno
 import json
+import os
+import stat
 import zipfile
 
 import numpy as np
@@ -8,7 +11,13 @@ import pytest
 
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import PolicyAlign
-from policy_align_ros.learning.model_io import FORMAT_VERSION, load_npz, save_npz
+from policy_align_ros.learning.model_io import (
+    FORMAT_VERSION,
+    atomic_write_bytes,
+    atomic_write_text,
+    load_npz,
+    save_npz,
+)
 
 
 @pytest.fixture(scope="module")
@@ -78,3 +87,30 @@ def test_bytes_that_are_no_archive_are_not_called_a_pickle(tmp_path):
     with pytest.raises(ValueError, match="junk.npz: truncated or not a model file") as err:
         load_npz(junk, "policy_align")
     assert "pickle" not in str(err.value)
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_model_file_mode_follows_the_umask(model, tmp_path, umask):
+    old = os.umask(umask)
+    try:
+        path = model.save(tmp_path / "model.npz")
+        text = atomic_write_text(tmp_path / "report.txt", "x\n")
+    finally:
+        os.umask(old)
+    for written in (path, text):
+        assert stat.S_IMODE(written.stat().st_mode) == 0o666 & ~umask, oct(umask)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.npz", "report.txt"]
+
+
+def test_failed_write_removes_its_temporary_file_and_keeps_the_old_model(model, tmp_path):
+    path = model.save(tmp_path / "model.npz")
+    before = path.read_bytes()
+
+    def failing(fh):
+        fh.write(b"partial")
+        raise OSError(errno.EFBIG, "File too large")
+
+    with pytest.raises(OSError, match="File too large"):
+        atomic_write_bytes(path, failing)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["model.npz"]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
+import uuid
 import zipfile
 from pathlib import Path
 
@@ -22,10 +22,18 @@ _HEADER = "__header__"
 
 
 def atomic_write_bytes(path: str | Path, writer) -> Path:
-    """Call ``writer(file_object)`` on a temporary file, fsync it and rename it to ``path``."""
+    """Call ``writer(file_object)`` on a temporary file, fsync it and rename it to ``path``.
+
+    The file's mode follows the process umask (``0o666 & ~umask``), as for ``open``.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:12]}.tmp"
+    # Not mkstemp: its 0600 would survive the rename. Created with 0666 the file gets what
+    # the umask allows (0644 under 022), like any file a program writes; O_EXCL keeps the
+    # name exclusive as mkstemp would.
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0),
+                 0o666)
     try:
         with os.fdopen(fd, "wb") as fh:
             writer(fh)
