@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 import time
 
 import numpy as np
@@ -9,7 +12,7 @@ import pytest
 
 from policy_align_ros.data import bags
 from policy_align_ros.data.bags import load_dataset, read_joint_states
-from policy_align_ros.data.recording import DemoRecorder
+from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, check_dataset_dir
 
 T0 = 1_700_000_000 * 10**9
 MS = 10**6
@@ -157,27 +160,186 @@ def test_state_errors_and_parameter_validation(tmp_path):
         DemoRecorder(tmp_path, joints=["a", "a"])
 
 
-def test_failed_write_leaves_nothing_and_recorder_goes_on(tmp_path, monkeypatch):
-    rng = np.random.default_rng(5)
-    rec = DemoRecorder(tmp_path)
-    rec.start()
-    _feed(rec, rng, 20, T0)
+def _failing_writes(monkeypatch, err: OSError, fail: list[bool]):
+    """Make write_joint_state_bag fail with ``err`` mid-bag while ``fail[0]`` is true."""
     real = bags._joint_state_cdr
     calls = {"n": 0}
 
-    def failing(*args):
+    def cdr(*args):
         calls["n"] += 1
-        if calls["n"] == 10:
-            raise OSError("no space left")
+        if fail[0] and calls["n"] % 7 == 0:  # after part of the bag is on disk
+            raise err
         return real(*args)
 
-    monkeypatch.setattr(bags, "_joint_state_cdr", failing)
-    with pytest.raises(OSError, match="no space"):
+    monkeypatch.setattr(bags, "_joint_state_cdr", cdr)
+
+
+def _entries(directory) -> list[str]:
+    return sorted(p.name for p in directory.iterdir())
+
+
+@pytest.mark.parametrize("err", [
+    OSError(errno.EFBIG, "File too large"),
+    OSError(errno.ENOSPC, "No space left on device"),
+    PermissionError(errno.EACCES, "Permission denied"),
+])
+def test_failed_write_keeps_the_demonstration_until_a_stop_succeeds(tmp_path, monkeypatch,
+                                                                    err):
+    rng = np.random.default_rng(5)
+    fail = [True]
+    _failing_writes(monkeypatch, err, fail)
+    rec = DemoRecorder(tmp_path)
+    rec.start()
+    stamps, q, v = _feed(rec, rng, 20, T0)
+    with pytest.raises(PendingWriteError, match=err.strerror) as info:
         rec.stop()
-    assert list(tmp_path.iterdir()) == []
+    assert "kept in memory" in str(info.value) and "20 messages" in str(info.value)
+    assert rec.pending == 20 and err.strerror in rec.pending_error
+    assert _entries(tmp_path) == []  # no partial bag, no temporary left
+    with pytest.raises(RuntimeError, match="could not be written"):
+        rec.start()  # at most one pending: no new demonstration until it is written
+    with pytest.raises(PendingWriteError):
+        rec.stop()  # still failing: still kept
+    assert rec.pending == 20
+    fail[0] = False
+    path = rec.stop()
+    assert path.name == "demo_0000" and rec.pending == 0 and rec.pending_error == ""
+    read = list(read_joint_states(path))
+    assert [m[1] for m in read] == stamps.tolist()
+    np.testing.assert_array_equal([m[3] for m in read], q)
+    np.testing.assert_array_equal([m[4] for m in read], v)
     rec.start()
     _feed(rec, rng, 20, T0 + 10**9)
-    assert rec.stop().name == "demo_0000"
+    assert rec.stop().name == "demo_0001"
+
+
+def test_dataset_dir_replaced_by_a_file_then_restored(tmp_path):
+    # ENOTDIR for real: the directory is swapped for a file while a demonstration runs.
+    dataset = tmp_path / "ds"
+    rec = DemoRecorder(dataset)
+    rec.start()
+    stamps, q, _ = _feed(rec, np.random.default_rng(6), 15, T0)
+    dataset.rmdir()
+    dataset.write_text("not a directory")
+    with pytest.raises(PendingWriteError, match="ds"):
+        rec.stop()
+    assert rec.pending == 15
+    with pytest.raises(ValueError, match="dataset_dir: .* not a directory"):
+        rec.set_dataset_dir(dataset)  # the fix must be real
+    rec.set_dataset_dir(tmp_path / "other")
+    path = rec.stop()
+    assert path == tmp_path / "other" / "demo_0000"
+    assert [m[1] for m in read_joint_states(path)] == stamps.tolist()
+
+
+def test_continuous_mode_pauses_while_pending_and_resumes(tmp_path, monkeypatch):
+    rng = np.random.default_rng(7)
+    fail = [False]
+    _failing_writes(monkeypatch, OSError(errno.EFBIG, "File too large"), fail)
+    rec = DemoRecorder(tmp_path, auto_split_gap_s=0.5)
+    rec.start()
+    first = _feed(rec, rng, 12, T0)
+    fail[0] = True
+    with pytest.raises(PendingWriteError):
+        _feed(rec, rng, 1, T0 + 10**9)  # the gap ends the first demonstration
+    assert rec.pending == 12 and rec.lost_while_pending == 1
+    _feed(rec, rng, 5, T0 + 10**9 + MS)  # paused: counted, not buffered
+    assert rec.buffered == 0 and rec.lost_while_pending == 6
+    with pytest.raises(PendingWriteError):
+        rec.retry_pending()
+    fail[0] = False
+    assert rec.retry_pending().name == "demo_0000" and rec.active
+    second = _feed(rec, rng, 10, T0 + 2 * 10**9)
+    assert rec.stop().name == "demo_0001"
+    trajs, _, _ = load_dataset(tmp_path, gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, first[1])
+    np.testing.assert_array_equal(trajs[1].positions, second[1])
+
+
+def test_close_saves_pending_and_current_to_a_fallback(tmp_path, monkeypatch):
+    dataset, fallbacks = tmp_path / "ds", [tmp_path / "under_file" / "x", tmp_path / "fb"]
+    (tmp_path / "under_file").write_text("a file")  # the first fallback fails too
+    rng = np.random.default_rng(8)
+    rec = DemoRecorder(dataset, auto_split_gap_s=0.5)
+    rec.start()
+    first = _feed(rec, rng, 12, T0)
+    dataset.rmdir()
+    dataset.write_text("not a directory")
+    with pytest.raises(PendingWriteError):
+        _feed(rec, rng, 1, T0 + 10**9)
+    assert rec.pending == 12
+    # Restore, record a second segment, break the directory again and close.
+    dataset.unlink()
+    assert rec.retry_pending().name == "demo_0000"
+    second = _feed(rec, rng, 9, T0 + 2 * 10**9)
+    (dataset / "demo_0000").rename(tmp_path / "moved")
+    dataset.rmdir()
+    dataset.write_text("not a directory")
+    results = rec.close(keep_current=True, fallback_dirs=fallbacks)
+    assert len(results) == 1
+    result = results[0]
+    assert result.messages == 9 and result.fallback and result.path.parent == fallbacks[1]
+    assert len(result.errors) == 2 and "ds" in result.errors[0]
+    np.testing.assert_array_equal(
+        [m[3] for m in read_joint_states(result.path)], second[1])
+    np.testing.assert_array_equal(
+        [m[3] for m in read_joint_states(tmp_path / "moved")], first[1])
+    assert not rec.active and rec.buffered == 0 and rec.pending == 0
+
+
+def test_close_with_nowhere_to_write_reports_the_loss(tmp_path, monkeypatch):
+    fail = [False]
+    _failing_writes(monkeypatch, OSError(errno.ENOSPC, "No space left on device"), fail)
+    rec = DemoRecorder(tmp_path / "ds")
+    rec.start()
+    _feed(rec, np.random.default_rng(9), 10, T0)
+    fail[0] = True
+    with pytest.raises(PendingWriteError):
+        rec.stop()
+    results = rec.close(keep_current=False, fallback_dirs=[tmp_path / "fb"])
+    assert [(r.messages, r.path) for r in results] == [(10, None)]
+    assert len(results[0].errors) == 2
+    assert _entries(tmp_path / "ds") == [] and _entries(tmp_path / "fb") == []
+
+
+def test_close_in_manual_mode_discards_the_unstopped_demo(tmp_path):
+    rec = DemoRecorder(tmp_path)
+    rec.start()
+    _feed(rec, np.random.default_rng(10), 10, T0)
+    assert rec.close(keep_current=False) == [] and _entries(tmp_path) == []
+
+
+@pytest.mark.parametrize("below", ["file/ds", "file"])
+def test_unusable_dataset_dir_is_refused_up_front(tmp_path, below):
+    (tmp_path / "file").write_text("x")
+    path = tmp_path / below
+    with pytest.raises(ValueError, match="dataset_dir: .*" + str(path.name)):
+        check_dataset_dir(path)
+    with pytest.raises(ValueError, match="dataset_dir"):
+        DemoRecorder(path)
+    rec = DemoRecorder(tmp_path / "ok")
+    with pytest.raises(ValueError, match="dataset_dir"):
+        rec.set_dataset_dir(path)
+    assert rec.dataset_dir == tmp_path / "ok"
+    assert _entries(tmp_path / "ok") == []  # the probe leaves nothing behind
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077])
+def test_finished_bags_have_normal_names_and_follow_the_umask(tmp_path, umask):
+    old = os.umask(umask)
+    try:
+        rec = DemoRecorder(tmp_path)
+        rec.start()
+        _feed(rec, np.random.default_rng(11), 10, T0)
+        path = rec.stop()
+    finally:
+        os.umask(old)
+    assert _entries(tmp_path) == ["demo_0000"]
+    assert _entries(path) == ["demo_0000.mcap", "metadata.yaml"]
+    assert stat.S_IMODE(path.stat().st_mode) == 0o777 & ~umask
+    for entry in path.iterdir():
+        assert stat.S_IMODE(entry.stat().st_mode) == 0o666 & ~umask, entry.name
+    assert len(list(read_joint_states(path))) == 10
 
 
 def test_keeps_up_with_1khz(tmp_path):

@@ -173,8 +173,12 @@ def write_joint_state_bag(
     if final.exists() and not unique:
         raise ValueError(f"{final}: exists already, not overwriting")
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = final.parent / f"{_TMP_PREFIX}{final.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    staging = final.parent / f"{_TMP_PREFIX}{final.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    # The writer names the storage file after the bag directory: written under its final
+    # name inside a hidden staging directory, the finished bag holds demo_NNNN.mcap.
+    tmp = staging / final.name
     try:
+        staging.mkdir()
         with Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
             conn = writer.add_connection(topic, JOINT_STATE, typestore=_TYPESTORE)
             for k in range(n_msgs):
@@ -186,8 +190,9 @@ def write_joint_state_bag(
         final = _rename_into_place(tmp, final, unique)
         _fsync_path(final.parent, directory=True)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(staging, ignore_errors=True)
         raise
+    staging.rmdir()
     return final
 
 

@@ -19,16 +19,27 @@ Buffering is in ``array.array`` (8 bytes a value, appended in O(n) without numpy
 ends, and a bag is complete and durable when the call that wrote it returns. A process
 killed mid-demonstration loses only that demonstration: earlier bags are complete, and a
 bag being written at that instant stays a hidden temporary directory.
+
+Failed writes lose nothing. The dataset directory is created and probed for writing when
+it is set (:func:`check_dataset_dir`), and a demonstration whose write fails later (full
+disk, EFBIG, the directory replaced or made read-only) is kept in memory as the *pending*
+demonstration, at most one: :meth:`DemoRecorder.start` is refused while it exists, a
+continuous recording pauses (messages counted in ``lost_while_pending``), and
+:meth:`DemoRecorder.stop` or :meth:`DemoRecorder.retry_pending` writes it once the
+directory works again. :meth:`DemoRecorder.close` writes whatever is left, into a fallback
+directory (:func:`default_fallback_dirs`) if the dataset directory still fails.
 """
 
 from __future__ import annotations
 
 import os
+import tempfile
 import threading
 import time
 from array import array
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +54,15 @@ from policy_align_ros.data.messages import (
     validate_joint_names,
 )
 
-__all__ = ["DemoRecorder", "validate_gap", "validate_dataset_dir"]
+__all__ = [
+    "DemoRecorder",
+    "PendingWriteError",
+    "SaveResult",
+    "check_dataset_dir",
+    "default_fallback_dirs",
+    "validate_dataset_dir",
+    "validate_gap",
+]
 
 
 def validate_gap(auto_split_gap_s: float) -> float:
@@ -55,7 +74,7 @@ def validate_gap(auto_split_gap_s: float) -> float:
 
 
 def validate_dataset_dir(dataset_dir: str | os.PathLike[str]) -> Path:
-    """Check a dataset directory name (it is created on the first write)."""
+    """Check a dataset directory name without touching the disk (see check_dataset_dir)."""
     text = os.fspath(dataset_dir)
     if not text.strip():
         raise ValueError("dataset_dir: must not be empty")
@@ -63,6 +82,97 @@ def validate_dataset_dir(dataset_dir: str | os.PathLike[str]) -> Path:
     if path.exists() and not path.is_dir():
         raise ValueError(f"dataset_dir: {path} exists and is not a directory")
     return path
+
+
+def check_dataset_dir(dataset_dir: str | os.PathLike[str]) -> Path:
+    """Check that bags can be written into a dataset directory, creating it if needed.
+
+    The directory is created (with its parents) and a hidden probe file is created and
+    removed in it, so that a path under a file, a read-only file system or a directory
+    without write permission is reported now rather than when a demonstration ends
+    (``os.access`` would not do: it answers yes to root on a read-only mount).
+
+    Returns
+    -------
+    Path
+        The directory, ``~`` expanded.
+
+    Raises
+    ------
+    ValueError
+        ``dataset_dir: <path> ...`` with the operating system's reason.
+    """
+    path = validate_dataset_dir(dataset_dir)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe-", dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise ValueError(
+            f"dataset_dir: cannot write into {path}: {err.strerror or err}") from None
+    return path
+
+
+def default_fallback_dirs() -> list[Path]:
+    """Where :meth:`DemoRecorder.close` saves demonstrations the dataset directory refused.
+
+    ``$ROS_HOME/policy_align_recorder/unsaved`` (``~/.ros`` when ``ROS_HOME`` is unset),
+    then ``<temp dir>/policy_align_recorder-<uid>/unsaved``, in that order; the second one
+    is often another file system (tmpfs), which helps when the first disk is full.
+    """
+    ros_home = Path(os.environ.get("ROS_HOME") or "~/.ros").expanduser()
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    return [
+        ros_home / "policy_align_recorder" / "unsaved",
+        Path(tempfile.gettempdir()) / f"policy_align_recorder-{uid}" / "unsaved",
+    ]
+
+
+class PendingWriteError(OSError):
+    """A demonstration could not be written and is kept in memory (the message says why)."""
+
+
+@dataclass(frozen=True)
+class _Demo:
+    """One finished demonstration, ready for write_joint_state_bag (arrays own their data)."""
+
+    joints: list[str]
+    stamps: np.ndarray  # (N,) int64 ns
+    positions: np.ndarray  # (N, n)
+    velocities: np.ndarray | None  # (N, n) or None
+    has_velocity: np.ndarray | None  # (N,) bool or None
+    topic: str
+
+    def __len__(self) -> int:
+        return int(self.stamps.shape[0])
+
+    def write(self, dataset_dir: Path) -> Path:
+        return write_joint_state_bag(
+            next_demo_path(dataset_dir), self.joints, self.stamps, self.positions,
+            self.velocities, has_velocity=self.has_velocity, topic=self.topic, unique=True)
+
+
+@dataclass(frozen=True)
+class SaveResult:
+    """Outcome of saving one demonstration in :meth:`DemoRecorder.close`.
+
+    Attributes
+    ----------
+    messages : int
+        Messages in the demonstration.
+    path : Path or None
+        The bag written, or ``None`` if every directory failed (the demonstration is lost).
+    fallback : bool
+        Whether ``path`` is in a fallback directory rather than the dataset directory.
+    errors : tuple of str
+        One line per directory that failed, in the order tried.
+    """
+
+    messages: int
+    path: Path | None
+    fallback: bool
+    errors: tuple[str, ...]
 
 
 class DemoRecorder:
@@ -92,6 +202,9 @@ class DemoRecorder:
         Bags written, in order.
     dropped : int
         Demonstrations dropped for having fewer than ``min_messages`` messages.
+    lost_while_pending : int
+        Messages not recorded because a continuous recording was paused while a pending
+        demonstration waited to be written.
     """
 
     def __init__(
@@ -103,7 +216,7 @@ class DemoRecorder:
         topic: str = DEFAULT_TOPIC,
         min_messages: int = 2,
     ) -> None:
-        self.dataset_dir = validate_dataset_dir(dataset_dir)
+        self.dataset_dir = check_dataset_dir(dataset_dir)
         self._selector = JointSelector(joints)
         self.auto_split_gap_s = validate_gap(auto_split_gap_s)
         self._clock = StreamClock(round(self.auto_split_gap_s * 1e9))
@@ -115,6 +228,9 @@ class DemoRecorder:
         self.accepted = 0
         self.written: list[Path] = []
         self.dropped = 0
+        self.lost_while_pending = 0
+        self._pending: _Demo | None = None
+        self._pending_error = ""
         self._active = False
         self._last_rx = 0.0
         self._lock = threading.Lock()
@@ -142,8 +258,8 @@ class DemoRecorder:
             self._clock.gap_ns = round(gap * 1e9)
 
     def set_dataset_dir(self, dataset_dir: str | os.PathLike[str]) -> None:
-        """Change the directory of the next bags."""
-        path = validate_dataset_dir(dataset_dir)
+        """Change the directory of the next bags (checked as by check_dataset_dir)."""
+        path = check_dataset_dir(dataset_dir)
         with self._lock:
             self.dataset_dir = path
 
@@ -158,6 +274,17 @@ class DemoRecorder:
         """Valid messages in the current, unwritten demonstration."""
         return len(self._stamps)
 
+    @property
+    def pending(self) -> int:
+        """Messages of the demonstration waiting to be written (0: none is pending)."""
+        pending = self._pending
+        return 0 if pending is None else len(pending)
+
+    @property
+    def pending_error(self) -> str:
+        """Why the pending demonstration could not be written ("" when none is pending)."""
+        return self._pending_error
+
     def _clear(self) -> None:
         self._stamps = array("q")
         self._positions = array("d")
@@ -171,9 +298,12 @@ class DemoRecorder:
         Raises
         ------
         RuntimeError
-            If a demonstration is already being recorded.
+            If a demonstration is already being recorded, or one is pending (its write
+            failed; :meth:`stop` or :meth:`retry_pending` writes it).
         """
         with self._lock:
+            if self._pending is not None:
+                raise RuntimeError(self._pending_message())
             if self._active:
                 raise RuntimeError(
                     f"already recording a demonstration ({len(self._stamps)} messages so "
@@ -185,17 +315,103 @@ class DemoRecorder:
             self._last_rx = time.monotonic()
 
     def stop(self) -> Path | None:
-        """Stop recording and write the current demonstration.
+        """Stop recording and write the current demonstration, or retry the pending one.
 
         Returns
         -------
         Path or None
             The bag written (complete and fsync'ed), or ``None`` if the demonstration had
             fewer than ``min_messages`` valid messages (nothing is written).
+
+        Raises
+        ------
+        PendingWriteError
+            The write failed; the demonstration is kept as the pending one and recording
+            stays stopped. Calling ``stop`` again retries it.
         """
         with self._lock:
             self._active = False
+            if self._pending is not None:
+                # While one is pending nothing else is buffered (start is refused and a
+                # continuous recording pauses), so this is the only write to do.
+                return self._write_pending()
             return self._write_current()
+
+    def retry_pending(self) -> Path | None:
+        """Write the pending demonstration, if any, into the dataset directory.
+
+        Returns
+        -------
+        Path or None
+            The bag written, or ``None`` when nothing was pending. A continuous recording
+            resumes once it is written.
+
+        Raises
+        ------
+        PendingWriteError
+            It failed again (it stays pending).
+        """
+        with self._lock:
+            if self._pending is None:
+                return None
+            return self._write_pending()
+
+    def close(
+        self, keep_current: bool, fallback_dirs: Sequence[str | os.PathLike[str]] = ()
+    ) -> list[SaveResult]:
+        """Stop for good, saving the pending demonstration and optionally the current one.
+
+        Never raises for a failed write: each demonstration goes to the dataset directory,
+        else to the first fallback directory that works, and the outcome is returned.
+
+        Parameters
+        ----------
+        keep_current : bool
+            Save the demonstration being recorded (continuous mode, where the stream's last
+            segment is a finished demonstration); ``False`` discards it (manual mode,
+            where it was never stopped).
+        fallback_dirs : sequence of path-like
+            Directories tried, in order, when the dataset directory fails (created if
+            needed); see :func:`default_fallback_dirs`.
+
+        Returns
+        -------
+        list of SaveResult
+            One per demonstration that had to be saved (pending first).
+        """
+        with self._lock:
+            self._active = False
+            demos = [] if self._pending is None else [self._pending]
+            self._pending, self._pending_error = None, ""
+            if keep_current and len(self._stamps) >= self.min_messages:
+                demos.append(self._take_current())
+            elif len(self._stamps) and keep_current:
+                self.dropped += 1
+            self._clear()
+            results = []
+            for demo in demos:
+                errors: list[str] = []
+                path = None
+                targets = [self.dataset_dir, *(Path(d) for d in fallback_dirs)]
+                for k, directory in enumerate(targets):
+                    try:
+                        path = demo.write(directory)
+                    except (OSError, ValueError) as err:
+                        errors.append(f"{directory}: {err}")
+                        continue
+                    self.written.append(path)
+                    results.append(SaveResult(len(demo), path, k > 0, tuple(errors)))
+                    break
+                else:
+                    results.append(SaveResult(len(demo), None, False, tuple(errors)))
+            return results
+
+    def _pending_message(self) -> str:
+        return (
+            f"a demonstration of {len(self._pending)} messages could not be written "
+            f"({self._pending_error}) and is kept in memory; make {self.dataset_dir} "
+            "writable or change dataset_dir, then stop_demo writes it"
+        )
 
     def discard(self) -> int:
         """Stop recording and drop the current demonstration; returns its message count."""
@@ -217,6 +433,11 @@ class DemoRecorder:
         -------
         Path or None
             The bag written, if any.
+
+        Raises
+        ------
+        PendingWriteError
+            The write failed; the demonstration is pending (see :meth:`retry_pending`).
         """
         now = time.monotonic() if now is None else now
         with self._lock:
@@ -249,10 +470,20 @@ class DemoRecorder:
         Path or None
             In continuous mode, the bag of the previous demonstration when this message
             starts a new one after a gap; otherwise ``None``.
+
+        Raises
+        ------
+        PendingWriteError
+            In continuous mode, writing the previous demonstration failed: it is pending
+            and recording pauses until it is written.
         """
         if not self._active:
             return None
         with self._lock:
+            if self._pending is not None:
+                # Paused until the pending one is written: at most one is kept in memory.
+                self.lost_while_pending += 1
+                return None
             picked = self._selector.select(names, positions, velocities, efforts)
             if isinstance(picked, str):
                 self.skipped[picked] += 1
@@ -263,7 +494,11 @@ class DemoRecorder:
                 return None
             written = None
             if outcome == NEW and self._stamps:
-                written = self._write_current()
+                try:
+                    written = self._write_current()
+                except PendingWriteError:
+                    self.lost_while_pending += 1  # this message opened the next segment
+                    raise
             self._selector.commit(names)
             self._clock.accept(stamp_ns)
             self._last_rx = time.monotonic()
@@ -280,8 +515,27 @@ class DemoRecorder:
             self.accepted += 1
             return written
 
+    def _take_current(self) -> _Demo:
+        """The buffered demonstration as arrays that own their data (caller holds the lock)."""
+        count, n = len(self._stamps), self._n
+        flags = np.frombuffer(self._has_velocity, dtype=np.int8).astype(bool)
+        velocities = np.frombuffer(self._velocities, dtype=np.float64).reshape(count, n)
+        joints = self._selector.joints
+        assert joints is not None
+        return _Demo(
+            joints=list(joints),
+            stamps=np.frombuffer(self._stamps, dtype=np.int64).copy(),
+            positions=np.frombuffer(self._positions, dtype=np.float64).reshape(count, n).copy(),
+            velocities=velocities.copy() if flags.any() else None,
+            has_velocity=flags if flags.any() else None,
+            topic=self.topic,
+        )
+
     def _write_current(self) -> Path | None:
-        """Write and clear the buffered demonstration (caller holds the lock)."""
+        """Write and clear the buffered demonstration (caller holds the lock).
+
+        A failed write keeps it as the pending demonstration and raises PendingWriteError.
+        """
         count = len(self._stamps)
         if count == 0:
             return None
@@ -289,25 +543,20 @@ class DemoRecorder:
             self.dropped += 1
             self._clear()
             return None
-        stamps, n = self._stamps, self._n
-        positions = np.frombuffer(self._positions, dtype=np.float64).reshape(count, n)
-        velocities = np.frombuffer(self._velocities, dtype=np.float64).reshape(count, n)
-        flags = np.frombuffer(self._has_velocity, dtype=np.int8).astype(bool)
-        joints = self._selector.joints
-        assert joints is not None
+        demo = self._take_current()
+        self._clear()
+        self._pending = demo
+        return self._write_pending()
+
+    def _write_pending(self) -> Path:
+        """Write the pending demonstration (caller holds the lock); it stays on failure."""
+        demo = self._pending
+        assert demo is not None
         try:
-            path = write_joint_state_bag(
-                next_demo_path(self.dataset_dir),
-                joints,
-                np.frombuffer(stamps, dtype=np.int64),
-                positions,
-                velocities if flags.any() else None,
-                has_velocity=flags if flags.any() else None,
-                topic=self.topic,
-                unique=True,
-            )
-        finally:
-            # A failed write is not retried with the same data: the stream goes on.
-            self._clear()
+            path = demo.write(self.dataset_dir)
+        except (OSError, ValueError) as err:
+            self._pending_error = str(err) or type(err).__name__
+            raise PendingWriteError(self._pending_message()) from err
+        self._pending, self._pending_error = None, ""
         self.written.append(path)
         return path
