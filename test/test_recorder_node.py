@@ -224,6 +224,8 @@ def test_sigkill_mid_demo_keeps_earlier_demos(tmp_path):
         proc.stderr.close()
     assert proc.returncode == -signal.SIGKILL
     assert sorted(p.name for p in dataset.iterdir()) == ["demo_0000", "demo_0001"]
+    for bag in dataset.iterdir():
+        assert sorted(p.name for p in bag.iterdir()) == [f"{bag.name}.mcap", "metadata.yaml"]
     trajs, names, report = load_dataset(dataset, gap_s=0)
     assert names == ["a", "b"] and len(trajs) == 2
     for traj, q in zip(trajs, sent[:2], strict=True):
@@ -231,15 +233,26 @@ def test_sigkill_mid_demo_keeps_earlier_demos(tmp_path):
     assert report.messages_skipped == 0
 
 
-@pytest.mark.parametrize("bad", [["joints:=[a, a]"], ["dataset_dir:=''"]])
+@pytest.mark.parametrize("bad", [
+    ["joints:=[a, a]"], ["dataset_dir:=''"],
+    ["dataset_dir:={tmp}/file/ds"],  # ENOTDIR: under a file
+    ["dataset_dir:={tmp}/file"],  # a file, not a directory
+])
 def test_invalid_start_up_parameters_exit_with_a_message(tmp_path, bad):
+    (tmp_path / "file").write_text("a file")
+    bad = [item.format(tmp=tmp_path) for item in bad]
     args = [item for p in [f"dataset_dir:={tmp_path}", *bad] for item in ("-p", p)]
     proc = subprocess.run(
         [sys.executable, "-m", "policy_align_ros.nodes.recorder", "--ros-args", *args],
-        env=dict(os.environ, ROS_DOMAIN_ID="104"), capture_output=True, timeout=30,
+        env=dict(os.environ, ROS_DOMAIN_ID="104"), capture_output=True, timeout=60,
     )
-    assert proc.returncode == 2
+    assert proc.returncode == 2, proc.stderr.decode()
     assert b"recorder: error:" in proc.stderr
+    assert b"Traceback" not in proc.stderr
+    if "dataset_dir:=" in bad[0] and "file" in bad[0]:
+        # The reason names the parameter and the path.
+        message = proc.stderr.decode()
+        assert "dataset_dir:" in message and bad[0].split(":=")[1] in message, message
 
 
 def test_continuous_mode_splits_when_the_stream_pauses(tmp_path):
@@ -267,3 +280,132 @@ def test_continuous_mode_splits_when_the_stream_pauses(tmp_path):
     trajs, _, _ = load_dataset(tmp_path, gap_s=0)
     assert [len(t) for t in trajs] == [20, 20]
     np.testing.assert_array_equal(np.concatenate([t.positions for t in trajs]), q)
+
+
+def test_failed_write_is_kept_refused_and_written_after_a_fix(tmp_path):
+    dataset = tmp_path / "ds"
+    q = np.random.default_rng(6).normal(size=(30, 2))
+    with _ros(106) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(dataset))])
+        harness = _Harness(ctx, recorder)
+        try:
+            harness.ready()
+            assert harness.call(harness.start).success
+            for k in range(30):
+                harness.pub.publish(_msg(T0 + k * 10**7, "ab", q[k]))
+                time.sleep(0.002)
+            _wait(lambda: recorder.recorder.buffered == 30, 10.0, "30 messages")
+            dataset.rmdir()
+            dataset.write_text("the directory was replaced by a file")  # ENOTDIR
+            failed = harness.call(harness.stop)
+            assert not failed.success
+            assert "writing failed" in failed.message and "kept in memory" in failed.message
+            refused = harness.call(harness.start)
+            assert not refused.success and "could not be written" in refused.message
+            bad = recorder.set_parameters([Parameter("dataset_dir", value=str(dataset))])
+            assert not bad[0].successful and "dataset_dir" in bad[0].reason
+            bad = recorder.set_parameters(
+                [Parameter("dataset_dir", value=str(dataset / "below"))])
+            assert not bad[0].successful and "cannot write into" in bad[0].reason
+            good = recorder.set_parameters(
+                [Parameter("dataset_dir", value=str(tmp_path / "fixed"))])
+            assert good[0].successful, good[0].reason
+            written = harness.call(harness.stop)
+            assert written.success, written.message
+            assert written.message == str(tmp_path / "fixed" / "demo_0000")
+            assert harness.call(harness.start).success  # nothing pending any more
+        finally:
+            harness.close()
+    trajs, _, _ = load_dataset(tmp_path / "fixed", gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, q)
+
+
+def _spawn_recorder(tmp_path, domain_id: int, *params: str) -> subprocess.Popen:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_HOME=str(tmp_path / "ros_home"))
+    cmd = [sys.executable, "-m", "policy_align_ros.nodes.recorder", "--ros-args"]
+    for param in params:
+        cmd += ["-p", param]
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def _terminate(proc: subprocess.Popen) -> tuple[int, str]:
+    """SIGTERM (what a launch system or systemd sends); returns the status and stderr."""
+    try:
+        assert proc.poll() is None, proc.stderr.read().decode()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+        return proc.returncode, proc.stderr.read().decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        proc.stderr.close()
+
+
+def test_sigterm_in_continuous_mode_writes_the_last_segment(tmp_path):
+    dataset = tmp_path / "ds"
+    q = np.random.default_rng(7).normal(size=(50, 2))
+    proc = _spawn_recorder(tmp_path, 107, f"dataset_dir:={dataset}", "joints:=[a, b]",
+                           "auto_split_gap_s:=600.0")
+    try:
+        with _ros(107) as ctx:
+            harness = _Harness(ctx, None)
+            try:
+                harness.ready()
+                for k in range(50):  # two segments: a 700 s gap in the stamps after 20
+                    stamp = T0 + k * 10**7 + (700 * 10**9 if k >= 20 else 0)
+                    harness.pub.publish(_msg(stamp, "ab", q[k]))
+                    time.sleep(0.002)
+                # The gap wrote the first; the second is only in memory (the idle flush
+                # is 600 s away), so only the shutdown can write it.
+                _wait(lambda: (dataset / "demo_0000").is_dir(), 20.0, "the first segment")
+                time.sleep(1.0)  # let the messages arrive before the signal
+            finally:
+                harness.close()
+    finally:
+        status, err = _terminate(proc)
+    assert "Traceback" not in err, err
+    assert status == 0, err
+    assert "demonstration written at shutdown" in err, err
+    trajs, _, _ = load_dataset(dataset, gap_s=0)
+    assert [len(t) for t in trajs] == [20, 30]
+    np.testing.assert_array_equal(np.concatenate([t.positions for t in trajs]), q)
+
+
+def test_sigterm_with_a_failing_dataset_dir_saves_to_the_fallback(tmp_path):
+    # The session of the issue: continuous mode, the dataset directory becomes unusable
+    # (replaced by a file: ENOTDIR), SIGTERM. Nothing finished may be lost, no traceback.
+    dataset, moved = tmp_path / "ds", tmp_path / "ds_moved_away"
+    q = np.random.default_rng(8).normal(size=(40, 2))
+    proc = _spawn_recorder(tmp_path, 108, f"dataset_dir:={dataset}", "joints:=[a, b]",
+                           "auto_split_gap_s:=600.0")
+    try:
+        with _ros(108) as ctx:
+            harness = _Harness(ctx, None)
+            try:
+                harness.ready()
+                for k in range(20):
+                    harness.pub.publish(_msg(T0 + k * 10**7, "ab", q[k]))
+                    time.sleep(0.002)
+                # The first message after a 700 s stamp gap ends segment 1 (written).
+                harness.pub.publish(_msg(T0 + 700 * 10**9, "ab", q[20]))
+                _wait(lambda: (dataset / "demo_0000").is_dir(), 20.0, "the first segment")
+                dataset.rename(moved)
+                dataset.write_text("replaced by a file")
+                for k in range(21, 40):
+                    harness.pub.publish(_msg(T0 + 700 * 10**9 + k * 10**7, "ab", q[k]))
+                    time.sleep(0.002)
+                time.sleep(1.0)  # let the messages arrive before the signal
+            finally:
+                harness.close()
+    finally:
+        status, err = _terminate(proc)
+    assert "Traceback" not in err, err
+    assert status == 0, err
+    fallback = tmp_path / "ros_home" / "policy_align_recorder" / "unsaved"
+    assert "FALLBACK" in err and str(fallback) in err, err
+    first, _, _ = load_dataset(moved, gap_s=0)
+    second, _, _ = load_dataset(fallback, gap_s=0)
+    np.testing.assert_array_equal(first[0].positions, q[:20])
+    np.testing.assert_array_equal(second[0].positions, q[20:])

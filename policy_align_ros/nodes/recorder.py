@@ -18,9 +18,29 @@ Interface (DESIGN.md section 6):
   apply to the next bag; ``joints`` cannot change while a demonstration is buffered, and
   changing ``auto_split_gap_s`` changes the splitting, not whether recording is on.
 
-On a clean shutdown a continuous recording's last demonstration is written and an
-unfinished manual one is discarded; on SIGKILL the demonstration in progress is lost and
-every earlier bag is intact (bags are renamed into place only when complete).
+Failures lose no finished demonstration:
+
+* ``dataset_dir`` is created and probed for writing at start-up; if it cannot be written
+  (under a file, read-only, no permission) the node does not start: it prints
+  ``recorder: error: dataset_dir: ...`` and exits with status 2, without a traceback,
+  because a recorder that cannot record should fail where it is launched rather than
+  when a demonstration ends. A change at run time is checked the same way and refused
+  with that reason.
+* A demonstration whose write fails later (full disk, EFBIG, permission, the directory
+  replaced) is kept in memory, at most one: ``stop_demo`` answers ``success=false`` with
+  the reason and an error is logged; ``start_demo`` is refused with the reason while it is
+  pending; a continuous recording pauses (the messages dropped meanwhile are counted in the
+  throttled warning). It is written by the next ``stop_demo`` or by the retry every
+  ``_RETRY_PERIOD_S`` of node time, once the directory works (e.g. after fixing it or
+  setting ``dataset_dir``).
+* On shutdown (SIGINT, SIGTERM) the pending demonstration and a continuous recording's
+  last segment are written; if ``dataset_dir`` still fails they go to the first working
+  fallback directory (``$ROS_HOME/policy_align_recorder/unsaved``, else under the temp
+  dir; see :func:`~policy_align_ros.data.recording.default_fallback_dirs`), named in an
+  error log line. An unfinished manual demonstration (``stop_demo`` never called) is
+  discarded with a warning.
+* On SIGKILL the demonstration in progress (and a pending one) is lost and every earlier
+  bag is intact (bags are renamed into place only when complete).
 
 Skipped (malformed) messages are reported in a warning at most every ``warn_period_s``.
 """
@@ -28,7 +48,6 @@ Skipped (malformed) messages are reported in a warning at most every ``warn_peri
 from __future__ import annotations
 
 import sys
-import time
 
 import rclpy
 from rcl_interfaces.msg import (
@@ -47,13 +66,18 @@ from std_srvs.srv import Trigger
 from policy_align_ros.data.messages import validate_joint_names
 from policy_align_ros.data.recording import (
     DemoRecorder,
-    validate_dataset_dir,
+    PendingWriteError,
+    check_dataset_dir,
+    default_fallback_dirs,
     validate_gap,
 )
 
 __all__ = ["RecorderNode", "main"]
 
 _MAX_GAP_S = 3600.0
+# A failed write is retried this often [s of node time]: rare enough that a full disk is not
+# hammered with a bag that is written and deleted again, soon enough to resume promptly.
+_RETRY_PERIOD_S = 5.0
 
 
 class RecorderNode(Node):
@@ -91,7 +115,8 @@ class RecorderNode(Node):
         self.create_service(Trigger, "~/stop_demo", self._on_stop)
         self.create_timer(0.1, self._on_timer)
         self._reported_skips = 0
-        self._last_warning = float("-inf")
+        self._last_warning: int | None = None  # node-clock ns
+        self._last_retry: int | None = None
         if self._recorder.auto_split_gap_s > 0:
             self._recorder.start()
         self.get_logger().info(
@@ -111,6 +136,9 @@ class RecorderNode(Node):
         try:
             path = self._recorder.add(stamp or self.get_clock().now().nanoseconds, msg.name,
                                       msg.position, msg.velocity, msg.effort)
+        except PendingWriteError as err:
+            self.get_logger().error(f"{err}; recording paused until it is written")
+            return
         except (OSError, ValueError) as err:
             self.get_logger().error(f"could not write a demonstration: {err}")
             return
@@ -131,10 +159,11 @@ class RecorderNode(Node):
     def _on_stop(
         self, request: Trigger.Request, response: Trigger.Response
     ) -> Trigger.Response:
-        count = self._recorder.buffered
+        count = self._recorder.pending or self._recorder.buffered
         try:
             path = self._recorder.stop()
         except (OSError, ValueError) as err:
+            self.get_logger().error(f"stop_demo: writing failed: {err}")
             response.success, response.message = False, f"writing failed: {err}"
             return response
         if path is None:
@@ -146,23 +175,40 @@ class RecorderNode(Node):
         return response
 
     def _on_timer(self) -> None:
+        now = self.get_clock().now().nanoseconds
         try:
             path = self._recorder.flush_if_idle()
         except (OSError, ValueError) as err:
             self.get_logger().error(f"could not write a demonstration: {err}")
+            self._last_retry = now
             path = None
         if path is not None:
             self.get_logger().info(f"demonstration written (stream idle): {path}")
-        self._warn_skips()
+        if self._recorder.pending and (
+                self._last_retry is None or now - self._last_retry >= _RETRY_PERIOD_S * 1e9):
+            self._last_retry = now
+            count = self._recorder.pending
+            try:
+                path = self._recorder.retry_pending()
+            except (OSError, ValueError) as err:
+                self.get_logger().error(f"retry failed: {err}")
+            else:
+                self.get_logger().info(
+                    f"pending demonstration written: {path} ({count} messages)"
+                    + ("; recording resumed" if self._recorder.active else ""))
+        self._warn_skips(now)
 
-    def _warn_skips(self) -> None:
+    def _warn_skips(self, now: int) -> None:
         skipped = self._recorder.skipped
-        total = sum(skipped.values())
-        now = time.monotonic()
-        period = self.get_parameter("warn_period_s").value
-        if total == self._reported_skips or now - self._last_warning < period:
+        lost = self._recorder.lost_while_pending
+        total = sum(skipped.values()) + lost
+        period_ns = self.get_parameter("warn_period_s").value * 1e9
+        if total == self._reported_skips or (
+                self._last_warning is not None and now - self._last_warning < period_ns):
             return
         detail = ", ".join(f"{k}={v}" for k, v in skipped.items() if v)
+        if lost:
+            detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
         self.get_logger().warning(
             f"skipped {total - self._reported_skips} malformed joint_states message(s) "
             f"since the last report ({total} in total: {detail})"
@@ -173,7 +219,9 @@ class RecorderNode(Node):
         try:
             for param in params:
                 if param.name == "dataset_dir":
-                    validate_dataset_dir(param.value)
+                    if param.type_ != Parameter.Type.STRING:
+                        raise ValueError("dataset_dir: must be a string")
+                    check_dataset_dir(param.value)
                 elif param.name == "joints":
                     if param.type_ not in (Parameter.Type.STRING_ARRAY, Parameter.Type.NOT_SET):
                         raise ValueError("joints: must be a list of strings")
@@ -196,17 +244,31 @@ class RecorderNode(Node):
         return SetParametersResult(successful=True)
 
     def shutdown(self) -> None:
-        """Finish cleanly: keep a continuous recording's last segment, drop a manual one."""
-        if self._recorder.auto_split_gap_s > 0:
-            path = self._recorder.stop()
-            if path is not None:
-                self.get_logger().info(f"demonstration written at shutdown: {path}")
-        else:
-            dropped = self._recorder.discard()
-            if dropped:
-                self.get_logger().warning(
-                    f"discarded an unfinished demonstration of {dropped} messages "
-                    "(~/stop_demo was not called)")
+        """Finish cleanly: save a pending demonstration and a continuous recording's last
+        segment (to a fallback directory if need be); drop an unfinished manual one.
+
+        Never raises: every outcome is logged.
+        """
+        keep = self._recorder.auto_split_gap_s > 0
+        unfinished = 0 if keep else self._recorder.buffered
+        logger = self.get_logger()
+        for result in self._recorder.close(keep_current=keep,
+                                           fallback_dirs=default_fallback_dirs()):
+            if result.path is None:
+                logger.error(
+                    f"LOST a demonstration of {result.messages} messages: no directory "
+                    f"could be written ({'; '.join(result.errors)})")
+            elif result.fallback:
+                logger.error(
+                    f"demonstration of {result.messages} messages written to the FALLBACK "
+                    f"directory {result.path} because dataset_dir failed "
+                    f"({'; '.join(result.errors)}); move it into the dataset")
+            else:
+                logger.info(f"demonstration written at shutdown: {result.path}")
+        if unfinished:
+            logger.warning(
+                f"discarded an unfinished demonstration of {unfinished} messages "
+                "(~/stop_demo was not called)")
 
 
 def main(args: list[str] | None = None) -> None:
