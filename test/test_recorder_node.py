@@ -409,3 +409,86 @@ def test_sigterm_with_a_failing_dataset_dir_saves_to_the_fallback(tmp_path):
     second, _, _ = load_dataset(fallback, gap_s=0)
     np.testing.assert_array_equal(first[0].positions, q[:20])
     np.testing.assert_array_equal(second[0].positions, q[20:])
+
+
+def test_pending_demo_is_retried_by_the_timer_and_recording_resumes(tmp_path, monkeypatch):
+    # Continuous mode: a full disk (EFBIG) at a split keeps the segment; once the disk
+    # accepts writes again the timer writes it and recording resumes by itself.
+    import errno
+
+    from policy_align_ros.data import bags
+    from policy_align_ros.nodes import recorder as recorder_module
+
+    monkeypatch.setattr(recorder_module, "_RETRY_PERIOD_S", 0.0)  # every timer tick
+    real, full = bags._joint_state_cdr, [False]
+
+    def cdr(*args):
+        if full[0]:
+            raise OSError(errno.EFBIG, "File too large")
+        return real(*args)
+
+    monkeypatch.setattr(bags, "_joint_state_cdr", cdr)
+    q = np.random.default_rng(9).normal(size=(40, 2))
+    with _ros(109) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path)),
+            Parameter("auto_split_gap_s", value=600.0)])
+        harness = _Harness(ctx, recorder)
+        rec = recorder.recorder
+        try:
+            harness.ready()
+            for k in range(20):
+                harness.pub.publish(_msg(T0 + k * 10**7, "ab", q[k]))
+                time.sleep(0.002)
+            _wait(lambda: rec.buffered == 20, 10.0, "the first segment")
+            full[0] = True
+            harness.pub.publish(_msg(T0 + 700 * 10**9, "ab", q[20]))  # split: write fails
+            _wait(lambda: rec.pending == 20, 10.0, "the pending segment")
+            assert not harness.call(harness.start).success  # refused while pending
+            bad = recorder.set_parameters([Parameter("dataset_dir", value=5)])
+            assert not bad[0].successful
+            full[0] = False
+            _wait(lambda: rec.pending == 0, 10.0, "the retry")
+            assert rec.active and len(rec.written) == 1
+            for k in range(21, 40):
+                harness.pub.publish(_msg(T0 + 700 * 10**9 + k * 10**7, "ab", q[k]))
+                time.sleep(0.002)
+            _wait(lambda: rec.buffered == 19, 10.0, "the second segment")
+            recorder.shutdown()
+        finally:
+            harness.close()
+    assert rec.lost_while_pending == 1  # the message that ended the segment during the outage
+    trajs, _, _ = load_dataset(tmp_path, gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, q[:20])
+    np.testing.assert_array_equal(trajs[1].positions, q[21:])
+
+
+def test_sigkill_in_continuous_mode_keeps_every_finished_segment(tmp_path):
+    dataset = tmp_path / "ds"
+    q = np.random.default_rng(10).normal(size=(60, 2))
+    proc = _spawn_recorder(tmp_path, 110, f"dataset_dir:={dataset}", "joints:=[a, b]",
+                           "auto_split_gap_s:=600.0")
+    try:
+        with _ros(110) as ctx:
+            harness = _Harness(ctx, None)
+            try:
+                harness.ready()
+                for k in range(60):  # segments of 20; the third is unfinished
+                    harness.pub.publish(_msg(T0 + (k // 20) * 10**12 + k * 10**7, "ab", q[k]))
+                    time.sleep(0.002)
+                _wait(lambda: (dataset / "demo_0001").is_dir(), 20.0, "two segments")
+                time.sleep(0.5)
+            finally:
+                harness.close()
+        assert proc.poll() is None, proc.stderr.read().decode()
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        proc.stderr.close()
+    assert sorted(p.name for p in dataset.iterdir()) == ["demo_0000", "demo_0001"]
+    trajs, _, report = load_dataset(dataset, gap_s=0)
+    np.testing.assert_array_equal(np.concatenate([t.positions for t in trajs]), q[:40])
+    assert report.messages_skipped == 0

