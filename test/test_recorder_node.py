@@ -282,7 +282,11 @@ def test_continuous_mode_splits_when_the_stream_pauses(tmp_path):
     np.testing.assert_array_equal(np.concatenate([t.positions for t in trajs]), q)
 
 
-def test_failed_write_is_kept_refused_and_written_after_a_fix(tmp_path):
+def test_failed_write_is_kept_refused_and_written_after_a_fix(tmp_path, monkeypatch):
+    from policy_align_ros.nodes import recorder as recorder_module
+
+    # Only stop_demo writes it here (the timer's retry has its own test).
+    monkeypatch.setattr(recorder_module, "_RETRY_PERIOD_S", 1e6)
     dataset = tmp_path / "ds"
     q = np.random.default_rng(6).normal(size=(30, 2))
     with _ros(106) as ctx:

@@ -292,8 +292,15 @@ class DemoRecorder:
         self._has_velocity = array("b")
         self._n = 0
 
-    def start(self) -> None:
+    def start(self, now: float | None = None) -> None:
         """Start recording a demonstration.
+
+        Parameters
+        ----------
+        now : float, optional
+            Receive time in seconds on the clock given to :meth:`add` and
+            :meth:`flush_if_idle` (a node passes its clock, so sim time applies); default
+            ``time.monotonic()``.
 
         Raises
         ------
@@ -312,7 +319,7 @@ class DemoRecorder:
             self._active = True
             self._clock.reset()
             self._clear()
-            self._last_rx = time.monotonic()
+            self._last_rx = time.monotonic() if now is None else now
 
     def stop(self) -> Path | None:
         """Stop recording and write the current demonstration, or retry the pending one.
@@ -427,7 +434,8 @@ class DemoRecorder:
         Parameters
         ----------
         now : float, optional
-            ``time.monotonic()`` reading (seconds); default: now.
+            Current time in seconds on the clock of :meth:`add`'s ``now``; default
+            ``time.monotonic()``.
 
         Returns
         -------
@@ -454,6 +462,7 @@ class DemoRecorder:
         positions: Sequence[float],
         velocities: Sequence[float] = (),
         efforts: Sequence[float] = (),
+        now: float | None = None,
     ) -> Path | None:
         """Record one joint-state message (ignored when not recording).
 
@@ -464,6 +473,9 @@ class DemoRecorder:
         names : sequence of str, length m
         positions : sequence of float, length m
         velocities, efforts : sequence of float, length 0 or m
+        now : float, optional
+            Receive time in seconds (for :meth:`flush_if_idle`); default
+            ``time.monotonic()``.
 
         Returns
         -------
@@ -501,7 +513,7 @@ class DemoRecorder:
                     raise
             self._selector.commit(names)
             self._clock.accept(stamp_ns)
-            self._last_rx = time.monotonic()
+            self._last_rx = time.monotonic() if now is None else now
             pos, vel = picked
             self._stamps.append(stamp_ns)
             self._positions.extend(pos)

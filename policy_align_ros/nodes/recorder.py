@@ -118,7 +118,7 @@ class RecorderNode(Node):
         self._last_warning: int | None = None  # node-clock ns
         self._last_retry: int | None = None
         if self._recorder.auto_split_gap_s > 0:
-            self._recorder.start()
+            self._recorder.start(self._now_s())
         self.get_logger().info(
             f"recording into {self._recorder.dataset_dir} "
             + ("continuously, split at gaps of "
@@ -131,12 +131,18 @@ class RecorderNode(Node):
         """The ROS-free recorder (for inspection)."""
         return self._recorder
 
+    def _now_s(self) -> float:
+        """Node-clock time [s]: idle splitting follows sim time when use_sim_time is set."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _on_joint_state(self, msg: JointState) -> None:
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        now = self.get_clock().now().nanoseconds
         try:
-            path = self._recorder.add(stamp or self.get_clock().now().nanoseconds, msg.name,
-                                      msg.position, msg.velocity, msg.effort)
+            path = self._recorder.add(stamp or now, msg.name, msg.position, msg.velocity,
+                                      msg.effort, now=now * 1e-9)
         except PendingWriteError as err:
+            self._last_retry = now  # a failure starts the retry period
             self.get_logger().error(f"{err}; recording paused until it is written")
             return
         except (OSError, ValueError) as err:
@@ -149,7 +155,7 @@ class RecorderNode(Node):
         self, request: Trigger.Request, response: Trigger.Response
     ) -> Trigger.Response:
         try:
-            self._recorder.start()
+            self._recorder.start(self._now_s())
         except RuntimeError as err:
             response.success, response.message = False, str(err)
             return response
@@ -163,6 +169,7 @@ class RecorderNode(Node):
         try:
             path = self._recorder.stop()
         except (OSError, ValueError) as err:
+            self._last_retry = self.get_clock().now().nanoseconds
             self.get_logger().error(f"stop_demo: writing failed: {err}")
             response.success, response.message = False, f"writing failed: {err}"
             return response
@@ -177,7 +184,7 @@ class RecorderNode(Node):
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
         try:
-            path = self._recorder.flush_if_idle()
+            path = self._recorder.flush_if_idle(now * 1e-9)
         except (OSError, ValueError) as err:
             self.get_logger().error(f"could not write a demonstration: {err}")
             self._last_retry = now
