@@ -358,3 +358,40 @@ def test_keeps_up_with_1khz(tmp_path):
     assert rec.accepted == 5000 and rec.buffered == 5000
     path = rec.stop()
     assert len(list(read_joint_states(path))) == 5000
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 64 KiB tmpfs: a real full disk (ENOSPC). Needs root and mount; skipped otherwise."""
+    import subprocess
+
+    disk = tmp_path / "tiny"
+    disk.mkdir()
+    try:
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)],
+                              capture_output=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        pytest.skip("mount is not available")
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True, timeout=10)
+
+
+def test_a_real_full_disk_loses_nothing(tmp_path, tiny_disk):
+    rng = np.random.default_rng(12)
+    rec = DemoRecorder(tiny_disk)
+    names = [f"j{i}" for i in range(22)]
+    rec.start()
+    stamps, q, v = _feed(rec, rng, 2000, T0, names=names)  # ~0.7 MB: does not fit
+    with pytest.raises(PendingWriteError, match="No space left"):
+        rec.stop()
+    assert _entries(tiny_disk) == [] and rec.pending == 2000  # no partial bag left
+    results = rec.close(keep_current=False, fallback_dirs=[tmp_path / "fallback"])
+    assert [(r.messages, r.fallback) for r in results] == [(2000, True)]
+    read = list(read_joint_states(results[0].path))
+    assert [m[1] for m in read] == stamps.tolist()
+    np.testing.assert_array_equal([m[3] for m in read], q)
+    np.testing.assert_array_equal([m[4] for m in read], v)
