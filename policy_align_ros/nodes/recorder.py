@@ -191,8 +191,10 @@ class RecorderNode(Node):
             path = None
         if path is not None:
             self.get_logger().info(f"demonstration written (stream idle): {path}")
+        # A clock that jumped back (a restarted sim publishing /clock) also allows a retry.
         if self._recorder.pending and (
-                self._last_retry is None or now - self._last_retry >= _RETRY_PERIOD_S * 1e9):
+                self._last_retry is None or not 0 <= now - self._last_retry
+                < _RETRY_PERIOD_S * 1e9):
             self._last_retry = now
             count = self._recorder.pending
             try:
@@ -211,13 +213,13 @@ class RecorderNode(Node):
         total = sum(skipped.values()) + lost
         period_ns = self.get_parameter("warn_period_s").value * 1e9
         if total == self._reported_skips or (
-                self._last_warning is not None and now - self._last_warning < period_ns):
+                self._last_warning is not None and 0 <= now - self._last_warning < period_ns):
             return
         detail = ", ".join(f"{k}={v}" for k, v in skipped.items() if v)
         if lost:
             detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
         self.get_logger().warning(
-            f"skipped {total - self._reported_skips} malformed joint_states message(s) "
+            f"skipped {total - self._reported_skips} joint_states message(s) "
             f"since the last report ({total} in total: {detail})"
         )
         self._reported_skips, self._last_warning = total, now
