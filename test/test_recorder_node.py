@@ -496,3 +496,42 @@ def test_sigkill_in_continuous_mode_keeps_every_finished_segment(tmp_path):
     trajs, _, report = load_dataset(dataset, gap_s=0)
     np.testing.assert_array_equal(np.concatenate([t.positions for t in trajs]), q[:40])
     assert report.messages_skipped == 0
+
+
+def test_idle_split_follows_sim_time(tmp_path):
+    # With use_sim_time the idle split waits for /clock, however long the wall clock runs.
+    from rosgraph_msgs.msg import Clock
+
+    q = np.random.default_rng(11).normal(size=(10, 2))
+    with _ros(114) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path)),
+            Parameter("auto_split_gap_s", value=1.0),
+            Parameter("use_sim_time", value=True)])
+        harness = _Harness(ctx, recorder)
+        clock_pub = harness.node.create_publisher(Clock, "/clock", 10)
+        rec = recorder.recorder
+
+        def tick(seconds: int) -> None:
+            msg = Clock()
+            msg.clock.sec = seconds
+            clock_pub.publish(msg)
+
+        try:
+            harness.ready()
+            _wait(lambda: clock_pub.get_subscription_count() >= 1, 20.0, "/clock subscriber")
+            tick(100)
+            _wait(lambda: recorder.get_clock().now().nanoseconds == 100 * 10**9, 20.0,
+                  "sim time 100 s")
+            for k in range(10):
+                harness.pub.publish(_msg(T0 + k * 10**7, "ab", q[k]))
+                time.sleep(0.002)
+            _wait(lambda: rec.buffered == 10, 10.0, "10 messages")
+            time.sleep(1.5)  # > auto_split_gap_s of wall time, no sim time
+            assert rec.written == [] and rec.buffered == 10
+            tick(102)
+            _wait(lambda: len(rec.written) == 1, 10.0, "the idle split at sim time 102 s")
+        finally:
+            harness.close()
+    trajs, _, _ = load_dataset(tmp_path, gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, q)
