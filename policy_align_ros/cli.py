@@ -2,7 +2,7 @@
 
 Sub-commands (each imports its heavy dependencies only when it runs)::
 
-    policy-align demo [--robot NAME] [--out DIR]
+    policy-align demo [--robot NAME] [--state joints|hands] [--seed N] [--out DIR]
     policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
     policy-align call SERVICE [--data true|false]
     policy-align param get|set NODE NAME [VALUE]
@@ -27,6 +27,10 @@ def _build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="run the whole ROS 2 graph on a simulated robot")
     demo.add_argument("--robot", default="talos", help="example-robot-data name or URDF")
     demo.add_argument("--out", default="demo_out", help="directory for data, model, plots")
+    demo.add_argument("--state", default="joints", choices=("joints", "hands"),
+                      help="learn in joint space or in the positions of both hands")
+    demo.add_argument("--seed", type=int, default=0,
+                      help="seed of every random draw (demonstrations, starts, hold-out)")
 
     learn = sub.add_parser("learn", help="learn a model from rosbag2 bags or datasets")
     learn.add_argument("inputs", nargs="+", metavar="BAG_OR_DATASET")
@@ -78,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
 
             return run_learn(args)
         if args.command == "demo":
-            from policy_align_ros.nodes.demo import run_demo
+            from policy_align_ros.client.demo import run_demo
 
             return run_demo(args)
         if args.command == "call":

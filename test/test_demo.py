@@ -5,7 +5,7 @@ import os
 from pathlib import Path
 
 from policy_align_ros.data import load_dataset
-from policy_align_ros.nodes.demo import run_demo
+from policy_align_ros.client.demo import run_demo
 
 
 def _processes_mentioning(text: str) -> list[int]:

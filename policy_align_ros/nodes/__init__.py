@@ -8,6 +8,6 @@ One module per executable, each with a ``main()`` console script:
 * ``learner`` - PolicyAlign on the recorded demonstrations (``~/learn``, ``~/model``);
 * ``executor`` - drives the robot with the learnt policy under configured constraints.
 
-``demo`` runs the whole graph (``policy-align demo``); the clients ``call`` and ``param``
+The demo's orchestration (``policy-align demo``) and the clients ``call`` and ``param``
 live in :mod:`policy_align_ros.client`. The logic lives in the ROS-free subpackages.
 """
