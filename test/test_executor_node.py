@@ -44,10 +44,11 @@ class Rig:
     def __init__(self, domain_id: int, **params):
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
-        # A generous state timeout: a loaded machine must not turn into stale states.
+        # A generous state timeout: a loaded machine must not turn into stale states. No
+        # controller check unless a test asks for one (it would wait for an absent node).
         overrides = {"robot": "talos", "joints": JOINTS, "rate_hz": 1.0 / PERIOD,
                      "state_timeout_s": 0.5, "max_acceleration": ACC, "constraints": PLANE,
-                     **params}
+                     "controller": "", **params}
         self.node = Executor(context=self.context, parameter_overrides=[
             Parameter(k, value=v) for k, v in overrides.items()])
         self.probe = Node("probe", context=self.context)
@@ -92,7 +93,8 @@ class Rig:
     def enable(self, on: bool) -> SetBool.Response:
         assert self.enable_client.wait_for_service(timeout_sec=5.0)
         future = self.enable_client.call_async(SetBool.Request(data=on))
-        self.executor.spin_until_future_complete(future, timeout_sec=5.0)
+        # Joint states keep coming while ~/enable waits (for the controller's answer).
+        self.spin_until(future.done, timeout=10.0, what="the ~/enable answer")
         return future.result()
 
     def close(self) -> None:
@@ -553,3 +555,61 @@ def test_a_model_path_that_does_not_load_at_start_stops_the_node(tmp_path):
                 Parameter("model_path", value=str(tmp_path / "missing.npz"))])
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_enable_checks_the_controllers_joint_order(rig):
+    """~/enable reads the controller's ``joints`` (same single-threaded executor: no deadlock)."""
+    r = rig(204, controller="/velocity_controller")
+    controller = Node("velocity_controller", context=r.context)
+    try:
+        controller.declare_parameter("joints", JOINTS[::-1])
+        r.executor.add_node(controller)
+        r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+        r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                     what="fresh joint states")
+        response = r.enable(True)
+        assert not response.success and not r.node.controller.armed
+        assert ("controller /velocity_controller orders the joints differently: command "
+                "slot 0 is 'arm_left_7_joint' there and 'arm_left_1_joint' here"
+                ) in response.message
+        controller.set_parameters([Parameter("joints", value=[*JOINTS[:-1], "head_1_joint"])])
+        response = r.enable(True)
+        assert not response.success
+        assert ("has other joints than the executor: not in the controller "
+                "['arm_left_7_joint'], only in the controller ['head_1_joint']"
+                ) in response.message
+        r.spin(0.1)
+        assert r.commands == []  # refused: nothing was ever published
+        controller.set_parameters([Parameter("joints", value=JOINTS)])
+        response = r.enable(True)
+        assert response.success and "not checked" not in response.message, response.message
+        r.spin_until(lambda: len(r.commands) >= 3, what="commands")
+    finally:
+        r.executor.remove_node(controller)
+        controller.destroy_node()
+
+
+def test_enable_without_an_answering_controller_arms_and_says_so(rig):
+    r = rig(205)
+    assert r.node.set_parameters([Parameter("controller", value="/velocity_controller")]
+                                 )[0].successful
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    ticks = []
+    r.node.create_timer(PERIOD, lambda: ticks.append(1))
+    response = r.enable(True)
+    assert response.success and r.node.controller.armed
+    assert ("joint order of the command array not checked: /velocity_controller did not "
+            "answer within 1 s") in response.message
+    assert ticks  # the node kept running while it waited for the controller
+    for bad in ("has space", "/trailing/", "1starts_with_digit"):
+        result = r.node.set_parameters([Parameter("controller", value=bad)])[0]
+        assert not result.successful and "controller: not a valid node name" in result.reason
+    assert r.node.set_parameters([Parameter("controller", value="")])[0].successful
+    response = r.enable(False)
+    assert response.success
+    response = r.enable(True)
+    assert response.success and "not checked" not in response.message
+    desc = r.node.describe_parameters(["controller"])[0]
+    assert "joints parameter" in desc.description

@@ -21,6 +21,9 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.client import Client
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.exceptions import (
     InvalidParameterTypeException,
     InvalidParameterValueException,
@@ -36,6 +39,7 @@ __all__ = [
     "DEFAULT_JOINTS",
     "LATCHED_QOS",
     "accept",
+    "call_with_timeout",
     "descriptor",
     "joint_positions",
     "optional_parameter",
@@ -154,6 +158,48 @@ def joint_positions(msg: JointState, index: dict[str, int]) -> np.ndarray | None
     if not np.all(np.isfinite(q)):
         return None
     return q
+
+
+class _NextCycle:
+    """Awaitable that suspends a coroutine callback until the executor's next cycle."""
+
+    def __await__(self):
+        yield
+
+
+async def call_with_timeout(client: Client, request: Any, timeout_s: float) -> Any | None:
+    """Call a service from a coroutine callback without blocking its executor.
+
+    For ``async def`` callbacks (rclpy runs them as tasks): while this waits, the
+    executor keeps serving the node's other callbacks, so a single-threaded executor does
+    not deadlock. The wait is on the steady clock: a network timeout is wall time even
+    with ``use_sim_time`` (a paused simulation must not stall the call forever).
+
+    Parameters
+    ----------
+    client : rclpy.client.Client
+    request
+        The service request.
+    timeout_s : float
+        Longest wait, s, for the service to appear and answer.
+
+    Returns
+    -------
+    response or None
+        None when the service did not appear or answer within ``timeout_s``.
+    """
+    clock = Clock(clock_type=ClockType.STEADY_TIME)
+    deadline = clock.now() + Duration(nanoseconds=round(timeout_s * 1e9))
+    future = None
+    while clock.now() < deadline:
+        if future is None and client.service_is_ready():
+            future = client.call_async(request)
+        if future is not None and future.done():
+            return future.result()
+        await _NextCycle()
+    if future is not None:
+        client.remove_pending_request(future)
+    return None
 
 
 _STOP = threading.Event()

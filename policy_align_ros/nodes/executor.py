@@ -22,6 +22,10 @@ docs/executor_safety.md explains it for robot owners):
   2 s) or untrustworthy by their header stamp (zero, too old, too far ahead of the node
   clock beyond ``max_clock_skew_s``, going backwards) send a zero command at once and
   disarm; so does the node clock jumping backwards (a restarted simulation);
+* ``~/enable`` also reads the ``joints`` parameter of the ros2_control controller named by
+  ``controller`` (GetParameters, waiting at most 1 s of wall time while the node keeps
+  running) and refuses when its order differs from ``joints``; a controller that does not
+  answer is logged as "not checked" and arming goes ahead;
 * all timing uses the node clock, so ``use_sim_time`` works;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second and on arming changes)
   reports the arming state, the model, why the command is zero and the ramp scale.
@@ -37,15 +41,23 @@ stays.
 
 from __future__ import annotations
 
+import functools
 import math
+import threading
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import GetParameters
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.duration import Duration
+from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
+from rclpy.expand_topic_name import expand_topic_name
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
@@ -63,16 +75,19 @@ from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     LATCHED_QOS,
     accept,
+    call_with_timeout,
     descriptor,
     parse_constraint_specs,
     reject,
     run_node,
 )
 
-__all__ = ["Executor", "load_policy", "main", "speed_limits"]
+__all__ = ["Executor", "joint_order_problem", "load_policy", "main", "speed_limits"]
 
 #: Period of the /diagnostics status (s of node clock); arming changes go out at once.
 DIAGNOSTICS_PERIOD_S = 1.0
+#: How long ~/enable waits for the controller's joints parameter (s, wall time).
+CONTROLLER_TIMEOUT_S = 1.0
 #: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
 _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
                      "max_clock_skew_s")
@@ -98,6 +113,38 @@ def load_policy(path: str, joints: Sequence[str]) -> tuple[PolicyAlign, np.ndarr
     return model, model_permutation(model.joint_names_, joints)
 
 
+def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
+                        controller: str) -> str:
+    """What differs between a controller's ``joints`` and the executor's command order.
+
+    Parameters
+    ----------
+    controller_joints : sequence of str
+        The controller's ``joints`` parameter (the order it reads the command array in).
+    joints : sequence of str
+        The executor's ``joints`` (the order it writes the command array in).
+    controller : str
+        Controller node name, for the message.
+
+    Returns
+    -------
+    str
+        Empty when both lists are equal, else a sentence naming the difference.
+    """
+    theirs, mine = list(controller_joints), list(joints)
+    if theirs == mine:
+        return ""
+    missing = [j for j in mine if j not in theirs]
+    extra = [j for j in theirs if j not in mine]
+    if missing or extra or len(theirs) != len(mine):
+        return (f"controller {controller} has other joints than the executor: not in the "
+                f"controller {missing}, only in the controller {extra}")
+    slot = next(i for i, (a, b) in enumerate(zip(theirs, mine, strict=True)) if a != b)
+    return (f"controller {controller} orders the joints differently: command slot {slot} "
+            f"is {theirs[slot]!r} there and {mine[slot]!r} here (controller order "
+            f"{theirs})")
+
+
 def speed_limits(urdf_limits: np.ndarray, max_velocity: float) -> np.ndarray:
     """Per-joint speed limits (n,) in rad/s: ``max_velocity`` or the URDF's when lower.
 
@@ -112,13 +159,17 @@ class Executor(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("executor", **kwargs)
+        # ~/enable runs in its own callback group so the node keeps running while it waits
+        # for the controller; under a multi-threaded executor this lock keeps it from
+        # touching the controller while another callback does.
+        self._lock = threading.RLock()
         self.robot: Robot | None = None
         self.controller: ArmedController | None = None
         self.model_path = ""
         # A model loaded while validating ``model_path``, applied once the set succeeds.
         self._staged: tuple[str, PolicyAlign, np.ndarray] | None = None
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.add_post_set_parameters_callback(self._after_set_parameters)
+        self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
+        self.add_post_set_parameters_callback(self._locked(self._after_set_parameters))
         self.declare_parameter("robot", "talos", descriptor(
             "example-robot-data name or URDF path of the controlled robot", read_only=True))
         self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
@@ -145,6 +196,9 @@ class Executor(Node):
         self.declare_parameter("constraints", "[]", descriptor(
             "YAML list of constraint specs in force, e.g. "
             "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
+        self.declare_parameter("controller", "/velocity_controller", descriptor(
+            "node name of the ros2_control controller taking the commands; ~/enable reads "
+            "its joints parameter and refuses a different order (empty = no check)"))
         self.declare_parameter("start_enabled", False, descriptor(
             "arm at the first fresh joint state when model_path loaded at start (else "
             "wait for ~/enable)", read_only=True))
@@ -173,12 +227,27 @@ class Executor(Node):
                 "start_enabled ignored: no model_path loaded at start; call ~/enable once "
                 "a model is loaded")
             self._arm_at_start = False
-        self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
-        self.create_subscription(String, "/learner/model", self._on_model, LATCHED_QOS)
-        self.create_service(SetBool, "~/enable", self._on_enable)
+        self.create_subscription(JointState, "/joint_states",
+                                 self._locked(self._on_joint_state), 10)
+        self.create_subscription(String, "/learner/model", self._locked(self._on_model),
+                                 LATCHED_QOS)
+        self._controller_client = None
+        self._make_controller_client(self.get_parameter("controller").value)
+        #: Counts ~/enable requests, so a check that finishes late knows it was superseded.
+        self._enable_requests = 0
+        self.create_service(SetBool, "~/enable", self._on_enable,
+                            callback_group=ReentrantCallbackGroup())
         # Timers run on the node clock (rclpy's default), hence on /clock with use_sim_time.
-        self.create_timer(self._period, self._on_timer)
-        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+        self.create_timer(self._period, self._locked(self._on_timer))
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self._locked(self.publish_diagnostics))
+
+    def _locked(self, callback: Callable) -> Callable:
+        """``callback`` run under the node's lock (see ``_lock``)."""
+        @functools.wraps(callback)
+        def run(*args):
+            with self._lock:
+                return callback(*args)
+        return run
 
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -208,7 +277,29 @@ class Executor(Node):
                 result = self._stage_model(param.value)
                 if result is not None:
                     return result
+            elif param.name == "controller" and param.value:
+                try:
+                    self._controller_service(param.value)
+                except (InvalidServiceNameException, InvalidTopicNameException,
+                        ValueError) as err:
+                    return reject(f"controller: not a valid node name: {param.value!r} "
+                                  f"({err})")
         return accept()
+
+    def _controller_service(self, controller: str) -> str:
+        """Fully qualified name of ``controller``'s get_parameters service (validated)."""
+        name = expand_topic_name(f"{controller}/get_parameters", self.get_name(),
+                                 self.get_namespace())
+        validate_full_topic_name(name, is_service=True)
+        return name
+
+    def _make_controller_client(self, controller: str) -> None:
+        if self._controller_client is not None:
+            self.destroy_client(self._controller_client)
+            self._controller_client = None
+        if controller:
+            self._controller_client = self.create_client(
+                GetParameters, self._controller_service(controller))
 
     def _stage_model(self, path: str):
         """Load ``path`` for a ``model_path`` set; a refusal result, or None when loaded."""
@@ -244,6 +335,8 @@ class Executor(Node):
                 control.max_clock_skew_s = param.value
             elif param.name == "model_path" and self._staged is not None:
                 self._apply_staged()
+            elif param.name == "controller":
+                self._make_controller_client(param.value)
 
     # -- model ------------------------------------------------------------------------
     def _apply_staged(self) -> None:
@@ -281,10 +374,10 @@ class Executor(Node):
         if out.rejected:
             self._count_rejected(out.rejected)
         self._emit(out)
-        if self._arm_at_start and not out.rejected:
-            accepted, _, out = self.controller.arm(now)
-            self._arm_at_start = not accepted
-            self._emit(out)
+        if self._arm_at_start and not out.rejected and self.executor is not None:
+            # Armed like ~/enable, with the controller check, without blocking this thread.
+            self._arm_at_start = False
+            self.executor.create_task(self._enable_at_start)
 
     def _count_rejected(self, reason: str) -> None:
         self.rejected_states[reason] += 1
@@ -296,21 +389,94 @@ class Executor(Node):
         else:
             self.get_logger().warning(text, throttle_duration_sec=2.0)
 
-    def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
-        self._arm_at_start = False
-        model = f"model {self.model_path}" if self.model_path else "no model loaded"
+    async def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
+        """Arm (after the controller's joint order check) or disarm.
+
+        A coroutine in its own callback group: while it waits for the controller's answer
+        the node keeps serving joint states and control ticks (no deadlock in a single
+        thread); a disable meanwhile makes the pending enable fail.
+        """
         if request.data:
-            accepted, reason, out = self.controller.arm(self._now_ns())
-            response.success = accepted
-            response.message = (f"enabled ({model})" if accepted
-                                else f"refused: {reason} ({model})")
-        else:
-            out = self.controller.disarm("disabled by ~/enable")
+            response.success, response.message = await self._enable()
+            return response
+        with self._lock:
+            self._arm_at_start = False
+            self._enable_requests += 1
+            self._emit(self.controller.disarm("disabled by ~/enable"))
             response.success = True
-            response.message = f"disabled ({model})"
-        self._emit(out)
-        self.publish_diagnostics()
+            response.message = f"disabled ({self._model_text()})"
+            self.publish_diagnostics()
         return response
+
+    async def _enable_at_start(self) -> None:
+        accepted, message = await self._enable()
+        if not accepted:
+            self.get_logger().error(f"start_enabled: not armed: {message}")
+
+    async def _enable(self) -> tuple[bool, str]:
+        """Arm unless refused; ``(accepted, message)`` for the ~/enable answer."""
+        with self._lock:
+            self._arm_at_start = False
+            self._enable_requests += 1
+            ticket = self._enable_requests
+            path = self.model_path
+            accepted, reason = self._can_arm()
+            check = accepted and not self.controller.armed
+        note = ""
+        if check:
+            reason, note = await self._check_controller()
+            accepted = not reason
+        with self._lock:
+            if check and ticket != self._enable_requests:
+                accepted, reason = False, "superseded by a later ~/enable request"
+            elif check and path != self.model_path:
+                accepted, reason = False, "the model changed while the controller was checked"
+            if accepted:
+                accepted, reason, out = self.controller.arm(self._now_ns())
+                self._emit(out)
+            model = self._model_text()
+            message = (f"enabled ({model}){note}" if accepted
+                       else f"refused: {reason} ({model})")
+            if not accepted:
+                self.get_logger().warning(f"~/enable {message}")
+            self.publish_diagnostics()
+        return accepted, message
+
+    def _model_text(self) -> str:
+        return f"model {self.model_path}" if self.model_path else "no model loaded"
+
+    def _can_arm(self) -> tuple[bool, str]:
+        """What :meth:`ArmedController.arm` would answer now, without arming."""
+        if self.controller.step.policy is None:
+            return False, "no model loaded"
+        problem = self.controller.state_problem(self._now_ns())
+        return not problem, problem
+
+    async def _check_controller(self) -> tuple[str, str]:
+        """Compare the controller's ``joints`` with ours.
+
+        Returns
+        -------
+        (refusal, note)
+            ``refusal`` names a mismatch (empty: go ahead); ``note`` is appended to the
+            answer when the order could not be checked.
+        """
+        controller = self.get_parameter("controller").value
+        client = self._controller_client
+        if not controller or client is None:
+            return "", ""
+        answer = await call_with_timeout(
+            client, GetParameters.Request(names=["joints"]), CONTROLLER_TIMEOUT_S)
+        value = answer.values[0] if answer is not None and len(answer.values) == 1 else None
+        if value is None or value.type != ParameterType.PARAMETER_STRING_ARRAY:
+            why = (f"{controller} did not answer within {CONTROLLER_TIMEOUT_S:g} s"
+                   if answer is None else f"{controller} has no string-array joints "
+                   "parameter")
+            text = f"joint order of the command array not checked: {why}"
+            self.get_logger().warning(text)
+            return "", f"; {text}"
+        return joint_order_problem(value.string_array_value, self.robot.joint_names,
+                                   controller), ""
 
     # -- output -----------------------------------------------------------------------
     def _on_timer(self) -> None:
