@@ -317,12 +317,17 @@ class DemoInfo:
         Stamp of the first sample (ns since the epoch); trajectory times are relative to it.
     n_samples : int
         Number of samples.
+    name : str
+        Unique name of the demonstration: the bag's name (``parent/bag`` when bags of
+        different directories share a name), with ``#1``, ``#2``, ... appended when one
+        bag holds several demonstrations (time gaps or several topics).
     """
 
     bag: str
     topic: str
     start_ns: int
     n_samples: int
+    name: str = ""
 
 
 @dataclass
@@ -346,6 +351,15 @@ class DatasetReport:
     errors : list of str
         Bags of a dataset directory that could not be opened, and bags whose reading
         stopped early (for example a truncated file; what was read before is kept).
+    skipped_bags : list of (str, str)
+        Every bag that gave no demonstration, with the reason (unreadable, no JointState
+        topic, joints missing, every message malformed, too short).
+    repeated_bags : list of str
+        Bags named more than once by the inputs (each is read once).
+    available_joints : list of str
+        Joint names seen in the JointState messages, in order of first appearance.
+    missing_joints : list of str
+        Selected joints that no JointState message carries.
     """
 
     bags: list[str] = field(default_factory=list)
@@ -357,6 +371,10 @@ class DatasetReport:
     demos_too_short: int = 0
     demos: list[DemoInfo] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
+    skipped_bags: list[tuple[str, str]] = field(default_factory=list)
+    repeated_bags: list[str] = field(default_factory=list)
+    available_joints: list[str] = field(default_factory=list)
+    missing_joints: list[str] = field(default_factory=list)
 
     @property
     def messages_skipped(self) -> int:
@@ -374,7 +392,19 @@ class DatasetReport:
         )
         if self.errors:
             text += f"; {len(self.errors)} bag(s) unreadable or cut short"
+        if self.repeated_bags:
+            text += f"; {len(self.repeated_bags)} bag(s) named twice, read once"
         return text
+
+    def joint_problem(self) -> str:
+        """Which selected joints are missing and which exist (empty when none is missing)."""
+        if not self.missing_joints:
+            return ""
+        shown = ", ".join(self.available_joints[:40])
+        more = len(self.available_joints) - 40
+        return (f"joint(s) {', '.join(map(repr, self.missing_joints))} not found in any "
+                f"JointState message; available: {shown or 'none'}"
+                + (f" and {more} more" if more > 0 else ""))
 
 
 class _Segment:
@@ -438,11 +468,27 @@ def load_dataset(
     if int(min_samples) < 2:
         raise ValueError(f"min_samples: must be >= 2, got {min_samples}")
     # Bags named explicitly must open; an unreadable bag inside a dataset is reported.
-    sources = [(bag, bag == Path(p)) for p in paths for bag in find_bags(p)]
+    # A bag named twice (``learn demos demos``) is read once: its copy would only add an
+    # identical demonstration, which collapses the kernel width of the alignment.
+    sources: list[tuple[Path, bool]] = []
+    seen: dict[Path, int] = {}
+    repeated: list[str] = []
+    for p in paths:
+        for bag in find_bags(p):
+            key = bag.resolve()
+            explicit = bag == Path(p)
+            if key in seen:
+                repeated.append(str(bag))
+                k = seen[key]
+                sources[k] = (sources[k][0], sources[k][1] or explicit)
+                continue
+            seen[key] = len(sources)
+            sources.append((bag, explicit))
     bags = [bag for bag, _ in sources]
     selector = JointSelector(joints)
     counts: Counter[str] = Counter({reason: 0 for reason in SKIP_REASONS})
-    report = DatasetReport(bags=[str(b) for b in bags])
+    report = DatasetReport(bags=[str(b) for b in bags], repeated_bags=repeated)
+    available: dict[str, None] = {}  # ordered set of joint names seen
     trajectories: list[Trajectory] = []
     gap_ns = round(gap_s * 1e9)
 
@@ -468,9 +514,22 @@ def load_dataset(
     for bag, explicit in sources:
         clocks: dict[str, StreamClock] = {}
         segments: dict[str, _Segment | None] = {}
+        demos_before = len(trajectories)
+        found_before, short_before = report.demos_found, report.demos_too_short
+        bag_counts: Counter[str] = Counter()
+        bag_names: dict[str, None] = {}  # ordered set of the bag's joint names
+        name_lists: set[tuple[str, ...]] = set()  # real streams repeat one or two lists
+        bag_read = 0
+        failure = ""
         try:
             for topic, stamp, names, pos, vel, eff in read_joint_states(bag, counts):
                 report.messages_read += 1
+                bag_read += 1
+                key = tuple(names)
+                if key not in name_lists and len(name_lists) < 64:
+                    name_lists.add(key)
+                    for name in names:
+                        bag_names.setdefault(str(name), None)
                 clock = clocks.get(topic)
                 if clock is None:
                     clock = clocks[topic] = StreamClock(gap_ns)
@@ -480,10 +539,12 @@ def load_dataset(
                 picked = selector.select(names, pos, vel, eff)
                 if isinstance(picked, str):
                     counts[picked] += 1
+                    bag_counts[picked] += 1
                     continue
                 outcome = clock.step(stamp)
                 if outcome == SKIP:
                     counts["time_not_increasing"] += 1
+                    bag_counts["time_not_increasing"] += 1
                     continue
                 selector.commit(names)
                 clock.accept(stamp)
@@ -503,13 +564,67 @@ def load_dataset(
             if explicit:
                 raise
             report.errors.append(str(err))
+            failure = str(err).removeprefix(f"{bag}: ")
         except Exception as err:  # a damaged bag keeps what was read
             report.errors.append(f"{bag}: {err}")
+            failure = f"reading stopped after {bag_read} message(s): {err}"
         for segment in segments.values():
             close(segment, bag)
+        for name in bag_names:
+            available.setdefault(name, None)
+        if len(trajectories) == demos_before:
+            report.skipped_bags.append((str(bag), failure or _no_demo_reason(
+                bag_read, bag_counts, report.demos_found - found_before,
+                report.demos_too_short - short_before, min_samples, selector.joints,
+                list(bag_names))))
     report.skipped = {k: v for k, v in counts.items() if v or k in SKIP_REASONS}
+    report.available_joints = list(available)
+    if joints is not None:
+        report.missing_joints = [j for j in joints if j not in available]
+    _name_demos(report.demos)
     if not trajectories:
         where = ", ".join(str(p) for p in paths)
-        raise ValueError(f"{where}: no usable demonstrations ({report.summary()})")
+        problem = report.joint_problem()
+        raise ValueError(f"{where}: no usable demonstrations"
+                         + (f": {problem}" if problem else "") + f" ({report.summary()})")
     assert selector.joints is not None
     return trajectories, list(selector.joints), report
+
+
+def _no_demo_reason(
+    n_read: int,
+    counts: Counter[str],
+    found: int,
+    too_short: int,
+    min_samples: int,
+    joints: Sequence[str] | None,
+    names: list[str],
+) -> str:
+    """Why a bag that opened gave no demonstration (one line)."""
+    if n_read == 0:
+        return f"no {JOINT_STATE} messages"
+    if found and found == too_short:
+        return (f"{found} demonstration(s), all shorter than {min_samples} samples")
+    parts = [f"{reason}={n}" for reason, n in counts.items() if n]
+    text = f"all {n_read} JointState message(s) skipped ({', '.join(parts)})"
+    if joints and (counts["missing_joints"] or counts["unknown_joints"]):
+        missing = [j for j in joints if j not in names]
+        shown = ", ".join(names[:40]) + (f" and {len(names) - 40} more"
+                                          if len(names) > 40 else "")
+        text += f"; missing joint(s) {', '.join(missing)}; the bag has: {shown}"
+    return text
+
+
+def _name_demos(demos: list[DemoInfo]) -> None:
+    """Give every demonstration a unique, readable name (see :class:`DemoInfo`)."""
+    paths = {d.bag for d in demos}
+    by_base: dict[str, set[str]] = {}
+    for bag in paths:
+        by_base.setdefault(Path(bag).name, set()).add(bag)
+    per_bag = Counter(d.bag for d in demos)
+    index: Counter[str] = Counter()
+    for d in demos:
+        path = Path(d.bag)
+        base = path.name if len(by_base[path.name]) == 1 else f"{path.parent.name}/{path.name}"
+        index[d.bag] += 1
+        d.name = base if per_bag[d.bag] == 1 else f"{base}#{index[d.bag]}"

@@ -88,6 +88,15 @@ class PolicyAlign:
         Seeds every random choice (sigma heuristics on large data, the regressor's CV).
     verbose : bool
         Print the progress of each stage to stderr.
+
+    Attributes
+    ----------
+    state_definition_ : dict or None
+        What the state ``x`` is when it is not the joint positions: ``None`` for joint
+        states; for task-space states the JSON-able definition (robot, joints, frames,
+        root frame, locked posture, URDF hash, rest posture) set by the learning pipeline
+        (:mod:`policy_align_ros.data.pipeline`). Saved in the model header; files without
+        it load as joint-state models.
     """
 
     def __init__(
@@ -231,6 +240,8 @@ class PolicyAlign:
 
         self.n_features_in_ = n
         self.joint_names_ = None if joint_names is None else [str(j) for j in joint_names]
+        # Set by whoever maps joint states to another state (the learning pipeline).
+        self.state_definition_ = None
         self.timed_ = trajs[0].times is not None
         self.fit_summary_ = {
             "n_trajectories": len(trajs),
@@ -318,10 +329,17 @@ class PolicyAlign:
         self._check_fitted()
         reg_arrays, reg_meta = self.regressor_.get_state()
         params = {k: v for k, v in self.get_params().items() if k != "regressor"}
+        definition = getattr(self, "state_definition_", None)
+        if definition is not None and not isinstance(definition, dict):
+            raise ValueError("state_definition_ must be None or a JSON-able dict, got "
+                             f"{type(definition).__name__}")
+        state = ("frame positions" if definition is not None
+                 else "joint positions" if self.joint_names_ else "positions")
         header = {
             "kind": "policy_align",
             "joint_names": self.joint_names_,
-            "state": "joint positions" if self.joint_names_ else "positions",
+            "state": state,
+            "state_definition": definition,
             "policy_units": "per second" if self.timed_ else "per step",
             "n_features": self.n_features_in_,
             "sigma2": self.sigma2_,
@@ -357,6 +375,11 @@ class PolicyAlign:
             model.sigma2_ = float(header["sigma2"])
             model.n_features_in_ = int(header["n_features"])
             model.joint_names_ = header["joint_names"]
+            # Files written before task-space states have no definition: joint states.
+            model.state_definition_ = header.get("state_definition")
+            if model.state_definition_ is not None and not isinstance(
+                    model.state_definition_, dict):
+                raise ValueError("state_definition is not a dict")
             model.timed_ = header["policy_units"] == "per second"
             model.fit_summary_ = header["training"]
             model.offsets_ = arrays["offsets"]
