@@ -7,6 +7,15 @@ At ``rate_hz`` it publishes ``qdot = s N(q) pi_hat(q)`` (rad/s, order = ``joints
 ``policy_align_ros.kinematics.constraint_from_spec``) and ``s`` keeps every joint under
 ``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.kinematics.control`).
 
+A model learnt on frame positions (its header's state definition is ``{"type": "frames",
+...}``) gives a task-space policy ``pi_x(x)`` (m/s) over the stacked positions ``x`` (3F,)
+of its frames; the executor checks that the definition matches its own robot (URDF,
+joints, frames, locked posture) and refuses the model otherwise, then commands
+``qdot = (J N_A)^+ pi_x + (N_A - (J N_A)^+ J N_A) z``, the joint velocity closest to moving
+the frames along ``pi_x`` with ``A(q) qdot = 0`` for the constraints in force (``J`` the
+frames' Jacobian, ``z`` a pull towards the demonstrations' rest posture,
+:mod:`policy_align_ros.kinematics.task_space`). Limits and ramps apply as in joint space.
+
 Safety (the logic is ROS-free, :class:`policy_align_ros.kinematics.control.ArmedController`;
 docs/executor_safety.md explains it for robot owners):
 
@@ -45,7 +54,7 @@ import functools
 import math
 import threading
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -70,6 +79,7 @@ from policy_align_ros.kinematics.control import (
     Output,
     model_permutation,
 )
+from policy_align_ros.kinematics.task_space import policy_for_state
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
@@ -93,24 +103,58 @@ _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
                      "max_clock_skew_s")
 
 
-def load_policy(path: str, joints: Sequence[str]) -> tuple[PolicyAlign, np.ndarray]:
-    """Load a PolicyAlign model file and check it was trained on ``joints``.
+def load_policy(path: str, robot: Robot, constraint: Callable | None = None
+                ) -> tuple[PolicyAlign, Callable[[np.ndarray], np.ndarray], np.ndarray, str]:
+    """Load a PolicyAlign model file and make its joint-space policy for ``robot``.
+
+    A model learnt on joint positions must have been trained on ``robot``'s joints (in
+    any order). A model learnt on frame positions (its ``state_definition_`` is
+    ``{"type": "frames", ...}``) must have been learnt on the same robot (URDF, joints,
+    locked posture) and frames; its task-space policy ``pi_x`` is mapped to joint
+    velocities satisfying ``constraint`` by
+    :func:`policy_align_ros.kinematics.task_space.policy_for_state`.
+
+    Parameters
+    ----------
+    path : str
+        Model file (.npz).
+    robot : Robot
+        The executor's robot, joints in command order.
+    constraint : callable ``(q (n,), qdot (n,) or None) -> A (k, n)``, optional
+        The joint-space constraints in force (the executor passes its
+        ``ControlStep.constraint_matrix``, so parameter changes apply at once).
 
     Returns
     -------
-    (model, permutation)
-        The model and the index array mapping controller order to model order.
+    (model, policy, permutation, state)
+        The model; ``policy(Q (m, n)) -> (m, n)`` in rad/s on rows in model joint order;
+        the index array mapping command order to model order; a description of the
+        model's state ("joints" or "frames F1, F2").
 
     Raises
     ------
     ValueError, FileNotFoundError, OSError
-        For a missing or unreadable file, or a model trained on other joints.
+        For a missing or unreadable file, or a model that does not fit ``robot``.
     """
     model = PolicyAlign.load(path)
-    if model.joint_names_ is None and model.n_features_in_ != len(joints):
-        raise ValueError(f"model {path}: has {model.n_features_in_} state dimensions, the "
-                         f"executor {len(joints)} joints")
-    return model, model_permutation(model.joint_names_, joints)
+    joints = list(robot.joint_names)
+    state = getattr(model, "state_definition_", None)
+    if state is None:
+        if model.joint_names_ is None and model.n_features_in_ != len(joints):
+            raise ValueError(f"model {path}: has {model.n_features_in_} state dimensions, "
+                             f"the executor {len(joints)} joints")
+        return model, model.policy, model_permutation(model.joint_names_, joints), "joints"
+    kind = state.get("type") if isinstance(state, Mapping) else None
+    if kind != "frames":
+        raise ValueError(f"model {path}: state definition of type {kind!r} is not supported "
+                         "(expected 'frames' or none for joint positions)")
+    try:
+        policy = policy_for_state(model, state, robot, constraint)
+    except ValueError as err:
+        raise ValueError(f"model {path}: {err}") from None
+    # TaskSpacePolicy takes and returns rows in the robot's (command) joint order.
+    frames = ", ".join(policy.state_map.frames)
+    return model, policy, np.arange(len(joints)), f"frames {frames}"
 
 
 def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
@@ -167,7 +211,9 @@ class Executor(Node):
         self.controller: ArmedController | None = None
         self.model_path = ""
         # A model loaded while validating ``model_path``, applied once the set succeeds.
-        self._staged: tuple[str, PolicyAlign, np.ndarray] | None = None
+        self._staged: tuple[str, PolicyAlign, Callable, np.ndarray, str] | None = None
+        #: What the loaded model's state is: "joints" or "frames F1, F2".
+        self.model_state = ""
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
         self.add_post_set_parameters_callback(self._locked(self._after_set_parameters))
         self.declare_parameter("robot", "talos", descriptor(
@@ -256,6 +302,11 @@ class Executor(Node):
     def _speed_limits(self) -> np.ndarray:
         return speed_limits(self.robot.velocity_limit, self.get_parameter("max_velocity").value)
 
+    def _constraint_matrix(self, q: np.ndarray, qdot: np.ndarray | None = None
+                           ) -> np.ndarray:
+        """The constraints in force at call time (a task-space policy's ``A(q)``)."""
+        return self.controller.step.constraint_matrix(q, qdot)
+
     def _constraints(self, text: str) -> list:
         return [constraint_from_spec(spec, self.robot) for spec in parse_constraint_specs(text)]
 
@@ -310,10 +361,11 @@ class Executor(Node):
             return reject("model_path: empty; the loaded model stays (disable with "
                           "~/enable to stop)")
         try:
-            model, perm = load_policy(path, self.robot.joint_names)
+            model, policy, perm, state = load_policy(path, self.robot,
+                                                     self._constraint_matrix)
         except (ValueError, OSError) as err:
             return reject(f"model_path: not loaded: {err}")
-        self._staged = (path, model, perm)
+        self._staged = (path, model, policy, perm, state)
         return None
 
     def _after_set_parameters(self, params: Sequence[Parameter]) -> None:
@@ -340,13 +392,14 @@ class Executor(Node):
 
     # -- model ------------------------------------------------------------------------
     def _apply_staged(self) -> None:
-        path, model, perm = self._staged
+        path, model, policy, perm, state = self._staged
         self._staged = None
+        self.model_state = state
         self._arm_at_start = False  # a swapped model is never armed without ~/enable
-        out = self.controller.set_policy(model.policy, perm, reason=f"model swap to {path}")
+        out = self.controller.set_policy(policy, perm, reason=f"model swap to {path}")
         self.model_path = path
         self._update_context()
-        self.get_logger().info(f"model loaded from {path}")
+        self.get_logger().info(f"model loaded from {path} (state: {state})")
         self._emit(out)
 
     def _on_model(self, msg: String) -> None:
@@ -510,6 +563,7 @@ class Executor(Node):
         values = {
             "armed": str(control.armed).lower(),
             "model": self.model_path or "(none)",
+            "model_state": self.model_state or "(none)",
             "zero_reason": control.zero_reason,
             "ramp_scale": f"{control.ramp_scale:.3f}",
             "max_abs_command_rad_s": f"{float(np.max(np.abs(control.command))):.4f}",
