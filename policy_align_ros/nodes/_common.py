@@ -35,6 +35,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
+from policy_align_ros.data.messages import JointSelector
+
 __all__ = [
     "DEFAULT_JOINTS",
     "LATCHED_QOS",
@@ -139,25 +141,31 @@ def parse_constraint_specs(text: str) -> list[dict]:
     return specs
 
 
+#: JointSelectors of :func:`joint_positions`, by joint tuple (a node uses one or two).
+_SELECTORS: dict[tuple[str, ...], JointSelector] = {}
+
+
 def joint_positions(msg: JointState, index: dict[str, int]) -> np.ndarray | None:
     """Positions of the joints in ``index`` (name -> slot) from a JointState message.
+
+    A shim over :meth:`policy_align_ros.data.messages.JointSelector.vector`, the package's
+    one JointState-to-vector conversion, so its callers apply the same rules as the
+    recorder and the executor.
 
     Returns
     -------
     ndarray, shape (len(index),), or None
-        None when the message lacks one of the joints, has arrays of disagreeing lengths
-        or holds NaN/inf for a needed joint.
+        None when the message is rejected by those rules (a joint missing or named twice,
+        arrays of disagreeing lengths, NaN/inf for a needed joint).
     """
-    if len(msg.name) != len(msg.position):
-        return None
-    q = np.full(len(index), np.nan)
-    for name, value in zip(msg.name, msg.position, strict=True):
-        slot = index.get(name)
-        if slot is not None:
-            q[slot] = value
-    if not np.all(np.isfinite(q)):
-        return None
-    return q
+    joints = tuple(sorted(index, key=index.__getitem__))
+    selector = _SELECTORS.get(joints)
+    if selector is None:
+        if len(_SELECTORS) >= 16:
+            _SELECTORS.clear()
+        selector = _SELECTORS[joints] = JointSelector(joints)
+    q = selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
+    return None if isinstance(q, str) else q
 
 
 class _NextCycle:
