@@ -750,3 +750,27 @@ def test_joint_positions_of_the_other_nodes_applies_the_joint_selector_rules():
                 JointState(name=["a", "b"], position=[1.0, np.nan]),
                 JointState(name=["a", "b"], position=[1.0, 2.0], velocity=[0.0])):
         assert joint_positions(bad, index) is None, bad
+
+
+def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
+    good = _fit_model(tmp_path / "good.npz", JOINTS, np.zeros(len(JOINTS)))
+    r = rig(208, model_path=str(good), start_enabled=True, controller="/velocity_controller")
+    controller = Node("velocity_controller", context=r.context)
+    try:
+        controller.declare_parameter("joints", JOINTS[::-1])
+        r.executor.add_node(controller)
+        calls = []
+        check = r.node._check_controller
+
+        async def counted():
+            calls.append(await check())
+            return calls[-1]
+
+        r.node._check_controller = counted
+        r.spin_until(lambda: calls, what="the controller check at start")
+        r.spin(0.3)
+        assert "orders the joints differently" in calls[0][0]
+        assert not r.node.controller.armed and r.commands == []
+    finally:
+        r.executor.remove_node(controller)
+        controller.destroy_node()
