@@ -191,11 +191,17 @@ class DemoRecorder:
         Topic name written into the bags.
     min_messages : int
         Demonstrations with fewer valid messages are dropped, not written.
+    max_stamp_ahead_s : float
+        A stamp more than this many seconds after the receive clock given to :meth:`add`
+        (``clock_ns``) is skipped as ``time_in_future``: accepted, it would make every
+        later, correctly stamped message of a manual demonstration "not increasing", so
+        one stray stamp would lose the rest of the demonstration.
 
     Attributes
     ----------
     skipped : Counter
-        Skipped messages by reason (see :data:`SKIP_REASONS`), over the lifetime.
+        Skipped messages by reason (see :data:`SKIP_REASONS`, plus ``time_in_future``
+        once it happens), over the lifetime.
     accepted : int
         Valid messages recorded over the lifetime.
     written : list of Path
@@ -215,8 +221,13 @@ class DemoRecorder:
         auto_split_gap_s: float = 0.0,
         topic: str = DEFAULT_TOPIC,
         min_messages: int = 2,
+        max_stamp_ahead_s: float = 1.0,
     ) -> None:
         self.dataset_dir = check_dataset_dir(dataset_dir)
+        ahead = float(max_stamp_ahead_s)
+        if not (np.isfinite(ahead) and ahead >= 0.0):
+            raise ValueError(f"max_stamp_ahead_s: must be a finite number >= 0, got {ahead}")
+        self._max_ahead_ns = round(ahead * 1e9)
         self._selector = JointSelector(joints)
         self.auto_split_gap_s = validate_gap(auto_split_gap_s)
         self._clock = StreamClock(round(self.auto_split_gap_s * 1e9))
@@ -463,6 +474,7 @@ class DemoRecorder:
         velocities: Sequence[float] = (),
         efforts: Sequence[float] = (),
         now: float | None = None,
+        clock_ns: int | None = None,
     ) -> Path | None:
         """Record one joint-state message (ignored when not recording).
 
@@ -476,6 +488,10 @@ class DemoRecorder:
         now : float, optional
             Receive time in seconds (for :meth:`flush_if_idle`); default
             ``time.monotonic()``.
+        clock_ns : int, optional
+            Receive time in nanoseconds on the clock of the stamps (a node's clock); when
+            given, a stamp more than ``max_stamp_ahead_s`` after it is skipped as
+            ``time_in_future``. ``None`` (an unknown or not yet started clock): no check.
 
         Returns
         -------
@@ -499,6 +515,9 @@ class DemoRecorder:
             picked = self._selector.select(names, positions, velocities, efforts)
             if isinstance(picked, str):
                 self.skipped[picked] += 1
+                return None
+            if clock_ns is not None and stamp_ns - clock_ns > self._max_ahead_ns:
+                self.skipped["time_in_future"] += 1
                 return None
             outcome = self._clock.step(stamp_ns)
             if outcome == SKIP:

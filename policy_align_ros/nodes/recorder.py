@@ -43,6 +43,9 @@ Failures lose no finished demonstration:
   bag is intact (bags are renamed into place only when complete).
 
 Skipped (malformed) messages are reported in a warning at most every ``warn_period_s``.
+A header stamp more than ``_MAX_STAMP_AHEAD_S`` after the node clock is skipped as
+``time_in_future`` (a stray stamp must not make the rest of a demonstration look like time
+going backwards).
 """
 
 from __future__ import annotations
@@ -78,6 +81,9 @@ _MAX_GAP_S = 3600.0
 # A failed write is retried this often [s of node time]: rare enough that a full disk is not
 # hammered with a bag that is written and deleted again, soon enough to resume promptly.
 _RETRY_PERIOD_S = 5.0
+# Tolerated lead of a header stamp over the node clock [s]: synchronised clocks on a robot
+# network agree to milliseconds, and a stray stamp can spoil at most this much recording.
+_MAX_STAMP_AHEAD_S = 1.0
 
 
 class RecorderNode(Node):
@@ -105,6 +111,7 @@ class RecorderNode(Node):
             joints=validate_joint_names(joints.value or None),
             auto_split_gap_s=self.get_parameter("auto_split_gap_s").value,
             topic=self.resolve_topic_name("/joint_states"),
+            max_stamp_ahead_s=_MAX_STAMP_AHEAD_S,
         )
         self.add_on_set_parameters_callback(self._on_set_parameters)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth.value,
@@ -139,8 +146,10 @@ class RecorderNode(Node):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         now = self.get_clock().now().nanoseconds
         try:
+            # Before the first /clock (use_sim_time) the node clock reads 0: no future check.
             path = self._recorder.add(stamp or now, msg.name, msg.position, msg.velocity,
-                                      msg.effort, now=now * 1e-9)
+                                      msg.effort, now=now * 1e-9,
+                                      clock_ns=now if now > 0 else None)
         except PendingWriteError as err:
             self._last_retry = now  # a failure starts the retry period
             self.get_logger().error(f"{err}; recording paused until it is written")
