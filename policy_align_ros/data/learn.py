@@ -1,39 +1,25 @@
 """``policy-align learn``: fit PolicyAlign to rosbag2 demonstrations and save the model.
 
-Reads bags or dataset directories with :func:`policy_align_ros.data.bags.load_dataset`
-(joints matched by name, split at time gaps in seconds, malformed messages skipped and
-counted), fits :class:`PolicyAlign` on joint positions (rad) with times in seconds, so
-the learnt policy is in rad/s, and writes the model file atomically.
+A thin front end of :func:`policy_align_ros.data.pipeline.learn_pipeline` (the same
+pipeline the ``learner`` node runs): discovery, de-duplication, hold-out split, fit in
+joint positions (rad) or stacked frame positions (m) with times in seconds, so the
+learnt policy is in state units per second, the quality summary and the degenerate-fit
+refusal. Exit codes: 0 model written; 1 fit refused as degenerate (the model file is left
+as it was; ``--force`` writes it anyway); 2 unusable input or a failed fit.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
-from pathlib import Path
+from dataclasses import fields
 
-from policy_align_ros.data.bags import load_dataset
-from policy_align_ros.learning.policy_align import PolicyAlign
+from policy_align_ros.data.pipeline import Gates, learn_pipeline, parse_sigma
 
-__all__ = ["parse_joints", "parse_sigma", "run_learn"]
+__all__ = ["EXIT_REFUSED", "parse_joints", "parse_sigma", "run_learn"]
 
-_SIGMA_RULES = ("narrow", "medium", "wide")
-
-
-def parse_sigma(text: str | float) -> str | float:
-    """``"narrow" | "medium" | "wide"`` or a positive sigma^2 (squared joint units)."""
-    if isinstance(text, str) and text.strip().lower() in _SIGMA_RULES:
-        return text.strip().lower()
-    try:
-        value = float(text)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"--sigma: expected narrow, medium, wide or a positive number, got {text!r}"
-        ) from None
-    if not (value > 0 and value != float("inf")):
-        raise ValueError(f"--sigma: sigma^2 must be positive and finite, got {text!r}")
-    return value
+#: Exit status of a fit refused as degenerate.
+EXIT_REFUSED = 1
 
 
 def parse_joints(text: str | None) -> list[str] | None:
@@ -48,45 +34,60 @@ def parse_joints(text: str | None) -> list[str] | None:
     return names
 
 
+def _gates(args: argparse.Namespace) -> Gates:
+    given = {f.name: getattr(args, f.name, None) for f in fields(Gates)}
+    return Gates(**{k: v for k, v in given.items() if v is not None})
+
+
 def run_learn(args: argparse.Namespace) -> int:
     """Run ``policy-align learn``.
 
     Parameters
     ----------
     args : argparse.Namespace
-        ``inputs`` (list of bag or dataset paths), ``out`` (model path), ``joints``
-        (comma-separated or None), ``sigma`` (rule or sigma^2), ``gap`` (seconds).
+        ``inputs`` (bag or dataset paths), ``out`` (model path), ``joints``
+        (comma-separated or None), ``sigma`` (rule or sigma^2), ``gap`` (s), and optionally
+        ``robot``, ``state``, ``holdout``, ``seed``, ``force`` and the :class:`Gates`
+        fields (``min_sigma2_fraction``, ...; None keeps the default).
 
     Returns
     -------
     int
-        0 on success; 2 with a message on stderr for unusable input or a failed fit.
+        0 on success; 1 when the fit is refused (reasons on stderr); 2 with a message on
+        stderr for unusable input or a failed fit.
     """
     try:
-        joints = parse_joints(getattr(args, "joints", None))
-        sigma = parse_sigma(getattr(args, "sigma", "medium"))
-        gap = float(getattr(args, "gap", 0.5))
-        trajs, names, report = load_dataset(args.inputs, joints=joints, gap_s=gap)
-        if len(trajs) < 2:
-            raise ValueError(
-                f"{', '.join(map(str, args.inputs))}: PolicyAlign needs at least 2 "
-                f"demonstrations, found {len(trajs)} ({report.summary()})"
-            )
-        t0 = time.perf_counter()
-        model = PolicyAlign(sigma=sigma).fit(trajs, joint_names=names)
-        fit_s = time.perf_counter() - t0
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        written = model.save(out)
+        try:
+            sigma = parse_sigma(getattr(args, "sigma", "medium"))
+        except ValueError as err:
+            raise ValueError(f"--{err}") from None
+        result = learn_pipeline(
+            args.inputs, args.out,
+            joints=parse_joints(getattr(args, "joints", None)),
+            sigma=sigma,
+            gap_s=float(getattr(args, "gap", 0.5)),
+            holdout_fraction=float(getattr(args, "holdout", 0.2)),
+            seed=int(getattr(args, "seed", 0)),
+            state=getattr(args, "state", "joints") or "joints",
+            robot=getattr(args, "robot", None),
+            gates=_gates(args),
+            force=bool(getattr(args, "force", False)),
+        )
     except (ValueError, OSError) as err:
         print(f"policy-align learn: error: {err}", file=sys.stderr)
         return 2
-    kept = len(model.inliers_)
-    shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
-    print(
-        f"Learnt a potential over {len(names)} joints ({shown}) from {len(trajs)} "
-        f"demonstrations ({report.summary()}). Outlier detection kept {kept} and "
-        f"discarded {len(trajs) - kept}; sigma^2 = {model.sigma2_:.4g}; fit took "
-        f"{fit_s:.2f} s. Model written to {written}."
-    )
+    s = result.summary
+    for entry in s["skipped_bags"]:
+        print(f"policy-align learn: skipped bag {entry['bag']}: {entry['reason']}",
+              file=sys.stderr)
+    for copy, original in s["duplicate_of"].items():
+        print(f"policy-align learn: skipped duplicate {copy} (same as {original})",
+              file=sys.stderr)
+    if result.refused:
+        print(f"policy-align learn: {result.line()}", file=sys.stderr)
+        return EXIT_REFUSED
+    shown = ", ".join(s["joints"][:6]) + (", ..." if len(s["joints"]) > 6 else "")
+    print(f"Learnt a potential over {len(s['joints'])} joints ({shown}) from "
+          f"{s['demonstrations']['found']} demonstrations found ({s['data']}): "
+          f"{result.line()}")
     return 0

@@ -1,0 +1,280 @@
+"""The one learning pipeline (policy_align_ros.data.pipeline). ROS-free.
+
+Datasets are rosbag2 bags of 2-D demonstrations (joints ``j1``, ``j2``, 20 Hz) of
+``pi = -grad phi`` under a random line constraint, re-drawn half way, written with
+:func:`write_joint_state_bag`; the frames test records talos arm joint states.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from policy_align_ros.data import write_joint_state_bag
+from policy_align_ros.data.learn import run_learn
+from policy_align_ros.data.pipeline import (
+    Gates,
+    find_duplicates,
+    holdout_split,
+    learn_pipeline,
+    state_name,
+)
+from policy_align_ros.learning import PolicyAlign
+
+JOINTS = ["j1", "j2"]
+DT_NS = 50_000_000
+
+
+def _bowl(x):  # phi = |x|^2 / 2
+    return -x
+
+
+def _ripple(x):  # phi = |x|^2 / 2 + 0.6 sin(2 x1) sin(2 x2): not learnt from 4 demos
+    return -(x + 1.2 * np.array([np.cos(2 * x[0]) * np.sin(2 * x[1]),
+                                 np.sin(2 * x[0]) * np.cos(2 * x[1])]))
+
+
+def _line_projector(rng):
+    a = rng.normal(size=2)
+    return np.eye(2) - np.outer(a, a) / (a @ a)
+
+
+def _demos(n, seed, policy=_bowl, steps=30):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        N, x, X = _line_projector(rng), rng.uniform(-2.0, 2.0, 2), []
+        for i in range(steps):
+            if i == steps // 2:
+                N = _line_projector(rng)
+            X.append(x.copy())
+            x = x + 0.05 * (N @ policy(x))
+        out.append(np.array(X))
+    return out
+
+
+def _write(root, demos, names=None):
+    for k, q in enumerate(demos):
+        name = names[k] if names else f"demo_{k:04d}"
+        stamps = 10**18 + k * 10**10 + np.arange(len(q)) * DT_NS
+        write_joint_state_bag(root / name, JOINTS, stamps, q)
+    return root
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    return _write(tmp_path_factory.mktemp("clean"), _demos(8, 0))
+
+
+@pytest.fixture(scope="module")
+def clean(dataset, tmp_path_factory):
+    """The pipeline on the clean dataset: (result, model path)."""
+    path = tmp_path_factory.mktemp("clean_model") / "model.npz"
+    return learn_pipeline([dataset], path), path
+
+
+def test_training_block_holds_the_summary(clean, dataset):
+    result, path = clean
+    assert result.written and not result.refusals
+    model = PolicyAlign.load(path)
+    block = model.fit_summary_["pipeline"]
+    assert block == json.loads(json.dumps(result.summary))  # JSON-able, stored as is
+    demos = block["demonstrations"]
+    assert demos["found"] == 8 and demos["duplicates"] == [] and demos["discarded"] == []
+    assert len(demos["training"]) == 6 and len(demos["held_out"]) == 2
+    assert sorted(demos["training"] + demos["held_out"]) == [f"demo_{k:04d}" for k in range(8)]
+    train, held = holdout_split(8, 0.2, 0)
+    assert demos["held_out"] == [f"demo_{k:04d}" for k in held]
+    assert block["skipped_bags"] == [] and block["state"] == "joints"
+    assert block["sigma2"] == model.sigma2_ and block["fit_time_s"] > 0
+    assert 0.0 <= block["heldout_ncpe_observed"] < 0.05
+    assert model.state_definition_ is None and model.joint_names_ == JOINTS
+    assert block["current_model"]["note"] == "no current model"
+    line = result.line()
+    assert "of 6 training demonstrations" in line and "2 held out" in line
+    assert f"held-out nCPE {block['heldout_ncpe_observed']:.4f}" in line and str(path) in line
+
+
+def test_same_dataset_twice_and_copied_bags_are_skipped_as_duplicates(
+        clean, dataset, tmp_path):
+    reference = clean[0].summary
+    twice = learn_pipeline([dataset, dataset], tmp_path / "twice.npz")
+    demos = twice.summary["demonstrations"]
+    assert demos["found"] == 16
+    assert demos["duplicates"] == [f"demo_{k:04d} (repeat)" for k in range(8)]
+    assert demos["training"] == reference["demonstrations"]["training"]
+    assert twice.summary["sigma2"] == reference["sigma2"]  # the very same fit
+    # A dataset holding a copied bag and a re-recorded near-identical one (1e-7 rad noise).
+    messy = tmp_path / "messy"
+    shutil.copytree(dataset, messy)
+    shutil.copytree(dataset / "demo_0002", messy / "demo_0002_copy")
+    noisy = _demos(8, 0)[5] + np.random.default_rng(3).normal(scale=1e-7, size=(30, 2))
+    _write(messy, [noisy], ["demo_0005_again"])
+    result = learn_pipeline([messy], tmp_path / "messy.npz")
+    demos = result.summary["demonstrations"]
+    assert demos["found"] == 10
+    assert result.summary["duplicate_of"] == {"demo_0002_copy": "demo_0002",
+                                              "demo_0005_again": "demo_0005"}
+    assert demos["duplicates"] == ["demo_0002_copy", "demo_0005_again"]
+    assert demos["training"] == reference["demonstrations"]["training"]
+    assert result.summary["sigma2"] == reference["sigma2"]
+
+
+def test_the_same_bag_twice_is_a_clear_error_not_a_nan_crash(dataset, tmp_path):
+    bag = dataset / "demo_0000"
+    with pytest.raises(ValueError, match="at least 2 distinct demonstrations, found 1") as err:
+        learn_pipeline([bag, bag], tmp_path / "m.npz")
+    assert "NaN" not in str(err.value) and "1 duplicates skipped" in str(err.value)
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_find_duplicates_keeps_the_first_and_ignores_distinct_demos():
+    a, b = _demos(2, 7)
+    assert find_duplicates([a, b, a + 1e-9, b[::-1]]) == {2: 0}
+    assert find_duplicates([a, b], tol=0.0) == {}
+
+
+def test_degenerate_fit_is_refused_keeps_the_old_model_and_force_writes_it(
+        dataset, tmp_path, capsys):
+    path = tmp_path / "model.npz"
+    learn_pipeline([dataset], path)
+    before = path.read_bytes()
+    # A kernel far narrower than the gaps between demonstrations: each is its own group.
+    refused = learn_pipeline([dataset], path, sigma=1e-6)
+    assert refused.refused and not refused.written
+    assert "discarded" in refused.refusals[0] and "max_discarded_fraction" in refused.line()
+    assert refused.line().startswith("refused: ") and "kept unchanged" in refused.line()
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.npz"]
+    # The command line: exit 1, the reason on stderr, the model untouched.
+    args = dict(inputs=[str(dataset)], out=str(path), joints=None, sigma="1e-6", gap=0.5)
+    assert run_learn(argparse.Namespace(**args)) == 1
+    assert "refused: outlier detection discarded" in capsys.readouterr().err
+    assert path.read_bytes() == before
+    # force writes it and records what it overrode.
+    assert run_learn(argparse.Namespace(**args, force=True)) == 0
+    block = PolicyAlign.load(path).fit_summary_["pipeline"]
+    assert block["forced"] and "discarded" in block["refusals"][0]
+    assert block["sigma2"] == pytest.approx(1e-6)
+
+
+def test_sigma_collapse_gate(dataset, tmp_path):
+    result = learn_pipeline([dataset], tmp_path / "m.npz", sigma="narrow",
+                            gates=Gates(min_sigma2_fraction=0.9))
+    assert result.refused and "sigma^2 collapsed" in result.refusals[0]
+    # An explicit sigma^2 is the user's choice, never a collapse.
+    explicit = learn_pipeline([dataset], tmp_path / "m.npz", sigma=result.summary["sigma2"],
+                              gates=Gates(min_sigma2_fraction=0.9))
+    assert explicit.written and not explicit.refusals
+    with pytest.raises(ValueError, match="min_sigma2_fraction"):
+        Gates(min_sigma2_fraction=-1.0)
+
+
+def test_a_fit_worse_than_the_current_model_on_held_out_data_is_refused(tmp_path):
+    path = tmp_path / "model.npz"
+    big = learn_pipeline([_write(tmp_path / "big", _demos(16, 1, _ripple))], path,
+                         holdout_fraction=0.0)
+    before = path.read_bytes()
+    small = _write(tmp_path / "small", _demos(5, 2, _ripple))
+    result = learn_pipeline([small], path, seed=1)
+    current = result.summary["current_model"]
+    assert current["compared_on"] == result.summary["demonstrations"]["held_out"]
+    assert current["new_ncpe_observed"] > current["heldout_ncpe_observed"] + 0.02
+    assert result.refused and "worse than the current model's" in result.refusals[0]
+    assert path.read_bytes() == before
+    # The current model is not scored on demonstrations it was trained on (by content).
+    again = learn_pipeline([tmp_path / "big"], path, holdout_fraction=0.2)
+    assert again.summary["current_model"]["compared_on"] == []
+    assert big.summary["training_fingerprints"]
+
+
+def test_missing_joint_is_named_with_the_available_ones(dataset, tmp_path, capsys):
+    from policy_align_ros.cli import main
+
+    out = tmp_path / "m.npz"
+    assert main(["learn", str(dataset), "--joints", "j1,not_a_joint", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "'not_a_joint' not found" in err and "available: j1, j2" in err
+    assert not out.exists()
+
+
+def test_truncated_and_foreign_bags_are_named_with_the_reason(dataset, tmp_path, capsys):
+    from policy_align_ros.cli import main
+
+    data = tmp_path / "data"
+    shutil.copytree(dataset, data)
+    mcap = data / "demo_0003" / "demo_0003.mcap"
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    stamps = 10**18 + np.arange(20) * DT_NS
+    write_joint_state_bag(data / "other_robot", ["knee"], stamps, np.zeros((20, 1)))
+    out = tmp_path / "m.npz"
+    assert main(["learn", str(data), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    block = PolicyAlign.load(out).fit_summary_["pipeline"]
+    skipped = {entry["bag"]: entry["reason"] for entry in block["skipped_bags"]}
+    assert set(skipped) == {str(data / "demo_0003"), str(data / "other_robot")}
+    assert "cannot open" in skipped[str(data / "demo_0003")]
+    assert "missing joint(s) j1, j2" in skipped[str(data / "other_robot")]
+    assert "knee" in skipped[str(data / "other_robot")]
+    assert f"skipped bag {data / 'demo_0003'}: cannot open" in err
+    assert block["demonstrations"]["found"] == 7
+
+
+def test_bad_arguments_name_the_parameter(dataset, tmp_path):
+    for kwargs, match in (({"state": "hands"}, "state: expected"),
+                          ({"state": "frames:a,a"}, "listed twice"),
+                          ({"holdout_fraction": 1.5}, "holdout_fraction"),
+                          ({"sigma": "huge"}, "sigma"),
+                          ({"state": "frames:a", "robot": None}, "robot: a frames: state")):
+        with pytest.raises(ValueError, match=match):
+            learn_pipeline([dataset], tmp_path / "m.npz", **kwargs)
+    assert state_name(" frames: a ,b ") == "frames:a,b"
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_frames_state_round_trip(tmp_path):
+    """Learn from talos joint-state bags in hand positions; the model keeps the state."""
+    from policy_align_ros.experiments.demonstrators import (
+        TaskSpaceExpert,
+        sample_start_states,
+        task_space_rollout,
+    )
+    from policy_align_ros.kinematics import Robot, TaskSpaceMap
+
+    hand = "gripper_left_base_link"
+    joints = [f"arm_left_{i}_joint" for i in range(1, 8)]
+    robot = Robot.load("talos", joints=joints)
+    smap = TaskSpaceMap(robot, [hand])
+    q0 = robot.neutral()
+    target = smap.states(q0) + np.array([0.1, 0.05, 0.08])
+    expert = TaskSpaceExpert(smap, target, 1.0)
+    starts = sample_start_states(np.random.default_rng(0), q0, 6, 0.05, robot.lower,
+                                 robot.upper)
+    root = tmp_path / "talos"
+    for k, q in enumerate(starts):
+        demo = task_space_rollout(q, expert, None, 40, 0.05, name=str(k)).joints
+        stamps = 10**18 + k * 10**10 + np.round(demo.times * 1e9).astype(np.int64)
+        write_joint_state_bag(root / f"demo_{k:04d}", joints, stamps, demo.positions)
+    path = tmp_path / "hand.npz"
+    result = learn_pipeline([root], path, state=f"frames:{hand}", robot="talos",
+                            holdout_fraction=0.0)
+    assert result.written, result.line()
+    model = PolicyAlign.load(path)
+    definition = model.state_definition_
+    assert definition["type"] == "frames" and definition["frames"] == [hand]
+    assert definition["joints"] == joints and definition["robot"] == "talos"
+    assert definition["urdf_sha256"] == robot.urdf_sha256()
+    assert set(definition["rest"]) == set(joints)
+    assert model.n_features_in_ == 3
+    assert model.joint_names_ == [f"{hand}.x", f"{hand}.y", f"{hand}.z"]
+    assert model.fit_summary_["pipeline"]["state"] == f"frames:{hand}"
+    assert model.fit_summary_["pipeline"]["robot"] == "talos"
+    x = smap.states(starts[0])
+    assert model.policy(x[None]).shape == (1, 3)
+    # Along the demonstrations the learnt hand velocity points at the target.
+    pi = model.policy(x[None])[0]
+    assert np.dot(pi, target - x) > 0.7 * np.linalg.norm(pi) * np.linalg.norm(target - x)
