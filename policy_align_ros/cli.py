@@ -4,6 +4,7 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
 
     policy-align demo [--robot NAME] [--state joints|hands] [--seed N] [--out DIR]
     policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
+        [--robot NAME --state joints|frames:F1,F2] [--holdout F] [--seed S] [--force]
     policy-align call SERVICE [--data true|false]
     policy-align param get|set NODE NAME [VALUE]
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
@@ -38,6 +39,26 @@ def _build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--joints", default=None, help="comma-separated joint names")
     learn.add_argument("--sigma", default="medium", help="narrow|medium|wide or sigma^2")
     learn.add_argument("--gap", type=float, default=0.5, help="split demos at gaps [s]")
+    learn.add_argument("--robot", default=None,
+                       help="example-robot-data name or URDF (needed for --state frames:)")
+    learn.add_argument("--state", default="joints",
+                       help="joints (default) or frames:F1,F2 (stacked frame positions)")
+    learn.add_argument("--holdout", type=float, default=0.2,
+                       help="fraction of demonstrations held out to score the fit")
+    learn.add_argument("--seed", type=int, default=0, help="seed of the split and the fit")
+    learn.add_argument("--force", action="store_true",
+                       help="write the model even if the fit is refused as degenerate")
+    learn.add_argument("--min-sigma2-fraction", type=float, default=None,
+                       help="refuse sigma^2 below this fraction of the data variance "
+                            "(default 1e-4)")
+    learn.add_argument("--max-discarded-fraction", type=float, default=None,
+                       help="refuse when more demonstrations are discarded (default 0.5)")
+    learn.add_argument("--heldout-tolerance", type=float, default=None,
+                       help="refuse a held-out nCPE above the current model's + this "
+                            "(default 0.02)")
+    learn.add_argument("--duplicate-tol", type=float, default=None,
+                       help="relative distance under which demonstrations are duplicates "
+                            "(default 1e-3)")
 
     call = sub.add_parser("call", help="call a std_srvs Trigger or SetBool service")
     call.add_argument("service", help="for example /learner/learn")
