@@ -34,7 +34,8 @@ def test_learn_from_dataset_writes_a_usable_model(dataset, tmp_path, capsys):
     out = tmp_path / "models" / "model.npz"
     assert main(["learn", str(dataset), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "from 6 demonstrations" in text and str(out) in text
+    assert "from 6 demonstrations found" in text and str(out) in text
+    assert "of 5 training demonstrations" in text and "1 held out" in text
     model = PolicyAlign.load(out)
     assert model.joint_names_ == JOINTS
     # Along the demonstrations, the learnt policy points like the demonstrated -x.
@@ -54,16 +55,39 @@ def test_joint_subset_order_and_explicit_sigma(dataset, tmp_path):
     model = PolicyAlign.load(out)
     assert model.joint_names_ == ["wrist", "shoulder"]
     assert model.sigma2_ == pytest.approx(0.05)
-    assert model.fit_summary_["n_trajectories"] == 3
+    # One of the three is held out to score the fit: the other two train it.
+    assert model.fit_summary_["n_trajectories"] == 2
+    demos = model.fit_summary_["pipeline"]["demonstrations"]
+    assert len(demos["held_out"]) == 1 and len(demos["training"]) == 2
+    assert sorted(demos["held_out"] + demos["training"]) == ["demo_0000", "demo_0003",
+                                                            "demo_0005"]
+
+
+def test_holdout_zero_trains_on_everything_and_seed_changes_the_split(dataset, tmp_path):
+    out = tmp_path / "m.npz"
+    assert main(["learn", str(dataset), "--out", str(out), "--holdout", "0"]) == 0
+    block = PolicyAlign.load(out).fit_summary_["pipeline"]
+    assert block["demonstrations"]["held_out"] == [] and block["heldout_ncpe_observed"] is None
+    held = []
+    for seed in (0, 1):
+        path = tmp_path / f"s{seed}.npz"
+        assert main(["learn", str(dataset), "--out", str(path), "--seed", str(seed)]) == 0
+        held.append(PolicyAlign.load(path).fit_summary_["pipeline"]["demonstrations"]
+                    ["held_out"])
+    assert held[0] != held[1]
 
 
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
         (["{tmp}/missing"], "missing: no such file"),
-        (["{ds}/demo_0000"], "needs at least 2 demonstrations"),
+        (["{ds}/demo_0000"], "needs at least 2 distinct demonstrations, found 1"),
         (["{ds}", "--joints", "elbow,,wrist"], "empty joint name"),
-        (["{ds}", "--joints", "knee"], "no usable demonstrations"),
+        (["{ds}", "--joints", "knee"], "'knee' not found in any JointState message; "
+                                       "available: shoulder, elbow, wrist"),
+        (["{ds}", "{ds}/demo_0001", "--state", "frames:hand"], "robot: a frames: state"),
+        (["{ds}", "--state", "hands"], "state: expected"),
+        (["{ds}", "--holdout", "2"], "holdout_fraction"),
         (["{ds}", "--sigma", "huge"], "--sigma"),
         (["{ds}", "--sigma", "-1"], "--sigma"),
         (["{tmp}"], "not a rosbag2 bag"),
@@ -83,6 +107,7 @@ def test_parsers():
     assert parse_sigma("0.5") == 0.5
     with pytest.raises(ValueError, match="positive"):
         parse_sigma("inf")
+    assert parse_sigma(0.5) == 0.5
     assert parse_joints(" ") is None
     assert parse_joints("a, b") == ["a", "b"]
     with pytest.raises(ValueError, match="twice"):

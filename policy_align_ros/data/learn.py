@@ -87,7 +87,10 @@ def run_learn(args: argparse.Namespace) -> int:
         print(f"policy-align learn: {result.line()}", file=sys.stderr)
         return EXIT_REFUSED
     shown = ", ".join(s["joints"][:6]) + (", ..." if len(s["joints"]) > 6 else "")
-    print(f"Learnt a potential over {len(s['joints'])} joints ({shown}) from "
+    space = ("" if s["state"] == "joints" else
+             f" in the positions of frames {s['state'].split(':', 1)[1]} of {s['robot']}, "
+             "moved by")
+    print(f"Learnt a potential{space} over {len(s['joints'])} joints ({shown}) from "
           f"{s['demonstrations']['found']} demonstrations found ({s['data']}): "
           f"{result.line()}")
     return 0

@@ -466,7 +466,7 @@ def learn_pipeline(
     inputs = [Path(p).expanduser() for p in inputs]
     for p in inputs:
         if not p.exists():
-            raise ValueError(f"{p}: does not exist (record demonstrations first)")
+            raise ValueError(f"{p}: no such file or directory")
     path = Path(model_path).expanduser().resolve()
 
     # 1. discovery
