@@ -9,6 +9,8 @@ Constraint kinds (each also available as data through :func:`constraint_from_spe
 
 - ``plane``: the frame stays on a plane with normal ``n``: ``A = n^T J`` (1, n);
 - ``position``: the frame is held along chosen world axes: ``A = S J`` (len(axes), n);
+  :meth:`PositionConstraint.hold_position` gives the held coordinates ``S p`` so that a
+  controller can latch them and correct the drift of integrating ``A qdot = 0``;
 - ``barrier``: a plane (point ``c``, normal ``n``, optional rectangular ``region``) that
   blocks the frame's motion along ``n`` while the frame is within ``distance`` of it
   (``|n^T (p - c)| <= distance``); with ``unilateral`` (default) and a given intended
@@ -153,6 +155,14 @@ class PositionConstraint(Constraint):
 
     def matrix(self, q: np.ndarray, qdot: np.ndarray | None = None) -> np.ndarray:
         return self.robot.frame_jacobian(q, self.frame)[self.axes]
+
+    def hold_position(self, q: np.ndarray) -> np.ndarray:
+        """The held coordinates of the frame at ``q`` (n,): shape (len(axes),), m (world).
+
+        The rows of :meth:`matrix` are their Jacobian, so a controller can latch them
+        and correct drift (``ControlStep`` does).
+        """
+        return self.robot.frame_position(q, self.frame)[self.axes]
 
 
 class BarrierConstraint(Constraint):
