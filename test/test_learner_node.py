@@ -14,14 +14,14 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from policy_align_ros.data import write_joint_state_bag
-from policy_align_ros.learning import Trajectory
+from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.nodes._common import LATCHED_QOS
 from policy_align_ros.nodes.learner import Learner, observed_ncpe, parse_sigma
 
 JOINTS = ["j1", "j2"]
 
 
-def _write_dataset(directory, n_demos=10, seed=0):
+def _write_dataset(directory, n_demos=10, seed=0, joints=JOINTS):
     """2-D demonstrations of pi = -x under a random line constraint each (dt 0.05 s)."""
     rng = np.random.default_rng(seed)
     for k in range(n_demos):
@@ -33,7 +33,7 @@ def _write_dataset(directory, n_demos=10, seed=0):
             X.append(x.copy())
             x = x + 0.05 * (N @ -x)
         stamps = 10**18 + k * 10**10 + np.arange(40) * 50_000_000
-        write_joint_state_bag(directory / f"demo_{k:04d}", JOINTS, stamps, np.array(X))
+        write_joint_state_bag(directory / f"demo_{k:04d}", joints, stamps, np.array(X))
 
 
 class Rig:
@@ -93,13 +93,64 @@ def test_learn_writes_the_model_publishes_it_and_summarises(rig, tmp_path):
     assert "of 8 training demonstrations" in text and "2 held out" in text
     assert "sigma^2=" in text and "fit " in text and "held-out nCPE" in text
     ncpe = float(text.split("held-out nCPE ")[1].split()[0])
-    result = r.node.last_result
-    assert result.n_heldout == 2 and result.n_train == 8 and result.sigma2 > 0
-    assert ncpe == pytest.approx(result.heldout_ncpe, abs=1e-4) and ncpe >= 0.0
+    # The answer is made from the summary stored in the model header.
+    block = PolicyAlign.load(model).fit_summary_["pipeline"]
+    assert r.node.last_result.summary == block
+    assert len(block["demonstrations"]["held_out"]) == 2 and block["sigma2"] > 0
+    assert ncpe == pytest.approx(block["heldout_ncpe_observed"], abs=1e-4) and ncpe >= 0.0
+    assert f"sigma^2={block['sigma2']:.4g}" in text
     end = time.monotonic() + 5.0
     while not r.models and time.monotonic() < end:
         time.sleep(0.01)
     assert r.models == [str(model.resolve())]
+
+
+def test_a_refused_fit_answers_false_keeps_the_model_and_publishes_nothing(rig, tmp_path):
+    _write_dataset(tmp_path / "demos")
+    model = tmp_path / "model.npz"
+    r = rig(165, dataset_dir=str(tmp_path / "demos"), model_path=str(model))
+    assert r.learn().success
+    end = time.monotonic() + 5.0
+    while not r.models and time.monotonic() < end:
+        time.sleep(0.01)
+    assert r.models == [str(model.resolve())]
+    before = model.read_bytes()
+    published = []
+    real_publish = r.node._pub.publish
+    r.node._pub.publish = lambda msg: (published.append(msg.data), real_publish(msg))
+    # A kernel far narrower than the gaps between demonstrations: most are discarded.
+    assert r.node.set_parameters([Parameter("sigma", value="1e-6")])[0].successful
+    response = r.learn()
+    assert not response.success
+    assert response.message.startswith("refused: outlier detection discarded")
+    assert "kept unchanged" in response.message
+    assert model.read_bytes() == before and published == []
+    time.sleep(0.3)  # a stray announcement would have arrived by now
+    assert r.models == [str(model.resolve())]
+    # force writes it and announces it.
+    assert r.node.set_parameters([Parameter("force", value=True)])[0].successful
+    response = r.learn()
+    assert response.success and response.message.startswith("forced despite: ")
+    assert published == [str(model.resolve())]
+    assert PolicyAlign.load(model).fit_summary_["pipeline"]["forced"]
+
+
+def test_state_and_gate_parameters_are_validated_and_a_bad_frame_is_named(rig, tmp_path):
+    arm = ["arm_left_1_joint", "arm_left_2_joint"]
+    _write_dataset(tmp_path / "demos", n_demos=4, joints=arm)
+    r = rig(166, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "m.npz"),
+            state="frames:no_such_frame", joints=["arm_left_1_joint", "arm_left_9_joint"])
+    assert not r.node.set_parameters([Parameter("state", value="hands")])[0].successful
+    assert not r.node.set_parameters(
+        [Parameter("max_discarded_fraction", value=1.5)])[0].successful
+    response = r.learn()
+    assert not response.success and response.message.startswith("learning failed")
+    assert "'arm_left_9_joint' not found" in response.message
+    assert f"available: {', '.join(arm)}" in response.message
+    assert r.node.set_parameters([Parameter("joints", value=arm)])[0].successful
+    response = r.learn()
+    assert not response.success and "no_such_frame" in response.message
+    assert not (tmp_path / "m.npz").exists() and r.models == []
 
 
 def test_learn_fails_cleanly_without_data(rig, tmp_path):
@@ -117,14 +168,14 @@ def test_learn_fails_cleanly_with_a_single_demonstration(rig, tmp_path):
     _write_dataset(tmp_path / "one", n_demos=1)
     r = rig(162, dataset_dir=str(tmp_path / "one"), model_path=str(tmp_path / "m.npz"))
     response = r.learn()
-    assert not response.success and "at least 2 demonstrations" in response.message
+    assert not response.success and "at least 2 distinct demonstrations" in response.message
 
 
 def test_node_stays_responsive_and_refuses_a_second_run_while_learning(
         rig, tmp_path, monkeypatch):
     import policy_align_ros.nodes.learner as learner_module
 
-    real = learner_module.learn_dataset
+    real = learner_module.learn_pipeline
     started = threading.Event()
 
     def slow_learn(*args, **kwargs):
@@ -132,7 +183,7 @@ def test_node_stays_responsive_and_refuses_a_second_run_while_learning(
         time.sleep(1.5)  # a long fit
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(learner_module, "learn_dataset", slow_learn)
+    monkeypatch.setattr(learner_module, "learn_pipeline", slow_learn)
     _write_dataset(tmp_path / "demos")
     r = rig(163, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "m.npz"))
     assert r.client.wait_for_service(timeout_sec=5.0)
