@@ -352,3 +352,40 @@ def test_bare_storage_file_is_a_bag(tmp_path):
     bag = write_joint_state_bag(tmp_path / "demo_0000", ["a", "b", "c"], stamps, q)
     trajs, _, _ = load_dataset(next(bag.glob("*.mcap")))
     np.testing.assert_array_equal(trajs[0].positions, q)
+
+
+def test_repeated_bags_are_read_once_and_demos_get_unique_names(tmp_path):
+    rng = np.random.default_rng(4)
+    for root in ("a", "b"):
+        stamps, q, _ = _demo(rng)
+        write_joint_state_bag(tmp_path / root / "demo_0000", ["j0", "j1", "j2"], stamps, q)
+    stamps, q, _ = _demo(rng, n_samples=40)
+    stamps[20:] += 5 * 10**9  # a gap: two demonstrations in one bag
+    write_joint_state_bag(tmp_path / "a" / "split", ["j0", "j1", "j2"], stamps, q)
+    trajs, _, report = load_dataset([tmp_path / "a", tmp_path / "a" / "split", tmp_path / "b"])
+    assert report.repeated_bags == [str(tmp_path / "a" / "split")]
+    assert [d.name for d in report.demos] == ["a/demo_0000", "split#1", "split#2",
+                                              "b/demo_0000"]
+    assert len(trajs) == 4 and "named twice, read once" in report.summary()
+    assert report.skipped_bags == [] and report.available_joints == ["j0", "j1", "j2"]
+
+
+def test_bags_giving_nothing_are_named_with_the_reason(tmp_path):
+    rng = np.random.default_rng(5)
+    stamps, q, _ = _demo(rng)
+    write_joint_state_bag(tmp_path / "good", ["j0", "j1", "j2"], stamps, q)
+    write_joint_state_bag(tmp_path / "other", ["knee"], stamps, q[:, :1])
+    write_joint_state_bag(tmp_path / "short", ["j0", "j1", "j2"], stamps[:1], q[:1])
+    cut = tmp_path / "cut"
+    write_joint_state_bag(cut, ["j0", "j1", "j2"], stamps, q)
+    mcap = cut / "cut.mcap"
+    mcap.write_bytes(mcap.read_bytes()[:100])
+    _, _, report = load_dataset(tmp_path, joints=["j0", "j1"])
+    reasons = dict(report.skipped_bags)
+    assert set(reasons) == {str(tmp_path / n) for n in ("other", "short", "cut")}
+    assert "cannot open" in reasons[str(tmp_path / "cut")]
+    assert "missing joint(s) j0, j1; the bag has: knee" in reasons[str(tmp_path / "other")]
+    assert "shorter than 2 samples" in reasons[str(tmp_path / "short")]
+    assert report.missing_joints == []
+    with pytest.raises(ValueError, match=r"'nope' not found .*available: j0, j1, j2, knee"):
+        load_dataset(tmp_path, joints=["j0", "nope"])

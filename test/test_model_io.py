@@ -114,3 +114,38 @@ def test_failed_write_removes_its_temporary_file_and_keeps_the_old_model(model, 
         atomic_write_bytes(path, failing)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["model.npz"]
+
+
+def test_state_definition_round_trips_and_old_files_load_as_joint_states(model, tmp_path):
+    definition = {"type": "frames", "robot": "talos", "joints": ["a", "b"],
+                  "frames": ["hand"], "root_frame": "universe", "locked_posture": {},
+                  "urdf_sha256": "0" * 64, "rest": {"a": 0.1, "b": -0.2}}
+    assert model.state_definition_ is None
+    plain = PolicyAlign.load(model.save(tmp_path / "joints.npz"))
+    assert plain.state_definition_ is None
+    model.state_definition_ = definition
+    try:
+        path = model.save(tmp_path / "frames.npz")
+    finally:
+        model.state_definition_ = None
+    loaded = PolicyAlign.load(path)
+    assert loaded.state_definition_ == definition
+    header, _ = load_npz(path, "policy_align")
+    assert header["state"] == "frame positions" and header["state_definition"] == definition
+    # A file written before state definitions existed (no such header key) still loads.
+    header, arrays = load_npz(tmp_path / "joints.npz", "policy_align")
+    del header["state_definition"]
+    header.pop("format_version")
+    old = save_npz(tmp_path / "old.npz", header, arrays)
+    assert PolicyAlign.load(old).state_definition_ is None
+    # A definition that is not a dict is refused on save and on load.
+    model.state_definition_ = "frames:hand"
+    try:
+        with pytest.raises(ValueError, match="state_definition_"):
+            model.save(tmp_path / "bad.npz")
+    finally:
+        model.state_definition_ = None
+    header["state_definition"] = ["hand"]
+    bad = save_npz(tmp_path / "bad.npz", header, arrays)
+    with pytest.raises(ValueError, match="bad.npz: malformed"):
+        PolicyAlign.load(bad)

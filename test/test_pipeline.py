@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -278,3 +280,20 @@ def test_frames_state_round_trip(tmp_path):
     # Along the demonstrations the learnt hand velocity points at the target.
     pi = model.policy(x[None])[0]
     assert np.dot(pi, target - x) > 0.7 * np.linalg.norm(pi) * np.linalg.norm(target - x)
+
+
+def test_joint_state_learning_needs_no_pinocchio(dataset, tmp_path):
+    """data/ may import learning and rosbags only; kinematics loads for frames: states."""
+    code = (
+        "import sys\n"
+        "from policy_align_ros.data import learn_pipeline\n"
+        f"r = learn_pipeline([{str(dataset)!r}], {str(tmp_path / 'm.npz')!r},"
+        " holdout_fraction=0.0)\n"
+        "assert r.written\n"
+        "bad = [m for m in ('pinocchio', 'rclpy', 'policy_align_ros.kinematics')"
+        " if m in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr

@@ -1,7 +1,9 @@
 """Demonstrations on disk: rosbag2 bags of ``sensor_msgs/msg/JointState`` (ROS-free).
 
-Imports numpy, rosbags and :mod:`policy_align_ros.learning` only. Stamps are integer
-nanoseconds, trajectory times seconds, positions and velocities in the joints' units.
+Imports numpy, rosbags and :mod:`policy_align_ros.learning` only (the learning
+pipeline's ``frames:`` state imports :mod:`policy_align_ros.kinematics` when used). Stamps
+are integer nanoseconds, trajectory times seconds, positions and velocities in the joints'
+units.
 """
 
 from policy_align_ros.data.bags import (
@@ -13,6 +15,7 @@ from policy_align_ros.data.bags import (
     write_joint_state_bag,
 )
 from policy_align_ros.data.messages import SKIP_REASONS
+from policy_align_ros.data.pipeline import Gates, PipelineResult, learn_pipeline
 from policy_align_ros.data.recording import DemoRecorder
 
 __all__ = [
@@ -20,7 +23,10 @@ __all__ = [
     "DatasetReport",
     "DemoInfo",
     "DemoRecorder",
+    "Gates",
+    "PipelineResult",
     "find_bags",
+    "learn_pipeline",
     "load_dataset",
     "read_joint_states",
     "write_joint_state_bag",
