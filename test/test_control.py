@@ -687,3 +687,187 @@ def test_default_max_extrapolation_leaves_runs_from_the_start_distribution_unsca
         worst += [tree.query(r.trajectory.positions)[0].max() / spacing for r in runs]
     assert max(worst) < DEFAULT_MAX_EXTRAPOLATION
     assert max(worst) > 0.5 * DEFAULT_MAX_EXTRAPOLATION  # the default is not arbitrary
+
+
+# -- drift correction of held frames and near-singular constraints ----------------------
+EXECUTOR_JOINTS = TALOS_JOINTS + ["head_1_joint", "head_2_joint"]
+LEFT_HAND = "arm_left_7_link"
+
+
+def _held_hand_run(drift_gain, seconds=60.0):
+    """Talos (18 joints), left hand held, quadratic potential, 100 Hz, ``seconds`` long.
+
+    The plant integrates each command with explicit Euler (sim.integrate_clamped) after a
+    per-joint velocity gain error of 5 % (seeded): the two drift sources of a real
+    velocity-controlled robot. Returns the largest distance (m) of the hand from where it
+    was at enable, the commands sent and the ArmedController.
+    """
+    from policy_align_ros.experiments.demonstrators import (
+        QuadraticPotential,
+        sample_start_states,
+    )
+    from policy_align_ros.kinematics.sim import integrate_clamped
+
+    robot = Robot.load("talos", EXECUTOR_JOINTS)
+    rng = np.random.default_rng(0)
+    q0 = robot.neutral()
+    potential = QuadraticPotential(q0, 0.5)
+    hold = constraint_from_spec({"type": "position", "frame": LEFT_HAND}, robot)
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), DT_NS / 1e9,
+                       constraints=[hold], policy=potential.policy, drift_gain=drift_gain)
+    run = _Run(step, sample_start_states(rng, q0, 1, 0.1, robot.lower, robot.upper)[0])
+    tracking = 1.0 + 0.05 * rng.standard_normal(robot.nq)
+    run.state()
+    assert run.arm() == (True, "enabled")
+    p_ref = hold.hold_position(run.q)
+    worst = 0.0
+    for _ in range(round(seconds * 1e9 / DT_NS)):
+        run.state()
+        out = run.keep(run.control.tick(run.now))
+        assert out.zero_reason == ""
+        if out.command is not None:
+            run.q, _ = integrate_clamped(run.q, tracking * out.command, DT_NS / 1e9,
+                                         robot.lower, robot.upper)
+        run.k += 1
+        worst = max(worst, float(np.linalg.norm(hold.hold_position(run.q) - p_ref)))
+    return worst, run
+
+
+def test_held_frame_drifts_at_most_1_mm_over_60_s_and_more_without_correction():
+    worst, run = _held_hand_run(drift_gain=5.0)
+    assert worst <= 1e-3, worst
+    moved = np.sum(np.abs(np.diff(np.array(run.sent), axis=0)) > 0, axis=0)
+    assert np.count_nonzero(moved) >= 10  # a real motion of most joints, not a stand-still
+    # The correction goes through the ramp: every step within max_acceleration * dt.
+    _assert_ramped(run.sent, ACC * DT_NS / 1e9 + 1e-6, start=np.zeros(len(EXECUTOR_JOINTS)))
+    assert not [e for e in run.events if "forces" in e[1]]
+    uncorrected, _ = _held_hand_run(drift_gain=0.0)
+    assert uncorrected > 1e-3, uncorrected  # the test can fail: drift is real
+
+
+def _talos_hold_and_plane():
+    robot = Robot.load("talos", EXECUTOR_JOINTS)
+    hold = constraint_from_spec({"type": "position", "frame": LEFT_HAND}, robot)
+    plane = constraint_from_spec({"type": "plane", "frame": "arm_right_7_link",
+                                  "normal": [0.2, 0.5, 1.0]}, robot)
+    return robot, hold, plane
+
+
+def test_correction_respects_the_other_constraints_the_gain_clamp_and_speed_limits():
+    robot, hold, plane = _talos_hold_and_plane()
+    still = lambda X: np.zeros_like(X)  # noqa: E731  (the command is the correction alone)
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), 0.01,
+                       constraints=[plane, hold], policy=still, drift_gain=5.0,
+                       drift_clamp_m=0.01)
+    rng = np.random.default_rng(2)
+    q_ref = robot.neutral()
+    step.latch(q_ref)
+    for size in (0.02, 0.1):  # rad of joint offset: a few mm, then beyond the clamp
+        q = q_ref + size * rng.standard_normal(robot.nq)
+        e = step.hold_errors(q)
+        qdot, reason = step(q)
+        assert reason == ""
+        np.testing.assert_allclose(plane.matrix(q) @ qdot, 0.0, atol=1e-10)
+        task = hold.matrix(q) @ qdot
+        clamped = e * min(1.0, 0.01 / np.linalg.norm(e))
+        # -k clamp(e), up to the damping of the pseudo-inverse (l = 0.01 m/rad)
+        np.testing.assert_allclose(task, -5.0 * clamped, rtol=0.05, atol=1e-4)
+        assert np.all(np.abs(qdot) <= 0.5 + 1e-12)
+    assert np.linalg.norm(e) > 0.01  # the second case was clamped
+
+
+def test_a_joint_on_its_limit_stays_there_under_the_correction():
+    robot, hold, _ = _talos_hold_and_plane()
+    still = lambda X: np.zeros_like(X)  # noqa: E731
+    q_ref = robot.neutral()
+    j = EXECUTOR_JOINTS.index("arm_left_4_joint")
+    wide = ControlStep(np.full(robot.nq, -10.0), np.full(robot.nq, 10.0),
+                       np.full(robot.nq, 0.5), 0.01, constraints=[hold], policy=still)
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), 0.01,
+                       constraints=[hold], policy=still)
+    wide.latch(q_ref)
+    step.latch(q_ref)
+    rng = np.random.default_rng(3)
+    # A state with the elbow on a limit that the unlimited correction pushes it out of.
+    for _ in range(50):
+        q = robot.clip(q_ref + 0.05 * rng.standard_normal(robot.nq))
+        q[j] = robot.upper[j]
+        if wide(q)[0][j] > 1e-3:
+            break
+        q[j] = robot.lower[j]
+        if wide(q)[0][j] < -1e-3:
+            break
+    else:
+        pytest.fail("no state found")
+    qdot, reason = step(q)
+    assert reason == "" and qdot[j] == 0.0 and np.linalg.norm(qdot) > 1e-3
+    # The other joints still correct: the held frame moves back towards its reference.
+    e = step.hold_errors(q)
+    assert float(e @ (hold.matrix(q) @ qdot)) < 0.0
+
+
+def test_held_frames_latch_at_enable_and_when_the_constraints_change():
+    robot, hold, plane = _talos_hold_and_plane()
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), DT_NS / 1e9,
+                       constraints=[hold + plane], policy=lambda X: np.zeros_like(X))
+    assert step.holding
+    q1 = robot.neutral()
+    run = _Run(step, q1 + 0.05)
+    step.latch(q1)  # a stale reference from some earlier run ...
+    assert np.linalg.norm(step.hold_errors(run.q)) > 1e-3
+    run.state()
+    run.arm()  # ... is replaced at enable: the frame is held where it is now
+    np.testing.assert_allclose(step.hold_errors(run.q), 0.0)
+    assert not np.any(run.tick().command)  # nothing to correct, the policy is still
+    step.constraints = [hold]  # new constraints: latched at their first step
+    run.q += 0.01
+    run.tick()
+    np.testing.assert_allclose(step.hold_errors(run.q - run.sent[-1] * DT_NS / 1e9), 0.0,
+                               atol=1e-12)
+
+
+def test_ramp_toward_applies_a_correction_outside_the_null_space_at_once():
+    rng = np.random.default_rng(11)
+    A = rng.normal(size=(2, N))
+    P = constrained_projector(A)
+    correction = A.T @ rng.normal(size=2)  # in the row space of A
+    target = P @ rng.normal(size=N) + correction
+    previous = P @ rng.normal(size=N)
+    command, alpha, _ = ramp_toward(previous, target, P, 0.01)
+    assert alpha < 1.0
+    np.testing.assert_allclose(A @ command, A @ target, atol=1e-12)
+
+
+def test_a_near_singular_constraint_matrix_ramps_down_and_says_why():
+    first = _Row([1.0, 0, 0, 0, 0, 0])
+    second = _Row([0.0, 1.0, 0, 0, 0, 0])
+    step = ControlStep(LOWER, UPPER, VMAX, DT_NS / 1e9, constraints=[first, second],
+                       policy=_Linear(np.full(N, 0.9)), min_singular_value=0.01)
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(40):
+        assert run.tick().zero_reason == ""
+    assert np.abs(run.sent[-1]).max() > 0.3
+    second.row = np.array([[1.0, 0.005, 0, 0, 0, 0]])  # nearly the first row again
+    out = run.tick()
+    assert out.zero_reason.startswith("constraint matrix near-singular: smallest singular "
+                                      "value 0.00354 < min_singular_value 0.01")
+    assert any(text.startswith("disarmed: constraint matrix near-singular")
+               for _, text in out.events), out.events
+    n_before = len(run.sent)
+    for _ in range(40):
+        run.tick()
+    _assert_ramped(run.sent[n_before - 1:], ACC * DT_NS / 1e9)
+    assert not np.any(run.sent[-1]) and not run.control.armed and run.control.faulted
+    # Rows more than joints can never be independent.
+    step.constraints = [_Row(r) for r in np.eye(N + 1, N)]
+    assert "near-singular" in step(np.zeros(N))[1]
+
+
+def test_bad_drift_and_singularity_settings():
+    for kwargs, match in (({"drift_gain": -1.0}, "drift_gain"),
+                          ({"drift_clamp_m": 0.0}, "drift_clamp_m"),
+                          ({"min_singular_value": float("nan")}, "min_singular_value")):
+        with pytest.raises(ValueError, match=match):
+            ControlStep(LOWER, UPPER, VMAX, DT, **kwargs)

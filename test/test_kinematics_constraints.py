@@ -167,3 +167,21 @@ def test_stacking(talos: Robot) -> None:
 def test_spec_validation_names_the_field(spec, match, ur5: Robot) -> None:
     with pytest.raises(ValueError, match=match):
         constraint_from_spec(spec, ur5)
+
+
+def test_position_hold_coordinates_have_the_constraint_rows_as_jacobian(talos: Robot) -> None:
+    hold = constraint_from_spec({"type": "position", "frame": "arm_left_7_link",
+                                 "axes": ["x", "z"]}, talos)
+    rng = np.random.default_rng(8)
+    q = talos.random_configuration(rng, std=0.3)
+    p = hold.hold_position(q)
+    np.testing.assert_allclose(p, talos.frame_position(q, "arm_left_7_link")[[0, 2]])
+    eps = 1e-6
+    numeric = np.column_stack([
+        (hold.hold_position(q + eps * e) - hold.hold_position(q - eps * e)) / (2 * eps)
+        for e in np.eye(talos.nq)])
+    np.testing.assert_allclose(hold.matrix(q), numeric, atol=1e-7)
+    # Planes, barriers and joint locks hold nothing: the controller latches positions only.
+    plane = constraint_from_spec({"type": "plane", "frame": "arm_left_7_link",
+                                  "normal": [0, 0, 1]}, talos)
+    assert not hasattr(plane, "hold_position")

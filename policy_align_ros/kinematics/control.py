@@ -1125,8 +1125,10 @@ class ArmedController:
             self.extrapolation_scale = step.extrapolation_scale
             if reason:
                 # The policy cannot be trusted here, but q and the constraints still
-                # can: ramp down like a disable.
-                self.disarm(reason)
+                # can: ramp down like a disable. (disarm() hands its log line back in
+                # an Output; keep it for this tick's.)
+                logged = self.disarm(reason).events
+                self._events.extend(logged)
                 self.faulted = True
         if not self.armed:
             target = np.zeros(step.n_joints)
