@@ -120,6 +120,8 @@ _SCRATCH: list[str] = []
 def _short(text: str, limit: int = 170) -> str:
     """One line, scratch paths elided, at most ``limit`` characters."""
     text = " ".join(str(text).split())
+    text = re.sub(r"\[(ERROR|WARN|INFO)\] \[[\d.]+\] ", "", text)  # rcutils log prefixes
+    text = text.replace("policy-align learn: ", "")
     for scratch in _SCRATCH:
         text = text.replace(scratch + "/", ".../")
     text = re.sub(r"\.\.\./\d{3}_", ".../", text)
@@ -131,13 +133,18 @@ class Lab:
     """Scratch directory, DDS domain ids and the way CLI commands are run."""
 
     def __init__(self, workdir: Path, domain_base: int = 60, domain_count: int = 40,
-                 cli_subprocess: bool = True) -> None:
+                 cli_subprocess: bool = True, start_ups: bool = True, n_good: int = 8,
+                 samples: int = 40) -> None:
         self.workdir = Path(workdir)
         _SCRATCH.append(str(self.workdir))
         self.domain_base, self.domain_count = domain_base, domain_count
         self._next_domain = 0
         self._next_dir = 0
         self.cli_subprocess = cli_subprocess
+        #: Whether to run the node start-up cases (a process each, seconds per robot load).
+        self.start_ups = start_ups
+        #: Size of the good dataset: demonstrations, and samples in each.
+        self.n_good, self.samples = n_good, samples
         self._good: Path | None = None
 
     def path(self, name: str) -> Path:
@@ -161,16 +168,16 @@ class Lab:
         return env
 
     def good_dataset(self) -> Path:
-        """A dataset of 8 good 2-joint demonstrations (written once, copied by callers)."""
+        """A dataset of ``n_good`` good 2-joint demonstrations (written once, then copied)."""
         if self._good is None:
             self._good = self.path("good")
-            write_good_dataset(self._good, 8)
+            write_good_dataset(self._good, self.n_good, samples=self.samples)
         return self._good
 
-    def dataset_with(self, name: str, n_good: int = 8) -> Path:
-        """A copy of the good dataset (``n_good`` bags) in a fresh directory."""
+    def dataset_with(self, name: str, n_good: int | None = None) -> Path:
+        """A copy of the good dataset (its first ``n_good`` bags) in a fresh directory."""
         target = self.path(name)
-        for bag in sorted(self.good_dataset().iterdir())[:n_good]:
+        for bag in sorted(self.good_dataset().iterdir())[:n_good or self.n_good]:
             shutil.copytree(bag, target / bag.name)
         return target
 
@@ -220,7 +227,8 @@ def _cli_in_process(argv: list[str], domain: int | None) -> Run:
 
 
 # --- bags -------------------------------------------------------------------------------
-def write_good_dataset(directory: Path, n_demos: int, seed: int = 0) -> list[Path]:
+def write_good_dataset(directory: Path, n_demos: int, seed: int = 0, samples: int = 40
+                       ) -> list[Path]:
     """2-D demonstrations of pi = -x under a random line constraint each (dt 0.05 s)."""
     from policy_align_ros.data.bags import write_joint_state_bag
 
@@ -231,10 +239,10 @@ def write_good_dataset(directory: Path, n_demos: int, seed: int = 0) -> list[Pat
         projector = np.eye(2) - np.outer(alpha, alpha) / (alpha @ alpha)
         x = rng.uniform(-2.0, 2.0, 2)
         states = []
-        for _ in range(40):
+        for _ in range(samples):
             states.append(x.copy())
             x = x + 0.05 * (projector @ -x)
-        stamps = T0 + k * 10**10 + np.arange(40) * 50 * MS
+        stamps = T0 + k * 10**10 + np.arange(samples) * 50 * MS
         written.append(write_joint_state_bag(directory / f"demo_{k:04d}", J2, stamps,
                                              np.array(states)))
     return written
@@ -279,19 +287,23 @@ def _good_messages(n: int = 40, start: int = T0 + 10**12) -> list[tuple]:
 
 
 def _learn_outcome(r: Result, run: Run, model: Path, good_bags: Sequence[str]) -> None:
-    """Fill crash/traceback and count the good bags the written model does not mention."""
+    """Fill crash/traceback, and count as lost the good bags that reached no fit.
+
+    A bag reached the fit when the written model's training summary names it (used, held
+    out or discarded as an outlier or duplicate are all decisions about it); without a
+    model, every good bag is counted. ``lost`` stays None for a header that names no bag.
+    """
     r.crash, r.traceback = run.crashed, run.traceback
     r.data.update(code=run.code, err=run.err, out=run.out)
-    if run.code == 0 and model.is_file():
-        with np.load(model, allow_pickle=False) as data:
-            header = json.loads(str(data["__header__"]))
-        text = json.dumps(header.get("training", header))
-        mentioned = [b for b in good_bags if b in text]
-        if "training" in header and any(k in text for k in good_bags):
-            r.lost = len(good_bags) - len(mentioned)
-        else:  # an older header without per-bag accounting: count demonstrations
-            r.lost = 0 if str(len(good_bags)) in run.out else None
-        r.data["header"] = header
+    if run.code != 0 or not model.is_file():
+        r.lost = len(good_bags)
+        return
+    with np.load(model, allow_pickle=False) as data:
+        header = json.loads(str(data["__header__"]))
+    text = json.dumps(header.get("training", {}))
+    named = [b for b in good_bags if b in text]
+    r.lost = len(good_bags) - len(named) if named else None
+    r.data["header"] = header
 
 
 # --- ROS rigs ---------------------------------------------------------------------------
@@ -506,7 +518,7 @@ def cases_cli_learn(lab: Lab) -> list[Result]:
     r.expect(r.data["code"] in (0, 2), "exit status neither 0 nor 2")
     r.expect("duplicate" in (r.data["out"] + r.data["err"]).lower(),
              "the duplicates are not reported")
-    dup = lab.dataset_with("dup_bags", n_good=8)
+    dup = lab.dataset_with("dup_bags")
     for bag in sorted(dup.iterdir()):
         shutil.copytree(bag, dup / f"copy_of_{bag.name}")
     r = learn("learn-duplicated-bags", "`learn DATASET` where every bag has a copy",
@@ -593,7 +605,12 @@ def cases_cli_ros(lab: Lab) -> list[Result]:
 # --- bags -------------------------------------------------------------------------------
 def _bag_case(lab: Lab, case: str, tried: str, make_bad: Callable[[Path], Path],
               alone_code: int | None = 2, alone: bool = True) -> Result:
-    """A bad bag inside a dataset of 8 good ones, and on its own."""
+    """A bad bag inside the good dataset (``learn DATASET``), and on its own.
+
+    Beside good bags the fit must go ahead with every good demonstration and name the bad
+    bag (``alone=False``: a valid bag, which must simply be used); alone, ``learn`` must
+    stop with ``alone_code`` and a message naming the bag.
+    """
     dataset = lab.dataset_with(case)
     good = sorted(p.name for p in dataset.iterdir())
     bad = make_bad(dataset)
@@ -601,10 +618,17 @@ def _bag_case(lab: Lab, case: str, tried: str, make_bad: Callable[[Path], Path],
     run = lab.cli("learn", str(dataset), "--out", str(model))
     r = Result(case, "bags", tried)
     _learn_outcome(r, run, model, good)
-    text = run.out + run.err
-    r.expect(run.code == 0, f"with 8 good bags beside it: exit {run.code} ({run.line()})")
-    r.behaviour = (f"in a dataset with 8 good bags: exit {run.code}"
-                   + (f", {_summary(run)}" if run.code == 0 else f": {run.line()}"))
+    n = len(good)
+    r.expect(run.code == 0, f"with {n} good bags beside it: exit {run.code} ({run.line()})")
+    if run.code == 0:
+        used = "?" if r.lost is None else str(len(good) - r.lost)
+        note = (_short(run.err.strip().splitlines()[0], 130) if run.err.strip()
+                else "nothing reported")
+        r.behaviour = f"beside {n} good bags: exit 0, {used}/{n} good demos used; {note}"
+        if alone:
+            r.expect(bad.name in run.err + run.out, "beside good bags it is not named")
+    else:
+        r.behaviour = f"beside {n} good bags: exit {run.code}: {run.line(150)}"
     if alone:
         solo = lab.path(f"{case}_alone")
         target = solo / bad.name
@@ -613,22 +637,11 @@ def _bag_case(lab: Lab, case: str, tried: str, make_bad: Callable[[Path], Path],
         r.crash |= run2.crashed
         r.traceback |= run2.traceback
         r.data["alone"] = {"code": run2.code, "err": run2.err, "out": run2.out}
-        r.behaviour += f"; alone: exit {run2.code}: {run2.line(120)}"
+        r.behaviour += f". Alone: exit {run2.code}: {run2.line(130)}"
         if alone_code is not None:
             r.expect(run2.code == alone_code, f"alone: exit {run2.code}, expected {alone_code}")
             r.expect(bad.name in run2.out + run2.err, "alone: the message does not name the bag")
-    r.data["text"] = text
     return r
-
-
-def _summary(run: Run) -> str:
-    """The part of ``learn``'s output that says what was skipped."""
-    text = " ".join((run.out + " " + run.err).split())
-    for key in ("skipped", "unreadable", "errors", "duplicate"):
-        at = text.find(key)
-        if at >= 0:
-            return _short(text[max(0, at - 40):], 150)
-    return _short(text, 150)
 
 
 def cases_bags(lab: Lab) -> list[Result]:
@@ -896,6 +909,8 @@ def cases_recorder(lab: Lab) -> list[Result]:
                               _trigger(rig, "/recorder/stop_demo"))[-1], False, "nothing"))
     finally:
         rig.close()
+    if not lab.start_ups:
+        return out
     # Start-up: a recorder that cannot write its dataset must not start.
     run = node_start(lab, "recorder", "-p", f"dataset_dir:={work / 'a_file' / 'demos'}")
     r = Result("rec-start-dir-under-file", "parameters",
@@ -973,6 +988,8 @@ def cases_sim_robot(lab: Lab) -> list[Result]:
                      "rate_hz", 10.0, "read-only"))
     finally:
         rig.close()
+    if not lab.start_ups:
+        return out
     r = Result("sim-start-unknown-robot", "parameters",
                "`sim_robot --ros-args -p robot:=no_such_robot` (start-up)")
     _start_refused(r, node_start(lab, "sim_robot", "-p", "robot:=no_such_robot"),
@@ -1081,6 +1098,242 @@ def cases_demonstrator(lab: Lab) -> list[Result]:
     return out
 
 
+# --- executor -------------------------------------------------------------------------------
+ARM = [f"arm_left_{i}_joint" for i in range(1, 8)]
+
+
+def _fit_model(path: Path, joints: Sequence[str], center: np.ndarray) -> Path:
+    """A PolicyAlign model on ``joints`` of 8 demonstrations converging to ``center``."""
+    from policy_align_ros.learning import PolicyAlign, Trajectory
+
+    rng = np.random.default_rng(0)
+    t = np.arange(40) * 0.05
+    trajs = []
+    for _ in range(8):
+        q0 = center + rng.normal(scale=0.3, size=len(joints))
+        trajs.append(Trajectory(center + (q0 - center) * np.exp(-t)[:, None], t))
+    PolicyAlign(sigma="medium").fit(trajs, joint_names=list(joints)).save(path)
+    return path
+
+
+class _Feeder:
+    """Publishes valid joint states (node-clock stamps) every 20 ms while on."""
+
+    def __init__(self, rig: NodeRig, joints: Sequence[str], q: np.ndarray) -> None:
+        from sensor_msgs.msg import JointState
+
+        self.rig, self.joints, self.q = rig, list(joints), q
+        self._type = JointState
+        self._on = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def message(self, names=None, positions=None, stamp=None):
+        msg = self._type(name=list(self.joints if names is None else names),
+                         position=[float(v) for v in (self.q if positions is None
+                                                      else positions)])
+        msg.header.stamp = (self.rig.node.get_clock().now().to_msg() if stamp is None
+                            else stamp)
+        return msg
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.02):
+            if self._on.is_set() and self.rig.context.ok():
+                self.rig.publish(self._type, "/joint_states", self.message())
+
+    def on(self) -> None:
+        self._on.set()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+def cases_executor(lab: Lab) -> list[Result]:
+    """executor: enable without a model, bad constraints and models, broken joint states."""
+    from std_msgs.msg import Float64MultiArray, String
+    from std_srvs.srv import SetBool
+
+    from policy_align_ros.kinematics import Robot
+    from policy_align_ros.nodes.executor import Executor
+
+    out: list[Result] = []
+    work = lab.path("executor")
+    center = Robot.load("talos", ARM).neutral()
+    model = _fit_model(work / "model.npz", ARM, center)
+    other = _fit_model(work / "other.npz", ["a", "b"], np.zeros(2))
+    (work / "notes.txt").write_text("not a model\n")
+    base = {"robot": "talos", "joints": ARM, "rate_hz": 50.0, "state_timeout_s": 0.5,
+            "max_acceleration": 5.0, "controller": ""}
+
+    def enable(rig, on=True):
+        return rig.call(SetBool, "/executor/enable", SetBool.Request(data=on))
+
+    s = _service_case
+    p = _param_case
+    rig = NodeRig(lab, Executor, dict(base))
+    try:
+        out.append(s(rig, "exe-enable-without-model", "executor `~/enable true` with no model",
+                     lambda: enable(rig), False, "no model"))
+        out.append(p(rig, "exe-constraints-bad-yaml",
+                     "executor `constraints: '[{type: plane, frame: arm_left_7_link'`",
+                     "constraints", "[{type: plane, frame: arm_left_7_link", "constraints"))
+        out.append(p(rig, "exe-constraints-unknown-frame",
+                     "executor `constraints` on frame `no_such_link`", "constraints",
+                     "[{type: plane, frame: no_such_link, normal: [0, 0, 1]}]",
+                     "no_such_link"))
+        out.append(p(rig, "exe-constraints-normal-length",
+                     "executor plane constraint with `normal: [0, 1]` (2 values)",
+                     "constraints", "[{type: plane, frame: arm_left_7_link, normal: [0, 1]}]",
+                     "normal"))
+        out.append(p(rig, "exe-constraints-zero-normal",
+                     "executor plane constraint with `normal: [0, 0, 0]`", "constraints",
+                     "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 0]}]", "normal"))
+        out.append(p(rig, "exe-constraints-unknown-type", "executor `constraints: "
+                     "[{type: cylinder}]`", "constraints", "[{type: cylinder}]", "cylinder"))
+        out.append(p(rig, "exe-constraints-not-a-list", "executor `constraints: '42'`",
+                     "constraints", "42", "constraints"))
+        out.append(p(rig, "exe-max-velocity-nan", "executor `max_velocity: nan`",
+                     "max_velocity", float("nan")))
+        out.append(p(rig, "exe-max-velocity-negative", "executor `max_velocity: -1.0`",
+                     "max_velocity", -1.0))
+        out.append(p(rig, "exe-max-acceleration-inf", "executor `max_acceleration: inf`",
+                     "max_acceleration", float("inf")))
+        out.append(p(rig, "exe-model-path-missing", "executor `model_path` to a missing file",
+                     "model_path", str(work / "missing.npz"), "missing.npz"))
+        out.append(p(rig, "exe-model-path-not-a-model", "executor `model_path` to a text file",
+                     "model_path", str(work / "notes.txt"), "notes.txt"))
+        out.append(p(rig, "exe-model-path-other-joints",
+                     "executor `model_path` to a model of joints a, b", "model_path",
+                     str(other), "model"))
+        out.append(p(rig, "exe-robot-read-only", "executor `robot: panda` at run time",
+                     "robot", "panda", "read-only"))
+        out.append(p(rig, "exe-joints-read-only", "executor `joints` changed at run time",
+                     "joints", ARM[::-1], "read-only"))
+        out.append(p(rig, "exe-controller-bad-name", "executor `controller: 'no such//node'`",
+                     "controller", "no such//node", "controller"))
+    finally:
+        rig.close()
+
+    rig = NodeRig(lab, Executor, dict(base, model_path=str(model)))
+    commands: list[np.ndarray] = []
+    rig.probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
+                                  lambda m: commands.append(np.array(m.data)), 1000)
+    feeder = _Feeder(rig, ARM, center + 0.2)
+    try:
+        exe = rig.node
+        out.append(s(rig, "exe-enable-no-joint-states",
+                     "executor `~/enable true` with a model but no joint state yet",
+                     lambda: enable(rig), False, "refused"))
+        feeder.on()
+
+        def state_case(case, tried, make_msg, disarms, reason=None):
+            r = Result(case, "messages", tried)
+            armed = wait_for(lambda: enable(rig).success and exe.controller.armed, 10.0)
+            wait_for(lambda: len(commands) > 0 and np.abs(commands[-1]).max() > 0, 10.0)
+            if not r.expect(armed, "could not arm before the case"):
+                out.append(r)
+                return r
+            with rig_case(r, rig):
+                rejected = sum(exe.rejected_states.values())
+                before = dict(exe.rejected_states)
+                n = len(commands)
+                rig.publish(feeder._type, "/joint_states", make_msg())
+                if disarms:
+                    wait_for(lambda: not exe.controller.armed and any(
+                        not c.any() for c in commands[n:]), 5.0)
+                else:
+                    wait_for(lambda: sum(exe.rejected_states.values()) > rejected, 5.0)
+                    time.sleep(0.2)
+            zero = any(not c.any() for c in commands[n:])
+            counted = sum(exe.rejected_states.values()) - rejected
+            r.data.update(armed=exe.controller.armed, zero=zero, counted=counted,
+                          rejected=dict(exe.rejected_states))
+            reasons = ", ".join(f"`{k}`" for k, v in exe.rejected_states.items()
+                                if v > before.get(k, 0)) or "nothing"
+            if disarms:
+                r.behaviour = ("rejected, zero command at once, disarmed until `~/enable`"
+                               if zero and not exe.controller.armed else
+                               f"armed={exe.controller.armed}, zero command={zero}")
+                r.expect(not exe.controller.armed, "still armed after the message")
+                r.expect(zero, "no zero command after the message")
+            else:
+                r.behaviour = (f"ignored and counted, still armed={exe.controller.armed}")
+                r.expect(exe.controller.armed, "disarmed by a message meant for someone else")
+            r.behaviour += f"; counted as {reasons}"
+            if reason is not None:
+                r.expect(exe.rejected_states.get(reason, 0) > 0, f"not counted as {reason}")
+            out.append(r)
+            return r
+
+        from builtin_interfaces.msg import Time
+
+        q = center + 0.2
+        now = exe.get_clock().now
+        state_case("exe-msg-joint-twice", "JointState naming arm_left_1_joint twice (the "
+                   "second with another value), executor armed",
+                   lambda: feeder.message(ARM + [ARM[0]], list(q) + [q[0] + 0.5]), True,
+                   "duplicate_joints")
+        state_case("exe-msg-nan", "JointState with a NaN position, executor armed",
+                   lambda: feeder.message(positions=[np.nan] + list(q[1:])), True,
+                   "non_finite")
+        state_case("exe-msg-lengths", "JointState with 7 names and 6 positions, armed",
+                   lambda: feeder.message(positions=list(q[:6])), True, "length_mismatch")
+        state_case("exe-msg-stamp-old", "JointState stamped 10 s ago, armed",
+                   lambda: feeder.message(stamp=(now() - _duration(10.0)).to_msg()), True)
+        state_case("exe-msg-stamp-zero", "JointState with a zero stamp, armed",
+                   lambda: feeder.message(stamp=Time()), True)
+        state_case("exe-msg-stamp-future", "JointState stamped 10 s in the future, armed",
+                   lambda: feeder.message(stamp=(now() + _duration(10.0)).to_msg()), True)
+        state_case("exe-msg-stamp-backwards", "JointState stamped 0.3 s before the last one",
+                   lambda: feeder.message(stamp=(now() - _duration(0.3)).to_msg()), True)
+        state_case("exe-msg-other-joints", "JointState of other joints only (another "
+                   "publisher), armed", lambda: feeder.message(["x1", "x2"], [0.0, 0.0]),
+                   False, "unknown_joints")
+        state_case("exe-msg-missing-joint", "JointState with 6 of the 7 joints, armed",
+                   lambda: feeder.message(ARM[:6], list(q[:6])), False, "missing_joints")
+
+        def announce(case, tried, path):
+            r = Result(case, "messages", tried)
+            with rig_case(r, rig):
+                before = exe.model_path
+                rig.publish(String, "/learner/model", String(data=str(path)))
+                time.sleep(1.0)  # a refusal changes nothing, so there is nothing to wait for
+            r.behaviour = ("refused (logged); the loaded model stays" if
+                           exe.model_path == before else f"loaded {exe.model_path}")
+            r.expect(exe.model_path == before, "the model changed")
+            out.append(r)
+
+        announce("exe-announce-missing-model", "`/learner/model` announcing a missing file",
+                 work / "missing.npz")
+        announce("exe-announce-not-a-model", "`/learner/model` announcing a text file",
+                 work / "notes.txt")
+        announce("exe-announce-other-joints", "`/learner/model` announcing a model of "
+                 "joints a, b", other)
+    finally:
+        feeder.close()
+        rig.close()
+    if not lab.start_ups:
+        return out
+    for case, tried, args, needle in (
+            ("exe-start-unknown-robot", "`executor -p robot:=no_such_robot`",
+             ["-p", "robot:=no_such_robot"], "no_such_robot"),
+            ("exe-start-unknown-joint", "`executor -p 'joints:=[arm_left_1_joint, nope]'`",
+             ["-p", "joints:=[arm_left_1_joint, nope]"], "nope"),
+            ("exe-start-joints-repeated",
+             "`executor -p 'joints:=[arm_left_1_joint, arm_left_1_joint]'`",
+             ["-p", "joints:=[arm_left_1_joint, arm_left_1_joint]"], "joints"),
+            ("exe-start-bad-constraints", "`executor -p 'constraints:=[{type: plane'`",
+             ["-p", "constraints:=[{type: plane"], "constraints"),
+            ("exe-start-model-missing", "`executor -p model_path:=/nonexistent/model.npz`",
+             ["-p", "model_path:=/nonexistent/model.npz"], "nonexistent")):
+        r = Result(case, "parameters", tried)
+        _start_refused(r, node_start(lab, "executor", *args), needle)
+        out.append(r)
+    return out
+
+
 # --- the table ------------------------------------------------------------------------------
 #: Case groups in table order: (name, function).
 GROUPS: list[tuple[str, Callable[[Lab], list[Result]]]] = [
@@ -1090,6 +1343,7 @@ GROUPS: list[tuple[str, Callable[[Lab], list[Result]]]] = [
     ("bags", cases_bags),
     ("recorder", cases_recorder),
     ("learner", cases_learner),
+    ("executor", cases_executor),
     ("sim_robot", cases_sim_robot),
     ("demonstrator", cases_demonstrator),
 ]
