@@ -5,9 +5,21 @@ Setup (issue 4): the 22 upper-body joints of example-robot-data's ``human`` mode
 (``left_hand``, ``right_hand``, normals drawn at random), and a PolicyAlign model learnt
 from a paper-sized data set of that experiment (K = 100 demonstrations of N = 100 samples,
 narrow sigma). One timed step does what the executor node does per control period
-besides ROS transport: match the joint state's names and positions into ``q`` (22,),
-evaluate ``pi_hat(q)``, build ``A(q)`` (2, 22) from Pinocchio hand Jacobians, project,
-lock limit joints, scale, and convert the command to a list for the message.
+besides ROS transport (issue 8: with the safety layer on):
+
+* match the joint state's names and positions into ``q`` (22,);
+* :meth:`ArmedController.joint_state` (stamp checks) and :meth:`ArmedController.tick`:
+  evaluate ``pi_hat(q)``, build ``A(q)`` (2, 22) from Pinocchio hand Jacobians, check its
+  smallest singular value, project, lock limit joints, scale, apply the extrapolation
+  guard (nearest support state of the model, :class:`SupportDistance`) and the
+  acceleration ramp;
+* the values the node puts on ``/diagnostics`` (arming, zero reason, ramp and
+  extrapolation scales, largest command), formatted as strings every step although the
+  node publishes them once a second;
+* convert the command to a list for the message.
+
+A second row (``held_frame``) holds the left hand with a position constraint instead of
+its plane, so the drift correction (a second projector and a damped solve) is on too.
 
 Times are wall-clock (``time.perf_counter_ns``) per step, reported in microseconds as
 p50 / p99 / max over ``steps`` steps after a warm-up; the target is p99 < 1 ms (1 kHz).
@@ -25,11 +37,17 @@ import numpy as np
 
 from policy_align_ros.experiments.humanoid import HANDS, JOINTS, make_humanoid_dataset
 from policy_align_ros.kinematics import Robot, constraint_from_spec
-from policy_align_ros.kinematics.control import ControlStep, model_permutation
+from policy_align_ros.kinematics.control import (
+    ArmedController,
+    ControlStep,
+    ExtrapolationGuard,
+    SupportDistance,
+    model_permutation,
+)
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.model_io import atomic_write_text
 
-__all__ = ["main", "percentiles_us", "time_steps"]
+__all__ = ["armed_step", "diagnostic_values", "main", "percentiles_us", "time_steps"]
 
 
 def percentiles_us(samples_ns: np.ndarray) -> dict[str, float]:
@@ -65,6 +83,41 @@ def time_steps(step, states: np.ndarray, names: list[str], steps: int, warmup: i
     return out
 
 
+def diagnostic_values(control: ArmedController, now_ns: int) -> dict[str, str]:
+    """The controller's part of the executor's ``/diagnostics`` status, as strings."""
+    return {
+        "armed": str(control.armed).lower(),
+        "zero_reason": control.zero_reason,
+        "ramp_scale": f"{control.ramp_scale:.3f}",
+        "extrapolation_scale": f"{control.extrapolation_scale:.3f}",
+        "max_abs_command_rad_s": f"{float(np.max(np.abs(control.command))):.4f}",
+        "joint_states": control.state_problem(now_ns) or "fresh",
+    }
+
+
+def armed_step(control: ArmedController, period_ns: int):
+    """A ``step(q) -> (qdot, reason)`` running ``control`` as the node does per period.
+
+    Each call advances a simulated clock by ``period_ns``, passes ``q`` as a joint state
+    stamped now, ticks, and formats the diagnostic values. The controller is armed at
+    the first call.
+    """
+    clock = {"now": 1_000_000_000}
+    zeros = np.zeros(control.step.n_joints)
+
+    def step(q: np.ndarray) -> tuple[np.ndarray, str]:
+        clock["now"] += period_ns
+        now = clock["now"]
+        control.joint_state(q, now, now)
+        if not control.armed:
+            control.arm(now)
+        out = control.tick(now)
+        diagnostic_values(control, now)
+        return (zeros if out.command is None else out.command), out.zero_reason
+
+    return step
+
+
 def main(args: argparse.Namespace) -> int:
     """``policy-align bench executor``: print (and write to ``args.out``) the timings."""
     seed = int(getattr(args, "seed", 0) or 0)
@@ -83,28 +136,52 @@ def main(args: argparse.Namespace) -> int:
     constraints = [constraint_from_spec({"type": "plane", "frame": hand,
                                          "normal": rng.standard_normal(3).tolist()}, robot)
                    for hand in HANDS]
-    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 1.0), 1e-3,
-                       constraints=constraints, policy=model.policy,
-                       permutation=model_permutation(model.joint_names_, JOINTS))
+    perm = model_permutation(model.joint_names_, JOINTS)
+    vmax = np.full(robot.nq, 1.0)
+
+    def armed(constraint_list) -> ArmedController:
+        step = ControlStep(robot.lower, robot.upper, vmax, 1e-3, constraints=constraint_list,
+                           policy=model.policy, permutation=perm,
+                           guard=ExtrapolationGuard(SupportDistance(model, perm)))
+        return ArmedController(step, max_acceleration=2.0, state_timeout_s=0.1,
+                               joint_names=JOINTS)
+
+    control = armed(constraints)
     states = np.concatenate([d.trajectory.positions for d in demos[:10]])
     results = {"joints": len(JOINTS), "constraint_rows": 2, "steps": steps,
                "fit_s": fit_s, "full_step": percentiles_us(time_steps(
-                   step, states, list(JOINTS), steps))}
-    # Where the time goes: the policy alone and the constraint matrix alone.
-    policy_only = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 1.0), 1e-3,
-                              policy=model.policy)
+                   armed_step(control, 1_000_000), states, list(JOINTS), steps))}
+    results["full_step_armed_at_end"] = control.armed
+    hold = constraint_from_spec({"type": "position", "frame": HANDS[0]}, robot)
+    held = armed([hold, constraints[1]])
+    results["held_frame"] = percentiles_us(time_steps(
+        armed_step(held, 1_000_000), states, list(JOINTS), steps // 4))
+    results["held_frame_armed_at_end"] = held.armed
+    # Where the time goes: the bare control law, the policy alone, the constraint
+    # matrix alone and the guard's distance alone.
+    bare = ControlStep(robot.lower, robot.upper, vmax, 1e-3, constraints=constraints,
+                       policy=model.policy, permutation=perm)
+    results["control_law_only"] = percentiles_us(time_steps(
+        bare, states, list(JOINTS), steps // 4))
+    policy_only = ControlStep(robot.lower, robot.upper, vmax, 1e-3, policy=model.policy)
     results["policy_only"] = percentiles_us(time_steps(
         policy_only, states, list(JOINTS), steps // 4))
     results["constraints_only"] = percentiles_us(time_steps(
-        lambda q: (step.constraint_matrix(q), ""), states, list(JOINTS), steps // 4))
+        lambda q: (bare.constraint_matrix(q), ""), states, list(JOINTS), steps // 4))
+    distance = SupportDistance(model, perm)
+    results["guard_distance_only"] = percentiles_us(time_steps(
+        lambda q: (np.array([distance(q)[0]]), ""), states, list(JOINTS), steps // 4))
     full = results["full_step"]
     lines = [
-        "Executor control step (22 joints, one plane per hand; joint state in, command out)",
+        "Executor control step (22 joints, one plane per hand; joint state in, command out;",
+        "full_step: stamp checks, guard, ramp and diagnostic values on; held_frame: left",
+        "hand held instead of its plane, drift correction on)",
         "",
         "| part | p50 [us] | p99 [us] | max [us] |",
         "|---|---|---|---|",
     ]
-    for key in ("full_step", "policy_only", "constraints_only"):
+    for key in ("full_step", "held_frame", "control_law_only", "policy_only",
+                "constraints_only", "guard_distance_only"):
         r = results[key]
         lines.append(f"| {key} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['max_us']:.1f} |")
     verdict = "met" if full["p99_us"] < 1000.0 else "missed"
