@@ -774,3 +774,20 @@ def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
     finally:
         r.executor.remove_node(controller)
         controller.destroy_node()
+
+
+def test_frame_support_distance_measures_the_hand_state_and_its_gradient():
+    """The guard's distance for a frames model: in hand space, gradient through J."""
+    from policy_align_ros.nodes.executor import FrameSupportDistance
+
+    model, _, _, robot, smap = _frames_model()
+    distance = FrameSupportDistance(model, smap)
+    q = robot.clip(robot.neutral() + np.array([0.4, 0.3, -0.3, 0.5, 0.2, 0.3, 0.1]))
+    d, grad = distance(q)
+    x = smap.states(q)
+    expect, nearest = model.support_query(x[None])
+    assert d == pytest.approx(expect[0]) and d > 2.0  # the hand is off the data
+    assert d == pytest.approx(np.linalg.norm(x - nearest[0]) / model.support_spacing_)
+    h = 1e-6
+    fd = [(distance(q + h * e)[0] - distance(q - h * e)[0]) / (2 * h) for e in np.eye(q.size)]
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.abs(grad).max())

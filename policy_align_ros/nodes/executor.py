@@ -92,7 +92,8 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Executor", "joint_order_problem", "load_policy", "main", "speed_limits"]
+__all__ = ["Executor", "FrameSupportDistance", "joint_order_problem", "load_policy", "main",
+           "speed_limits"]
 
 #: Period of the /diagnostics status (s of node clock); arming changes go out at once.
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -155,6 +156,43 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None
     # TaskSpacePolicy takes and returns rows in the robot's (command) joint order.
     frames = ", ".join(policy.state_map.frames)
     return model, policy, np.arange(len(joints)), f"frames {frames}"
+
+
+class FrameSupportDistance:
+    """The extrapolation guard's ``distance(q) -> (d, grad)`` for a frames model.
+
+    The model's support states live in its state space, the stacked frame positions
+    ``x = phi(q)`` (3F,), m. With ``s`` the support state nearest to ``x`` and ``h`` the
+    spacing of the training data (``model.support_spacing_``, m), ``d = |x - s| / h``
+    (spacings) and, to first order in ``q``, ``grad d = J^T (x - s) / (|x - s| h)``
+    (spacings per rad) with ``J`` (3F, n) the frames' Jacobian: the contract of
+    :class:`policy_align_ros.kinematics.control.ExtrapolationGuard`.
+
+    Parameters
+    ----------
+    model : PolicyAlign
+        Learnt on the frame states of ``state_map`` (has ``support_query``).
+    state_map : TaskSpaceMap
+        The map from ``q`` (n,) in command order to ``x`` (3F,), of the executor's robot.
+    """
+
+    def __init__(self, model: PolicyAlign, state_map) -> None:
+        spacing = float(getattr(model, "support_spacing_", float("nan")))
+        if not (math.isfinite(spacing) and spacing > 0.0):
+            raise ValueError("model: has no support states (support_spacing_ missing)")
+        self.model = model
+        self.state_map = state_map
+        self.spacing = spacing
+
+    def __call__(self, q: np.ndarray) -> tuple[float, np.ndarray | None]:
+        """``(d, grad)`` at ``q`` (n,): spacings and spacings per rad (None on the data)."""
+        x, J = self.state_map.kinematics(np.asarray(q, dtype=float))
+        d, nearest = self.model.support_query(x[None, :])
+        diff = x - nearest[0]
+        r = float(np.linalg.norm(diff))
+        if r == 0.0:
+            return 0.0, None
+        return float(d[0]), J.T @ diff / (r * self.spacing)
 
 
 def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
