@@ -236,6 +236,12 @@ def test_bad_arguments_name_the_parameter(dataset, tmp_path):
             learn_pipeline([dataset], tmp_path / "m.npz", **kwargs)
     assert state_name(" frames: a ,b ") == "frames:a,b"
     assert not (tmp_path / "m.npz").exists()
+    # An unwritable model path fails before the fit, naming the path.
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="file is not a directory"):
+        learn_pipeline([dataset], tmp_path / "file" / "sub" / "m.npz")
+    with pytest.raises(ValueError, match="is a directory"):
+        learn_pipeline([dataset], tmp_path)
 
 
 def test_frames_state_round_trip(tmp_path):

@@ -354,6 +354,9 @@ class DatasetReport:
     skipped_bags : list of (str, str)
         Every bag that gave no demonstration, with the reason (unreadable, no JointState
         topic, joints missing, every message malformed, too short).
+    cut_short_bags : list of (str, str)
+        Bags whose reading stopped early but that gave demonstrations (what was read
+        before the damage is used), with the reason.
     repeated_bags : list of str
         Bags named more than once by the inputs (each is read once).
     available_joints : list of str
@@ -372,6 +375,7 @@ class DatasetReport:
     demos: list[DemoInfo] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
     skipped_bags: list[tuple[str, str]] = field(default_factory=list)
+    cut_short_bags: list[tuple[str, str]] = field(default_factory=list)
     repeated_bags: list[str] = field(default_factory=list)
     available_joints: list[str] = field(default_factory=list)
     missing_joints: list[str] = field(default_factory=list)
@@ -572,6 +576,8 @@ def load_dataset(
             close(segment, bag)
         for name in bag_names:
             available.setdefault(name, None)
+        if failure and len(trajectories) > demos_before:
+            report.cut_short_bags.append((str(bag), failure))
         if len(trajectories) == demos_before:
             report.skipped_bags.append((str(bag), failure or _no_demo_reason(
                 bag_read, bag_counts, report.demos_found - found_before,

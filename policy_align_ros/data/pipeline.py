@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -326,6 +327,19 @@ def _jsonable(value: float) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
 
 
+def _check_writable(path: Path) -> None:
+    """Fail before a long fit when the model file could not be written."""
+    if path.is_dir():
+        raise ValueError(f"model_path: {path} is a directory, expected a file name")
+    ancestor = path.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise ValueError(f"model_path: {ancestor} is not a directory, cannot write {path}")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise ValueError(f"model_path: no permission to write in {ancestor}")
+
+
 def _load_frames_map(robot: str | None, frames: list[str], joints: list[str]):
     """The Pinocchio state map (imported here so joint states need no Pinocchio)."""
     if not robot:
@@ -441,7 +455,8 @@ def learn_pipeline(
         demonstrations outlier detection dropped), ``duplicates`` (skipped copies; a bag
         named twice gives ``"NAME (repeat)"``)} as lists of demonstration names;
         ``duplicate_of`` {copy: original}; ``training_fingerprints`` (:func:`fingerprint`
-        of each training demonstration); ``skipped_bags`` [{``bag``, ``reason``}];
+        of each training demonstration); ``cut_short_bags`` [{``bag``, ``reason``}]
+        (damaged bags whose first part is used); ``skipped_bags`` [{``bag``, ``reason``}];
         ``sigma2``; ``fit_time_s``; ``heldout_ncpe_observed`` (float or None);
         ``state``; ``joints``; ``robot``; ``data`` (what was read, one line);
         ``current_model`` (its held-out nCPE on the demonstrations it was not trained on);
@@ -468,11 +483,13 @@ def learn_pipeline(
         if not p.exists():
             raise ValueError(f"{p}: no such file or directory")
     path = Path(model_path).expanduser().resolve()
+    _check_writable(path)
 
     # 1. discovery
     trajs, names, report = load_dataset(inputs, joints=joints, gap_s=gap_s)
     demo_names = [d.name for d in report.demos]
     skipped_bags = [{"bag": bag, "reason": reason} for bag, reason in report.skipped_bags]
+    cut_short = [{"bag": bag, "reason": reason} for bag, reason in report.cut_short_bags]
     say(f"read {report.summary()}")
 
     # 2. de-duplication (in joint space: copies there are copies in any state)
@@ -510,6 +527,8 @@ def learn_pipeline(
         mapped = {k: state_map(trajs[k]) for k in unique}
         definition = state_map.definition()
         frames = definition.get("frames") if isinstance(definition, dict) else None
+        if state == "joints":  # a caller's map: name the state after its frames
+            state = "frames:" + ",".join(frames) if frames else "custom"
         dim = mapped[unique[0]].n_dims
         coords = ([f"{f}.{a}" for f in frames for a in "xyz"]
                   if frames and 3 * len(frames) == dim else None)
@@ -566,6 +585,7 @@ def learn_pipeline(
         "duplicate_of": duplicate_of,
         "training_fingerprints": [fingerprint(trajs[k]) for k in train_k],
         "skipped_bags": skipped_bags,
+        "cut_short_bags": cut_short,
         "sigma2": float(model.sigma2_),
         "fit_time_s": float(fit_s),
         "heldout_ncpe_observed": ncpe,
