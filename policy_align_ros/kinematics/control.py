@@ -965,6 +965,11 @@ class ArmedController:
         return self.max_acceleration * self.step.dt
 
     @property
+    def last_q(self) -> np.ndarray | None:
+        """The last accepted joint positions (n,), or None since a fault or at start."""
+        return self._q
+
+    @property
     def publishing(self) -> bool:
         """Whether :meth:`tick` still publishes (armed, or ramping down to zero)."""
         return not self._silent

@@ -74,9 +74,15 @@ from std_srvs.srv import SetBool
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
 from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.kinematics.control import (
+    DEFAULT_DRIFT_CLAMP_M,
+    DEFAULT_DRIFT_GAIN,
+    DEFAULT_MAX_EXTRAPOLATION,
+    DEFAULT_MIN_SINGULAR_VALUE,
     ArmedController,
     ControlStep,
+    ExtrapolationGuard,
     Output,
+    SupportDistance,
     model_permutation,
 )
 from policy_align_ros.kinematics.task_space import policy_for_state
@@ -101,7 +107,8 @@ DIAGNOSTICS_PERIOD_S = 1.0
 CONTROLLER_TIMEOUT_S = 1.0
 #: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
 _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
-                     "max_clock_skew_s")
+                     "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
+                     "min_singular_value")
 
 
 def load_policy(path: str, robot: Robot, constraint: Callable | None = None
@@ -277,6 +284,21 @@ class Executor(Node):
         self.declare_parameter("max_clock_skew_s", 0.05, descriptor(
             "allowed offset between joint-state stamps and the node clock [s]",
             float_range=(0.0, 10.0)))
+        self.declare_parameter("max_extrapolation", DEFAULT_MAX_EXTRAPOLATION, descriptor(
+            "extrapolation guard: beyond this distance from the demonstrated data "
+            "[spacings of the training data] commands leading further out scale down, to "
+            "zero one band (>= the stopping distance at max_velocity) further",
+            float_range=(0.1, 1000.0)))
+        self.declare_parameter("drift_gain", DEFAULT_DRIFT_GAIN, descriptor(
+            "gain pulling frames held by position constraints back to where they were at "
+            "enable [1/s]; 0 = no drift correction", float_range=(0.0, 50.0)))
+        self.declare_parameter("drift_clamp_m", DEFAULT_DRIFT_CLAMP_M, descriptor(
+            "largest held-frame error the drift correction acts on [m] (larger errors are "
+            "corrected at drift_gain * drift_clamp_m m/s)", float_range=(0.0001, 1.0)))
+        self.declare_parameter("min_singular_value", DEFAULT_MIN_SINGULAR_VALUE, descriptor(
+            "the executor ramps to a stop when the constraint matrix's smallest singular "
+            "value falls below this [m/rad for frame rows]; 0 = never",
+            float_range=(0.0, 1.0)))
         self.declare_parameter("constraints", "[]", descriptor(
             "YAML list of constraint specs in force, e.g. "
             "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
@@ -290,7 +312,10 @@ class Executor(Node):
         self._period = 1.0 / self.get_parameter("rate_hz").value
         step = ControlStep(
             self.robot.lower, self.robot.upper, self._speed_limits(), self._period,
-            constraints=self._constraints(self.get_parameter("constraints").value))
+            constraints=self._constraints(self.get_parameter("constraints").value),
+            drift_gain=self.get_parameter("drift_gain").value,
+            drift_clamp_m=self.get_parameter("drift_clamp_m").value,
+            min_singular_value=self.get_parameter("min_singular_value").value)
         self.controller = ArmedController(
             step, self.get_parameter("max_acceleration").value,
             self.get_parameter("state_timeout_s").value,
@@ -423,6 +448,10 @@ class Executor(Node):
                 control.state_timeout_s = param.value
             elif param.name == "max_clock_skew_s":
                 control.max_clock_skew_s = param.value
+            elif param.name == "max_extrapolation" and control.step.guard is not None:
+                control.step.guard.max_extrapolation = param.value
+            elif param.name in ("drift_gain", "drift_clamp_m", "min_singular_value"):
+                setattr(control.step, param.name, param.value)
             elif param.name == "model_path" and self._staged is not None:
                 self._apply_staged()
             elif param.name == "controller":
@@ -435,10 +464,23 @@ class Executor(Node):
         self.model_state = state
         self._arm_at_start = False  # a swapped model is never armed without ~/enable
         out = self.controller.set_policy(policy, perm, reason=f"model swap to {path}")
+        self.controller.step.guard = self._guard(model, policy, perm, state)
         self.model_path = path
         self._update_context()
         self.get_logger().info(f"model loaded from {path} (state: {state})")
         self._emit(out)
+
+    def _guard(self, model: PolicyAlign, policy: Callable, perm: np.ndarray, state: str
+               ) -> ExtrapolationGuard | None:
+        """The extrapolation guard for a newly loaded model (None: the model cannot have one)."""
+        limit = self.get_parameter("max_extrapolation").value
+        try:
+            if state == "joints":
+                return ExtrapolationGuard(SupportDistance(model, perm), limit)
+            return ExtrapolationGuard(FrameSupportDistance(model, policy.state_map), limit)
+        except (ValueError, AttributeError) as err:
+            self.get_logger().warning(f"extrapolation guard off for this model: {err}")
+            return None
 
     def _on_model(self, msg: String) -> None:
         result = self.set_parameters([Parameter("model_path", value=msg.data)])[0]
@@ -604,6 +646,10 @@ class Executor(Node):
             "model_state": self.model_state or "(none)",
             "zero_reason": control.zero_reason,
             "ramp_scale": f"{control.ramp_scale:.3f}",
+            "extrapolation_scale": (f"{control.extrapolation_scale:.3f}"
+                                    if control.step.guard is not None else "off"),
+            "extrapolation_distance": f"{control.step.extrapolation_distance:.2f}",
+            "held_frame_error_mm": self._held_error_text(),
             "max_abs_command_rad_s": f"{float(np.max(np.abs(control.command))):.4f}",
             "max_acceleration_rad_s2": f"{control.max_acceleration:g}",
             "constraints": self.get_parameter("constraints").value,
@@ -618,6 +664,14 @@ class Executor(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(array)
+
+    def _held_error_text(self) -> str:
+        """Largest error of the held frames from their references (mm), or "none"."""
+        step = self.controller.step
+        q = self.controller.last_q
+        if not step.holding or q is None:
+            return "none"
+        return f"{1e3 * float(np.max(np.abs(step.hold_errors(q)), initial=0.0)):.3f}"
 
     def publish_zeros(self, why: str) -> None:
         """Publish one zero command and wait briefly for subscribers to acknowledge it."""
