@@ -592,6 +592,21 @@ def cases_cli_ros(lab: Lab) -> list[Result]:
         out.append(_cli_result(
             "param-read-only", "`param set /recorder qos_depth 5` (read-only)",
             lab.cli("param", "set", "/recorder", "qos_depth", "5", domain=d), 1, "read-only"))
+        out.append(_cli_result(
+            "call-invalid-name", "`call '/no such service'` (not a valid name)",
+            lab.cli("call", "/no such service", "--timeout", "2", domain=d), 2, "valid"))
+        out.append(_cli_result(
+            "param-invalid-node-name", "`param get 'no such node' rate_hz` (not a valid name)",
+            lab.cli("param", "get", "no such node", "rate_hz", "--timeout", "2", domain=d),
+            2, "not a valid node name"))
+        out.append(_cli_result(
+            "param-array-bad-yaml", "`param set /recorder joints '[j1, j2'` (unclosed YAML)",
+            lab.cli("param", "set", "/recorder", "joints", "[j1, j2", domain=d), 2, "YAML"))
+        out.append(_cli_result(
+            "param-unset-parameter", "`param set /recorder joints '[j1, j1]'` (declared, "
+            "unset, repeated joint)",
+            lab.cli("param", "set", "/recorder", "joints", "[j1, j1]", domain=d), 1,
+            "listed twice"))
         out.append(_cli_result("param-set-no-value", "`param set /recorder dataset_dir`",
                                lab.cli("param", "set", "/recorder", "dataset_dir", domain=d),
                                2, "VALUE"))

@@ -6,8 +6,9 @@ domain is the one of the environment (``ROS_DOMAIN_ID``). Prints ``success: <mes
 ``failure: <message>``.
 
 Exit status: 0 when the service answered ``success=true``, 1 when it answered
-``success=false``, 2 for a usage error (wrong or unsupported type), 3 when the service did
-not appear or answer within ``--timeout`` seconds.
+``success=false``, 2 for a usage error (wrong or unsupported type, a name that is not a
+valid service name), 3 when the service did not appear or answer within ``--timeout``
+seconds.
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ import sys
 import time
 
 import rclpy
+from rclpy.exceptions import NameValidationException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from std_srvs.srv import SetBool, Trigger
 
 __all__ = ["call_service", "run_call"]
@@ -40,6 +43,10 @@ def call_service(
     node: Node, service: str, data: bool | None, timeout: float
 ) -> tuple[int, str]:
     """Call ``service`` from ``node``; returns (exit status, text), see the module docstring."""
+    try:
+        validate_full_topic_name(service, is_service=True)
+    except NameValidationException as err:
+        return 2, f"{service!r} is not a valid service name ({str(err).splitlines()[0]})"
     deadline = time.monotonic() + timeout
     srv_type = _service_type(node, service, deadline)
     if srv_type is None:

@@ -1,15 +1,17 @@
 """``policy-align param get|set NODE NAME [VALUE]``: node parameters without ros2cli.
 
-``get`` prints ``NAME: VALUE (TYPE)``. ``set`` parses ``VALUE`` as the parameter's current
-type (read from the node first): a string parameter takes the text as it is (so YAML such
-as the executor's ``constraints`` needs no extra quoting), numbers, booleans and arrays are
-read as YAML, and an integer is accepted for a double. The node's own validation decides;
+``get`` prints ``NAME: VALUE (TYPE)`` (``NAME: unset (TYPE)`` for a parameter declared
+without a value, such as the recorder's ``joints``). ``set`` parses ``VALUE`` as the
+parameter's current type, or its declared type when it is unset (read from the node
+first): a string parameter takes the text as it is (so YAML such as the executor's
+``constraints`` needs no extra quoting), numbers, booleans and arrays are read as YAML, and
+an integer is accepted for a double. The node's own validation decides;
 its reason is printed when it refuses. The ROS domain is the environment's
 (``ROS_DOMAIN_ID``).
 
 Exit status: 0 success, 1 the node refused the value, 2 a usage error (no such parameter,
-a value that does not parse as the parameter's type), 3 the node did not answer within
-``--timeout`` seconds.
+a value that does not parse as the parameter's type, a node name that is not valid), 3 the
+node did not answer within ``--timeout`` seconds.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from typing import Any
 import rclpy
 import yaml
 from rcl_interfaces.msg import ParameterType
-from rcl_interfaces.srv import GetParameters, SetParameters
+from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
+from rclpy.exceptions import NameValidationException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
@@ -91,10 +94,15 @@ def parse_value(text: str, type_id: int) -> Any:
 
 
 def _call(node: Node, srv_type, service: str, request, deadline: float):
-    client = node.create_client(srv_type, service)
+    try:
+        client = node.create_client(srv_type, service)
+    except NameValidationException as err:  # e.g. a node name with a space
+        raise ParamError(2, f"{service.rsplit('/', 1)[0]}: not a valid node name "
+                            f"({str(err).splitlines()[0]})") from None
     try:
         if not client.wait_for_service(timeout_sec=max(deadline - time.monotonic(), 0.0)):
-            raise ParamError(3, f"service {service} not available")
+            raise ParamError(3, f"node {service.rsplit('/', 1)[0]} not found: service "
+                                f"{service} not available")
         future = client.call_async(request)
         executor = SingleThreadedExecutor(context=node.context)
         executor.add_node(node)
@@ -109,13 +117,22 @@ def _call(node: Node, srv_type, service: str, request, deadline: float):
 
 
 def get_parameter(node: Node, target: str, name: str, deadline: float) -> tuple[Any, int]:
-    """Value and type id of parameter ``name`` of node ``target`` (ParamError if unset)."""
+    """Value and type id of parameter ``name`` of node ``target``.
+
+    A parameter declared without a value gives ``None`` and its declared type; ParamError
+    if the node has no such parameter.
+    """
     request = GetParameters.Request(names=[name])
     response = _call(node, GetParameters, f"{target}/get_parameters", request, deadline)
-    if not response.values or response.values[0].type == ParameterType.PARAMETER_NOT_SET:
-        raise ParamError(2, f"node {target} has no parameter {name!r}")
-    msg = response.values[0]
-    return parameter_value_to_python(msg), msg.type
+    if response.values and response.values[0].type != ParameterType.PARAMETER_NOT_SET:
+        msg = response.values[0]
+        return parameter_value_to_python(msg), msg.type
+    # Unset: declared (with a type, like the recorder's joints) or unknown?
+    described = _call(node, DescribeParameters, f"{target}/describe_parameters",
+                      DescribeParameters.Request(names=[name]), deadline)
+    if described.descriptors and described.descriptors[0].type in _TYPE_NAMES:
+        return None, described.descriptors[0].type
+    raise ParamError(2, f"node {target} has no parameter {name!r}")
 
 
 def set_parameter(node: Node, target: str, name: str, text: str, deadline: float) -> str:
@@ -153,7 +170,8 @@ def run_param(args: argparse.Namespace) -> int:
         try:
             if args.action == "get":
                 value, type_id = get_parameter(node, target, args.name, deadline)
-                text = f"{args.name}: {value!r} ({_TYPE_NAMES.get(type_id, '?')})"
+                shown = "unset" if value is None else repr(value)
+                text = f"{args.name}: {shown} ({_TYPE_NAMES.get(type_id, '?')})"
             else:
                 text = set_parameter(node, target, args.name, args.value, deadline)
             status = 0
