@@ -924,6 +924,7 @@ def cases_recorder(lab: Lab) -> list[Result]:
                               _trigger(rig, "/recorder/stop_demo"))[-1], False, "nothing"))
     finally:
         rig.close()
+    out.extend(_recorder_write_failures(lab, work))
     if not lab.start_ups:
         return out
     # Start-up: a recorder that cannot write its dataset must not start.
@@ -937,6 +938,93 @@ def cases_recorder(lab: Lab) -> list[Result]:
     r = Result("rec-start-joints-repeated", "parameters",
                "`recorder --ros-args -p 'joints:=[j1, j1]'` (start-up)")
     _start_refused(r, run, "j1")
+    out.append(r)
+    return out
+
+
+def _recorder_write_failures(lab: Lab, work: Path) -> list[Result]:
+    """A dataset directory replaced by a file mid-demo; a clock that restarts while
+    recording continuously. Nothing recorded may be lost."""
+    from sensor_msgs.msg import JointState
+
+    from policy_align_ros.data.bags import find_bags, load_dataset
+    from policy_align_ros.nodes.recorder import RecorderNode
+
+    out = []
+
+    def state(rig, k, offset_s=0.0):
+        msg = JointState(name=J2, position=[0.01 * k, -0.01 * k])
+        msg.header.stamp = (rig.node.get_clock().now() + _duration(offset_s)).to_msg()
+        return msg
+
+    def messages_in(directory):
+        bags = find_bags(directory) if directory.is_dir() else []
+        if not bags:
+            return 0
+        trajs, _, _ = load_dataset(directory, gap_s=0.0)
+        return sum(len(t.positions) for t in trajs)
+
+    demos = work / "replaced"
+    rig = NodeRig(lab, RecorderNode, {"dataset_dir": str(demos), "joints": J2})
+    r = Result("rec-dataset-dir-replaced", "services",
+               "recorder: `dataset_dir` replaced by a file during a demonstration, then "
+               "`~/stop_demo`, `~/start_demo`, `dataset_dir` set to a new directory, "
+               "`~/stop_demo`")
+    try:
+        rec = rig.node.recorder
+        with rig_case(r, rig):
+            _trigger(rig, "/recorder/start_demo")
+            for k in range(10):
+                rig.publish(JointState, "/joint_states", state(rig, k))
+            wait_for(lambda: rec.accepted >= 10, 10.0)
+            shutil.rmtree(demos)
+            demos.write_text("in the way\n")
+            stop = _trigger(rig, "/recorder/stop_demo")
+            start = _trigger(rig, "/recorder/start_demo")
+            moved = rig.set_param("dataset_dir", str(work / "moved"))
+            again = _trigger(rig, "/recorder/stop_demo")
+        answers = [stop, start, again]
+        if r.expect(all(a is not None for a in answers), "a service did not answer"):
+            r.behaviour = (f"stop: success={str(stop.success).lower()} "
+                           f"({_short(stop.message, 150)}); start: "
+                           f"success={str(start.success).lower()}; after the new "
+                           f"dataset_dir, stop: success={str(again.success).lower()} "
+                           "(the 10 messages written)")
+            r.expect(not stop.success and "writing failed" in stop.message,
+                     "the failed write was not reported")
+            r.expect(not start.success and "could not be written" in start.message,
+                     "start_demo not refused while a demonstration is pending")
+            r.expect(moved[0] and again.success, "the pending demonstration was not written")
+        written = messages_in(work / "moved")
+        r.lost = 0 if written == 10 else 1
+        r.data["written"] = written
+    finally:
+        rig.close()
+    out.append(r)
+
+    cont = work / "continuous"
+    rig = NodeRig(lab, RecorderNode, {"dataset_dir": str(cont), "joints": J2,
+                                      "auto_split_gap_s": 0.5})
+    r = Result("rec-continuous-clock-restart", "messages",
+               "recorder in continuous mode: the stamps jump 100 s back mid-stream (a "
+               "restarted simulation), then the node is shut down")
+    try:
+        rec = rig.node.recorder
+        with rig_case(r, rig):
+            for k in range(10):
+                rig.publish(JointState, "/joint_states", state(rig, k))
+            wait_for(lambda: rec.accepted >= 10, 10.0)
+            for k in range(10):
+                rig.publish(JointState, "/joint_states", state(rig, k, offset_s=-100.0))
+            wait_for(lambda: rec.accepted >= 20, 10.0)
+    finally:
+        rig.close()  # shutdown() writes the last segment of a continuous recording
+    bags = find_bags(cont) if cont.is_dir() else []
+    written = messages_in(cont)
+    r.behaviour = (f"split into {len(bags)} demonstrations ({written} of 20 messages "
+                   "written; the last at shutdown)")
+    r.expect(len(bags) == 2, f"{len(bags)} bags, expected 2")
+    r.lost = 0 if written == 20 else 1
     out.append(r)
     return out
 
