@@ -35,9 +35,16 @@ docs/executor_safety.md explains it for robot owners):
   ``controller`` (GetParameters, waiting at most 1 s of wall time while the node keeps
   running) and refuses when its order differs from ``joints``; a controller that does not
   answer is logged as "not checked" and arming goes ahead;
+* the extrapolation guard scales down commands that lead further than
+  ``max_extrapolation`` spacings of the training data away from it, to zero within a band
+  at least the stopping distance at ``max_velocity``; frames held by position
+  constraints are latched at enable and their drift pulled back (``drift_gain``,
+  ``drift_clamp_m``); a constraint matrix whose smallest singular value falls below
+  ``min_singular_value`` ramps down and disarms, with the reason;
 * all timing uses the node clock, so ``use_sim_time`` works;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second and on arming changes)
-  reports the arming state, the model, why the command is zero and the ramp scale.
+  reports the arming state, the model, why the command is zero, the ramp scale, the
+  extrapolation scale and the held frames' error.
 
 A ros2_control JointGroupVelocityController holds its last command forever, so the
 executor also publishes a zero when it shuts down; pair it with a controller-side command
