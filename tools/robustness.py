@@ -510,6 +510,15 @@ def cases_cli_learn(lab: Lab) -> list[Result]:
           [str(good), "--out", str(work / "a_file" / "model.npz")], 2, "a_file")
     learn("learn-out-is-dir", "`learn GOOD --out A_DIR` (an existing directory)",
           [str(good), "--out", str(work / "a_dir")], 2, "a_dir")
+    learn("learn-state-unknown-kind", "`learn GOOD --state velocities`",
+          [str(good), "--out", model, "--state", "velocities"], 2, "state")
+    learn("learn-state-empty-frames", "`learn GOOD --state frames:`",
+          [str(good), "--out", model, "--state", "frames:"], 2, "frame")
+    learn("learn-state-frames-no-robot", "`learn GOOD --state frames:arm_left_7_link` "
+          "(no `--robot`)", [str(good), "--out", model, "--state", "frames:arm_left_7_link"],
+          2, "robot")
+    learn("learn-state-unknown-frame", "`learn GOOD --robot talos --state frames:no_frame`",
+          [str(good), "--out", model, "--robot", "talos", "--state", "frames:no_frame"], 2)
     one = lab.dataset_with("one_demo", n_good=1)
     learn("learn-one-demo", "`learn ONE_BAG_DATASET` (a single demonstration)",
           [str(one), "--out", model], 2, "2")
@@ -617,7 +626,25 @@ def cases_cli_ros(lab: Lab) -> list[Result]:
     return out
 
 
-# --- bags -------------------------------------------------------------------------------
+def cases_cli_demo(lab: Lab) -> list[Result]:
+    """``policy-align demo`` with arguments it cannot use (it must stop before the graph)."""
+    work = lab.path("cli_demo")
+    (work / "a_file").write_text("x")
+    d = lab.domain()
+    return [
+        _cli_result("demo-unknown-robot", "`demo --robot no_such_robot`",
+                    lab.cli("demo", "--robot", "no_such_robot", "--out", str(work / "a"),
+                            domain=d, timeout=300), 2, "no_such_robot"),
+        _cli_result("demo-out-under-file", "`demo --out A_FILE/out` (parent is a file)",
+                    lab.cli("demo", "--out", str(work / "a_file" / "out"), domain=d,
+                            timeout=300), 2, "a_file"),
+        _cli_result("demo-seed-negative", "`demo --seed -1`",
+                    lab.cli("demo", "--seed", "-1", "--out", str(work / "b"), domain=d,
+                            timeout=300), 2, "seed"),
+    ]
+
+
+# --- bag cases -------------------------------------------------------------------------------
 def _bag_case(lab: Lab, case: str, tried: str, make_bad: Callable[[Path], Path],
               alone_code: int | None = 2, alone: bool = True) -> Result:
     """A bad bag inside the good dataset (``learn DATASET``), and on its own.
@@ -1443,6 +1470,7 @@ GROUPS: list[tuple[str, Callable[[Lab], list[Result]]]] = [
     ("cli-learn", cases_cli_learn),
     ("cli-misc", cases_cli_misc),
     ("cli-ros", cases_cli_ros),
+    ("cli-demo", cases_cli_demo),
     ("bags", cases_bags),
     ("recorder", cases_recorder),
     ("learner", cases_learner),
