@@ -63,7 +63,7 @@ from typing import Protocol
 
 import numpy as np
 
-from policy_align_ros.kinematics.projection import nullspace_projector
+from policy_align_ros.kinematics.projection import DEFAULT_RCOND, nullspace_projector
 
 __all__ = [
     "DEFAULT_DRIFT_CLAMP_M",
@@ -303,17 +303,22 @@ def velocity_scale(
     float
         The scale; 0 when a joint at a limit is pushed outwards.
     """
-    speed = np.abs(v)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s_speed = np.where(speed > 0.0, max_velocity / speed, np.inf)
-        room = np.maximum(np.where(v > 0.0, upper - q, np.where(v < 0.0, q - lower, np.inf)),
-                          0.0)
-        s_pos = np.where(speed > 0.0, room / (speed * dt), np.inf)
-        s = min(np.min(s_speed, initial=np.inf), np.min(s_pos, initial=np.inf))
-        if max_acceleration is not None:
-            s_brake = np.where(speed > 0.0, np.sqrt(max_acceleration * room) / speed, np.inf)
-            s = min(s, np.min(s_brake, initial=np.inf))
-    return float(np.clip(s, 0.0, 1.0))
+    # Only moving joints bound the scale; indexing them first keeps this cheap (it runs
+    # twice per control step).
+    moving = np.flatnonzero(v)
+    if moving.size == 0:
+        return 1.0
+    vm = v[moving]
+    speed = np.abs(vm)
+    lower, upper, max_velocity = (np.broadcast_to(np.asarray(a, dtype=float), v.shape)
+                                  for a in (lower, upper, max_velocity))
+    room = np.where(vm > 0.0, upper[moving] - q[moving], q[moving] - lower[moving])
+    np.maximum(room, 0.0, out=room)
+    bound = np.minimum(max_velocity[moving], room / dt)
+    if max_acceleration is not None:
+        np.minimum(bound, np.sqrt(max_acceleration * room), out=bound)
+    s = float((bound / speed).min())
+    return 1.0 if s >= 1.0 else max(s, 0.0)
 
 
 def constrained_command(
@@ -360,6 +365,7 @@ def project_with_locks(
     A: np.ndarray,
     lower: np.ndarray,
     upper: np.ndarray,
+    projector: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``N' pi`` and ``N'``: the projector of ``A`` plus unit rows of the locked joints.
 
@@ -371,6 +377,8 @@ def project_with_locks(
         Constraint matrix at ``q`` (k >= 0).
     lower, upper : ndarray, shape (n,)
         Joint limits.
+    projector : ndarray, shape (n, n), optional
+        ``nullspace_projector(A)`` when the caller has it already (saves an SVD).
 
     Returns
     -------
@@ -380,7 +388,7 @@ def project_with_locks(
         ``N'``, so that a later command can be projected onto the same space.
     """
     n = q.shape[0]
-    P = nullspace_projector(A, n)
+    P = nullspace_projector(A, n) if projector is None else projector
     v = P @ pi
     locked = np.zeros(n, dtype=bool)
     # Each pass locks at least one more joint, so this ends after at most n passes.
@@ -726,11 +734,11 @@ class ControlStep:
         A, held = self._rows(q, pi)
         if not np.all(np.isfinite(A)):
             return self._zeros.copy(), "constraint matrix not finite", self._eye
-        problem = self._singular(A)
+        problem, P0 = self._singular(A)
         if problem:
             return self._zeros.copy(), problem, self._eye
         if held is None or self._drift_gain == 0.0:
-            v, P = project_with_locks(q, pi, A, self.lower, self.upper)
+            v, P = project_with_locks(q, pi, A, self.lower, self.upper, P0)
         else:
             v, P = self._with_correction(q, pi, A, held)
         s = velocity_scale(q, v, self.dt, self.lower, self.upper, self.max_velocity,
@@ -746,16 +754,26 @@ class ControlStep:
                 v = g * v
         return v, "", P
 
-    def _singular(self, A: np.ndarray) -> str:
-        """Why ``A`` (k, n) is too close to singular to be enforced; empty when it is not."""
+    def _singular(self, A: np.ndarray) -> tuple[str, np.ndarray | None]:
+        """Why ``A`` (k, n) is too close to singular to be enforced (empty when it is
+        not), and its null-space projector when computed on the way (else None)."""
         k, n = A.shape
-        if k == 0 or self._min_sv == 0.0:
-            return ""
-        smallest = 0.0 if k > n else float(np.linalg.svd(A, compute_uv=False)[-1])
+        if k == 0:
+            return "", self._eye
+        if self._min_sv == 0.0:
+            return "", None
+        if k > n:
+            smallest, P = 0.0, None
+        else:
+            # One SVD for both the check and the projector (nullspace_projector's rule).
+            _, sv, vt = np.linalg.svd(A, full_matrices=False)
+            smallest = float(sv[-1])
+            basis = vt[sv > DEFAULT_RCOND * sv[0]] if sv[0] > 0.0 else vt[:0]
+            P = self._eye - basis.T @ basis
         if smallest >= self._min_sv:
-            return ""
+            return "", P
         return (f"constraint matrix near-singular: smallest singular value {smallest:.3g} "
-                f"< min_singular_value {self._min_sv:g} ({k} rows on {n} joints)")
+                f"< min_singular_value {self._min_sv:g} ({k} rows on {n} joints)"), None
 
     def _with_correction(self, q: np.ndarray, pi: np.ndarray, A: np.ndarray,
                          held: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
