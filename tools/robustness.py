@@ -287,16 +287,18 @@ def _good_messages(n: int = 40, start: int = T0 + 10**12) -> list[tuple]:
 
 
 def _learn_outcome(r: Result, run: Run, model: Path, good_bags: Sequence[str]) -> None:
-    """Fill crash/traceback, and count as lost the good bags that reached no fit.
+    """Fill crash/traceback, and count the good bags silently left out of a written model.
 
     A bag reached the fit when the written model's training summary names it (used, held
-    out or discarded as an outlier or duplicate are all decisions about it); without a
-    model, every good bag is counted. ``lost`` stays None for a header that names no bag.
+    out or discarded as an outlier or duplicate are all decisions about it). A refused
+    ``learn`` (no model, a reason on stderr) loses nothing: the bags stay on disk, and the
+    verdict says whether refusing was right. ``lost`` stays None for a header that names
+    no bag.
     """
     r.crash, r.traceback = run.crashed, run.traceback
     r.data.update(code=run.code, err=run.err, out=run.out)
     if run.code != 0 or not model.is_file():
-        r.lost = len(good_bags)
+        r.lost = 0
         return
     with np.load(model, allow_pickle=False) as data:
         header = json.loads(str(data["__header__"]))
@@ -646,7 +648,8 @@ def cases_cli_demo(lab: Lab) -> list[Result]:
 
 # --- bag cases -------------------------------------------------------------------------------
 def _bag_case(lab: Lab, case: str, tried: str, make_bad: Callable[[Path], Path],
-              alone_code: int | None = 2, alone: bool = True) -> Result:
+              alone_code: int | None = 2, alone: bool = True, extra: Sequence[str] = ()
+              ) -> Result:
     """A bad bag inside the good dataset (``learn DATASET``), and on its own.
 
     Beside good bags the fit must go ahead with every good demonstration and name the bad
@@ -657,7 +660,7 @@ def _bag_case(lab: Lab, case: str, tried: str, make_bad: Callable[[Path], Path],
     good = sorted(p.name for p in dataset.iterdir())
     bad = make_bad(dataset)
     model = dataset.parent / f"{case}.npz"
-    run = lab.cli("learn", str(dataset), "--out", str(model))
+    run = lab.cli("learn", str(dataset), "--out", str(model), *extra)
     r = Result(case, "bags", tried)
     _learn_outcome(r, run, model, good)
     n = len(good)
@@ -711,6 +714,13 @@ def cases_bags(lab: Lab) -> list[Result]:
     out.append(_bag_case(lab, "bag-unknown-joints", "a bag of other joints (x1, x2)",
                          raw("bad_foreign", [(start + k * 50 * MS, ["x1", "x2"], [0.1, 0.2],
                                               []) for k in range(20)])))
+    out.append(_bag_case(lab, "bag-unknown-joints-selected",
+                         "the same bag of x1, x2 with `learn DATASET --joints j1,j2`",
+                         raw("bad_foreign", [(start + k * 50 * MS, ["x1", "x2"], [0.1, 0.2],
+                                              []) for k in range(20)]),
+                         alone=False, extra=("--joints", "j1,j2")))
+    out[-1].expect("bad_foreign" in out[-1].data["err"] + out[-1].data["out"],
+                   "beside good bags it is not named")
     out.append(_bag_case(lab, "bag-sqlite3", "a valid sqlite3 (.db3) bag (Humble's default)",
                          raw("humble_bag", _good_messages(), storage="sqlite3"),
                          alone=False))
