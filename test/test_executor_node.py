@@ -791,3 +791,53 @@ def test_frame_support_distance_measures_the_hand_state_and_its_gradient():
     h = 1e-6
     fd = [(distance(q + h * e)[0] - distance(q - h * e)[0]) / (2 * h) for e in np.eye(q.size)]
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.abs(grad).max())
+
+
+def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_path):
+    """The guard scales hand motion leading away from the demonstrated hand states."""
+    from policy_align_ros.nodes.executor import FrameSupportDistance
+
+    model, state, _, robot, smap = _frames_model()
+    path = _save_frames_model(tmp_path / "hand.npz", state)
+    q = robot.clip(robot.neutral() + np.array([0.4, 0.3, -0.3, 0.5, 0.2, 0.3, 0.1]))
+    x = smap.states(q)
+    d, nearest = model.support_query(x[None])
+    u = (x - nearest[0]) / np.linalg.norm(x - nearest[0])  # outwards, in hand space
+    p = model.policy(x[None])[0]
+    a = float(p @ u)
+    assert a < 0.0  # the learnt policy leads back to the data...
+    w = (p - a * u) / np.linalg.norm(p - a * u)
+    b = float(p @ w)
+    # ...so hold the hand on a plane that turns it outwards: with n = cos(t) u + sin(t) w
+    # and t = pi - delta, N_x p . u = sin(delta) (a sin(delta) + b cos(delta)) > 0.
+    delta = 0.5 * np.arctan2(b, -a)
+    n = -np.cos(delta) * u + np.sin(delta) * w
+    plane = f"[{{type: plane, frame: {HAND}, normal: {n.tolist()}}}]"
+    r = rig(209, model_path=str(path), constraints=plane, max_extrapolation=1000.0)
+    r.q = q
+    guard = r.node.controller.step.guard
+    assert isinstance(guard.distance, FrameSupportDistance)
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
+    assert r.enable(True).success
+
+    def steady():
+        r.spin_until(lambda: len(r.commands) >= 3 and np.array_equal(r.commands[-1],
+                                                                     r.commands[-2]),
+                     what="a steady command")
+        return r.commands[-1]
+
+    free = steady()
+    d_q, grad = FrameSupportDistance(model, smap)(q)
+    assert d_q == pytest.approx(d[0]) and float(grad @ free) > 0.0  # leads further out
+    assert r.node.controller.extrapolation_scale == 1.0
+    assert r.node.controller.step.extrapolation_distance == pytest.approx(d[0])
+    # One spacing beyond max_extrapolation: scaled by 1 - 1 / band < 1, same direction.
+    assert r.node.set_parameters([Parameter("max_extrapolation", value=d[0] - 1.0)]
+                                 )[0].successful
+    count = len(r.commands)
+    r.spin_until(lambda: len(r.commands) > count + 2, what="commands after the change")
+    scaled = steady()
+    g = r.node.controller.extrapolation_scale
+    assert 0.0 < g < 1.0  # measured 0.23 (band 1.3 spacings)
+    np.testing.assert_allclose(scaled, g * free, atol=1e-9)
+    _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
