@@ -1,4 +1,4 @@
-"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-209).
+"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-210).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
@@ -841,3 +841,21 @@ def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_p
     assert 0.0 < g < 1.0  # measured 0.23 (band 1.3 spacings)
     np.testing.assert_allclose(scaled, g * free, atol=1e-9)
     _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
+
+
+def test_a_disable_while_enable_waits_for_the_controller_wins(rig):
+    r = rig(210, controller="/absent_controller")
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.enable_client.wait_for_service(timeout_sec=5.0)
+    enable = r.enable_client.call_async(SetBool.Request(data=True))
+    r.spin(0.2)  # the enable is waiting for /absent_controller (up to 1 s)
+    assert not enable.done()
+    disable = r.enable_client.call_async(SetBool.Request(data=False))
+    r.spin_until(lambda: enable.done() and disable.done(), what="both answers")
+    assert disable.result().success
+    assert not enable.result().success
+    assert "superseded by a later ~/enable request" in enable.result().message
+    r.spin(0.2)
+    assert not r.node.controller.armed and r.commands == []
