@@ -1533,14 +1533,14 @@ def markdown(results: Sequence[Result], command: str) -> str:
         "",
         f"Produced by `{command}`.",
         "",
-        "| # | area | bad input | what the package did | crash | traceback | demos lost "
+        "| # case | area | bad input | what the package did | crash | traceback | demos lost "
         "| verdict |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for k, r in enumerate(results, 1):
         verdict = "ok" if not r.problems else "**PROBLEM**: " + "; ".join(r.problems)
         lines.append(
-            f"| {k} | {r.area} | {_cell(r.tried)} | {_cell(r.behaviour)} | "
+            f"| {k} `{r.case}` | {r.area} | {_cell(r.tried)} | {_cell(r.behaviour)} | "
             f"{'**yes**' if r.crash else 'no'} | {'**yes**' if r.traceback else 'no'} | "
             f"{'-' if r.lost is None else r.lost} | {_cell(verdict)} |")
     return "\n".join(lines) + "\n"
