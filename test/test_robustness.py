@@ -36,6 +36,7 @@ GROUPS = ["cli-learn", "cli-misc", "cli-ros", "bags", "recorder", "sim_robot", "
 KNOWN: dict[str, str] = {
     "bag-unknown-joints": "data/bags.py: the joints come from the first bag read",
     "bag-zero-byte-mcap": "data/bags.py: a zero-byte .mcap in a dataset is not reported",
+    "bag-no-metadata": "data/bags.py: a bag directory without metadata.yaml is ignored",
 }
 
 

@@ -762,6 +762,27 @@ def cases_bags(lab: Lab) -> list[Result]:
         return bag
 
     out.append(_bag_case(lab, "bag-truncated", "a bag whose .mcap is cut in half", truncated))
+
+    def no_metadata(d):
+        bag = d / "bad_no_metadata"
+        shutil.copytree(d / "demo_0002", bag)
+        (bag / "metadata.yaml").unlink()
+        return bag
+
+    out.append(_bag_case(lab, "bag-no-metadata", "a bag directory with its .mcap but no "
+                         "metadata.yaml (as `ros2 bag record` leaves when killed)",
+                         no_metadata, alone_code=None))
+
+    def unfinished(d):
+        bag = d / ".tmp-demo_0100"
+        shutil.copytree(d / "demo_0003", bag)
+        for f in bag.glob("*.mcap"):
+            f.write_bytes(f.read_bytes()[:100])
+        return bag
+
+    r = _bag_case(lab, "bag-unfinished-hidden", "a hidden `.tmp-demo_0100` bag (a recorder "
+                  "killed mid-write)", unfinished, alone=False)
+    out.append(r)
     return out
 
 
