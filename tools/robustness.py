@@ -1475,6 +1475,7 @@ def cases_executor(lab: Lab) -> list[Result]:
     finally:
         feeder.close()
         rig.close()
+    out.append(_executor_clock_jump(lab, base, model, center))
     if not lab.start_ups:
         return out
     for case, tried, args, needle in (
@@ -1493,6 +1494,61 @@ def cases_executor(lab: Lab) -> list[Result]:
         _start_refused(r, node_start(lab, "executor", *args), needle)
         out.append(r)
     return out
+
+
+def _executor_clock_jump(lab: Lab, base: dict, model: Path, center: np.ndarray) -> Result:
+    """An armed executor on sim time whose ``/clock`` jumps 10 s back (a restarted sim)."""
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Float64MultiArray
+    from std_srvs.srv import SetBool
+
+    from policy_align_ros.nodes.executor import Executor
+
+    r = Result("exe-clock-jumps-back", "messages",
+               "`/clock` jumps 10 s back while the executor (use_sim_time) is armed")
+    rig = NodeRig(lab, Executor, dict(base, model_path=str(model), use_sim_time=True))
+    commands: list[np.ndarray] = []
+    rig.probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
+                                  lambda m: commands.append(np.array(m.data)), 1000)
+    sim_ns = [1_000 * 10**9]
+    stop = threading.Event()
+
+    def tick():  # the simulated clock: 20 ms of sim time every 20 ms
+        from rclpy.time import Time
+
+        while not stop.wait(0.02):
+            sim_ns[0] += 20 * MS
+            if rig.context.ok():
+                rig.publish(Clock, "/clock", Clock(clock=Time(nanoseconds=sim_ns[0]).to_msg()))
+
+    clock = threading.Thread(target=tick, daemon=True)
+    clock.start()
+    feeder = _Feeder(rig, ARM, center + 0.2)
+    try:
+        exe = rig.node
+        wait_for(lambda: exe.get_clock().now().nanoseconds > 1_000 * 10**9, 10.0)
+        feeder.on()
+        armed = wait_for(lambda: rig.call(SetBool, "/executor/enable",
+                                          SetBool.Request(data=True)).success, 10.0)
+        wait_for(lambda: len(commands) > 0 and np.abs(commands[-1]).max() > 0, 10.0)
+        if r.expect(armed and exe.controller.armed, "could not arm before the case"):
+            with rig_case(r, rig):
+                n = len(commands)
+                sim_ns[0] -= 10 * 10**9
+                wait_for(lambda: not exe.controller.armed and any(
+                    not c.any() for c in commands[n:]), 5.0)
+            zero = any(not c.any() for c in commands[n:])
+            r.behaviour = ("zero command at once, disarmed until `~/enable`"
+                           if zero and not exe.controller.armed else
+                           f"armed={exe.controller.armed}, zero command={zero}")
+            r.expect(not exe.controller.armed, "still armed after the clock jumped back")
+            r.expect(zero, "no zero command after the jump")
+    finally:
+        stop.set()
+        clock.join(timeout=2.0)
+        feeder.close()
+        rig.close()
+    return r
 
 
 # --- the table ------------------------------------------------------------------------------
