@@ -961,6 +961,9 @@ def cases_recorder(lab: Lab) -> list[Result]:
         send_good(3)
         r.expect(rec.accepted == before + 3,
                  "valid messages after the future stamp are not recorded")
+        out.append(p(rig, "rec-joints-while-recording",
+                     "recorder `joints: [j2, j1]` while a demonstration is recorded",
+                     "joints", ["j2", "j1"], "joints"))
         accepted = rec.accepted
         response = _trigger(rig, "/recorder/stop_demo")
         # Every valid message must be in the bag: the demonstrations lost.
@@ -1306,6 +1309,9 @@ class _Feeder:
     def on(self) -> None:
         self._on.set()
 
+    def off(self) -> None:
+        self._on.clear()
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
@@ -1466,6 +1472,13 @@ def cases_executor(lab: Lab) -> list[Result]:
             r.expect(exe.model_path == before, "the model changed")
             out.append(r)
 
+        feeder.off()
+        wait_for(lambda: not exe.controller.armed, 5.0)  # the states went stale
+        time.sleep(0.6)  # longer than state_timeout_s without a joint state
+        out.append(s(rig, "exe-enable-stale-states",
+                     "executor `~/enable true` 0.6 s after the last joint state "
+                     "(`state_timeout_s` 0.5)", lambda: enable(rig), False, "refused"))
+        feeder.on()
         announce("exe-announce-missing-model", "`/learner/model` announcing a missing file",
                  work / "missing.npz")
         announce("exe-announce-not-a-model", "`/learner/model` announcing a text file",
