@@ -1,4 +1,4 @@
-"""Robustness cases of issue 8 as assertions (docs/robustness.md; domain ids 204-219).
+"""Robustness cases of issue 8 as assertions (docs/robustness.md; domain ids 204-216).
 
 The cases live in ``tools/robustness.py`` (which also prints the table of the doc); here the
 fast, deterministic groups run with the CLI called in-process through ``cli.main`` and
@@ -44,7 +44,7 @@ KNOWN: dict[str, str] = {
 def lab(tmp_path_factory):
     # Node start-up cases (a process each) are left to the tool and the nodes' own tests.
     return robustness.Lab(tmp_path_factory.mktemp("robustness"), domain_base=204,
-                          domain_count=16, cli_subprocess=False, start_ups=False, n_good=5,
+                          domain_count=12, cli_subprocess=False, start_ups=False, n_good=5,
                           samples=25)
 
 
@@ -113,3 +113,29 @@ def test_the_future_check_allows_the_configured_lead_and_needs_a_clock(tmp_path)
     for bad in (-1.0, math.nan, math.inf):
         with pytest.raises(ValueError, match="max_stamp_ahead_s"):
             _rec(tmp_path, max_stamp_ahead_s=bad)
+
+
+def test_the_recorder_checks_stamps_against_its_clock_only_without_sim_time(tmp_path):
+    """With use_sim_time, stamps and clock both come from /clock (which may lag): no check."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from policy_align_ros.nodes.recorder import RecorderNode
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=216)
+    nodes = []
+    try:
+        for sim in (False, True):
+            nodes.append(RecorderNode(context=context, parameter_overrides=[
+                Parameter("dataset_dir", value=str(tmp_path / f"d{sim}")),
+                Parameter("use_sim_time", value=sim)]))
+        wall, sim = nodes
+        assert wall._future_check_clock(5 * 10**18) == 5 * 10**18
+        assert wall._future_check_clock(0) is None
+        assert sim._future_check_clock(5 * 10**18) is None
+        assert wall.recorder._max_ahead_ns == 10**9
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

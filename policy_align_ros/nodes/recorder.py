@@ -45,7 +45,7 @@ Failures lose no finished demonstration:
 Skipped (malformed) messages are reported in a warning at most every ``warn_period_s``.
 A header stamp more than ``_MAX_STAMP_AHEAD_S`` after the node clock is skipped as
 ``time_in_future`` (a stray stamp must not make the rest of a demonstration look like time
-going backwards).
+going backwards); not with ``use_sim_time``, where both come from ``/clock``.
 """
 
 from __future__ import annotations
@@ -146,10 +146,9 @@ class RecorderNode(Node):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         now = self.get_clock().now().nanoseconds
         try:
-            # Before the first /clock (use_sim_time) the node clock reads 0: no future check.
             path = self._recorder.add(stamp or now, msg.name, msg.position, msg.velocity,
                                       msg.effort, now=now * 1e-9,
-                                      clock_ns=now if now > 0 else None)
+                                      clock_ns=self._future_check_clock(now))
         except PendingWriteError as err:
             self._last_retry = now  # a failure starts the retry period
             self.get_logger().error(f"{err}; recording paused until it is written")
@@ -159,6 +158,18 @@ class RecorderNode(Node):
             return
         if path is not None:
             self.get_logger().info(f"demonstration written (time gap): {path}")
+
+    def _future_check_clock(self, now: int) -> int | None:
+        """The clock to check stamps against for ``time_in_future``, or None for no check.
+
+        With use_sim_time the stamps and this clock come from the same ``/clock``, whose
+        delivery can lag the joint states by many simulated seconds at a high real-time
+        factor, so a lead says nothing about the stamp; before the first ``/clock`` the
+        clock reads 0.
+        """
+        if now <= 0 or self.get_clock().ros_time_is_active:
+            return None
+        return now
 
     def _on_start(
         self, request: Trigger.Request, response: Trigger.Response
@@ -225,6 +236,9 @@ class RecorderNode(Node):
                 self._last_warning is not None and 0 <= now - self._last_warning < period_ns):
             return
         detail = ", ".join(f"{k}={v}" for k, v in skipped.items() if v)
+        if skipped.get("time_in_future"):
+            detail += (" (time_in_future: header stamps ahead of this node's clock; are the "
+                       "clocks synchronised, and use_sim_time the same on every node?)")
         if lost:
             detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
         self.get_logger().warning(
