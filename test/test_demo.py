@@ -1,11 +1,34 @@
-"""A short end-to-end run of ``policy-align demo`` (separate node processes, domain 220)."""
+"""``policy-align demo``: a short end-to-end run (separate node processes, domain 220) and
+the ROS-free parts of the report (new start states, targets, the printed report)."""
 
 import argparse
+import json
 import os
 from pathlib import Path
 
+import numpy as np
+import pytest
+
+from policy_align_ros.client.demo import (
+    MIN_START_SEPARATION,
+    DemoSettings,
+    StageError,
+    Task,
+    _settings,
+    _streams,
+    _targets,
+    new_starts,
+    report_text,
+    run_demo,
+)
 from policy_align_ros.data import load_dataset
-from policy_align_ros.client.demo import run_demo
+from policy_align_ros.kinematics import Robot
+from policy_align_ros.nodes._common import DEFAULT_JOINTS
+
+ARM = [f"arm_left_{i}_joint" for i in range(1, 8)]
+HAND = "arm_left_7_link"
+RUN_KEYS = {"name", "start", "start_distance", "final_distance", "expert_final_distance",
+            "constraint", "held_frame_drift_mm"}
 
 
 def _processes_mentioning(text: str) -> list[int]:
@@ -21,21 +44,112 @@ def _processes_mentioning(text: str) -> list[int]:
     return pids
 
 
-def test_short_demo_runs_every_stage_and_cleans_up(tmp_path, capsys):
+def test_short_demo_writes_the_report_contract_and_cleans_up(tmp_path, capsys):
     out = tmp_path / "demo"
-    args = argparse.Namespace(robot="talos", out=str(out), demos=3, demo_duration_s=1.0,
-                              run_duration_s=1.5, domain_id=220, require_progress=False)
+    # The left arm only: a quadratic potential in 7 joints is learnt from 4 short
+    # demonstrations (in 18 joints that takes about 24, see DEFAULT_DEMOS).
+    args = argparse.Namespace(robot="talos", out=str(out), demos=5, demo_duration_s=2.0,
+                              run_duration_s=2.0, free_runs=1, held_runs=1, fresh_demos=2,
+                              domain_id=220, seed=5, joints=ARM, frames=[HAND])
     code = run_demo(args)
     printed = capsys.readouterr()
     assert code == 0, printed.err
-    assert "demonstrator finished: 3 demonstrations recorded" in printed.out
-    report = (out / "report.txt").read_text()
-    for item in ("demonstrations: 3 recorded", "fit time", "held-out nCPE",
-                 "(a) unconstrained", "(b) unseen constraint", "held hand moved"):
-        assert item in report
-    trajs, names, _ = load_dataset([out / "demos"])
-    assert len(trajs) == 3 and len(names) == 18
-    assert (out / "model.npz").is_file()
+    assert "demonstrator finished: 5 demonstrations recorded" in printed.out
+
+    report = json.loads((out / "report.json").read_text())
+    # DESIGN section 7: the contract's keys and their meaning.
+    assert report["robot"] == "talos" and report["state"] == "joints"
+    demos = report["demonstrations"]
+    assert demos["recorded"] == 5
+    assert demos["training"] + demos["discarded"] + demos["held_out"] == 5
+    assert demos["held_out"] == 1  # the learner's holdout_fraction 0.2 of 5
+    assert report["sigma2"] > 0 and report["fit_time_s"] > 0
+    assert 0 <= report["heldout_ncpe_fresh"] < 0.2
+    assert report["total_time_s"] > 0
+    names = [run["name"] for run in report["runs"]]
+    assert names == ["unconstrained", "unseen_constraint"]
+    for run in report["runs"]:
+        assert RUN_KEYS <= set(run)
+        assert run["start"] == "new" and run["start_separation_rad"] >= MIN_START_SEPARATION
+    free, held = report["runs"]
+    assert free["constraint"] is None and free["held_frame_drift_mm"] is None
+    assert held["constraint"] == [{"type": "position", "frame": "arm_left_7_link"}]
+    assert held["held_frame_drift_mm"] >= 0
+    # Real progress: the learnt policy brings the robot towards the expert's goal.
+    assert free["final_distance"] < 0.5 * free["start_distance"]
+    assert held["final_distance"] < held["start_distance"]
+    assert report["sim"]["executor_periods"] > 0
+    assert report["sim"]["real_time_factor"] > 1  # the graph ran on simulated time
+
+    # The printed report and the plots come from report.json and the saved traces.
+    text = (out / "report.txt").read_text()
+    assert text.strip() == report_text(report).strip()
+    assert text.strip() in printed.out
+    traces = np.load(out / "traces.npz")
+    assert traces["run0_q"].shape[1] == len(ARM)
     assert (out / "demo_distance.png").stat().st_size > 0
     assert (out / "demo_hands.png").stat().st_size > 0
+
+    trajs, joints, _ = load_dataset([out / "demos"])
+    assert len(trajs) == 5 and joints == ARM
+    assert (out / "model.npz").is_file()
     assert _processes_mentioning(str(out / "params.yaml")) == []
+
+
+def test_new_starts_come_from_the_start_distribution_and_avoid_recorded_ones():
+    robot = Robot.load("talos", DEFAULT_JOINTS)
+    task = Task(robot, _settings(argparse.Namespace(seed=0)))
+    streams = _streams(0)
+    recorded = new_starts(task, np.random.default_rng(1), 20, np.empty((0, robot.nq)))
+    starts = new_starts(task, streams["starts"], 50, recorded)
+    gaps = np.linalg.norm(starts[:, None, :] - recorded[None], axis=2)
+    assert gaps.min() >= MIN_START_SEPARATION
+    # Spread like the demonstrators' N(q_c, 0.1 I), clipped to the limits.
+    assert np.all((starts >= robot.lower) & (starts <= robot.upper))
+    assert 0.05 < np.var(starts - task.attractor) < 0.15
+    # A recorded start that every draw would hit is refused, not silently reused.
+    with pytest.raises(StageError, match="new start states"):
+        new_starts(Task(robot, DemoSettings(start_variance=0.0)), streams["starts"], 1,
+                   task.attractor[None])
+
+
+def test_seed_sets_every_stream_and_settings_are_checked():
+    a, b = _streams(3), _streams(3)
+    assert a["demonstrator"] == b["demonstrator"]
+    assert np.array_equal(a["starts"].random(3), b["starts"].random(3))
+    assert _streams(4)["demonstrator"] != a["demonstrator"]
+    with pytest.raises(ValueError, match="state"):
+        _settings(argparse.Namespace(state="elbows"))
+    with pytest.raises(ValueError, match="demos"):
+        _settings(argparse.Namespace(demos=2))
+    assert run_demo(argparse.Namespace(state="elbows")) == 2
+
+
+def test_targets_and_report_text_follow_the_numbers():
+    run = {"name": "unconstrained", "id": "unconstrained_1", "start": "new",
+           "start_distance": 1.0, "final_distance": 0.04, "expert_final_distance": 0.001,
+           "constraint": None, "held_frame_drift_mm": None}
+    held = {**run, "name": "unseen_constraint", "id": "unseen_constraint_1",
+            "final_distance": 0.06, "constraint": [{"type": "position", "frame": "f"}],
+            "held_frame": "f", "held_frame_drift_mm": 1.5}
+    report = {"robot": "talos", "state": "joints",
+              "demonstrations": {"recorded": 5, "training": 4, "held_out": 1, "discarded": 0},
+              "sigma2": 0.05, "fit_time_s": 1.0, "heldout_ncpe_fresh": 0.3,
+              "runs": [run, held], "total_time_s": 10.0}
+    targets = _targets(report)
+    assert targets == {"heldout_ncpe_fresh <= 0.2": False,
+                       "unconstrained_1: final <= 10% of start and <= 0.05 rad": True,
+                       "unseen_constraint_1: final <= expert + 0.05 rad": False,
+                       "unseen_constraint_1: held frame drift <= 1 mm": False}
+    text = report_text({**report, "targets": targets})
+    assert "5 recorded, 4 used for training (0 discarded as outliers), 1 held out" in text
+    assert "1.0000 -> 0.0400; expert 0.0010" in text
+    assert "f held, drift 1.50 mm" in text
+    assert "heldout_ncpe_fresh <= 0.2: MISSED" in text
+
+
+def test_unusable_out_directory_exits_2_with_the_reason(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert run_demo(argparse.Namespace(out=str(blocker / "demo"))) == 2
+    assert "cannot be used as the output directory" in capsys.readouterr().err

@@ -8,20 +8,27 @@ Trigger services on a probe node, which also records the joint states in between
 import numpy as np
 import pytest
 import rclpy
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from policy_align_ros.nodes.demonstrator import Demonstrator, random_plane_specs
+from policy_align_ros.kinematics import TaskSpaceMap
+from policy_align_ros.nodes.demonstrator import (
+    Demonstrator,
+    hand_plane_rows,
+    random_plane_specs,
+)
 from policy_align_ros.nodes.sim_robot import SimRobot
 
 JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
 HAND = "arm_left_7_link"
 
 
-def _run(domain_id, refuse_start=False, num_demos=2, plane_switches=0, duration=0.6):
+def _run(domain_id, refuse_start=False, num_demos=2, plane_switches=0, duration=0.6,
+         extra=()):
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
     nodes = []
@@ -34,7 +41,7 @@ def _run(domain_id, refuse_start=False, num_demos=2, plane_switches=0, duration=
             Parameter("demo_duration_s", value=duration),
             Parameter("plane_switches", value=plane_switches),
             Parameter("constraint_frames", value=[HAND]), Parameter("seed", value=3),
-            Parameter("service_timeout_s", value=5.0)])
+            Parameter("service_timeout_s", value=5.0), *extra])
         probe = Node("recorder", context=context)
         nodes += [sim, demo, probe]
         events, segments = [], []
@@ -112,3 +119,46 @@ def test_random_plane_specs_are_unit_normals_per_frame():
         assert s["type"] == "plane"
         assert np.linalg.norm(s["normal"]) == pytest.approx(1.0)
     assert specs[0]["normal"] != specs[1]["normal"]
+
+
+def test_hands_expert_in_lockstep_moves_the_hand_to_its_target_within_planes():
+    # Hand-space expert, one step per joint state: the hand heads for its target along
+    # pi_x = -gain (x - x_c) projected on the current plane, exactly per simulator tick.
+    demo, sim, events, segments = _run(
+        183, num_demos=1, plane_switches=0, duration=1.0,
+        extra=[Parameter("expert", value="hands"), Parameter("hand_frames", value=[HAND]),
+               Parameter("step_on_joint_state", value=True),
+               Parameter("startup_delay_s", value=0.2)])
+    assert demo.done.result() == 0 and events == ["start", "stop"]
+    smap = TaskSpaceMap(sim.robot, [HAND])
+    target = smap.states(demo.attractor)  # hand_targets unset: the hand at the attractor
+    hand = smap.states(np.array(segments[0]))
+    moving = np.linalg.norm(np.diff(hand, axis=0), axis=1) > 1e-6
+    assert moving.sum() >= 30  # one motion step per simulator tick (100 Hz, 1 s)
+    assert _planarity(hand[1:]) < 1e-2  # on the plane drawn for this demonstration
+    # Within the plane the hand approaches the target (projected gradient flow).
+    dist = np.linalg.norm(hand - target, axis=1)
+    assert dist[-1] < dist[1]
+    assert demo.hand_expert is not None and demo.late_ticks <= 0.01 * max(demo.demo_ticks, 1)
+
+
+def test_hand_plane_rows_put_each_normal_in_its_hand_block():
+    specs = [{"type": "plane", "frame": "r", "normal": [0.0, 0.0, 1.0]},
+             {"type": "plane", "frame": "other", "normal": [1.0, 0.0, 0.0]}]
+    rows, rest = hand_plane_rows(specs, ["l", "r"])
+    np.testing.assert_array_equal(rows, [[0, 0, 0, 0, 0, 1]])
+    assert rest == [specs[1]]
+    assert hand_plane_rows([], ["l"])[0].shape == (0, 3)
+
+
+def test_bad_expert_is_refused_at_start():
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=184)
+    try:
+        # The parameter callback refuses the value while it is declared, with the reason.
+        with pytest.raises(InvalidParameterValueException, match="expert"):
+            Demonstrator(context=context, parameter_overrides=[
+                Parameter("robot", value="talos"), Parameter("joints", value=JOINTS),
+                Parameter("expert", value="elbows")])
+    finally:
+        rclpy.try_shutdown(context=context)

@@ -1,8 +1,18 @@
 """``demonstrator``: the teacher that produces constrained demonstrations.
 
-The expert policy is ``pi(q) = -gain (q - attractor)`` (rad/s), the negative gradient of
-the quadratic potential ``phi = gain/2 ||q - attractor||^2`` in joint space (the paper's
-eq. 20 with ``W = gain/2 I``). For each of ``num_demos`` demonstrations it:
+Two experts (parameter ``expert``):
+
+* ``joints``: ``pi(q) = -gain (q - attractor)`` (rad/s), the negative gradient of the
+  quadratic potential ``phi = gain/2 ||q - attractor||^2`` in joint space (the paper's
+  eq. 20 with ``W = gain/2 I``); under constraint rows ``A(q)`` it sends ``N(q) pi(q)``;
+* ``hands``: a potential in the stacked positions ``x`` (3F,) of ``hand_frames`` (m),
+  ``phi_x = gain/2 ||x - hand_targets||^2``, ``pi_x = -grad phi_x`` (m/s). The hands move
+  with ``xdot = N_x pi_x`` (``N_x`` the projector of the hand-space plane rows), realised
+  through the frames' Jacobian with a secondary pull of the redundant joints towards
+  ``attractor`` (:class:`policy_align_ros.experiments.demonstrators.TaskSpaceExpert`).
+  A joint-space expert seen in hand space is not a gradient field there.
+
+For each of ``num_demos`` demonstrations it:
 
 1. drives the robot to a random start ``q0 ~ N(attractor, start_variance I)`` (clipped
    to the joint limits) with a proportional controller;
@@ -11,22 +21,31 @@ eq. 20 with ``W = gain/2 I``). For each of ``num_demos`` demonstrations it:
    re-drawn ``plane_switches`` times at regular intervals during the demonstration (the
    paper's switching constraints: with one plane per demonstration, every demonstration
    ends at its own point and the potentials can hardly be aligned);
-3. calls the recorder's ``start_demo`` (std_srvs/Trigger), runs ``N(q) pi(q)`` for
-   ``demo_duration_s`` seconds, stops the robot and calls ``stop_demo``.
+3. calls the recorder's ``start_demo`` (std_srvs/Trigger), runs the constrained expert
+   for ``demo_duration_s`` seconds, stops the robot and calls ``stop_demo``.
+
+All timing is on the node clock, so with ``use_sim_time`` the demonstrations run on the
+simulator's ``/clock``. Control ticks during a demonstration that come later than 1.5
+periods after the previous one are counted as late (the simulator then integrated an
+older command). With ``step_on_joint_state`` the node steps once per received joint state
+instead (lockstep with a simulator that publishes one state per tick: the command the
+simulator integrates next is computed from the state it just published, an exact Euler
+step of the expert as long as the node keeps up).
 
 It starts once the recorder's services exist and the recorder subscribes to
 ``/joint_states``. A demonstration that the recorder refuses to write at ``stop_demo`` is
 redone (``max_retries`` in total); a refused ``start_demo`` ends the run.
 
 Commands go to ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s,
-order = ``joints``); the state comes from ``/joint_states``. Progress (``k/K``) is published
-on ``~/progress`` (std_msgs/String, transient local). With ``exit_when_done`` the process
-exits after the last demonstration (status 0, or 1 when the recorder refused a call).
+order = ``joints``); the state comes from ``/joint_states``. Progress is published on
+``~/progress`` (std_msgs/String, transient local) as ``k/K late_ticks=m/t``: ``k`` of ``K``
+demonstrations done, ``m`` late control ticks among ``t`` during demonstrations. With
+``exit_when_done`` the process exits after the last demonstration (status 0, or 1 when the
+recorder refused a call).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -37,9 +56,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from policy_align_ros.experiments.demonstrators import QuadraticPotential, sample_start_states
-from policy_align_ros.kinematics import Robot, constraint_from_spec
-from policy_align_ros.kinematics.control import constrained_command
+from policy_align_ros.experiments.demonstrators import (
+    QuadraticPotential,
+    TaskSpaceExpert,
+    sample_start_states,
+)
+from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
+from policy_align_ros.kinematics.control import constrained_command, velocity_scale
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     LATCHED_QOS,
@@ -51,9 +74,12 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Demonstrator", "main", "random_plane_specs"]
+__all__ = ["Demonstrator", "hand_plane_rows", "main", "random_plane_specs"]
 
 DEFAULT_FRAMES = ["arm_left_7_link", "arm_right_7_link"]
+EXPERTS = ("joints", "hands")
+#: A control tick later than this many periods after the previous one counts as late.
+LATE_TICK_PERIODS = 1.5
 
 
 def random_plane_specs(frames: Sequence[str], rng: np.random.Generator) -> list[dict]:
@@ -64,6 +90,27 @@ def random_plane_specs(frames: Sequence[str], rng: np.random.Generator) -> list[
         normal /= np.linalg.norm(normal)
         specs.append({"type": "plane", "frame": frame, "normal": normal.tolist()})
     return specs
+
+
+def hand_plane_rows(specs: Sequence[dict], hand_frames: Sequence[str]
+                    ) -> tuple[np.ndarray, list[dict]]:
+    """Hand-space rows ``A_x`` (k, 3F) of the plane specs on frames of ``hand_frames``.
+
+    A plane with unit normal ``n`` on frame ``F_j`` is the row with ``n`` in the columns
+    ``3j:3j+3`` of the stacked hand state; specs on other frames are returned as they are
+    (the caller applies them as joint-space rows).
+    """
+    index = {frame: j for j, frame in enumerate(hand_frames)}
+    rows, other = [], []
+    for spec in specs:
+        j = index.get(spec.get("frame"))
+        if spec.get("type") != "plane" or j is None:
+            other.append(spec)
+            continue
+        row = np.zeros(3 * len(hand_frames))
+        row[3 * j:3 * j + 3] = np.asarray(spec["normal"], dtype=float)
+        rows.append(row)
+    return np.array(rows).reshape(-1, 3 * len(hand_frames)), other
 
 
 class Demonstrator(Node):
@@ -80,6 +127,16 @@ class Demonstrator(Node):
             read_only=True))
         p("gain", 1.0, descriptor("expert gain: pi = -gain (q - attractor) [1/s]",
                                   read_only=True, float_range=(0.01, 20.0)))
+        p("expert", "joints", descriptor(
+            "joints: potential in joint space; hands: potential in the stacked positions "
+            "of hand_frames, pi_x = -gain (x - hand_targets) realised through the "
+            "Jacobian", read_only=True, constraints="joints | hands"))
+        p("hand_frames", DEFAULT_FRAMES, descriptor(
+            "frames whose stacked positions are the hands expert's state",
+            read_only=True))
+        p("hand_targets", Parameter.Type.DOUBLE_ARRAY, descriptor(
+            "hands expert: target positions [m], 3 per hand frame in the world frame; "
+            "unset = the hands' positions at the attractor posture", read_only=True))
         p("start_variance", 0.1, descriptor(
             "variance of the random start around the attractor [rad^2] (paper: 0.1)",
             read_only=True, float_range=(0.0, 4.0)))
@@ -95,6 +152,10 @@ class Demonstrator(Node):
             read_only=True, int_range=(0, 100)))
         p("rate_hz", 100.0, descriptor("command rate [Hz]", read_only=True,
                                        float_range=(1.0, 1000.0)))
+        p("step_on_joint_state", False, descriptor(
+            "lockstep with a simulator: one control step per received joint state instead "
+            "of on the rate_hz timer, so the command the simulator integrates next comes "
+            "from the latest state (rate_hz is then the simulator's rate)", read_only=True))
         p("max_velocity", 2.0, descriptor("joint speed limit [rad/s]", read_only=True,
                                           float_range=(0.01, 10.0)))
         p("reach_gain", 5.0, descriptor("gain of the move to each start [1/s]",
@@ -111,6 +172,9 @@ class Demonstrator(Node):
         p("max_retries", 3, descriptor(
             "demonstrations the recorder refused to write are redone this often in total",
             read_only=True, int_range=(0, 1000)))
+        p("startup_delay_s", 1.0, descriptor(
+            "wait this long after the recorder appears before the first demonstration [s]",
+            read_only=True, float_range=(0.0, 60.0)))
         p("seed", 0, descriptor("random seed", read_only=True, int_range=(0, 2**31 - 1)))
         p("exit_when_done", True, descriptor("exit after the last demonstration",
                                              read_only=True))
@@ -127,6 +191,14 @@ class Demonstrator(Node):
         self.frames = [f for f in value("constraint_frames").value if f]
         for frame in self.frames:
             self.robot.frame_id(frame)  # fail at start on a wrong frame name
+        self.mode = str(value("expert").value)
+        if self.mode not in EXPERTS:
+            raise ValueError(f"expert: must be one of {', '.join(EXPERTS)}, got {self.mode!r}")
+        self.hand_frames = [f for f in value("hand_frames").value if f]
+        self.hand_expert: TaskSpaceExpert | None = None
+        if self.mode == "hands":
+            self.hand_expert = self._make_hand_expert(optional_parameter(self, "hand_targets"),
+                                                      value("gain").value)
         self.rng = np.random.default_rng(value("seed").value)
         self.num_demos = int(value("num_demos").value)
         self.period = 1.0 / value("rate_hz").value
@@ -137,7 +209,13 @@ class Demonstrator(Node):
         self._index = {name: i for i, name in enumerate(joints)}
         self._q: np.ndarray | None = None
         self._state = "wait"
-        self._since = time.monotonic()
+        self._since = self._now()
+        self._last_tick: float | None = None
+        self._ready_since: float | None = None
+        #: Control ticks during demonstrations, and those later than LATE_TICK_PERIODS.
+        self.demo_ticks = 0
+        self.late_ticks = 0
+        self._A_x = np.zeros((0, 0))
         self._pending: Future | None = None
         self._constraints: list = []
         self._segment = 0
@@ -148,28 +226,52 @@ class Demonstrator(Node):
         self._stop = self.create_client(Trigger, f"{recorder}/stop_demo")
         self._cmd = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
         self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
+        self._lockstep = bool(value("step_on_joint_state").value)
         self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
-        self.create_timer(self.period, self._on_timer)
+        if not self._lockstep:
+            self.create_timer(self.period, self._on_timer)
+
+    def _make_hand_expert(self, targets, gain: float) -> TaskSpaceExpert:
+        if not self.hand_frames:
+            raise ValueError("hand_frames: the hands expert needs at least one frame")
+        state_map = TaskSpaceMap(self.robot, self.hand_frames)
+        if targets is None:
+            targets = state_map.states(self.attractor)
+        targets = np.asarray(targets, dtype=float)
+        if targets.shape != (state_map.dim,) or not np.all(np.isfinite(targets)):
+            raise ValueError(f"hand_targets: need {state_map.dim} finite values (3 per hand "
+                             f"frame), got {targets.size}")
+        # phi_x = gain/2 ||x - x_c||^2, so pi_x = -gain (x - x_c).
+        return TaskSpaceExpert(state_map, targets, gain / 2.0, rest=self.attractor)
+
+    def _now(self) -> float:
+        """Seconds on the node clock (the simulator's /clock with use_sim_time)."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_set_parameters(self, params: Sequence[Parameter]):
         for param in params:
             if param.name == "joints" and (not param.value
                                            or len(set(param.value)) != len(param.value)):
                 return reject("joints: must be a non-empty list without repeats")
-            if param.name == "attractor" and param.value is not None and not np.all(
-                    np.isfinite(param.value)):
-                return reject("attractor: contains NaN or inf")
+            if param.name in ("attractor", "hand_targets") and param.value is not None \
+                    and not np.all(np.isfinite(param.value)):
+                return reject(f"{param.name}: contains NaN or inf")
+            if param.name == "expert" and param.value not in EXPERTS:
+                return reject(f"expert: must be one of {', '.join(EXPERTS)}, "
+                              f"got {param.value!r}")
         return accept()
 
     def _on_joint_state(self, msg: JointState) -> None:
         q = joint_positions(msg, self._index)
         if q is not None:
             self._q = q
+            if self._lockstep:
+                self._on_timer()
 
     # -- state machine, one step per timer tick ---------------------------------------
     def _enter(self, state: str) -> None:
         self._state = state
-        self._since = time.monotonic()
+        self._since = self._now()
 
     def _send(self, qdot: np.ndarray) -> None:
         self._cmd.publish(Float64MultiArray(data=qdot.tolist()))
@@ -192,7 +294,7 @@ class Demonstrator(Node):
             if response is None:
                 self._finish(1, f"recorder gave no answer to {self._state}")
             return response
-        if time.monotonic() - self._since > self.get_parameter("service_timeout_s").value:
+        if self._now() - self._since > self.get_parameter("service_timeout_s").value:
             self._finish(1, f"recorder did not answer {self._state}")
         return None
 
@@ -204,14 +306,30 @@ class Demonstrator(Node):
         return False
 
     def _on_timer(self) -> None:
-        elapsed = time.monotonic() - self._since
+        now = self._now()
+        if now <= 0.0:
+            return  # use_sim_time and no /clock yet: time would jump at the first message
+        if self._since <= 0.0:
+            self._since = now
+        elapsed = now - self._since
+        if self._state == "demo" and self._last_tick is not None:
+            self.demo_ticks += 1
+            if now - self._last_tick > LATE_TICK_PERIODS * self.period:
+                self.late_ticks += 1
+        self._last_tick = now
         lower, upper = self.robot.lower, self.robot.upper
         if self._state == "done":
             return
         if self._state == "wait":
             if self._q is not None and self._start.service_is_ready() and \
                     self._stop.service_is_ready() and self._recorder_listens():
-                self._new_start()
+                # The recorder's subscription shows in the graph before the transport has
+                # matched it with the robot's publisher: give discovery time to finish,
+                # or the first demonstration is recorded from its middle.
+                if self._ready_since is None:
+                    self._ready_since = now
+                if now - self._ready_since >= self.get_parameter("startup_delay_s").value:
+                    self._new_start()
             elif elapsed > self.get_parameter("service_timeout_s").value:
                 self._finish(1, "no joint states or no recorder services: gave up")
             return
@@ -244,10 +362,7 @@ class Demonstrator(Node):
             if segment > self._segment:
                 self._segment = segment
                 self._draw_planes()
-            pi = self.expert.policy(q[None, :])[0]
-            A = (np.vstack([c.matrix(q, pi) for c in self._constraints])
-                 if self._constraints else np.zeros((0, q.size)))
-            self._send(constrained_command(q, pi, A, lower, upper, self.vmax, self.period))
+            self._send(self._expert_command(q))
         elif self._state == "stop_demo":
             response = self._answer()
             if response is not None and not response.success:
@@ -263,7 +378,9 @@ class Demonstrator(Node):
                     self._new_start()
             elif response is not None:
                 self.demos_done += 1
-                self._progress.publish(String(data=f"{self.demos_done}/{self.num_demos}"))
+                self._progress.publish(String(
+                    data=f"{self.demos_done}/{self.num_demos} "
+                         f"late_ticks={self.late_ticks}/{self.demo_ticks}"))
                 self.get_logger().info(
                     f"demonstration {self.demos_done}/{self.num_demos} recorded")
                 if self.demos_done >= self.num_demos:
@@ -271,9 +388,27 @@ class Demonstrator(Node):
                 else:
                     self._new_start()
 
+    def _expert_command(self, q: np.ndarray) -> np.ndarray:
+        """The expert's joint velocity (n,) at ``q`` under the current planes, rad/s."""
+        lower, upper = self.robot.lower, self.robot.upper
+        if self.hand_expert is None:
+            pi = self.expert.policy(q[None, :])[0]
+            A = (np.vstack([c.matrix(q, pi) for c in self._constraints])
+                 if self._constraints else np.zeros((0, q.size)))
+            return constrained_command(q, pi, A, lower, upper, self.vmax, self.period)
+        A_q = (np.vstack([c.matrix(q) for c in self._constraints]) if self._constraints
+               else None)
+        qdot, _ = self.hand_expert.command(q, self._A_x, A_q)
+        # One scale for the whole vector keeps the hands on their planes.
+        return velocity_scale(q, qdot, self.period, lower, upper, self.vmax) * qdot
+
     def _draw_planes(self) -> None:
-        self._constraints = [constraint_from_spec(s, self.robot)
-                             for s in random_plane_specs(self.frames, self.rng)]
+        specs = random_plane_specs(self.frames, self.rng)
+        if self.hand_expert is not None:
+            # Planes on hands are rows of the hand-space constraint A_x (so the hands move
+            # with N_x pi_x); planes on other frames stay joint-space rows.
+            self._A_x, specs = hand_plane_rows(specs, self.hand_frames)
+        self._constraints = [constraint_from_spec(s, self.robot) for s in specs]
 
     def _new_start(self) -> None:
         self._q0 = sample_start_states(
