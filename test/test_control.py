@@ -871,3 +871,14 @@ def test_bad_drift_and_singularity_settings():
                           ({"min_singular_value": float("nan")}, "min_singular_value")):
         with pytest.raises(ValueError, match=match):
             ControlStep(LOWER, UPPER, VMAX, DT, **kwargs)
+
+
+def test_guard_without_a_finite_stopping_distance_gives_zero_with_a_reason():
+    guard = ExtrapolationGuard(_PointSupport(np.zeros(N)), 3.0)
+    step = ControlStep(-10 * np.ones(N), 10 * np.ones(N), np.full(N, np.inf), DT,
+                       policy=_outward(0.3), guard=guard, max_acceleration=ACC)
+    q = np.zeros(N)
+    assert step(q)[1] == ""  # inside: nothing to scale, no band needed
+    q[0] = 0.35  # 3.5 spacings, leading out
+    qdot, reason = step(q)
+    assert not np.any(qdot) and "band needs finite max_velocity" in reason

@@ -208,12 +208,19 @@ class ExtrapolationGuard:
 
     def band(self, grad_norm: float, max_velocity: np.ndarray,
              max_acceleration: float | None) -> float:
-        """Band ``b`` (spacings) for ``|grad d| = grad_norm`` (spacings per rad)."""
+        """Band ``b`` (spacings) for ``|grad d| = grad_norm`` (spacings per rad).
+
+        Raises ValueError when the stopping distance is not finite (an infinite
+        ``max_velocity``).
+        """
         if max_acceleration is None or not grad_norm > 0.0:
             return self.min_band
         vmax = np.asarray(max_velocity, dtype=float)
         stop = grad_norm * float(np.linalg.norm(vmax)) * float(vmax.max()) / (
             2.0 * max_acceleration)
+        if not math.isfinite(stop):
+            # No finite stopping distance (a joint without speed limit): no safe band.
+            raise ValueError("band needs finite max_velocity and gradient")
         return max(self.min_band, stop)
 
     def scale(self, q: np.ndarray, v: np.ndarray, max_velocity: np.ndarray,
