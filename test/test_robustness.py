@@ -1,14 +1,14 @@
 """Robustness cases of issue 8 as assertions (docs/robustness.md; domain ids 204-216).
 
-The cases live in ``tools/robustness.py`` (which also prints the table of the doc); here the
-fast, deterministic groups run with the CLI called in-process through ``cli.main`` and
-without the node start-up cases (a process each). For each
-bad input: no crash (an uncaught exception, a signal, a node callback that raised or a node
-that stopped answering), no traceback, no finished demonstration lost, and the behaviour the
-case expects (exit status, ``success=false`` with a reason, the skip counter, a refused
-parameter keeping its value, ...). Waits poll a condition; nothing depends on the machine's
-speed. The learner's cases (a 60-demonstration fit) and the demonstrator's start-up cases are
-covered by test_learner_node.py / test_demonstrator_node.py and left to the tool.
+The cases live in ``tools/robustness.py``, which also prints the table of the doc. Here the
+fast, deterministic groups run, with the CLI called in-process through ``cli.main`` and
+without the node start-up cases (a process each). For each bad input: no crash (an
+uncaught exception, a signal, a node callback that raised, a node that stopped answering),
+no traceback, no finished demonstration lost, and the behaviour the case expects (exit
+status, ``success=false`` with a reason, the skip counter, a refused parameter keeping its
+value, ...). Waits poll a condition; nothing depends on the machine's speed. The learner's
+cases (a 60-demonstration fit) and the start-up cases are covered by the nodes' own tests
+and left to the tool.
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ from policy_align_ros.data.bags import load_dataset  # noqa: E402
 from policy_align_ros.data.recording import DemoRecorder  # noqa: E402
 
 #: Groups run here, in the tool's order.
-GROUPS = ["cli-learn", "cli-misc", "cli-ros", "bags", "recorder", "sim_robot", "executor"]
+GROUPS = ["cli-learn", "cli-misc", "cli-ros", "bags", "recorder", "sim_robot", "executor",
+          "demonstrator"]
 
 #: Problems found in code this test does not own (reported to its owners, listed in
 #: docs/robustness.md): the rows must still not crash or print a traceback.

@@ -1247,8 +1247,22 @@ def cases_learner(lab: Lab) -> list[Result]:
 
 # --- demonstrator ---------------------------------------------------------------------------
 def cases_demonstrator(lab: Lab) -> list[Result]:
-    """demonstrator: start-up parameters it cannot use, and no recorder to bracket demos."""
+    """demonstrator: parameters at run time and at start-up, no recorder to bracket demos."""
+    from policy_align_ros.nodes.demonstrator import Demonstrator
+
     out = []
+    rig = NodeRig(lab, Demonstrator, {"joints": ARM, "constraint_frames": ["arm_left_7_link"],
+                                      "service_timeout_s": 600.0})
+    try:
+        out.append(_param_case(rig, "demo-gain-read-only", "demonstrator `gain: 5.0` at run "
+                               "time (read-only)", "gain", 5.0, "read-only"))
+        out.append(_param_case(rig, "demo-num-demos-wrong-type",
+                               "demonstrator `num_demos: 'many'` (string)", "num_demos",
+                               "many"))
+    finally:
+        rig.close()
+    if not lab.start_ups:
+        return out
     for case, tried, args, needle in (
             ("demo-start-attractor-length", "`demonstrator -p 'attractor:=[0.0, 0.0]'` "
              "(18 joints)", ["-p", "attractor:=[0.0, 0.0]"], "attractor"),
@@ -1410,9 +1424,11 @@ def cases_executor(lab: Lab) -> list[Result]:
                 if disarms:
                     wait_for(lambda: not exe.controller.armed and any(
                         not c.any() for c in commands[n:]), 5.0)
-                else:
+                elif reason is not None:
                     wait_for(lambda: sum(exe.rejected_states.values()) > rejected, 5.0)
                     time.sleep(0.2)
+                else:
+                    time.sleep(0.3)  # accepted: nothing to wait for but a few ticks
             zero = any(not c.any() for c in commands[n:])
             counted = sum(exe.rejected_states.values()) - rejected
             r.data.update(armed=exe.controller.armed, zero=zero, counted=counted,
@@ -1425,10 +1441,15 @@ def cases_executor(lab: Lab) -> list[Result]:
                                f"armed={exe.controller.armed}, zero command={zero}")
                 r.expect(not exe.controller.armed, "still armed after the message")
                 r.expect(zero, "no zero command after the message")
+            elif reason is None:
+                r.behaviour = f"accepted (matched by name), still armed={exe.controller.armed}"
+                r.expect(exe.controller.armed, "disarmed by a valid message")
+                r.expect(counted == 0, "a valid message was rejected")
             else:
                 r.behaviour = (f"ignored and counted, still armed={exe.controller.armed}")
                 r.expect(exe.controller.armed, "disarmed by a message meant for someone else")
-            r.behaviour += f"; counted as {reasons}"
+            if reasons != "nothing" or reason is not None:
+                r.behaviour += f"; counted as {reasons}"
             if reason is not None:
                 r.expect(exe.rejected_states.get(reason, 0) > 0, f"not counted as {reason}")
             out.append(r)
@@ -1458,6 +1479,9 @@ def cases_executor(lab: Lab) -> list[Result]:
         state_case("exe-msg-other-joints", "JointState of other joints only (another "
                    "publisher), armed", lambda: feeder.message(["x1", "x2"], [0.0, 0.0]),
                    False, "unknown_joints")
+        state_case("exe-msg-extra-joint", "JointState with the 7 joints and 2 more (another "
+                   "order), armed", lambda: feeder.message(
+                       ["x1"] + ARM[::-1] + ["x2"], [0.0] + list(q[::-1]) + [0.0]), False)
         state_case("exe-msg-missing-joint", "JointState with 6 of the 7 joints, armed",
                    lambda: feeder.message(ARM[:6], list(q[:6])), False, "missing_joints")
 
