@@ -10,10 +10,12 @@ wall-clock speed: waits poll a condition and only bound a failure.
 Columns of the table (``--markdown``):
 
 * *crash*: the process died from an uncaught exception or a signal, a node callback raised,
-  or a node stopped answering;
-* *traceback*: ``Traceback (most recent call last)`` appeared in the output or the logs;
-* *demos lost*: finished demonstrations that did not reach the dataset or the fit (``-`` when
-  no demonstration is involved).
+  a service never answered, or a node stopped answering;
+* *traceback*: ``Traceback (most recent call last)`` appeared in the output;
+* *demos lost*: recorded messages missing from the bags on disk (recorder), or good
+  demonstrations silently left out of a model that was written (bags); ``-`` when no
+  demonstration is involved;
+* *verdict*: ``ok``, or what differs from what a robot owner expects.
 
 Usage::
 
@@ -23,7 +25,7 @@ Usage::
     python tools/robustness.py --in-process         # CLI cases through cli.main (faster)
 
 ROS cases run in-process, each rig with its own ``rclpy.Context`` on its own DDS domain
-(``--domain-base``, default 60: ids 60-99; test/test_robustness.py uses 204-219); node
+(``--domain-base``, default 60: ids 60-99; test/test_robustness.py uses 204-216); node
 start-up cases and, by default, CLI cases run as subprocesses of this interpreter's
 environment.
 """
@@ -48,8 +50,10 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+# The console scripts of this interpreter's environment (the venv), else those on PATH.
 BIN = Path(sys.executable).parent
+if not (BIN / "policy-align").exists() and shutil.which("policy-align"):
+    BIN = Path(shutil.which("policy-align")).parent
 TRACEBACK = "Traceback (most recent call last)"
 AREAS = ("cli", "bags", "parameters", "messages", "services")
 J2 = ["j1", "j2"]
