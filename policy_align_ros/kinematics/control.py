@@ -278,6 +278,11 @@ def limit_locks(
     return ((q >= upper - tol) & (v > 0.0)) | ((q <= lower + tol) & (v < 0.0))
 
 
+def _pick(values: np.ndarray | float, index: np.ndarray) -> np.ndarray | float:
+    """``values[index]`` for an array, ``values`` itself for a scalar (broadcasts)."""
+    return values[index] if getattr(values, "ndim", 0) else values
+
+
 def velocity_scale(
     q: np.ndarray,
     v: np.ndarray,
@@ -317,11 +322,10 @@ def velocity_scale(
         return 1.0
     vm = v[moving]
     speed = np.abs(vm)
-    lower, upper, max_velocity = (np.broadcast_to(np.asarray(a, dtype=float), v.shape)
-                                  for a in (lower, upper, max_velocity))
-    room = np.where(vm > 0.0, upper[moving] - q[moving], q[moving] - lower[moving])
+    qm = q[moving]
+    room = np.where(vm > 0.0, _pick(upper, moving) - qm, qm - _pick(lower, moving))
     np.maximum(room, 0.0, out=room)
-    bound = np.minimum(max_velocity[moving], room / dt)
+    bound = np.minimum(_pick(max_velocity, moving), room / dt)
     if max_acceleration is not None:
         np.minimum(bound, np.sqrt(max_acceleration * room), out=bound)
     s = float((bound / speed).min())
