@@ -18,6 +18,7 @@ from std_srvs.srv import Trigger
 from policy_align_ros.kinematics import TaskSpaceMap
 from policy_align_ros.nodes.demonstrator import (
     Demonstrator,
+    drop_roundoff_at_limits,
     hand_plane_rows,
     random_plane_specs,
 )
@@ -162,3 +163,12 @@ def test_bad_expert_is_refused_at_start():
                 Parameter("expert", value="elbows")])
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_roundoff_out_of_a_limit_is_dropped_but_a_real_push_is_kept():
+    lower, upper = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    q = np.array([1.0, -1.0, 0.0])
+    qdot = drop_roundoff_at_limits(q, np.array([1e-17, -1e-12, 0.5]), lower, upper)
+    np.testing.assert_array_equal(qdot, [0.0, 0.0, 0.5])
+    kept = drop_roundoff_at_limits(q, np.array([0.2, 0.3, 0.0]), lower, upper)
+    np.testing.assert_array_equal(kept, [0.2, 0.3, 0.0])  # outward 0.2 stays; inward 0.3

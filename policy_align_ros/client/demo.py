@@ -32,6 +32,14 @@ Stages (each one failing makes the command exit with status 1):
    ``OUT/report.txt``) and the plots ``OUT/demo_distance.png`` and ``OUT/demo_hands.png``
    are made from it and the traces in ``OUT/traces.npz``.
 
+Simulated time: ``sim_robot`` advances ``/clock`` one period (``1 / rate_hz``) per tick,
+``real_time_factor`` ticks per period of wall time; the demonstrator steps in lockstep
+with the joint states (its command for tick ``i + 1`` comes from the state of tick ``i``),
+the executor on its timer. A *missed control period* is a tick whose joint velocity
+equals the previous tick's (non-zero), i.e. the simulator integrated a command it had
+already used; the report's ``sim`` block counts them for the executor runs and the
+recorded demonstrations.
+
 The exit status is also 1 when an unconstrained run does not end closer to its goal than
 it started. Missed issue targets are reported (``targets`` in the report) without changing
 the status. Every child process is stopped (SIGINT, then SIGKILL) whatever happens. All
@@ -81,6 +89,7 @@ from policy_align_ros.learning.model_io import atomic_write_bytes, atomic_write_
 from policy_align_ros.nodes._common import DEFAULT_JOINTS, LATCHED_QOS, joint_positions
 from policy_align_ros.nodes.demonstrator import (
     DEFAULT_FRAMES,
+    drop_roundoff_at_limits,
     hand_plane_rows,
     random_plane_specs,
 )
@@ -261,6 +270,7 @@ class Task:
         for _ in range(steps):
             A_q = np.vstack([c.matrix(q) for c in constraints]) if constraints else None
             qdot, _ = self.hand_expert.command(q, None, A_q)
+            qdot = drop_roundoff_at_limits(q, qdot, robot.lower, robot.upper)
             qdot *= velocity_scale(q, qdot, self.dt, robot.lower, robot.upper, self.vmax)
             q = robot.clip(q + self.dt * qdot)
             out.append(q.copy())
@@ -282,6 +292,8 @@ class Task:
                                n_samples, self.dt)
             else:
                 rows = [hand_plane_rows(specs, s.frames)[0] for specs in planes]
+                # The projectors and pi_x are exact whether or not a step is blocked
+                # at a joint limit, which is all the nCPE uses.
                 demo = task_space_rollout(x0, self.hand_expert,
                                           _switching_rows(rows, s.demo_duration_s),
                                           n_samples, self.dt)
@@ -663,7 +675,11 @@ def _record(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor) -> d
 
 
 def _learning_summary(model: PolicyAlign, s: DemoSettings, recorded: list[str]) -> dict:
-    """The demonstrations block and fit numbers, from the model file's header."""
+    """The demonstrations block and fit numbers, from the model file's header.
+
+    ``training`` counts the demonstrations of the training split (``discarded`` of them
+    were dropped as outliers by the fit), ``held_out`` those kept for scoring.
+    """
     training = model.fit_summary_ or {}
     pipeline = training.get("pipeline")
     if pipeline is not None:
@@ -673,7 +689,7 @@ def _learning_summary(model: PolicyAlign, s: DemoSettings, recorded: list[str]) 
         return {
             "demonstrations": {
                 "recorded": len(recorded), "found": int(demos.get("found", len(recorded))),
-                "training": len(train) - len(discarded), "held_out": len(demos["held_out"]),
+                "training": len(train), "held_out": len(demos["held_out"]),
                 "discarded": len(discarded), "duplicates": len(demos.get("duplicates", [])),
                 "held_out_names": list(demos["held_out"]), "discarded_names": discarded},
             "sigma2": float(pipeline.get("sigma2", model.sigma2_)),
@@ -688,7 +704,7 @@ def _learning_summary(model: PolicyAlign, s: DemoSettings, recorded: list[str]) 
     n_kept = int(training.get("n_inliers", n_fit))
     _, held = holdout_split(len(recorded), s.holdout_fraction, s.seed)
     return {
-        "demonstrations": {"recorded": len(recorded), "training": n_kept,
+        "demonstrations": {"recorded": len(recorded), "training": n_fit,
                            "held_out": len(recorded) - n_fit, "discarded": n_fit - n_kept,
                            "held_out_names": [recorded[k] for k in held]},
         "sigma2": float(model.sigma2_),
@@ -904,8 +920,8 @@ def report_text(report: dict) -> str:
         "========================",
         f"robot {report['robot']}, state {report['state']} "
         f"({report.get('state_spec', report['state'])}), seed {report.get('seed')}",
-        f"demonstrations: {demos['recorded']} recorded, {demos['training']} used for "
-        f"training ({demos['discarded']} discarded as outliers), {demos['held_out']} held out",
+        f"demonstrations: {demos['recorded']} recorded, {demos['training']} for training "
+        f"({demos['discarded']} of them discarded as outliers), {demos['held_out']} held out",
         f"sigma^2: {report['sigma2']:.4g}; fit time: {report['fit_time_s']:.2f} s",
         f"held-out nCPE on {report.get('heldout_ncpe_fresh_demos', '?')} fresh "
         f"demonstrations (true N, paper's measure): {report['heldout_ncpe_fresh']:.4g}",

@@ -74,7 +74,8 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Demonstrator", "hand_plane_rows", "main", "random_plane_specs"]
+__all__ = ["Demonstrator", "drop_roundoff_at_limits", "hand_plane_rows", "main",
+           "random_plane_specs"]
 
 DEFAULT_FRAMES = ["arm_left_7_link", "arm_right_7_link"]
 EXPERTS = ("joints", "hands")
@@ -90,6 +91,24 @@ def random_plane_specs(frames: Sequence[str], rng: np.random.Generator) -> list[
         normal /= np.linalg.norm(normal)
         specs.append({"type": "plane", "frame": frame, "normal": normal.tolist()})
     return specs
+
+
+#: Outward joint speeds at a limit below this (rad/s) are round-off of a locked joint.
+LIMIT_ROUNDOFF = 1e-9
+
+
+def drop_roundoff_at_limits(q: np.ndarray, qdot: np.ndarray, lower: np.ndarray,
+                            upper: np.ndarray) -> np.ndarray:
+    """``qdot`` (n,) with round-off pushes out of a limit set to zero.
+
+    The hands expert locks joints at their limits as constraint rows, which leaves
+    outward speeds of order 1e-17 rad/s on them; a whole-vector limit scale would read
+    those as pushing out and stop the robot. Larger outward speeds are kept (and stop it).
+    """
+    out = np.array(qdot, dtype=float)
+    outward = ((q <= lower) & (out < 0.0)) | ((q >= upper) & (out > 0.0))
+    out[outward & (np.abs(out) < LIMIT_ROUNDOFF)] = 0.0
+    return out
 
 
 def hand_plane_rows(specs: Sequence[dict], hand_frames: Sequence[str]
@@ -399,6 +418,7 @@ class Demonstrator(Node):
         A_q = (np.vstack([c.matrix(q) for c in self._constraints]) if self._constraints
                else None)
         qdot, _ = self.hand_expert.command(q, self._A_x, A_q)
+        qdot = drop_roundoff_at_limits(q, qdot, lower, upper)
         # One scale for the whole vector keeps the hands on their planes.
         return velocity_scale(q, qdot, self.period, lower, upper, self.vmax) * qdot
 
