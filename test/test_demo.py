@@ -18,11 +18,14 @@ from policy_align_ros.client.demo import (
     _streams,
     _targets,
     new_starts,
+    repeated_steps,
     report_text,
     run_demo,
+    stale_ticks,
 )
 from policy_align_ros.data import load_dataset
 from policy_align_ros.kinematics import Robot
+from policy_align_ros.learning import Trajectory
 from policy_align_ros.nodes._common import DEFAULT_JOINTS
 
 ARM = [f"arm_left_{i}_joint" for i in range(1, 8)]
@@ -153,3 +156,14 @@ def test_unusable_out_directory_exits_2_with_the_reason(tmp_path, capsys):
     blocker.write_text("not a directory")
     assert run_demo(argparse.Namespace(out=str(blocker / "demo"))) == 2
     assert "cannot be used as the output directory" in capsys.readouterr().err
+
+
+def test_repeated_steps_find_a_command_integrated_twice():
+    dt, v = 0.04, np.array([0.3, -0.2])
+    q = [np.array([0.1, 0.7])]
+    for command in (v, v * 0.9, v * 0.9, v * 0.8, np.zeros(2), np.zeros(2)):
+        q.append(q[-1] + dt * command)  # the simulator's Euler step
+    # Steps 2 and 3 use the same command (a missed period); standing still is no miss.
+    np.testing.assert_array_equal(repeated_steps(np.array(q)),
+                                  [False, True, False, False, False])
+    assert stale_ticks([Trajectory(np.array(q), dt * np.arange(len(q)))]) == (5, 1)

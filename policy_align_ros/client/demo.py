@@ -400,8 +400,9 @@ class Conductor:
 
     While ``trace`` is a list, every joint state is appended as ``(stamp_s, q)``, and the
     control periods of the run are counted: ``ticks`` joint states, of which ``missed``
-    report the same non-zero joint velocity as the one before, i.e. the simulator
-    integrated a command it had already used (no new command came within the period).
+    moved by the same non-zero step as the one before, i.e. the simulator integrated a
+    command it had already used (no new command came within the period; see
+    :func:`repeated_steps`).
     """
 
     def __init__(self, context: rclpy.Context, joints: list[str], graph: Graph) -> None:
@@ -415,7 +416,7 @@ class Conductor:
         self.trace: list[tuple[float, np.ndarray]] | None = None
         self.progress = ""
         self.ticks = self.missed = 0
-        self._velocity: tuple[float, ...] = ()
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
         self._states = None
         self.listen(True)
         self.node.create_subscription(String, "/demonstrator/progress", self._on_progress,
@@ -424,7 +425,7 @@ class Conductor:
     def listen(self, on: bool) -> None:
         """Subscribe to ``/joint_states`` or not (each message costs this process time)."""
         if on and self._states is None:
-            self._velocity = ()
+            self._last = None
             self._states = self.node.create_subscription(JointState, "/joint_states",
                                                          self._on_state, 1000)
         elif not on and self._states is not None:
@@ -436,13 +437,14 @@ class Conductor:
         if q is None:
             return
         self.q = q
-        velocity = tuple(msg.velocity)
         if self.trace is not None:
             self.trace.append((msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, q))
             self.ticks += 1
-            if velocity == self._velocity and any(velocity):
+            if self._last is not None and repeated_steps(
+                    np.array([self._last[1], self._last[0], q]))[0]:
                 self.missed += 1
-        self._velocity = velocity
+        # (latest, the one before): two states before this one are needed for two steps.
+        self._last = (q, self._last[0]) if self._last is not None else (q, q)
 
     def _on_progress(self, msg: String) -> None:
         self.progress = msg.data
@@ -635,19 +637,35 @@ def _wait_graph(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor) 
     conductor.listen(False)
 
 
-def stale_ticks(trajectories: list) -> tuple[int, int]:
-    """``(ticks, stale)`` of recorded demonstrations (their sampled joint velocities).
+#: Two position steps closer than this (rad) are the same command integrated twice:
+#: rounding leaves ~1e-16; a new command differs by dt * (change of the command).
+SAME_STEP_TOL = 1e-12
 
-    A sample whose non-zero joint velocity equals the previous sample's exactly is a
-    simulator tick that integrated an old command: the expert missed that period.
+
+def repeated_steps(Q: np.ndarray) -> np.ndarray:
+    """Which steps of a sampled trajectory ``Q`` (T, n) repeat the previous step.
+
+    Returns
+    -------
+    ndarray of bool, shape (T - 2,)
+        Entry ``i`` is True when ``Q[i+2] - Q[i+1]`` equals ``Q[i+1] - Q[i]`` (within
+        :data:`SAME_STEP_TOL`, and non-zero): the simulator integrated the same command
+        again, so the commanding node missed that control period. (The joint velocity in
+        the message cannot tell: ``(q + dt v - q) / dt`` rounds differently every tick.)
     """
+    D = np.diff(np.asarray(Q, dtype=float), axis=0)
+    if len(D) < 2:
+        return np.zeros(0, dtype=bool)
+    same = np.all(np.abs(D[1:] - D[:-1]) <= SAME_STEP_TOL, axis=1)
+    return same & np.any(np.abs(D[1:]) > SAME_STEP_TOL, axis=1)
+
+
+def stale_ticks(trajectories: list) -> tuple[int, int]:
+    """``(ticks, stale)`` of recorded demonstrations: steps, and repeated ones among them."""
     ticks = stale = 0
     for traj in trajectories:
-        V = traj.velocities
-        if V is None or len(V) < 2:
-            continue
-        same = np.all(V[1:] == V[:-1], axis=1) & np.any(V[1:] != 0.0, axis=1)
-        ticks += len(V) - 1
+        same = repeated_steps(traj.positions)
+        ticks += len(same)
         stale += int(same.sum())
     return ticks, stale
 
