@@ -844,6 +844,13 @@ def _execute(s: DemoSettings, t0: float, conductor: Conductor, task: Task, run_i
     # counts against the learnt policy, not the expert.
     start_sim = conductor.now()
     response = conductor.enable(True)
+    deadline = time.monotonic() + 10.0
+    while not response.success and time.monotonic() < deadline:
+        # After the reset the executor may not have taken a fresh joint state yet (a loaded
+        # machine delays it); it refuses with the reason, and a retry is safe.
+        conductor.spin_sim(4.0 / s.rate_hz, 10.0)
+        start_sim = conductor.now()
+        response = conductor.enable(True)
     if not response.success:
         raise StageError(f"executor refused to enable: {response.message}")
     _say(t0, f"executor run {run_id} for {s.run_duration_s:g} s of sim time"
