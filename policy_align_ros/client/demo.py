@@ -131,9 +131,10 @@ class DemoSettings:
     demo_duration_s: float = 3.0
     run_duration_s: float = 8.0
     rate_hz: float = 25.0
-    # Measured (seed 0, 30 demos, load 2-5 from other jobs on 2 cores): executor missed
-    # control periods 4.1 % at 2x (104 s total), 2.8 % at 1.5x (109 s total); the lockstep
-    # demonstrator misses 0-0.5 % at either.
+    # Measured at 1.5x on the shared 2-core machine (load 1.5-5 from other jobs), seeds
+    # 0-2, repeated position steps: the lockstep demonstrator repeats 0-1.5 % of its
+    # periods, the timer-driven executor 11-21 % (its command comes from the state before
+    # the latest, or not in time); the demo takes 95-116 s of wall time.
     real_time_factor: float = 1.5
     gain: float = 1.0
     start_variance: float = 0.1
