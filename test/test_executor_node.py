@@ -1,4 +1,4 @@
-"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-210).
+"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-211).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
@@ -859,3 +859,27 @@ def test_a_disable_while_enable_waits_for_the_controller_wins(rig):
     assert "superseded by a later ~/enable request" in enable.result().message
     r.spin(0.2)
     assert not r.node.controller.armed and r.commands == []
+
+
+def test_lockstep_steps_once_per_joint_state_and_still_stops_on_stale_states(rig):
+    r = rig(211, step_on_joint_state=True)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.enable(True).success
+    r.spin(0.05, publish_states=False)
+    r.commands.clear()
+    for i in range(20):
+        r.publish_state()
+        r.spin_until(lambda i=i: len(r.commands) >= i + 1, publish_states=False,
+                     what=f"command {i + 1}")
+    # While the states are fresh the timer adds no step of its own: one command per state.
+    r.spin(0.2, publish_states=False)
+    assert len(r.commands) == 20
+    _assert_ramped(r.commands)
+    assert np.max(np.abs(r.commands[-1])) > 0.0
+    # States that stop coming still stop the robot at once (the timer's job in lockstep).
+    r.spin_until(lambda: not r.node.controller.armed, publish_states=False,
+                 what="the stale-state disarm")
+    r.spin(0.05, publish_states=False)
+    assert np.all(r.commands[-1] == 0.0)

@@ -315,6 +315,10 @@ class Executor(Node):
         self.declare_parameter("start_enabled", False, descriptor(
             "arm at the first fresh joint state when model_path loaded at start (else "
             "wait for ~/enable)", read_only=True))
+        self.declare_parameter("step_on_joint_state", False, descriptor(
+            "one control step per new joint state instead of the rate_hz timer (lockstep "
+            "with a simulator publishing at rate_hz); the timer then only stops the robot "
+            "when joint states go stale", read_only=True))
 
         self._period = 1.0 / self.get_parameter("rate_hz").value
         step = ControlStep(
@@ -338,6 +342,7 @@ class Executor(Node):
             self._apply_staged()
         self._update_context()
         self._arm_at_start = bool(self.get_parameter("start_enabled").value)
+        self._lockstep = bool(self.get_parameter("step_on_joint_state").value)
         if self._arm_at_start and self.controller.step.policy is None:
             self.get_logger().warning(
                 "start_enabled ignored: no model_path loaded at start; call ~/enable once "
@@ -514,6 +519,8 @@ class Executor(Node):
         if out.rejected:
             self._count_rejected(out.rejected)
         self._emit(out)
+        if self._lockstep and not out.rejected:
+            self._emit(self.controller.tick(now))
         if self._arm_at_start and not out.rejected and self.executor is not None:
             # Armed like ~/enable, with the controller check, without blocking this thread.
             self._arm_at_start = False
@@ -620,7 +627,12 @@ class Executor(Node):
 
     # -- output -----------------------------------------------------------------------
     def _on_timer(self) -> None:
-        self._emit(self.controller.tick(self._now_ns()))
+        now = self._now_ns()
+        # In lockstep the joint states drive the steps; a second step per period would
+        # double the ramp's rate. The timer still catches joint states that stop coming.
+        if self._lockstep and not self.controller.state_problem(now):
+            return
+        self._emit(self.controller.tick(now))
 
     def _emit(self, out: Output) -> None:
         """Publish the command the controller asks for and log its events."""
