@@ -389,3 +389,72 @@ def test_bags_giving_nothing_are_named_with_the_reason(tmp_path):
     assert report.missing_joints == []
     with pytest.raises(ValueError, match=r"'nope' not found .*available: j0, j1, j2, knee"):
         load_dataset(tmp_path, joints=["j0", "nope"])
+
+
+def _good_dataset(tmp_path, n_bags=8, joints=("j1", "j2"), seed=20):
+    rng = np.random.default_rng(seed)
+    for k in range(n_bags):
+        stamps, q, _ = _demo(rng, 20, n=len(joints))
+        write_joint_state_bag(tmp_path / f"demo_{k:04d}", list(joints), stamps, q)
+
+
+def test_a_foreign_bag_sorting_first_does_not_choose_the_joints(tmp_path):
+    """Joints from the first message read let bad_foreign (x1, x2) reject 8 good bags."""
+    _good_dataset(tmp_path)
+    rng = np.random.default_rng(21)
+    stamps, q, _ = _demo(rng, 20, n=2)
+    write_joint_state_bag(tmp_path / "bad_foreign", ["x1", "x2"], stamps, q)
+    trajs, names, report = load_dataset(tmp_path)
+    assert names == ["j1", "j2"] and len(trajs) == 8
+    [(bag, reason)] = report.skipped_bags
+    assert bag == str(tmp_path / "bad_foreign")
+    assert reason.startswith("joints x1, x2; expected j1, j2 (all 20 JointState")
+    # Explicit joints keep their behaviour: the foreign bag's own reason.
+    trajs, names, report = load_dataset(tmp_path, joints=["j1", "j2"])
+    assert names == ["j1", "j2"] and len(trajs) == 8
+    assert "missing joint(s) j1, j2" in dict(report.skipped_bags)[str(tmp_path / "bad_foreign")]
+    # The foreign joints alone are a dataset of their own.
+    trajs, names, _ = load_dataset(tmp_path / "bad_foreign")
+    assert names == ["x1", "x2"] and len(trajs) == 1
+
+
+def test_joint_vote_tie_goes_to_the_first_bag_and_order_is_ignored(tmp_path):
+    rng = np.random.default_rng(22)
+    for name, joints in (("a", ["p", "q"]), ("b", ["j1", "j2"]), ("c", ["q", "p"]),
+                         ("d", ["j1", "j2"]), ("e", ["j2", "j1", "j3"])):
+        stamps, q, _ = _demo(rng, 10, n=len(joints))
+        write_joint_state_bag(tmp_path / name, joints, stamps, q)
+    # p,q: 2 votes (a, c); j1,j2: 2 votes (b, d); tie -> a's set, in a's order.
+    trajs, names, report = load_dataset(tmp_path)
+    assert names == ["p", "q"] and len(trajs) == 2
+    reasons = dict(report.skipped_bags)
+    assert reasons[str(tmp_path / "b")].startswith("joints j1, j2; expected p, q (")
+    assert reasons[str(tmp_path / "e")].startswith("joints j2, j1, j3; expected p, q (")
+
+
+def test_zero_byte_mcap_in_a_dataset_is_named(tmp_path):
+    _good_dataset(tmp_path, n_bags=2)
+    (tmp_path / "empty.mcap").write_bytes(b"")
+    trajs, _, report = load_dataset(tmp_path)
+    assert len(trajs) == 2
+    assert report.skipped_bags == [(str(tmp_path / "empty.mcap"), "empty file")]
+    with pytest.raises(ValueError, match="empty.mcap: empty file"):
+        load_dataset(tmp_path / "empty.mcap")  # named explicitly: an error
+
+
+def test_bag_directory_without_metadata_is_read_from_its_mcap(tmp_path):
+    _good_dataset(tmp_path, n_bags=2)
+    rng = np.random.default_rng(23)
+    stamps, q, _ = _demo(rng, 20, n=2)
+    killed = write_joint_state_bag(tmp_path / "killed", ["j1", "j2"], stamps, q)
+    (killed / "metadata.yaml").unlink()
+    mcap = next(killed.glob("*.mcap"))
+    assert find_bags(tmp_path)[-1] == mcap
+    trajs, _, report = load_dataset(tmp_path)
+    assert len(trajs) == 3 and report.skipped_bags == []
+    np.testing.assert_array_equal(trajs[-1].positions, q)
+    assert report.demos[-1].name == f"killed/{mcap.name}"
+    # An empty .mcap in such a directory is named like any other.
+    (killed / "zz.mcap").write_bytes(b"")
+    _, _, report = load_dataset(tmp_path)
+    assert report.skipped_bags == [(str(killed / "zz.mcap"), "empty file")]

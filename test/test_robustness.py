@@ -34,11 +34,7 @@ GROUPS = ["cli-learn", "cli-misc", "cli-ros", "bags", "recorder", "sim_robot", "
 
 #: Problems found in code this test does not own (reported to its owners, listed in
 #: docs/robustness.md): the rows must still not crash or print a traceback.
-KNOWN: dict[str, str] = {
-    "bag-unknown-joints": "data/bags.py: the joints come from the first bag read",
-    "bag-zero-byte-mcap": "data/bags.py: a zero-byte .mcap in a dataset is not reported",
-    "bag-no-metadata": "data/bags.py: a bag directory without metadata.yaml is ignored",
-}
+KNOWN: dict[str, str] = {}
 
 
 @pytest.fixture(scope="module")

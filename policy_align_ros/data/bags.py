@@ -225,7 +225,10 @@ def find_bags(path: str | os.PathLike[str]) -> list[Path]:
     Returns
     -------
     list of Path
-        Sorted by name; hidden (temporary) entries are ignored.
+        Sorted by name; hidden (temporary) entries are ignored. In a dataset directory,
+        bare ``.mcap``/``.db3`` files are bags too, and so are the storage files of a
+        sub-directory without ``metadata.yaml`` (what a killed ``ros2 bag record``
+        leaves); empty or damaged ones are reported by :func:`load_dataset`.
 
     Raises
     ------
@@ -241,11 +244,23 @@ def find_bags(path: str | os.PathLike[str]) -> list[Path]:
         raise ValueError(f"{p}: not a rosbag2 bag (expected a bag directory, .mcap or .db3)")
     if (p / "metadata.yaml").is_file():
         return [p]
-    bags = sorted(
-        entry
-        for entry in p.iterdir()
-        if entry.is_dir() and not is_temporary(entry) and (entry / "metadata.yaml").is_file()
-    )
+    bags: list[Path] = []
+    for entry in sorted(p.iterdir()):
+        if is_temporary(entry):
+            continue
+        if entry.is_file() and entry.suffix in (".mcap", ".db3"):
+            # Read (or, if empty or damaged, reported by load_dataset), never silently
+            # dropped: a stray storage file is most likely a demonstration.
+            bags.append(entry)
+        elif entry.is_dir() and (entry / "metadata.yaml").is_file():
+            bags.append(entry)
+        elif entry.is_dir():
+            # A killed ``ros2 bag record`` leaves a complete .mcap but no metadata.yaml;
+            # rosbags reads a bare storage file on its own, so each one is a bag.
+            bags.extend(
+                f for f in sorted(entry.iterdir())
+                if f.is_file() and f.suffix in (".mcap", ".db3") and not is_temporary(f)
+            )
     if not bags:
         raise ValueError(f"{p}: not a rosbag2 bag, and contains no rosbag2 bags")
     return bags
@@ -275,6 +290,8 @@ def read_joint_states(
     """
     path = Path(bag)
     try:
+        if path.is_file() and path.stat().st_size == 0:
+            raise BagOpenError(f"{path}: empty file")
         reader = Reader(path)
         reader.open()
     except (ReaderError, FileNotFoundError, OSError, KeyError) as err:
@@ -319,8 +336,9 @@ class DemoInfo:
         Number of samples.
     name : str
         Unique name of the demonstration: the bag's name (``parent/bag`` when bags of
-        different directories share a name), with ``#1``, ``#2``, ... appended when one
-        bag holds several demonstrations (time gaps or several topics).
+        different directories share a name, and for bare ``.mcap``/``.db3`` files),
+        with ``#1``, ``#2``, ... appended when one bag holds several demonstrations
+        (time gaps or several topics).
     """
 
     bag: str
@@ -442,7 +460,10 @@ def load_dataset(
     paths : path-like or iterable of path-like
         Bag directories, ``.mcap``/``.db3`` files, or dataset directories of bags.
     joints : sequence of str, optional
-        Joint order of the state; default: the joints of the first accepted message.
+        Joint order of the state. Default: the joint set shared by most bags, each bag
+        voting with the names of its first valid message (as a set; the order is that
+        of the first bag voting for it); a tie goes to the set of the bag first in
+        order. Bags whose joints do not cover it are skipped and named.
     gap_s : float
         Split threshold in seconds; ``0`` never splits.
     min_samples : int
@@ -490,6 +511,14 @@ def load_dataset(
             sources.append((bag, explicit))
     bags = [bag for bag, _ in sources]
     selector = JointSelector(joints)
+    first_names: dict[Path, list[str]] = {}
+    if joints is None:
+        # Joints from the first message read would let one foreign bag that sorts first
+        # reject every other bag: vote instead.
+        first_names = {bag: names for bag in bags if (names := _first_names(bag))}
+        chosen = _majority_joints(list(first_names.values()))
+        if chosen:
+            selector.set_joints(chosen)
     counts: Counter[str] = Counter({reason: 0 for reason in SKIP_REASONS})
     report = DatasetReport(bags=[str(b) for b in bags], repeated_bags=repeated)
     available: dict[str, None] = {}  # ordered set of joint names seen
@@ -579,10 +608,17 @@ def load_dataset(
         if failure and len(trajectories) > demos_before:
             report.cut_short_bags.append((str(bag), failure))
         if len(trajectories) == demos_before:
-            report.skipped_bags.append((str(bag), failure or _no_demo_reason(
+            reason = failure or _no_demo_reason(
                 bag_read, bag_counts, report.demos_found - found_before,
                 report.demos_too_short - short_before, min_samples, selector.joints,
-                list(bag_names))))
+                list(bag_names))
+            own = first_names.get(bag)
+            if (not failure and own and selector.joints
+                    and not set(selector.joints) <= set(own)):
+                # Joints chosen by vote: say first which set this bag has instead.
+                reason = (f"joints {', '.join(own)}; expected {', '.join(selector.joints)}"
+                          f" ({reason})")
+            report.skipped_bags.append((str(bag), reason))
     report.skipped = {k: v for k, v in counts.items() if v or k in SKIP_REASONS}
     report.available_joints = list(available)
     if joints is not None:
@@ -595,6 +631,33 @@ def load_dataset(
                          + (f": {problem}" if problem else "") + f" ({report.summary()})")
     assert selector.joints is not None
     return trajectories, list(selector.joints), report
+
+
+def _first_names(bag: Path) -> list[str]:
+    """Joint names of the bag's first valid JointState message (empty if none/unreadable)."""
+    probe = JointSelector(None)
+    try:
+        for _, _, names, pos, vel, eff in read_joint_states(bag):
+            if not isinstance(probe.select(names, pos, vel, eff), str):
+                return [str(n) for n in names]
+    except Exception:  # the main pass reports unreadable and damaged bags
+        pass
+    return []
+
+
+def _majority_joints(sets: list[list[str]]) -> list[str] | None:
+    """The joint set most bags share (order of its first bag; ties: the first seen)."""
+    votes: Counter[frozenset[str]] = Counter()
+    order: dict[frozenset[str], list[str]] = {}
+    for names in sets:
+        key = frozenset(names)
+        votes[key] += 1
+        order.setdefault(key, names)
+    if not votes:
+        return None
+    best = max(votes.values())
+    # dicts keep insertion order, so the first set reaching the maximum is the earliest.
+    return next(order[k] for k in order if votes[k] == best)
 
 
 def _no_demo_reason(
@@ -631,6 +694,9 @@ def _name_demos(demos: list[DemoInfo]) -> None:
     index: Counter[str] = Counter()
     for d in demos:
         path = Path(d.bag)
-        base = path.name if len(by_base[path.name]) == 1 else f"{path.parent.name}/{path.name}"
+        # A bare storage file's own name (``demo_0002.mcap``) rarely says where it lies:
+        # a directory without metadata.yaml or a copied bag names it better.
+        unique = len(by_base[path.name]) == 1 and path.suffix not in (".mcap", ".db3")
+        base = path.name if unique else f"{path.parent.name}/{path.name}"
         index[d.bag] += 1
         d.name = base if per_bag[d.bag] == 1 else f"{base}#{index[d.bag]}"
