@@ -63,7 +63,7 @@ from typing import Protocol
 
 import numpy as np
 
-from policy_align_ros.kinematics.projection import DEFAULT_RCOND, nullspace_projector
+from policy_align_ros.kinematics.projection import nullspace_projector, projector_from_svd
 
 __all__ = [
     "DEFAULT_DRIFT_CLAMP_M",
@@ -776,11 +776,10 @@ class ControlStep:
         if k > n:
             smallest, P = 0.0, None
         else:
-            # One SVD for both the check and the projector (nullspace_projector's rule).
+            # One SVD for both the check and the projector.
             _, sv, vt = np.linalg.svd(A, full_matrices=False)
             smallest = float(sv[-1])
-            basis = vt[sv > DEFAULT_RCOND * sv[0]] if sv[0] > 0.0 else vt[:0]
-            P = self._eye - basis.T @ basis
+            P = projector_from_svd(sv, vt)
         if smallest >= self._min_sv:
             return "", P
         return (f"constraint matrix near-singular: smallest singular value {smallest:.3g} "
@@ -1080,6 +1079,16 @@ class ArmedController:
                           f"(restarted simulation?)")
 
     # -- arming ---------------------------------------------------------------------
+    def arm_refusal(self, now_ns: int) -> str:
+        """Why :meth:`arm` at ``now_ns`` would be refused; empty when it would arm.
+
+        No side effects, so a caller can check before a slower step (the executor node
+        asks the controller for its joint order only when arming would go ahead).
+        """
+        if self.step.policy is None:
+            return "no model loaded"
+        return self.state_problem(now_ns)
+
     def arm(self, now_ns: int) -> tuple[bool, str, Output]:
         """Request to follow the policy.
 
@@ -1089,11 +1098,9 @@ class ArmedController:
             Refused, with the reason, without a model or with stale joint states.
         """
         jumped = self._clock(now_ns)
-        if self.step.policy is None:
-            return False, "no model loaded", jumped or self._output(None)
-        problem = self.state_problem(now_ns)
-        if problem:
-            return False, problem, jumped or self._output(None)
+        refusal = self.arm_refusal(now_ns)
+        if refusal:
+            return False, refusal, jumped or self._output(None)
         if self.armed:
             return True, "already enabled", self._output(None)
         self.armed = True

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["nullspace_projector", "nullspace_projectors", "DEFAULT_RCOND"]
+__all__ = ["nullspace_projector", "nullspace_projectors", "projector_from_svd", "DEFAULT_RCOND"]
 
 #: Relative singular-value cut-off below which a constraint direction counts as lost
 #: (rank loss at singular configurations); relative to the largest singular value.
@@ -56,10 +56,21 @@ def nullspace_projector(A: np.ndarray, n: int | None = None, rcond: float = DEFA
     dim = mat.shape[1]
     if mat.shape[0] == 0:
         return np.eye(dim)
-    # Row space basis from the SVD: N = I - V_r V_r^T is exactly I - pinv(A) A.
     _, s, vt = np.linalg.svd(mat, full_matrices=False)
+    return projector_from_svd(s, vt, rcond)
+
+
+def projector_from_svd(s: np.ndarray, vt: np.ndarray, rcond: float = DEFAULT_RCOND
+                       ) -> np.ndarray:
+    """``N = I - pinv(A) A`` (n, n) from the thin SVD of ``A`` (k, n).
+
+    For callers that need the singular values ``s`` (min(k, n),) as well (the executor's
+    near-singularity check), so one SVD serves both. ``vt`` has shape (min(k, n), n).
+    """
+    dim = vt.shape[1]
     if s.size == 0 or s[0] == 0.0:
         return np.eye(dim)
+    # Row space basis: N = I - V_r V_r^T is exactly I - pinv(A) A.
     basis = vt[s > rcond * s[0]]
     return np.eye(dim) - basis.T @ basis
 

@@ -567,7 +567,8 @@ class Executor(Node):
             self._enable_requests += 1
             ticket = self._enable_requests
             path = self.model_path
-            accepted, reason = self._can_arm()
+            reason = self.controller.arm_refusal(self._now_ns())
+            accepted = not reason
             check = accepted and not self.controller.armed
         note = ""
         if check:
@@ -591,13 +592,6 @@ class Executor(Node):
 
     def _model_text(self) -> str:
         return f"model {self.model_path}" if self.model_path else "no model loaded"
-
-    def _can_arm(self) -> tuple[bool, str]:
-        """What :meth:`ArmedController.arm` would answer now, without arming."""
-        if self.controller.step.policy is None:
-            return False, "no model loaded"
-        problem = self.controller.state_problem(self._now_ns())
-        return not problem, problem
 
     async def _check_controller(self) -> tuple[str, str]:
         """Compare the controller's ``joints`` with ours.
