@@ -48,6 +48,7 @@ from scipy.spatial import cKDTree
 
 from policy_align_ros.data.bags import load_dataset
 from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning.state_spec import parse_state_spec
 
 __all__ = [
     "Gates",
@@ -94,17 +95,8 @@ def state_name(state: str) -> str:
     ValueError
         For any other text, an empty or a repeated frame.
     """
-    text = str(state).strip()
-    if text == "joints":
-        return text
-    if not text.startswith("frames:"):
-        raise ValueError(f"state: expected 'joints' or 'frames:F1,F2,...', got {state!r}")
-    frames = [f.strip() for f in text[len("frames:"):].split(",")]
-    if not frames or any(not f for f in frames):
-        raise ValueError(f"state: empty frame name in {state!r}")
-    if len(set(frames)) != len(frames):
-        raise ValueError(f"state: a frame is listed twice in {state!r}")
-    return "frames:" + ",".join(frames)
+    frames = parse_state_spec(state)
+    return "joints" if frames is None else "frames:" + ",".join(frames)
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,7 @@ import pinocchio as pin
 from policy_align_ros.kinematics.control import ConstraintModel, limit_locks
 from policy_align_ros.kinematics.projection import DEFAULT_RCOND, nullspace_projector
 from policy_align_ros.kinematics.robot import Robot, closest_names
+from policy_align_ros.learning.state_spec import parse_state_spec
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = [
@@ -58,27 +59,6 @@ __all__ = [
 
 #: Default root frame: Pinocchio's world frame of a fixed-base model.
 WORLD = "universe"
-
-
-def parse_state_spec(spec: str) -> list[str] | None:
-    """Parse a command-line state spec: ``joints`` -> None, ``frames:F1,F2`` -> frames.
-
-    Raises
-    ------
-    ValueError
-        For any other text or an empty / repeated frame list.
-    """
-    text = str(spec).strip()
-    if text == "joints":
-        return None
-    if not text.startswith("frames:"):
-        raise ValueError(f"state: expected 'joints' or 'frames:F1,F2,...', got {spec!r}")
-    frames = [f.strip() for f in text[len("frames:"):].split(",")]
-    if not frames or any(not f for f in frames):
-        raise ValueError(f"state: empty frame name in {spec!r}")
-    if len(set(frames)) != len(frames):
-        raise ValueError(f"state: a frame is listed twice in {spec!r}")
-    return frames
 
 
 @dataclass(frozen=True)
