@@ -1298,6 +1298,9 @@ def _fit_model(path: Path, joints: Sequence[str], center: np.ndarray) -> Path:
     return path
 
 
+STATE_TIMEOUT_S = 2.0
+
+
 class _Feeder:
     """Publishes valid joint states (node-clock stamps) every 20 ms while on."""
 
@@ -1349,8 +1352,11 @@ def cases_executor(lab: Lab) -> list[Result]:
     model = _fit_model(work / "model.npz", ARM, center)
     other = _fit_model(work / "other.npz", ["a", "b"], np.zeros(2))
     (work / "notes.txt").write_text("not a model\n")
-    base = {"robot": "talos", "joints": ARM, "rate_hz": 50.0, "state_timeout_s": 0.5,
-            "max_acceleration": 5.0, "controller": ""}
+    # 2 s, not the default 0.5 s: on a loaded 2-core machine the feeder thread can stall
+    # for most of a second, which would disarm for staleness in the middle of a case
+    # about something else.
+    base = {"robot": "talos", "joints": ARM, "rate_hz": 50.0,
+            "state_timeout_s": STATE_TIMEOUT_S, "max_acceleration": 5.0, "controller": ""}
 
     def enable(rig, on=True):
         return rig.call(SetBool, "/executor/enable", SetBool.Request(data=on))
@@ -1501,11 +1507,12 @@ def cases_executor(lab: Lab) -> list[Result]:
             out.append(r)
 
         feeder.off()
-        wait_for(lambda: not exe.controller.armed, 5.0)  # the states went stale
-        time.sleep(0.6)  # longer than state_timeout_s without a joint state
+        wait_for(lambda: not exe.controller.armed, 3.0 * STATE_TIMEOUT_S)  # states went stale
+        time.sleep(STATE_TIMEOUT_S + 0.1)  # longer than state_timeout_s without a state
         out.append(s(rig, "exe-enable-stale-states",
-                     "executor `~/enable true` 0.6 s after the last joint state "
-                     "(`state_timeout_s` 0.5)", lambda: enable(rig), False, "refused"))
+                     f"executor `~/enable true` {STATE_TIMEOUT_S + 0.1:.1f} s after the last "
+                     f"joint state (`state_timeout_s` {STATE_TIMEOUT_S})", lambda: enable(rig),
+                     False, "refused"))
         feeder.on()
         announce("exe-announce-missing-model", "`/learner/model` announcing a missing file",
                  work / "missing.npz")
