@@ -18,6 +18,8 @@ from policy_align_ros.kinematics import (
 from policy_align_ros.kinematics.robot import robots_dir
 from policy_align_ros.kinematics.task_space import (
     damped_pinv,
+    joint_velocity_bounds,
+    joint_velocity_within_limits,
     secondary_velocity,
     task_to_joint_velocity,
 )
@@ -216,6 +218,42 @@ def test_joint_at_a_limit_is_not_pushed_out(robot: Robot, hand_map: TaskSpaceMap
         pytest.fail("no direction pushes the elbow out of its limit")
     qdot = TaskSpacePolicy(pol, hand_map, limit_gain=0.0).command(q)
     assert qdot[j] <= 1e-12
+
+
+def test_speed_limits_keep_the_task_where_other_joints_can_take_over(
+        robot: Robot, hand_map: TaskSpaceMap) -> None:
+    q = robot.neutral()
+    x, J = hand_map.kinematics(q)
+    xdot = np.array([0.3, -0.2, 0.25])  # m/s; the least-norm command exceeds 1 rad/s
+    hold = constraint_from_spec({"type": "joints", "joints": ["torso_2_joint"]}, robot)
+    A = hold.matrix(q)
+    exact = {"threshold": 0.0, "damping": 0.0}  # damping is tested on its own below
+    free = task_to_joint_velocity(J, xdot, A, **exact)
+    vmax = 0.9 * np.abs(free).max()  # still feasible (a linear program finds a qdot)
+    qdot = joint_velocity_within_limits(q, J, xdot, A, None, robot.lower, robot.upper,
+                                        max_velocity=vmax, dt=0.01, **exact)
+    assert np.abs(qdot).max() <= vmax + 1e-9
+    # The hand moves exactly as asked and A qdot = 0 holds: saturating joints are held
+    # at their bound, not the whole command scaled (which would slow the hand to 90 %).
+    np.testing.assert_allclose(J @ qdot, xdot, atol=1e-9)
+    np.testing.assert_allclose(A @ qdot, 0.0, atol=1e-12)
+    saturated = np.isclose(np.abs(qdot), vmax)
+    assert saturated.any()
+    # Without speed limits only joints at a position limit are held: the free solution.
+    np.testing.assert_allclose(
+        joint_velocity_within_limits(q, J, xdot, A, None, robot.lower, robot.upper, **exact),
+        free)
+
+
+def test_joint_velocity_bounds_from_position_and_speed_limits() -> None:
+    lower, upper = np.array([-1.0, -1.0, -np.inf]), np.array([1.0, 1.0, np.inf])
+    q = np.array([1.0, 0.99, 5.0])
+    lo, hi = joint_velocity_bounds(q, lower, upper)
+    np.testing.assert_array_equal(hi, [0.0, np.inf, np.inf])
+    np.testing.assert_array_equal(lo, [-np.inf] * 3)
+    lo, hi = joint_velocity_bounds(q, lower, upper, max_velocity=2.0, dt=0.01)
+    np.testing.assert_allclose(hi, [0.0, 1.0, 2.0])  # 0.01 rad of room over 10 ms
+    np.testing.assert_allclose(lo, [-2.0, -2.0, -2.0])
 
 
 def test_damping_bounds_qdot_at_a_constraint_induced_singularity() -> None:

@@ -274,7 +274,8 @@ class Task:
             return np.array(out)
         for _ in range(steps):
             A_q = np.vstack([c.matrix(q) for c in constraints]) if constraints else None
-            qdot, _ = self.hand_expert.command(q, None, A_q)
+            qdot, _ = self.hand_expert.command(q, None, A_q, max_velocity=self.vmax,
+                                               dt=self.dt)
             qdot = drop_roundoff_at_limits(q, qdot, robot.lower, robot.upper)
             qdot *= velocity_scale(q, qdot, self.dt, robot.lower, robot.upper, self.vmax)
             q = robot.clip(q + self.dt * qdot)

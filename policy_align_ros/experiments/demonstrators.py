@@ -470,8 +470,18 @@ class TaskSpaceExpert:
         return self.potential.policy(X)
 
     def command(self, q: np.ndarray, A_x: np.ndarray | None = None,
-                A_q: np.ndarray | None = None) -> tuple[np.ndarray, StepResult]:
+                A_q: np.ndarray | None = None, *,
+                max_velocity: np.ndarray | float | None = None,
+                dt: float | None = None) -> tuple[np.ndarray, StepResult]:
         """Joint velocity realising ``xdot = N_x pi_x`` at ``q`` (n,).
+
+        With ``max_velocity`` and ``dt``, joints that would exceed their speed or cross a
+        position limit within ``dt`` are held at that bound and the hand motion is
+        redistributed over the other joints
+        (:func:`~policy_align_ros.kinematics.task_space.joint_velocity_within_limits`).
+        Scaling the whole command instead would record ``xdot = s N_x pi_x`` with
+        ``s < 1``: not a projection of ``pi_x``, so the potential estimated from the
+        recording would be wrong there.
 
         Parameters
         ----------
@@ -480,6 +490,10 @@ class TaskSpaceExpert:
             Hand-space constraint rows (none: ``N_x = I``).
         A_q : numpy.ndarray, shape (k', n), optional
             Further joint-space rows (for example locked joints).
+        max_velocity : float or numpy.ndarray (n,), optional
+            Joint speed limits, rad/s.
+        dt : float, optional
+            Control period, s.
 
         Returns
         -------
@@ -502,7 +516,8 @@ class TaskSpaceExpert:
         robot = self.state_map.robot
         z = secondary_velocity(q, self.rest, robot.lower, robot.upper, **self.secondary)
         qdot = joint_velocity_within_limits(q, J, xdot, np.vstack(rows), z, robot.lower,
-                                            robot.upper, **self.solve)
+                                            robot.upper, max_velocity=max_velocity, dt=dt,
+                                            **self.solve)
         return qdot, StepResult(x + xdot, xdot, N_x, pi_x, A_x)
 
 
@@ -533,9 +548,9 @@ def task_space_rollout(q0: np.ndarray, expert: TaskSpaceExpert,
                        *, name: str | None = None) -> TaskSpaceDemonstration:
     """Record ``n_samples`` states of a hand-space expert driven through the joints.
 
-    Each step sends ``qdot`` from :meth:`TaskSpaceExpert.command` for ``dt`` seconds,
-    scaled down (never redirected) only if a joint would otherwise cross a limit or its
-    velocity limit within the step.
+    Each step sends ``qdot`` from :meth:`TaskSpaceExpert.command` (joints held at their
+    speed and position bounds, the hand motion kept) for ``dt`` seconds, scaled down
+    (never redirected) only where the other joints cannot make up for them.
 
     Parameters
     ----------
@@ -572,7 +587,7 @@ def task_space_rollout(q0: np.ndarray, expert: TaskSpaceExpert,
         A_x = None
         if constraint is not None:
             A_x = constraint(x, i * dt, expert.task_policy(x[None])[0])
-        qdot, step = expert.command(q, A_x)
+        qdot, step = expert.command(q, A_x, max_velocity=vmax, dt=dt)
         s = velocity_scale(q, qdot, dt, robot.lower, robot.upper, vmax)
         Q[i], Qd[i] = q, s * qdot
         X[i], V[i], P[i], Ns[i], k[i] = x, s * step.velocity, step.policy, step.projector, \

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from policy_align_ros.kinematics.control import ConstraintModel, limit_locks
+from policy_align_ros.kinematics.control import ConstraintModel
 from policy_align_ros.kinematics.projection import DEFAULT_RCOND, nullspace_projector
 from policy_align_ros.kinematics.robot import Robot, closest_names
 from policy_align_ros.learning.state_spec import parse_state_spec
@@ -51,6 +51,7 @@ __all__ = [
     "damped_pinv",
     "secondary_velocity",
     "task_to_joint_velocity",
+    "joint_velocity_bounds",
     "joint_velocity_within_limits",
     "parse_state_spec",
     "policy_for_state",
@@ -484,16 +485,77 @@ def task_to_joint_velocity(J: np.ndarray, xdot: np.ndarray, A: np.ndarray,
     return qdot
 
 
+def joint_velocity_bounds(q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                          max_velocity: np.ndarray | float | None = None,
+                          dt: float | None = None, max_acceleration: float | None = None,
+                          tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint bounds ``lo <= qdot <= hi`` (rad/s) from position and speed limits.
+
+    A joint at (or beyond) a limit may not move further out (bound 0 on that side).
+    With ``dt``, a joint may also not cross a limit within one period
+    (``(upper - q) / dt``); with ``max_velocity``, ``|qdot_j| <= max_velocity_j``; with
+    ``max_acceleration``, a joint heading for a limit at distance ``r`` is held to
+    ``sqrt(max_acceleration r)`` (the braking rule of ``control.velocity_scale``, so a
+    command within these bounds is not scaled there).
+
+    Parameters
+    ----------
+    q, lower, upper : numpy.ndarray, shape (n,)
+        Joint positions and limits (rad or m; infinite limits allowed).
+    max_velocity : float or numpy.ndarray (n,), optional
+        Speed limits (> 0, may be inf), rad/s.
+    dt : float, optional
+        Period, s.
+    max_acceleration : float, optional
+        rad/s^2.
+    tol : float
+        Distance to a limit (units of ``q``) counted as touching it.
+
+    Returns
+    -------
+    lo, hi : numpy.ndarray, shape (n,)
+        ``lo <= 0 <= hi``, rad/s.
+    """
+    n = q.shape[0]
+    hi = np.where(q >= upper - tol, 0.0, np.inf)
+    lo = np.where(q <= lower + tol, 0.0, -np.inf)
+    if dt is not None:
+        with np.errstate(invalid="ignore"):
+            hi = np.minimum(hi, np.maximum(upper - q, 0.0) / dt)
+            lo = np.maximum(lo, -np.maximum(q - lower, 0.0) / dt)
+    if max_acceleration is not None:
+        with np.errstate(invalid="ignore"):
+            hi = np.minimum(hi, np.sqrt(max_acceleration * np.maximum(upper - q, 0.0)))
+            lo = np.maximum(lo, -np.sqrt(max_acceleration * np.maximum(q - lower, 0.0)))
+    if max_velocity is not None:
+        vmax = np.broadcast_to(np.asarray(max_velocity, dtype=float), (n,))
+        hi = np.minimum(hi, vmax)
+        lo = np.maximum(lo, -vmax)
+    return lo, hi
+
+
 def joint_velocity_within_limits(q: np.ndarray, J: np.ndarray, xdot: np.ndarray,
                                  A: np.ndarray, z: np.ndarray | None, lower: np.ndarray,
-                                 upper: np.ndarray, *, threshold: float = 0.05,
-                                 damping: float = 0.05) -> np.ndarray:
-    """:func:`task_to_joint_velocity` with joints at a limit locked by rows of ``A``.
+                                 upper: np.ndarray, *, max_velocity: np.ndarray | float |
+                                 None = None, dt: float | None = None,
+                                 bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                                 threshold: float = 0.05, damping: float = 0.05
+                                 ) -> np.ndarray:
+    """:func:`task_to_joint_velocity` with joints held to their limits in the null space.
 
-    A joint at (or beyond) a position limit that the command would push further out gets
-    a unit row ``e_j^T`` in ``A`` and the problem is solved again, so the task is
-    redistributed over the joints that can still move (zeroing the component afterwards
-    would break both the task and ``A qdot = 0``).
+    Saturation in the null space (Flacco, De Luca and Khatib, 2012): a joint whose
+    velocity leaves its bounds (:func:`joint_velocity_bounds`) is fixed at the bound it
+    crossed, as an equality ``e_j^T qdot = b_j`` beside ``A qdot = 0``, and the problem is
+    solved again, so the task is redistributed over the joints that can still move
+    instead of being slowed down as a whole. A joint pushed against a position limit is
+    fixed at 0, which is the same unit row in ``A`` as a locked joint (zeroing the
+    component afterwards would break both the task and ``A qdot = 0``).
+
+    Without ``max_velocity``, ``dt`` or ``bounds`` only joints at a limit are fixed. With
+    them, joints are held at their bounds only where the others realise the task as
+    well as without them (up to round-off); otherwise the result is that of joints at a
+    limit only, and callers that must respect the bounds scale it as a whole (for example
+    ``control.velocity_scale``), which keeps its direction.
 
     Parameters
     ----------
@@ -503,6 +565,13 @@ def joint_velocity_within_limits(q: np.ndarray, J: np.ndarray, xdot: np.ndarray,
         As in :func:`task_to_joint_velocity`.
     lower, upper : numpy.ndarray, shape (n,)
         Joint limits.
+    max_velocity : float or numpy.ndarray (n,), optional
+        Speed limits, rad/s.
+    dt : float, optional
+        Period over which no joint may cross a position limit, s.
+    bounds : (lo, hi), optional
+        Per-joint bounds (n,) in rad/s used instead of those from ``lower``, ``upper``,
+        ``max_velocity`` and ``dt`` (see :func:`joint_velocity_bounds`).
     threshold, damping : float
         See :func:`damped_pinv`.
 
@@ -513,16 +582,52 @@ def joint_velocity_within_limits(q: np.ndarray, J: np.ndarray, xdot: np.ndarray,
     """
     n = q.shape[0]
     A = np.asarray(A, dtype=float).reshape(-1, n)
+    J = np.asarray(J, dtype=float)
+    xdot = np.asarray(xdot, dtype=float)
     solve = {"threshold": threshold, "damping": damping}
+    at_limit = joint_velocity_bounds(q, lower, upper)
+    qdot = _held_at_bounds(J, xdot, A, z, at_limit, solve)
+    if bounds is None and max_velocity is None and dt is None:
+        return qdot
+    lo, hi = (joint_velocity_bounds(q, lower, upper, max_velocity, dt) if bounds is None
+              else bounds)
+    if np.all((qdot >= lo) & (qdot <= hi)):
+        return qdot
+    held = _held_at_bounds(J, xdot, A, z, (lo, hi), solve)
+    # Only where the free joints make up for the held ones: a task they cannot realise
+    # would come out bent, and the caller's scaling of the whole command keeps its
+    # direction instead.
+    slack = 1e-6 * float(np.linalg.norm(xdot)) + 1e-12
+    if np.linalg.norm(J @ held - xdot) <= np.linalg.norm(J @ qdot - xdot) + slack:
+        return held
+    return qdot
+
+
+def _held_at_bounds(J: np.ndarray, xdot: np.ndarray, A: np.ndarray, z: np.ndarray | None,
+                    bounds: tuple[np.ndarray, np.ndarray], solve: dict[str, float]
+                    ) -> np.ndarray:
+    """:func:`task_to_joint_velocity` with joints leaving ``bounds`` held at them."""
+    lo, hi = bounds
+    n = J.shape[1]
     qdot = task_to_joint_velocity(J, xdot, A, z, **solve)
-    locked = np.zeros(n, dtype=bool)
-    # Each pass locks at least one more joint, so this ends after at most n passes.
+    fixed = np.zeros(n, dtype=bool)
+    value = np.zeros(n)
+    # Each pass fixes at least one more joint, so this ends after at most n passes.
     for _ in range(n):
-        new = limit_locks(q, qdot, lower, upper) & ~locked
+        new = ((qdot > hi) | (qdot < lo)) & ~fixed
         if not np.any(new):
             break
-        locked |= new
-        qdot = task_to_joint_velocity(J, xdot, np.vstack([A, np.eye(n)[locked]]), z, **solve)
+        fixed |= new
+        value[new] = np.clip(qdot[new], lo[new], hi[new])
+        # The fixed joints' share: the least-norm motion within A's null space that
+        # gives them their values (as near as A allows, so A qdot = 0 stays exact); the
+        # task's remainder goes to the joints left free.
+        base = np.zeros(n)
+        if np.any(value[fixed]):
+            N_A = nullspace_projector(A, n) if A.shape[0] else np.eye(n)
+            base = N_A @ (np.linalg.pinv(N_A[fixed]) @ value[fixed])
+        C = np.vstack([A, np.eye(n)[fixed]])
+        qdot = base + task_to_joint_velocity(J, xdot - J @ base, C, z, **solve)
     return qdot
 
 
@@ -551,6 +656,12 @@ class TaskSpacePolicy:
         ``max_speed``).
     threshold, damping : float
         Damping of ``(J N_A)^+``, m/rad, see :func:`damped_pinv`.
+    bounds : callable ``q (n,) -> (lo, hi)``, optional
+        Per-joint velocity bounds (rad/s) the command must respect, for example the
+        executor's speed, position and braking limits (:func:`joint_velocity_bounds`).
+        A joint reaching one is held there and the task redistributed over the others
+        (:func:`joint_velocity_within_limits`), so the executor does not have to slow the
+        whole command down for one joint. Default: only joints at a limit are held.
     """
 
     def __init__(self, policy: Any, state_map: TaskSpaceMap,
@@ -558,7 +669,9 @@ class TaskSpacePolicy:
                  rest: np.ndarray | None = None, rest_gain: float = 0.5,
                  limit_gain: float = 1.0, limit_margin: float = 0.1,
                  max_secondary: float = 0.5, threshold: float = 0.05,
-                 damping: float = 0.05) -> None:
+                 damping: float = 0.05,
+                 bounds: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+                 ) -> None:
         if constraint is not None and not hasattr(constraint, "matrix"):
             if not callable(constraint):
                 raise ValueError("constraint: must have matrix(q, qdot) or be callable")
@@ -589,6 +702,7 @@ class TaskSpacePolicy:
                       "limit_margin": limit_margin, "max_speed": max_secondary}
         self.threshold = float(threshold)
         self.damping = float(damping)
+        self.bounds = bounds
         self.lower = np.asarray(robot.lower, dtype=float)
         self.upper = np.asarray(robot.upper, dtype=float)
 
@@ -600,9 +714,9 @@ class TaskSpacePolicy:
     def command(self, q: np.ndarray) -> np.ndarray:
         """Joint velocity (n,) in rad/s at ``q`` (n,); zeros if the policy is not finite.
 
-        Joints at a limit that the command would push further out are locked by adding
-        unit rows to ``A`` and solving again, so the task is redistributed over the
-        joints that can still move.
+        Joints at a limit that the command would push further out (or beyond
+        ``bounds``) are held by adding unit rows to ``A`` and solving again, so the task
+        is redistributed over the joints that can still move.
         """
         q = np.asarray(q, dtype=float)
         x, J = self.state_map.kinematics(q)
@@ -618,8 +732,9 @@ class TaskSpacePolicy:
             A = np.asarray(self.constraint.matrix(q, free), dtype=float).reshape(-1, n)
             if not np.all(np.isfinite(A)):
                 return np.zeros(n)
+        bounds = None if self.bounds is None else self.bounds(q)
         return joint_velocity_within_limits(q, J, pi_x, A, z, self.lower, self.upper,
-                                            **solve)
+                                            bounds=bounds, **solve)
 
     def __call__(self, Q: np.ndarray) -> np.ndarray:
         """Joint velocities (m, n) at rows ``Q`` (m, n) (or (n,) -> (n,))."""

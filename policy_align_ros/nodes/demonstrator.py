@@ -417,9 +417,11 @@ class Demonstrator(Node):
             return constrained_command(q, pi, A, lower, upper, self.vmax, self.period)
         A_q = (np.vstack([c.matrix(q) for c in self._constraints]) if self._constraints
                else None)
-        qdot, _ = self.hand_expert.command(q, self._A_x, A_q)
+        qdot, _ = self.hand_expert.command(q, self._A_x, A_q, max_velocity=self.vmax,
+                                           dt=self.period)
         qdot = drop_roundoff_at_limits(q, qdot, lower, upper)
-        # One scale for the whole vector keeps the hands on their planes.
+        # Only where no joint can make up for a bound; one scale for the whole vector
+        # keeps the hands on their planes.
         return velocity_scale(q, qdot, self.period, lower, upper, self.vmax) * qdot
 
     def _draw_planes(self) -> None:

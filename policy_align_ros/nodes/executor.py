@@ -92,7 +92,7 @@ from policy_align_ros.kinematics.control import (
     SupportDistance,
     model_permutation,
 )
-from policy_align_ros.kinematics.task_space import policy_for_state
+from policy_align_ros.kinematics.task_space import joint_velocity_bounds, policy_for_state
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
@@ -118,7 +118,8 @@ _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
                      "min_singular_value")
 
 
-def load_policy(path: str, robot: Robot, constraint: Callable | None = None
+def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
+                bounds: Callable | None = None
                 ) -> tuple[PolicyAlign, Callable[[np.ndarray], np.ndarray], np.ndarray, str]:
     """Load a PolicyAlign model file and make its joint-space policy for ``robot``.
 
@@ -138,6 +139,9 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None
     constraint : callable ``(q (n,), qdot (n,) or None) -> A (k, n)``, optional
         The joint-space constraints in force (the executor passes its
         ``ControlStep.constraint_matrix``, so parameter changes apply at once).
+    bounds : callable ``q (n,) -> (lo, hi)``, optional
+        Joint velocity bounds (rad/s) a task-space policy keeps to by redistributing its
+        task (the executor passes its speed, position and braking limits).
 
     Returns
     -------
@@ -164,7 +168,7 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None
         raise ValueError(f"model {path}: state definition of type {kind!r} is not supported "
                          "(expected 'frames' or none for joint positions)")
     try:
-        policy = policy_for_state(model, state, robot, constraint)
+        policy = policy_for_state(model, state, robot, constraint, bounds=bounds)
     except ValueError as err:
         raise ValueError(f"model {path}: {err}") from None
     # TaskSpacePolicy takes and returns rows in the robot's (command) joint order.
@@ -382,6 +386,12 @@ class Executor(Node):
         """The constraints in force at call time (a task-space policy's ``A(q)``)."""
         return self.controller.step.constraint_matrix(q, qdot)
 
+    def _joint_bounds(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity bounds in force at call time: those ``ControlStep`` scales to."""
+        step = self.controller.step
+        return joint_velocity_bounds(q, step.lower, step.upper, step.max_velocity, step.dt,
+                                     step.max_acceleration)
+
     def _constraints(self, text: str) -> list:
         return [constraint_from_spec(spec, self.robot) for spec in parse_constraint_specs(text)]
 
@@ -437,7 +447,8 @@ class Executor(Node):
                           "~/enable to stop)")
         try:
             model, policy, perm, state = load_policy(path, self.robot,
-                                                     self._constraint_matrix)
+                                                     self._constraint_matrix,
+                                                     self._joint_bounds)
         except (ValueError, OSError) as err:
             return reject(f"model_path: not loaded: {err}")
         self._staged = (path, model, policy, perm, state)
