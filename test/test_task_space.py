@@ -245,6 +245,34 @@ def test_speed_limits_keep_the_task_where_other_joints_can_take_over(
         free)
 
 
+def test_policy_keeps_the_task_when_one_joint_brakes_toward_a_limit(
+        robot: Robot, hand_map: TaskSpaceMap) -> None:
+    from policy_align_ros.kinematics.control import velocity_scale
+
+    q = robot.neutral()
+    x = hand_map.states(q)
+    pol = Attractor(x + np.array([0.05, -0.05, 0.05]))
+    gains = {"limit_gain": 0.0, "rest_gain": 0.0}
+    free = TaskSpacePolicy(pol, hand_map, **gains).command(q)
+    # A limit 1e-5 rad ahead of the joint that moves most: braking at 2 rad/s^2 allows it
+    # 4.5 mrad/s, so scaling the whole command would all but stop the hand.
+    j = int(np.argmax(np.abs(free)))
+    lower, upper = robot.lower.copy(), robot.upper.copy()
+    if free[j] > 0:
+        upper[j] = q[j] + 1e-5
+    else:
+        lower[j] = q[j] - 1e-5
+    vmax = np.full(robot.nq, 1.0)
+    assert velocity_scale(q, free, 0.01, lower, upper, vmax, 2.0) < 0.05
+    bounded = TaskSpacePolicy(
+        pol, hand_map, **gains,
+        bounds=lambda qq: joint_velocity_bounds(qq, lower, upper, vmax, 0.01, 2.0)
+    ).command(q)
+    assert velocity_scale(q, bounded, 0.01, lower, upper, vmax, 2.0) > 1.0 - 1e-9
+    np.testing.assert_allclose(_step_velocity(hand_map, q, bounded),
+                               pol.policy(x[None])[0], atol=1e-6)
+
+
 def test_joint_velocity_bounds_from_position_and_speed_limits() -> None:
     lower, upper = np.array([-1.0, -1.0, -np.inf]), np.array([1.0, 1.0, np.inf])
     q = np.array([1.0, 0.99, 5.0])
