@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import contextlib
 import threading
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
+
+from policy_align_ros.polling import wait_for
 
 _USED_DOMAINS: dict[int, str] = {}
 
@@ -65,17 +66,6 @@ def spun(context, *nodes) -> Iterator[None]:
         thread.join(timeout=5.0)
         for node in nodes:
             node.destroy_node()
-
-
-def wait_for(predicate: Callable[[], bool], timeout: float = 20.0, step: float = 0.02
-             ) -> bool:
-    """Poll ``predicate`` until it is true or ``timeout`` seconds pass; its last value."""
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return bool(predicate())
-        time.sleep(step)
-    return True
 
 
 @pytest.fixture

@@ -25,6 +25,7 @@ from std_srvs.srv import Trigger
 
 from policy_align_ros.data.bags import load_dataset, read_joint_states
 from policy_align_ros.nodes.recorder import RecorderNode
+from policy_align_ros.polling import wait_for
 
 T0 = 1_700_000_000 * 10**9
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
@@ -41,11 +42,8 @@ def _msg(stamp_ns: int, names, positions, velocities=()) -> JointState:
 
 
 def _wait(predicate, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.01)
+    if not wait_for(predicate, timeout):
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
 class _Harness:

@@ -50,6 +50,8 @@ from typing import Any
 
 import numpy as np
 
+from policy_align_ros.polling import wait_for
+
 # The console scripts of this interpreter's environment (the venv), else those on PATH.
 BIN = Path(sys.executable).parent
 if not (BIN / "policy-align").exists() and shutil.which("policy-align"):
@@ -415,17 +417,6 @@ class NodeRig:
             shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
-
-
-def wait_for(predicate: Callable[[], bool], timeout: float = 20.0, step: float = 0.01
-             ) -> bool:
-    """Poll until ``predicate()`` holds or ``timeout`` s pass; its last value."""
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return bool(predicate())
-        time.sleep(step)
-    return True
 
 
 @contextlib.contextmanager
