@@ -172,6 +172,28 @@ def test_task_space_expert_reaches_the_targets_and_refuses_bad_shapes(hands) -> 
         task_space_rollout(q0, TaskSpaceExpert(smap, target), None, 1, 0.01)
 
 
+def test_task_space_expert_keeps_the_hand_motion_at_joint_speed_limits(hands) -> None:
+    """Saturating joints are held at their limit; the hands still move with N_x pi_x.
+
+    Scaling the whole command instead would record ``s N_x pi_x`` with ``s < 1``, which
+    is no projection of ``pi_x`` and biases the potential estimated from the recording.
+    """
+    from policy_align_ros.experiments.demonstrators import TaskSpaceExpert
+
+    robot, smap = hands
+    q0 = robot.neutral()
+    x0, J = smap.kinematics(q0)
+    # Exact inverse: the damping near singularities is tested on its own.
+    expert = TaskSpaceExpert(smap, x0 + np.array([0.3, 0.2, 0.3, 0.3, -0.2, 0.3]), 1.0,
+                             threshold=0.0, damping=0.0)
+    free, step = expert.command(q0)
+    vmax = 0.95 * np.abs(free).max()  # feasible: a linear program finds such a qdot
+    qdot, _ = expert.command(q0, max_velocity=vmax, dt=0.01)
+    assert np.abs(qdot).max() <= vmax + 1e-9
+    np.testing.assert_allclose(J @ qdot, step.velocity, atol=1e-9)
+    assert np.abs(qdot - free).max() > 0.1  # not the free command: joints were held
+
+
 def test_joint_space_expert_seen_in_hand_space_is_not_the_hand_gradient(hands) -> None:
     # Why the task-space expert exists: a joint-space expert on the same hand potential
     # moves the hands with -J J^T grad phi_x, which is not -grad phi_x (nor parallel).

@@ -737,21 +737,6 @@ def test_frames_model_of_another_robot_or_frame_set_is_refused(rig, tmp_path):
     assert r.node.model_path == str(good) and r.node.model_state == f"frames {HAND}"
 
 
-def test_joint_positions_of_the_other_nodes_applies_the_joint_selector_rules():
-    """nodes._common.joint_positions (demonstrator, demo) is JointSelector.vector."""
-    from policy_align_ros.nodes._common import joint_positions
-
-    index = {"b": 1, "a": 0}
-    np.testing.assert_array_equal(
-        joint_positions(JointState(name=["c", "b", "a"], position=[3.0, 2.0, 1.0]), index),
-        [1.0, 2.0])
-    for bad in (JointState(name=["a", "b", "a"], position=[1.0, 2.0, 3.0]),  # a twice
-                JointState(name=["a"], position=[1.0]),  # b missing
-                JointState(name=["a", "b"], position=[1.0, np.nan]),
-                JointState(name=["a", "b"], position=[1.0, 2.0], velocity=[0.0])):
-        assert joint_positions(bad, index) is None, bad
-
-
 def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
     good = _fit_model(tmp_path / "good.npz", JOINTS, np.zeros(len(JOINTS)))
     r = rig(208, model_path=str(good), start_enabled=True, controller="/velocity_controller")

@@ -74,6 +74,7 @@ from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
 from policy_align_ros.data import load_dataset
+from policy_align_ros.data.messages import JointSelector
 from policy_align_ros.experiments.demonstrators import (
     QuadraticPotential,
     TaskSpaceExpert,
@@ -86,7 +87,7 @@ from policy_align_ros.kinematics.control import ControlStep, velocity_scale
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
 from policy_align_ros.learning.model_io import atomic_write_bytes, atomic_write_text
-from policy_align_ros.nodes._common import DEFAULT_JOINTS, LATCHED_QOS, joint_positions
+from policy_align_ros.nodes._common import DEFAULT_JOINTS, LATCHED_QOS
 from policy_align_ros.nodes.demonstrator import (
     DEFAULT_FRAMES,
     drop_roundoff_at_limits,
@@ -414,7 +415,7 @@ class Conductor:
         self.graph = graph
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self.index = {name: i for i, name in enumerate(joints)}
+        self.selector = JointSelector(joints)
         self.q: np.ndarray | None = None
         self.trace: list[tuple[float, np.ndarray]] | None = None
         self.progress = ""
@@ -436,8 +437,8 @@ class Conductor:
             self._states = None
 
     def _on_state(self, msg: JointState) -> None:
-        q = joint_positions(msg, self.index)
-        if q is None:
+        q = self.selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
+        if isinstance(q, str):  # rejected, for the reason q names
             return
         self.q = q
         if self.trace is not None:

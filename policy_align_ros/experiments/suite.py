@@ -345,8 +345,9 @@ def _refit(model: PolicyAlign, regressor, demos, masks) -> tuple[PolicyAlign, fl
     return out, time.perf_counter() - t0
 
 
-def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals) -> dict[str, float]:
-    out: dict[str, float] = {}
+def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals
+                 ) -> dict[str, float | list[float]]:
+    out: dict[str, float | list[float]] = {}
     for label, constraint in (("free", None), ("unseen", problem.unseen_constraint)):
         rel, ends, hand = [], [], []
         for x0, (goal, steps) in zip(starts, goals[label], strict=True):
@@ -360,6 +361,7 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals) -> dict[st
         out[f"{label}_rel_max"] = float(np.max(rel))
         if hand:
             out[f"{label}_hand_mm_median"] = float(np.median(hand))
+            out[f"{label}_hand_mm"] = [float(h) for h in hand]
         if problem.minima is not None:
             same = [np.argmin(np.linalg.norm(problem.minima - e, axis=1))
                     == np.argmin(np.linalg.norm(problem.minima - g, axis=1))
@@ -485,9 +487,11 @@ def format_table(results: list[dict]) -> str:
             if "free_same_minimum" in vals[0]:
                 extra.append("same minimum {:.0%}".format(
                     np.mean([v["free_same_minimum"] for v in vals])))
-            if "free_hand_mm_median" in vals[0]:
-                extra.append("hand {:.1f} mm".format(
-                    np.mean([v["free_hand_mm_median"] for v in vals])))
+            if "free_hand_mm" in vals[0]:
+                pooled = np.median(np.concatenate([v["free_hand_mm"] for v in vals]))
+                per_set = "/".join(f"{v['free_hand_mm_median']:.1f}" for v in vals)
+                extra.append(f"hand {pooled:.1f} mm (median of all rollouts; per data set "
+                             f"{per_set})")
             lines.append(f"| {name} | {rows[0]['n']} | {rows[0]['rate']} | {label} | "
                          + " | ".join(cells) + f" | {'; '.join(extra)} |")
     good = [r["cv"]["pick_within_20pct"] for r in results]

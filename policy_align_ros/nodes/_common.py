@@ -12,7 +12,6 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import numpy as np
 import rclpy
 import yaml
 from rcl_interfaces.msg import (
@@ -33,9 +32,6 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from sensor_msgs.msg import JointState
-
-from policy_align_ros.data.messages import JointSelector
 
 __all__ = [
     "DEFAULT_JOINTS",
@@ -43,7 +39,6 @@ __all__ = [
     "accept",
     "call_with_timeout",
     "descriptor",
-    "joint_positions",
     "optional_parameter",
     "parse_constraint_specs",
     "reject",
@@ -139,33 +134,6 @@ def parse_constraint_specs(text: str) -> list[dict]:
     if not isinstance(specs, list) or not all(isinstance(s, dict) for s in specs):
         raise ValueError("constraints: must be a list of mappings like {type: plane, ...}")
     return specs
-
-
-#: JointSelectors of :func:`joint_positions`, by joint tuple (a node uses one or two).
-_SELECTORS: dict[tuple[str, ...], JointSelector] = {}
-
-
-def joint_positions(msg: JointState, index: dict[str, int]) -> np.ndarray | None:
-    """Positions of the joints in ``index`` (name -> slot) from a JointState message.
-
-    A shim over :meth:`policy_align_ros.data.messages.JointSelector.vector`, the package's
-    one JointState-to-vector conversion, so its callers apply the same rules as the
-    recorder and the executor.
-
-    Returns
-    -------
-    ndarray, shape (len(index),), or None
-        None when the message is rejected by those rules (a joint missing or named twice,
-        arrays of disagreeing lengths, NaN/inf for a needed joint).
-    """
-    joints = tuple(sorted(index, key=index.__getitem__))
-    selector = _SELECTORS.get(joints)
-    if selector is None:
-        if len(_SELECTORS) >= 16:
-            _SELECTORS.clear()
-        selector = _SELECTORS[joints] = JointSelector(joints)
-    q = selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
-    return None if isinstance(q, str) else q
 
 
 class _NextCycle:

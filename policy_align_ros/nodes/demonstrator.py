@@ -56,6 +56,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from policy_align_ros.data.messages import JointSelector
 from policy_align_ros.experiments.demonstrators import (
     QuadraticPotential,
     TaskSpaceExpert,
@@ -68,7 +69,6 @@ from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     accept,
     descriptor,
-    joint_positions,
     optional_parameter,
     reject,
     run_node,
@@ -225,7 +225,7 @@ class Demonstrator(Node):
         self.done = Future()
         self.demos_done = 0
         self._failures = 0
-        self._index = {name: i for i, name in enumerate(joints)}
+        self._selector = JointSelector(joints)
         self._q: np.ndarray | None = None
         self._state = "wait"
         self._since = self._now()
@@ -281,8 +281,8 @@ class Demonstrator(Node):
         return accept()
 
     def _on_joint_state(self, msg: JointState) -> None:
-        q = joint_positions(msg, self._index)
-        if q is not None:
+        q = self._selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
+        if not isinstance(q, str):  # a str is why the message was rejected
             self._q = q
             if self._lockstep:
                 self._on_timer()
@@ -296,7 +296,7 @@ class Demonstrator(Node):
         self._cmd.publish(Float64MultiArray(data=qdot.tolist()))
 
     def _finish(self, code: int, why: str) -> None:
-        self._send(np.zeros(len(self._index)))
+        self._send(np.zeros(len(self._selector.joints)))
         (self.get_logger().info if code == 0 else self.get_logger().error)(why)
         self._enter("done")
         if self.get_parameter("exit_when_done").value and not self.done.done():
