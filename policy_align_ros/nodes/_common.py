@@ -192,9 +192,16 @@ def run_node(
     args: Sequence[str] | None = None,
     *,
     executor_factory: Callable[[], Any] = SingleThreadedExecutor,
-    keep_context_on_signal: bool = False,
 ) -> int:
     """``main()`` body of every node executable (ros2/demos Jazzy style).
+
+    SIGINT and SIGTERM only set a flag that the spin loop checks every 0.1 s; the handlers
+    are installed before ``rclpy.init``, so a signal at any point of the start-up is kept
+    until the loop sees it. With rclpy's own handlers (which shut the context down) a
+    learner sent SIGTERM 4 s into a cold start of the graph once ran on and had to be
+    killed, and a CI run hung in the README walkthrough's clean-up. The context also stays
+    valid for ``destroy_node``, so a node can still publish on the way out (the
+    executor's final zero command).
 
     Parameters
     ----------
@@ -204,10 +211,6 @@ def run_node(
         Command line (``--ros-args ...``); ``sys.argv`` when None.
     executor_factory : callable
         Executor class, e.g. MultiThreadedExecutor for a node with a worker callback group.
-    keep_context_on_signal : bool
-        When True, SIGINT/SIGTERM stop the spin loop (checked every 0.1 s) instead of
-        shutting the context down, so ``destroy_node`` can still publish (the executor's
-        final zero command).
 
     Returns
     -------
@@ -215,14 +218,12 @@ def run_node(
         0 on a normal or interrupted run, 1 when the node could not start (bad parameter),
         else the result of the node's ``done`` future when it has one.
     """
-    options = SignalHandlerOptions.NO if keep_context_on_signal else None
-    if keep_context_on_signal:
-        _STOP.clear()
-        signal.signal(signal.SIGINT, _request_stop)
-        signal.signal(signal.SIGTERM, _request_stop)
+    _STOP.clear()
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
     try:
         rclpy.init(args=list(args) if args is not None else None,
-                   signal_handler_options=options)
+                   signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as err:  # rcl's RCLError, e.g. an unreadable --params-file
         print(f"error: {err}", file=sys.stderr)
         return 1
@@ -234,26 +235,19 @@ def run_node(
         executor.add_node(node)
         # A node that can finish (the demonstrator) exposes a ``done`` future: its exit code.
         done = getattr(node, "done", None)
-        if keep_context_on_signal:
-            while not _STOP.is_set() and not (done is not None and done.done()):
-                executor.spin_once(timeout_sec=0.1)
-            if done is not None:
-                code = int(done.result()) if done.done() else 0
-        elif done is None:
-            executor.spin()
-        else:
-            executor.spin_until_future_complete(done)
-            code = int(done.result()) if done.done() else 1
+        while not _STOP.is_set() and not (done is not None and done.done()):
+            executor.spin_once(timeout_sec=0.1)
+        if done is not None and done.done():
+            code = int(done.result())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (InvalidParameterValueException, InvalidParameterTypeException, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         code = 1
     finally:
-        if keep_context_on_signal:
-            # A second Ctrl-C must not interrupt the clean-up (the final zero command).
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        # A second signal must not interrupt the clean-up (the final zero command).
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -712,7 +712,7 @@ class Executor(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Console script ``executor``."""
-    return run_node(Executor, args, keep_context_on_signal=True)
+    return run_node(Executor, args)
 
 
 if __name__ == "__main__":

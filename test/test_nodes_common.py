@@ -1,0 +1,42 @@
+"""Tests of policy_align_ros.nodes._common (the shared main() of the node executables)."""
+
+import os
+import subprocess
+import sys
+
+ENV = dict(os.environ, ROS_DOMAIN_ID="192")
+
+# A node whose constructor is hit by SIGTERM (a graph stopped while the machine is busy):
+# it must not spin on (its timer would keep it alive until the test's timeout).
+_SIGNALLED_WHILE_STARTING = """
+import os, signal, sys, time
+from rclpy.node import Node
+from policy_align_ros.nodes._common import run_node
+
+class Slow(Node):
+    def __init__(self):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.2)
+        super().__init__("slow_start")
+        self.create_timer(0.01, lambda: None)
+
+sys.exit(run_node(Slow, ["--ros-args"]))
+"""
+
+
+def test_sigterm_while_the_node_is_built_stops_it():
+    done = subprocess.run([sys.executable, "-c", _SIGNALLED_WHILE_STARTING],
+                          env=ENV, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+
+
+def test_bad_parameter_file_exits_one(tmp_path):
+    code = ("import sys; from rclpy.node import Node; "
+            "from policy_align_ros.nodes._common import run_node; "
+            f"sys.exit(run_node(lambda: Node('n'), ['--ros-args', '--params-file', "
+            f"'{tmp_path / 'missing.yaml'}']))")
+    done = subprocess.run([sys.executable, "-c", code], env=ENV,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1, done.stderr
+    assert "error:" in done.stderr
