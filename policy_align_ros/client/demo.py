@@ -83,7 +83,7 @@ from policy_align_ros.experiments.demonstrators import (
     task_space_rollout,
 )
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
-from policy_align_ros.kinematics.control import ControlStep, velocity_scale
+from policy_align_ros.kinematics.control import ControlStep, speed_limits, velocity_scale
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
 from policy_align_ros.learning.model_io import atomic_write_bytes, atomic_write_text
@@ -94,7 +94,6 @@ from policy_align_ros.nodes.demonstrator import (
     hand_plane_rows,
     random_plane_specs,
 )
-from policy_align_ros.nodes.executor import speed_limits
 from policy_align_ros.nodes.learner import holdout_split
 
 __all__ = ["DemoSettings", "StageError", "report_text", "run_demo"]
@@ -532,6 +531,10 @@ class _NoAliasDumper(yaml.SafeDumper):
         return True
 
 
+#: Demonstrator speed limit of the hands demo, rad/s; the URDF's lower limits apply.
+HANDS_EXPERT_MAX_VELOCITY = 10.0
+
+
 def _write_params(path: Path, s: DemoSettings, task: Task, demonstrator_seed: int) -> None:
     common = {"robot": s.robot, "joints": s.joints, "use_sim_time": True}
     rate = float(s.rate_hz)
@@ -545,7 +548,11 @@ def _write_params(path: Path, s: DemoSettings, task: Task, demonstrator_seed: in
                     "constraint_frames": s.frames or [""], "seed": demonstrator_seed,
                     "expert": s.state, "step_on_joint_state": True}
     if s.state == "hands":
-        demonstrator.update(hand_frames=s.frames, hand_targets=task.goal.tolist())
+        # The joints' own (URDF) limits: a lower flat limit made the hands expert hold
+        # elbows at 2 rad/s where the other joints could not take over, and scaled
+        # recordings bias the potential estimated from them.
+        demonstrator.update(hand_frames=s.frames, hand_targets=task.goal.tolist(),
+                            max_velocity=HANDS_EXPERT_MAX_VELOCITY)
     params = {
         "sim_robot": {**common, "rate_hz": rate, "initial_positions": task.attractor.tolist(),
                       "command_timeout_s": 0.2, "publish_clock": True,

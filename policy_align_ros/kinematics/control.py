@@ -82,6 +82,7 @@ __all__ = [
     "model_permutation",
     "project_with_locks",
     "ramp_toward",
+    "speed_limits",
     "velocity_scale",
 ]
 
@@ -281,6 +282,15 @@ def limit_locks(
 def _pick(values: np.ndarray | float, index: np.ndarray) -> np.ndarray | float:
     """``values[index]`` for an array, ``values`` itself for a scalar (broadcasts)."""
     return values[index] if getattr(values, "ndim", 0) else values
+
+
+def speed_limits(urdf_limits: np.ndarray, max_velocity: float) -> np.ndarray:
+    """Per-joint speed limits (n,) in rad/s: ``max_velocity`` or the URDF's when lower.
+
+    URDFs often give 0 for "no limit", so non-positive URDF entries are ignored.
+    """
+    urdf = np.where(urdf_limits > 0.0, urdf_limits, np.inf)
+    return np.minimum(urdf, float(max_velocity))
 
 
 def velocity_scale(

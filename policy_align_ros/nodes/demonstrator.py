@@ -63,7 +63,11 @@ from policy_align_ros.experiments.demonstrators import (
     sample_start_states,
 )
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
-from policy_align_ros.kinematics.control import constrained_command, velocity_scale
+from policy_align_ros.kinematics.control import (
+    constrained_command,
+    speed_limits,
+    velocity_scale,
+)
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     LATCHED_QOS,
@@ -175,7 +179,8 @@ class Demonstrator(Node):
             "lockstep with a simulator: one control step per received joint state instead "
             "of on the rate_hz timer, so the command the simulator integrates next comes "
             "from the latest state (rate_hz is then the simulator's rate)", read_only=True))
-        p("max_velocity", 2.0, descriptor("joint speed limit [rad/s]", read_only=True,
+        p("max_velocity", 2.0, descriptor("joint speed limit [rad/s]; the URDF's applies "
+                                          "where lower", read_only=True,
                                           float_range=(0.01, 10.0)))
         p("reach_gain", 5.0, descriptor("gain of the move to each start [1/s]",
                                         read_only=True, float_range=(0.1, 50.0)))
@@ -221,7 +226,7 @@ class Demonstrator(Node):
         self.rng = np.random.default_rng(value("seed").value)
         self.num_demos = int(value("num_demos").value)
         self.period = 1.0 / value("rate_hz").value
-        self.vmax = np.full(len(joints), float(value("max_velocity").value))
+        self.vmax = speed_limits(self.robot.velocity_limit, value("max_velocity").value)
         self.done = Future()
         self.demos_done = 0
         self._failures = 0

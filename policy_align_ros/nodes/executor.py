@@ -91,6 +91,7 @@ from policy_align_ros.kinematics.control import (
     Output,
     SupportDistance,
     model_permutation,
+    speed_limits,
 )
 from policy_align_ros.kinematics.task_space import joint_velocity_bounds, policy_for_state
 from policy_align_ros.learning import PolicyAlign
@@ -243,15 +244,6 @@ def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
     return (f"controller {controller} orders the joints differently: command slot {slot} "
             f"is {theirs[slot]!r} there and {mine[slot]!r} here (controller order "
             f"{theirs})")
-
-
-def speed_limits(urdf_limits: np.ndarray, max_velocity: float) -> np.ndarray:
-    """Per-joint speed limits (n,) in rad/s: ``max_velocity`` or the URDF's when lower.
-
-    URDFs often give 0 for "no limit", so non-positive URDF entries are ignored.
-    """
-    urdf = np.where(urdf_limits > 0.0, urdf_limits, np.inf)
-    return np.minimum(urdf, float(max_velocity))
 
 
 class Executor(Node):
