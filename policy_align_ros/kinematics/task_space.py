@@ -612,6 +612,7 @@ def _held_at_bounds(J: np.ndarray, xdot: np.ndarray, A: np.ndarray, z: np.ndarra
     qdot = task_to_joint_velocity(J, xdot, A, z, **solve)
     fixed = np.zeros(n, dtype=bool)
     value = np.zeros(n)
+    N_A = None  # A's null-space projector, the same on every pass
     # Each pass fixes at least one more joint, so this ends after at most n passes.
     for _ in range(n):
         new = ((qdot > hi) | (qdot < lo)) & ~fixed
@@ -624,7 +625,8 @@ def _held_at_bounds(J: np.ndarray, xdot: np.ndarray, A: np.ndarray, z: np.ndarra
         # task's remainder goes to the joints left free.
         base = np.zeros(n)
         if np.any(value[fixed]):
-            N_A = nullspace_projector(A, n) if A.shape[0] else np.eye(n)
+            if N_A is None:
+                N_A = nullspace_projector(A, n) if A.shape[0] else np.eye(n)
             base = N_A @ (np.linalg.pinv(N_A[fixed]) @ value[fixed])
         C = np.vstack([A, np.eye(n)[fixed]])
         qdot = base + task_to_joint_velocity(J, xdot - J @ base, C, z, **solve)
