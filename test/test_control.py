@@ -16,6 +16,7 @@ from policy_align_ros.kinematics.control import (
     ExtrapolationGuard,
     SupportDistance,
     constrained_command,
+    joint_velocity_bounds,
     limit_locks,
     model_permutation,
     ramp_toward,
@@ -882,3 +883,14 @@ def test_guard_without_a_finite_stopping_distance_gives_zero_with_a_reason():
     q[0] = 0.35  # 3.5 spacings, leading out
     qdot, reason = step(q)
     assert not np.any(qdot) and "band needs finite max_velocity" in reason
+
+
+def test_joint_velocity_bounds_from_position_and_speed_limits() -> None:
+    lower, upper = np.array([-1.0, -1.0, -np.inf]), np.array([1.0, 1.0, np.inf])
+    q = np.array([1.0, 0.99, 5.0])
+    lo, hi = joint_velocity_bounds(q, lower, upper)
+    np.testing.assert_array_equal(hi, [0.0, np.inf, np.inf])
+    np.testing.assert_array_equal(lo, [-np.inf] * 3)
+    lo, hi = joint_velocity_bounds(q, lower, upper, max_velocity=2.0, dt=0.01)
+    np.testing.assert_allclose(hi, [0.0, 1.0, 2.0])  # 0.01 rad of room over 10 ms
+    np.testing.assert_allclose(lo, [-2.0, -2.0, -2.0])

@@ -273,17 +273,6 @@ def test_policy_keeps_the_task_when_one_joint_brakes_toward_a_limit(
                                pol.policy(x[None])[0], atol=1e-6)
 
 
-def test_joint_velocity_bounds_from_position_and_speed_limits() -> None:
-    lower, upper = np.array([-1.0, -1.0, -np.inf]), np.array([1.0, 1.0, np.inf])
-    q = np.array([1.0, 0.99, 5.0])
-    lo, hi = joint_velocity_bounds(q, lower, upper)
-    np.testing.assert_array_equal(hi, [0.0, np.inf, np.inf])
-    np.testing.assert_array_equal(lo, [-np.inf] * 3)
-    lo, hi = joint_velocity_bounds(q, lower, upper, max_velocity=2.0, dt=0.01)
-    np.testing.assert_allclose(hi, [0.0, 1.0, 2.0])  # 0.01 rad of room over 10 ms
-    np.testing.assert_allclose(lo, [-2.0, -2.0, -2.0])
-
-
 def test_damping_bounds_qdot_at_a_constraint_induced_singularity() -> None:
     # J and A are each well conditioned (singular values 1), but J N_A loses rank as
     # eps -> 0: the constraint row nearly kills the task's second direction.

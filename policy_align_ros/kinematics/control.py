@@ -78,6 +78,7 @@ __all__ = [
     "SupportDistance",
     "STAMP_REJECTIONS",
     "constrained_command",
+    "joint_velocity_bounds",
     "limit_locks",
     "model_permutation",
     "project_with_locks",
@@ -291,6 +292,55 @@ def speed_limits(urdf_limits: np.ndarray, max_velocity: float) -> np.ndarray:
     """
     urdf = np.where(urdf_limits > 0.0, urdf_limits, np.inf)
     return np.minimum(urdf, float(max_velocity))
+
+
+def joint_velocity_bounds(q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                          max_velocity: np.ndarray | float | None = None,
+                          dt: float | None = None, max_acceleration: float | None = None,
+                          tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint bounds ``lo <= qdot <= hi`` (rad/s) from position and speed limits.
+
+    A joint at (or beyond) a limit may not move further out (bound 0 on that side).
+    With ``dt``, a joint may also not cross a limit within one period
+    (``(upper - q) / dt``); with ``max_velocity``, ``|qdot_j| <= max_velocity_j``; with
+    ``max_acceleration``, a joint heading for a limit at distance ``r`` is held to
+    ``sqrt(max_acceleration r)`` (the rules of :func:`velocity_scale`, below, for every
+    joint and both directions, so a command within these bounds is not scaled there).
+
+    Parameters
+    ----------
+    q, lower, upper : numpy.ndarray, shape (n,)
+        Joint positions and limits (rad or m; infinite limits allowed).
+    max_velocity : float or numpy.ndarray (n,), optional
+        Speed limits (> 0, may be inf), rad/s.
+    dt : float, optional
+        Period, s.
+    max_acceleration : float, optional
+        rad/s^2.
+    tol : float
+        Distance to a limit (units of ``q``) counted as touching it.
+
+    Returns
+    -------
+    lo, hi : numpy.ndarray, shape (n,)
+        ``lo <= 0 <= hi``, rad/s.
+    """
+    n = q.shape[0]
+    hi = np.where(q >= upper - tol, 0.0, np.inf)
+    lo = np.where(q <= lower + tol, 0.0, -np.inf)
+    if dt is not None:
+        with np.errstate(invalid="ignore"):
+            hi = np.minimum(hi, np.maximum(upper - q, 0.0) / dt)
+            lo = np.maximum(lo, -np.maximum(q - lower, 0.0) / dt)
+    if max_acceleration is not None:
+        with np.errstate(invalid="ignore"):
+            hi = np.minimum(hi, np.sqrt(max_acceleration * np.maximum(upper - q, 0.0)))
+            lo = np.maximum(lo, -np.sqrt(max_acceleration * np.maximum(q - lower, 0.0)))
+    if max_velocity is not None:
+        vmax = np.broadcast_to(np.asarray(max_velocity, dtype=float), (n,))
+        hi = np.minimum(hi, vmax)
+        lo = np.maximum(lo, -vmax)
+    return lo, hi
 
 
 def velocity_scale(

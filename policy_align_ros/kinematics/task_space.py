@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from policy_align_ros.kinematics.control import ConstraintModel
+from policy_align_ros.kinematics.control import ConstraintModel, joint_velocity_bounds
 from policy_align_ros.kinematics.projection import DEFAULT_RCOND, nullspace_projector
 from policy_align_ros.kinematics.robot import Robot, closest_names
 from policy_align_ros.learning.state_spec import parse_state_spec
@@ -483,55 +483,6 @@ def task_to_joint_velocity(J: np.ndarray, xdot: np.ndarray, A: np.ndarray,
         zz = np.asarray(z, dtype=float)
         qdot += N_A @ zz - basis @ (basis.T @ zz)
     return qdot
-
-
-def joint_velocity_bounds(q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                          max_velocity: np.ndarray | float | None = None,
-                          dt: float | None = None, max_acceleration: float | None = None,
-                          tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-    """Per-joint bounds ``lo <= qdot <= hi`` (rad/s) from position and speed limits.
-
-    A joint at (or beyond) a limit may not move further out (bound 0 on that side).
-    With ``dt``, a joint may also not cross a limit within one period
-    (``(upper - q) / dt``); with ``max_velocity``, ``|qdot_j| <= max_velocity_j``; with
-    ``max_acceleration``, a joint heading for a limit at distance ``r`` is held to
-    ``sqrt(max_acceleration r)`` (the braking rule of ``control.velocity_scale``, so a
-    command within these bounds is not scaled there).
-
-    Parameters
-    ----------
-    q, lower, upper : numpy.ndarray, shape (n,)
-        Joint positions and limits (rad or m; infinite limits allowed).
-    max_velocity : float or numpy.ndarray (n,), optional
-        Speed limits (> 0, may be inf), rad/s.
-    dt : float, optional
-        Period, s.
-    max_acceleration : float, optional
-        rad/s^2.
-    tol : float
-        Distance to a limit (units of ``q``) counted as touching it.
-
-    Returns
-    -------
-    lo, hi : numpy.ndarray, shape (n,)
-        ``lo <= 0 <= hi``, rad/s.
-    """
-    n = q.shape[0]
-    hi = np.where(q >= upper - tol, 0.0, np.inf)
-    lo = np.where(q <= lower + tol, 0.0, -np.inf)
-    if dt is not None:
-        with np.errstate(invalid="ignore"):
-            hi = np.minimum(hi, np.maximum(upper - q, 0.0) / dt)
-            lo = np.maximum(lo, -np.maximum(q - lower, 0.0) / dt)
-    if max_acceleration is not None:
-        with np.errstate(invalid="ignore"):
-            hi = np.minimum(hi, np.sqrt(max_acceleration * np.maximum(upper - q, 0.0)))
-            lo = np.maximum(lo, -np.sqrt(max_acceleration * np.maximum(q - lower, 0.0)))
-    if max_velocity is not None:
-        vmax = np.broadcast_to(np.asarray(max_velocity, dtype=float), (n,))
-        hi = np.minimum(hi, vmax)
-        lo = np.maximum(lo, -vmax)
-    return lo, hi
 
 
 def joint_velocity_within_limits(q: np.ndarray, J: np.ndarray, xdot: np.ndarray,

@@ -90,10 +90,11 @@ from policy_align_ros.kinematics.control import (
     ExtrapolationGuard,
     Output,
     SupportDistance,
+    joint_velocity_bounds,
     model_permutation,
     speed_limits,
 )
-from policy_align_ros.kinematics.task_space import joint_velocity_bounds, policy_for_state
+from policy_align_ros.kinematics.task_space import policy_for_state
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
