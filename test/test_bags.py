@@ -255,6 +255,29 @@ def test_crash_between_close_and_rename_is_invisible(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_dataset_moved_away_right_after_the_rename_still_reports_the_bag_written(
+        tmp_path, monkeypatch):
+    # The race a recorder met in CI: the bag was complete under its final name, the dataset
+    # directory was then replaced by a file, and tidying up failed. Reporting that write as
+    # failed made the recorder write the same demonstration again, into its fallback.
+    rng = np.random.default_rng(10)
+    stamps, q, _ = _demo(rng, 6)
+    dataset, moved = tmp_path / "ds", tmp_path / "moved"
+    real = bags._rename_into_place
+
+    def rename_then_move_the_dataset(tmp, final, unique):
+        path = real(tmp, final, unique)
+        dataset.rename(moved)
+        dataset.write_text("replaced by a file")
+        return path
+
+    monkeypatch.setattr(bags, "_rename_into_place", rename_then_move_the_dataset)
+    path = write_joint_state_bag(dataset / "demo_0000", ["a", "b", "c"], stamps, q)
+    assert path == dataset / "demo_0000"
+    trajs, _, _ = load_dataset(moved / "demo_0000", gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, q)
+
+
 def test_write_refuses_to_overwrite_and_unique_picks_next_name(tmp_path):
     rng = np.random.default_rng(8)
     stamps, q, _ = _demo(rng, 5)

@@ -18,6 +18,7 @@ temporary directory, which readers ignore (:func:`is_temporary`).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -188,11 +189,16 @@ def write_joint_state_bag(
             _fsync_path(entry)
         _fsync_path(tmp, directory=True)
         final = _rename_into_place(tmp, final, unique)
-        _fsync_path(final.parent, directory=True)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    staging.rmdir()
+    # The bag is complete under its final name from here on. Failing to tidy up (the
+    # dataset directory was moved away meanwhile) must not report it unwritten, or a
+    # recorder would write the same demonstration a second time.
+    with contextlib.suppress(OSError):
+        _fsync_path(final.parent, directory=True)
+    with contextlib.suppress(OSError):
+        staging.rmdir()
     return final
 
 
