@@ -67,20 +67,23 @@ def closest_approach_matrix(trajectories: list[np.ndarray]) -> np.ndarray:
     starts = np.concatenate(([0], np.cumsum(sizes)))
     sq_norms = np.einsum("ij,ij->i", points, points)
     K = len(trajectories)
-    d = np.empty((K, K))
-    # Rows in blocks of whole trajectories: one matrix product per block, bounded memory.
+    d = np.zeros((K, K))
+    # Rows in blocks of whole trajectories, each against the trajectories from its own on
+    # (the matrix is symmetric: every pair once): one matrix product per block, bounded
+    # memory.
     block_rows = max(1, 4_000_000 // len(points))
     k = 0
     while k < K:
         stop = k + 1
         while stop < K and starts[stop + 1] - starts[k] <= block_rows:
             stop += 1
-        rows = slice(starts[k], starts[stop])
-        block = sq_norms[rows, None] + sq_norms[None, :] - 2.0 * points[rows] @ points.T
+        rows, cols = slice(starts[k], starts[stop]), slice(starts[k], None)
+        block = (sq_norms[rows, None] + sq_norms[None, cols]
+                 - 2.0 * points[rows] @ points[cols].T)
         per_col = np.minimum.reduceat(block, starts[k:stop] - starts[k], axis=0)
-        d[k:stop] = np.minimum.reduceat(per_col, starts[:-1], axis=1)
+        d[k:stop, k:] = np.minimum.reduceat(per_col, starts[k:-1] - starts[k], axis=1)
         k = stop
-    d = np.maximum(np.minimum(d, d.T), 0.0)
+    d = np.maximum(np.triu(d) + np.triu(d, 1).T, 0.0)
     np.fill_diagonal(d, np.inf)
     return d
 

@@ -166,15 +166,20 @@ class _FoldGrams:
         self.r = np.stack([A[r].T @ u[r] for r in rows])
         self.uu = np.array([u[r] @ u[r] for r in rows])
         self.G_all, self.r_all = self.G.sum(axis=0), self.r.sum(axis=0)
-        # The sums with free offsets (offset_ridge = 0: c_k = 1 / n_k) do not depend on
-        # the other folds, so they are kept per fold.
-        per_demo = self.Ak / self.nk[:, None]
-        self.G0 = np.stack([per_demo[demo_fold == f].T @ self.Ak[demo_fold == f]
-                            for f in range(n_folds)])
-        self.r0 = np.stack([per_demo[demo_fold == f].T @ self.sk[demo_fold == f]
-                            for f in range(n_folds)])
+        self._free: tuple[np.ndarray, np.ndarray] | None = None
         # Held-out error is scored against the within-demonstration spread of u.
         self.shape_ss = max(float(self.uu.sum() - np.sum(self.sk**2 / self.nk)), 1e-300)
+
+    def free_offset_sums(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per fold, the Gram and right-hand side terms that free offsets remove
+        (``offset_ridge = 0``: ``c_k = 1 / n_k``); they do not depend on the other folds,
+        and are summed on first use (the final fit never needs them)."""
+        if self._free is None:
+            per_demo = self.Ak / self.nk[:, None]
+            folds = [self.demo_fold == f for f in range(len(self.G))]
+            self._free = (np.stack([per_demo[k].T @ self.Ak[k] for k in folds]),
+                          np.stack([per_demo[k].T @ self.sk[k] for k in folds]))
+        return self._free
 
     def scores(self, penalties: list[np.ndarray], offset_ridge: float
                ) -> list[tuple[float, float]]:
@@ -189,8 +194,9 @@ class _FoldGrams:
         for f in range(n_folds):
             held = self.demo_fold == f
             if offset_ridge == 0.0:
-                G = self.G_all - self.G[f] - (self.G0.sum(axis=0) - self.G0[f])
-                r = self.r_all - self.r[f] - (self.r0.sum(axis=0) - self.r0[f])
+                G0, r0 = self.free_offset_sums()
+                G = self.G_all - self.G[f] - (G0.sum(axis=0) - G0[f])
+                r = self.r_all - self.r[f] - (r0.sum(axis=0) - r0[f])
                 m = float(self.nk[~held].sum())
             else:
                 G, r, m = self.profiled(~held, self.G_all - self.G[f],
