@@ -88,6 +88,20 @@ def test_cv_picks_the_trend_alone_for_a_quadratic_potential():
     assert err.mean() / (np.linalg.norm(grad(Q), axis=1) ** 2).mean() < 1e-3
 
 
+def test_cv_scores_of_an_exact_fit_are_exact_not_round_off():
+    # Exact quadratic values with a different offset per demonstration: with free offsets
+    # the trend fits every fold exactly. Scores formed from expanded sums (u'u - 2 w'r +
+    # w'Gw) cancelled to round-off there (some negative), which then ranked candidates.
+    rng = np.random.default_rng(12)
+    value, grad = _quadratic(3, rng)
+    X, g = _descent(grad, rng.normal(scale=1.0, size=(15, 3)), 40, 0.05)
+    y = value(X) + rng.normal(scale=1e4, size=15)[g]  # offsets dwarf the shapes
+    model = TrendKernelRegression(trend_ridge=1e-6, kernel_ridge=math.inf, offset_ridge=0.0,
+                                  random_state=0).fit(X, y, groups=g)
+    (score,) = model.cv_scores_.values()
+    assert 0.0 <= score < 1e-9
+
+
 def test_cv_adds_the_kernel_residual_where_a_quadratic_cannot_fit():
     rng = np.random.default_rng(3)
     value, grad = _two_minima()

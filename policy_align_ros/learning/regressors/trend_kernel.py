@@ -163,6 +163,9 @@ class _FoldGrams:
                 self.G[f, :q, :q] = base.G[f]
                 self.G[f, :q, q:] = A[r, :q].T @ new[r]
                 self.G[f, q:, :q] = self.G[f, :q, q:].T
+        # The design itself is kept to score held-out folds from their residuals: at a
+        # near-perfect fit the expanded sums (u'u - 2 w'r + w'Gw) cancel to round-off.
+        self.A, self.u, self.demo, self.rows = A, u, demo, rows
         self.r = np.stack([A[r].T @ u[r] for r in rows])
         self.uu = np.array([u[r] @ u[r] for r in rows])
         self.G_all, self.r_all = self.G.sum(axis=0), self.r.sum(axis=0)
@@ -206,14 +209,20 @@ class _FoldGrams:
                 if w is None:
                     err[i, f] = math.inf
                     continue
-                ak_w = self.Ak[held] @ w
-                err[i, f] = (self.uu[f] - 2.0 * w @ self.r[f] + w @ self.G[f] @ w
-                             - np.sum((self.sk[held] - ak_w) ** 2 / self.nk[held]))
+                err[i, f] = self.shape_error(f, w)
         # Per fold scaled so that the mean over folds is the total error over the spread.
         err *= n_folds / self.shape_ss
         with np.errstate(invalid="ignore"):
             se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
         return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]
+
+    def shape_error(self, fold: int, w: np.ndarray) -> float:
+        """Squared residuals of fold ``fold``'s demonstrations about their own means."""
+        r = self.rows[fold]
+        e = self.u[r] - self.A[r] @ w
+        demo = self.demo[r]
+        mean = np.bincount(demo, weights=e, minlength=len(self.nk)) / np.maximum(self.nk, 1)
+        return float(np.sum((e - mean[demo]) ** 2))
 
     def profiled(self, train: np.ndarray, G: np.ndarray, r: np.ndarray, offset_ridge: float
                  ) -> tuple[np.ndarray, np.ndarray, float]:
