@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 import policy_align_ros.learning.policy_align as pa_module
+from policy_align_ros.experiments.demonstrators import QuadraticPotential, rollout
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
-from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory
+from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory, metrics
 from policy_align_ros.learning.regressors.local_linear import LocalLinearRegression
 
 
@@ -118,3 +119,26 @@ def test_errors_are_clear():
         model.policy(np.zeros((2, 3)))
     with pytest.raises(ValueError, match="NaN"):
         model.policy(np.array([[np.nan, 0.0]]))
+
+
+def test_default_integration_uses_recorded_velocities_that_explain_the_motion():
+    # Held velocity commands (Euler steps at 50 Hz) of a 3-D quadratic, one constraint row
+    # per demonstration re-drawn once: the trapezoid rule is exact on such data, the Euler
+    # rule biased at order dt, and "auto" must see that the velocities can be trusted.
+    rng = np.random.default_rng(5)
+    pot = QuadraticPotential([0.3, -0.2, 0.1], np.diag([0.5, 1.0, 2.0]))
+    demos = []
+    for k in range(12):
+        rows = rng.standard_normal((2, 3))
+        demos.append(rollout(rng.uniform(-1, 1, 3), pot,
+                             lambda x, t, pi, r=rows: r[:1] if t < 0.6 else r[1:], 60, 0.02,
+                             name=str(k)).trajectory)
+    X = rng.uniform(-1, 1, (200, 3))
+    auto = PolicyAlign(random_state=0).fit(demos)
+    euler = PolicyAlign(integration="euler", random_state=0).fit(demos)
+    assert auto.integration_ == auto.fit_summary_["integration"] == "trapezoid"
+    assert metrics.nupe(pot.policy(X), auto.policy(X)) < 0.01 * metrics.nupe(
+        pot.policy(X), euler.policy(X))
+    # A driver that leaves the velocity field at zero: the velocities are not used.
+    zeroed = [Trajectory(d.positions, d.times, np.zeros_like(d.velocities)) for d in demos]
+    assert PolicyAlign(random_state=0).fit(zeroed).integration_ == "euler"

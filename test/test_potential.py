@@ -5,9 +5,11 @@ import pytest
 
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.learning.potential import (
+    choose_method,
     estimate_potential,
     euler_potential,
     trapezoid_potential,
+    velocity_disagreement,
 )
 
 
@@ -47,3 +49,40 @@ def test_trapezoid_without_velocities_and_unknown_rule_fail_clearly():
         estimate_potential(traj, "trapezoid")
     with pytest.raises(ValueError, match="unknown potential estimate"):
         estimate_potential(traj, "simpson")
+
+
+def _held_commands(W, x0, dt, steps):
+    """Forward-Euler motion under xdot = -2 W x held over each step (a velocity command per
+    control period); returns times, positions, velocities and the potential x'Wx."""
+    X = [np.asarray(x0, dtype=float)]
+    for _ in range(steps - 1):
+        X.append(X[-1] - dt * 2.0 * W @ X[-1])
+    X = np.array(X)
+    return dt * np.arange(steps), X, -2.0 * X @ W, np.einsum("ij,jk,ik->i", X, W, X)
+
+
+def test_trapezoid_is_exact_under_held_commands_where_euler_is_biased():
+    W = np.diag([0.5, 2.0])
+    t, X, V, phi = _held_commands(W, (1.0, -0.5), 0.05, 60)
+    traj = Trajectory(X, times=t, velocities=V)
+    np.testing.assert_allclose(estimate_potential(traj, "trapezoid"), phi - phi[0],
+                               atol=1e-12)
+    assert np.abs(estimate_potential(traj, "euler") - (phi - phi[0])).max() > 1e-3
+
+
+def test_auto_trusts_velocities_only_where_they_explain_the_positions():
+    W = np.diag([0.5, 2.0])
+    t, X, V, phi = _held_commands(W, (1.0, -0.5), 0.05, 60)
+    assert velocity_disagreement(X, V, np.diff(t)) < 0.1
+    assert velocity_disagreement(X, np.zeros_like(V), np.diff(t)) == pytest.approx(1.0)
+    assert velocity_disagreement(X, -V, np.diff(t)) == pytest.approx(2.0, rel=0.05)
+    good = Trajectory(X, times=t, velocities=V)
+    zeros = Trajectory(X, times=t, velocities=np.zeros_like(V))  # a driver's empty field
+    assert choose_method([good, good]) == "trapezoid"
+    assert choose_method([good, zeros]) == "euler"
+    assert choose_method([good, Trajectory(X, times=t)]) == "euler"
+    resting = Trajectory(np.zeros((5, 2)), velocities=np.zeros((5, 2)))
+    assert choose_method([resting]) == "euler"
+    np.testing.assert_allclose(estimate_potential(good, "auto"), phi - phi[0], atol=1e-12)
+    np.testing.assert_array_equal(estimate_potential(zeros, "auto"),
+                                  estimate_potential(zeros, "euler"))

@@ -40,7 +40,7 @@ from policy_align_ros.learning.bandwidth import (
     thin_trajectories,
 )
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
-from policy_align_ros.learning.potential import METHODS, estimate_potential
+from policy_align_ros.learning.potential import METHODS, choose_method, estimate_potential
 from policy_align_ros.learning.regressors import (
     NotFittedError,
     TrendKernelRegression,
@@ -63,8 +63,10 @@ class PolicyAlign:
     ----------
     sigma : {"narrow", "medium", "wide"} or float
         Kernel width rule (paper eqs. 17-19) or ``sigma^2`` itself (squared state units).
-    integration : {"euler", "trapezoid"}
-        Rule for the potential along each trajectory; ``"trapezoid"`` needs velocities.
+    integration : {"auto", "euler", "trapezoid"}
+        Rule for the potential along each trajectory; ``"trapezoid"`` needs velocities;
+        ``"auto"`` takes it when every trajectory has velocities that agree with its
+        positions, else ``"euler"`` (see :mod:`policy_align_ros.learning.potential`).
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
         Kept well below ``eigen_tol``: many tiny weights add up to a link that decides
@@ -91,6 +93,8 @@ class PolicyAlign:
 
     Attributes
     ----------
+    integration_ : {"euler", "trapezoid"}
+        The rule used (also ``fit_summary_["integration"]``, saved with the model).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,
@@ -103,7 +107,7 @@ class PolicyAlign:
         self,
         *,
         sigma: str | float = "medium",
-        integration: str = "euler",
+        integration: str = "auto",
         weight_tol: float = 1e-12,
         merge_tol: float = 0.1,
         eigen_tol: float = 1e-8,
@@ -193,7 +197,9 @@ class PolicyAlign:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
 
-        phi = [estimate_potential(t, self.integration) for t in trajs]
+        self.integration_ = (choose_method(trajs) if self.integration == "auto"
+                             else self.integration)
+        phi = [estimate_potential(t, self.integration_) for t in trajs]
         X = np.concatenate([t.positions for t in trajs])
         labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
         phi_all = np.concatenate(phi)
@@ -249,6 +255,7 @@ class PolicyAlign:
             "n_inliers": int(len(keep)),
             "n_groups": int(self.groups_.max() + 1),
             "n_responsibilities": int(len(table.q)),
+            "integration": self.integration_,
             "timings_s": timings,
         }
         return self
@@ -382,6 +389,9 @@ class PolicyAlign:
                 raise ValueError("state_definition is not a dict")
             model.timed_ = header["policy_units"] == "per second"
             model.fit_summary_ = header["training"]
+            # Files written before "auto" existed used the rule they name.
+            model.integration_ = model.fit_summary_.get("integration", params.get(
+                "integration", "euler"))
             model.offsets_ = arrays["offsets"]
             model.groups_ = arrays["groups"]
             model.inliers_ = arrays["inliers"]

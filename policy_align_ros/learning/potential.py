@@ -13,17 +13,33 @@ or, with measured velocities ``v_i = N_i pi_i``, the trapezoid rule
 
 Both return potentials with ``phi_1 = 0``; the unknown offset is found by alignment. With
 times in seconds, the learnt policy ``-grad phi`` is in state units per second.
+
+Which rule: the Euler drop ``||x_{i+1} - x_i||^2 / dt_i`` is ``-grad phi(x_i)`` times the
+step exactly when the state moves at ``v_i`` for the whole step (a velocity command held
+over a control period, or simulated data), and then misses the step's second-order term
+``1/2 dx^T H dx``: a bias of relative order ``dt`` that no global model can remove. The
+trapezoid rule averages the gradient at both ends of the step, which is exact for a
+quadratic potential under held commands and second order for smooth motion; measured
+velocities enter it linearly, so their noise does not bias it. ``"auto"`` therefore uses
+the trapezoid where velocities were recorded and agree with the positions
+(:func:`velocity_disagreement`), and the Euler rule otherwise (no velocities, or
+velocity fields a driver leaves at zero or fills with something else).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS"]
+__all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS",
+           "velocity_disagreement", "choose_method", "VELOCITY_AGREEMENT"]
 
-METHODS = ("euler", "trapezoid")
+METHODS = ("auto", "euler", "trapezoid")
+#: Largest :func:`velocity_disagreement` at which ``"auto"`` trusts recorded velocities.
+VELOCITY_AGREEMENT = 0.5
 
 
 def euler_potential(positions: np.ndarray, dt: np.ndarray | float = 1.0) -> np.ndarray:
@@ -67,6 +83,42 @@ def trapezoid_potential(positions: np.ndarray, velocities: np.ndarray) -> np.nda
     return np.concatenate(([0.0], -np.cumsum(drops)))
 
 
+def velocity_disagreement(positions: np.ndarray, velocities: np.ndarray,
+                          dt: np.ndarray | float) -> float:
+    """How far recorded velocities are from explaining the recorded steps.
+
+    Parameters
+    ----------
+    positions, velocities : ndarray, shape (N, n)
+        States and their recorded time derivatives (state units per second).
+    dt : float or ndarray, shape (N-1,)
+        Time steps in seconds.
+
+    Returns
+    -------
+    float
+        ``sqrt(sum ||dx_i - dt_i (v_i + v_{i+1}) / 2||^2 / sum ||dx_i||^2)``: near 0 when the
+        velocities are those of the motion (a constraint switch adds one bad step), 1 for
+        velocities left at zero, 2 for the opposite sign; ``inf`` if nothing moves.
+    """
+    steps = np.diff(positions, axis=0)
+    dt = np.reshape(dt, (-1, 1)) if np.ndim(dt) else dt
+    miss = steps - dt * 0.5 * (velocities[:-1] + velocities[1:])
+    moved = float(np.sum(steps**2))
+    return math.sqrt(float(np.sum(miss**2)) / moved) if moved > 0 else math.inf
+
+
+def choose_method(trajs: list[Trajectory]) -> str:
+    """``"trapezoid"`` if every trajectory has velocities that agree with its positions
+    (:data:`VELOCITY_AGREEMENT`), else ``"euler"``: one rule for a whole data set, so that
+    every trajectory's potential carries the same kind of error."""
+    for traj in trajs:
+        if traj.velocities is None or traj.n_samples < 2 or not velocity_disagreement(
+                traj.positions, traj.velocities, traj.dt) <= VELOCITY_AGREEMENT:
+            return "euler"
+    return "trapezoid"
+
+
 def estimate_potential(traj: Trajectory, method: str = "euler") -> np.ndarray:
     """Potential along a trajectory by the chosen rule.
 
@@ -74,14 +126,16 @@ def estimate_potential(traj: Trajectory, method: str = "euler") -> np.ndarray:
     ----------
     traj : Trajectory
         The demonstration; ``method="trapezoid"`` needs its velocities.
-    method : {"euler", "trapezoid"}
-        Integration rule.
+    method : {"auto", "euler", "trapezoid"}
+        Integration rule; ``"auto"`` is :func:`choose_method` for this trajectory alone.
 
     Returns
     -------
     ndarray, shape (N,)
         Potential estimates with ``phi_1 = 0``.
     """
+    if method == "auto":
+        method = choose_method([traj])
     if method == "euler":
         return euler_potential(traj.positions, traj.dt)
     if method == "trapezoid":
