@@ -73,9 +73,11 @@ def test_trapezoid_is_exact_under_held_commands_where_euler_is_biased():
 def test_auto_trusts_velocities_only_where_they_explain_the_positions():
     W = np.diag([0.5, 2.0])
     t, X, V, phi = _held_commands(W, (1.0, -0.5), 0.05, 60)
-    assert velocity_disagreement(X, V, np.diff(t)) < 0.1
-    assert velocity_disagreement(X, np.zeros_like(V), np.diff(t)) == pytest.approx(1.0)
-    assert velocity_disagreement(X, -V, np.diff(t)) == pytest.approx(2.0, rel=0.05)
+    dt = np.diff(t)
+    assert velocity_disagreement(X, V, dt, "ahead") < 1e-12
+    assert velocity_disagreement(X, V, dt) < 0.1
+    assert velocity_disagreement(X, np.zeros_like(V), dt) == pytest.approx(1.0)
+    assert velocity_disagreement(X, -V, dt) == pytest.approx(2.0, rel=0.05)
     good = Trajectory(X, times=t, velocities=V)
     zeros = Trajectory(X, times=t, velocities=np.zeros_like(V))  # a driver's empty field
     assert choose_method([good, good]) == "trapezoid"
@@ -86,3 +88,22 @@ def test_auto_trusts_velocities_only_where_they_explain_the_positions():
     np.testing.assert_allclose(estimate_potential(good, "auto"), phi - phi[0], atol=1e-12)
     np.testing.assert_array_equal(estimate_potential(zeros, "auto"),
                                   estimate_potential(zeros, "euler"))
+
+
+def test_velocities_reported_one_sample_late_are_detected_and_shifted():
+    # A simulator or driver that reports at each sample the velocity of the step that
+    # ended there: taken as they are, the trapezoid doubles the Euler bias.
+    W = np.diag([0.5, 2.0])
+    t, X, V, phi = _held_commands(W, (1.0, -0.5), 0.05, 60)
+    late = np.vstack([V[:1], V[:-1]])  # v_{i+1} moved x_i -> x_{i+1}
+    traj = Trajectory(X, times=t, velocities=late)
+    assert velocity_disagreement(X, late, np.diff(t), "late") < 1e-12
+    assert choose_method([traj]) == "trapezoid_late"
+    truth = phi - phi[0]
+    err = {m: np.abs(estimate_potential(traj, m) - truth).max()
+           for m in ("euler", "trapezoid", "trapezoid_late")}
+    assert err["trapezoid"] > 1.5 * err["euler"]
+    # Exact but for the last step, where the shifted velocities run out.
+    np.testing.assert_allclose(estimate_potential(traj, "auto")[:-1], truth[:-1],
+                               atol=1e-12)
+    assert err["trapezoid_late"] < 0.05 * err["euler"]

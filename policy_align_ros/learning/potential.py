@@ -20,10 +20,12 @@ over a control period, or simulated data), and then misses the step's second-ord
 ``1/2 dx^T H dx``: a bias of relative order ``dt`` that no global model can remove. The
 trapezoid rule averages the gradient at both ends of the step, which is exact for a
 quadratic potential under held commands and second order for smooth motion; measured
-velocities enter it linearly, so their noise does not bias it. ``"auto"`` therefore uses
-the trapezoid where velocities were recorded and agree with the positions
-(:func:`velocity_disagreement`), and the Euler rule otherwise (no velocities, or
-velocity fields a driver leaves at zero or fills with something else).
+velocities enter it linearly, so their noise does not bias it. It needs to know which
+velocity moved the state over a step: recorders differ (:data:`TIMINGS`), and a velocity
+one sample late doubles the Euler bias instead of removing it. ``"auto"`` therefore uses
+the trapezoid where velocities were recorded, with the timing that explains the steps
+best (:func:`choose_method`), and the Euler rule otherwise (no velocities, or velocity
+fields a driver leaves at zero or fills with something else).
 """
 
 from __future__ import annotations
@@ -35,9 +37,15 @@ import numpy as np
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS",
-           "velocity_disagreement", "choose_method", "VELOCITY_AGREEMENT"]
+           "velocity_disagreement", "choose_method", "VELOCITY_AGREEMENT", "TIMINGS"]
 
-METHODS = ("auto", "euler", "trapezoid")
+METHODS = ("auto", "euler", "trapezoid", "trapezoid_late")
+#: Velocity timing conventions: which recorded velocity moved the state from ``x_i`` to
+#: ``x_{i+1}``. ``"ahead"``: ``v_i``, the command held from sample ``i`` on (simulated
+#: data, logged commands); ``"mid"``: ``(v_i + v_{i+1}) / 2``, instantaneous velocities of
+#: smooth motion; ``"late"``: ``v_{i+1}``, the velocity of the step that ended at the
+#: sample (what a simulator or a driver differentiating its encoders reports).
+TIMINGS = ("ahead", "mid", "late")
 #: Largest :func:`velocity_disagreement` at which ``"auto"`` trusts recorded velocities.
 VELOCITY_AGREEMENT = 0.5
 
@@ -62,7 +70,8 @@ def euler_potential(positions: np.ndarray, dt: np.ndarray | float = 1.0) -> np.n
     return np.concatenate(([0.0], -np.cumsum(drops)))
 
 
-def trapezoid_potential(positions: np.ndarray, velocities: np.ndarray) -> np.ndarray:
+def trapezoid_potential(positions: np.ndarray, velocities: np.ndarray, late: bool = False
+                        ) -> np.ndarray:
     """Trapezoid estimate of the potential from positions and measured velocities.
 
     Parameters
@@ -71,20 +80,43 @@ def trapezoid_potential(positions: np.ndarray, velocities: np.ndarray) -> np.nda
         States along the trajectory.
     velocities : ndarray, shape (N, n)
         Observed ``xdot_i = N_i pi_i`` in state units per second.
+    late : bool
+        The velocities are reported one sample late (``v_{i+1}`` is what moved the state
+        from ``x_i``; see :data:`TIMINGS`): they are shifted back by one sample first, and
+        the last one repeated.
 
     Returns
     -------
     ndarray, shape (N,)
         ``phi_1 = 0`` and ``phi_{i+1} = phi_i - (v_i + v_{i+1})^T (x_{i+1} - x_i) / 2``.
     """
+    if late:
+        velocities = np.concatenate([velocities[1:], velocities[-1:]])
     steps = np.diff(positions, axis=0)
     mean_v = 0.5 * (velocities[:-1] + velocities[1:])
     drops = np.einsum("ij,ij->i", mean_v, steps)
     return np.concatenate(([0.0], -np.cumsum(drops)))
 
 
+def _step_misses(positions: np.ndarray, velocities: np.ndarray, dt: np.ndarray | float,
+                 timing: str) -> tuple[float, float]:
+    """Sum of ``||dx_i - dt_i u_i||^2`` for the timing's velocity ``u_i``, and of
+    ``||dx_i||^2``."""
+    steps = np.diff(positions, axis=0)
+    dt = np.reshape(dt, (-1, 1)) if np.ndim(dt) else dt
+    if timing == "ahead":
+        u = velocities[:-1]
+    elif timing == "mid":
+        u = 0.5 * (velocities[:-1] + velocities[1:])
+    elif timing == "late":
+        u = velocities[1:]
+    else:
+        raise ValueError(f"unknown velocity timing {timing!r}; expected one of {TIMINGS}")
+    return float(np.sum((steps - dt * u) ** 2)), float(np.sum(steps**2))
+
+
 def velocity_disagreement(positions: np.ndarray, velocities: np.ndarray,
-                          dt: np.ndarray | float) -> float:
+                          dt: np.ndarray | float, timing: str = "mid") -> float:
     """How far recorded velocities are from explaining the recorded steps.
 
     Parameters
@@ -93,30 +125,41 @@ def velocity_disagreement(positions: np.ndarray, velocities: np.ndarray,
         States and their recorded time derivatives (state units per second).
     dt : float or ndarray, shape (N-1,)
         Time steps in seconds.
+    timing : {"ahead", "mid", "late"}
+        Which recorded velocity is taken to have moved the state over a step
+        (:data:`TIMINGS`).
 
     Returns
     -------
     float
-        ``sqrt(sum ||dx_i - dt_i (v_i + v_{i+1}) / 2||^2 / sum ||dx_i||^2)``: near 0 when the
-        velocities are those of the motion (a constraint switch adds one bad step), 1 for
-        velocities left at zero, 2 for the opposite sign; ``inf`` if nothing moves.
+        ``sqrt(sum ||dx_i - dt_i u_i||^2 / sum ||dx_i||^2)``: near 0 when the velocities
+        are those of the motion (a constraint switch adds one bad step), 1 for velocities
+        left at zero, 2 for the opposite sign; ``inf`` if nothing moves.
     """
-    steps = np.diff(positions, axis=0)
-    dt = np.reshape(dt, (-1, 1)) if np.ndim(dt) else dt
-    miss = steps - dt * 0.5 * (velocities[:-1] + velocities[1:])
-    moved = float(np.sum(steps**2))
-    return math.sqrt(float(np.sum(miss**2)) / moved) if moved > 0 else math.inf
+    miss, moved = _step_misses(positions, velocities, dt, timing)
+    return math.sqrt(miss / moved) if moved > 0 else math.inf
 
 
 def choose_method(trajs: list[Trajectory]) -> str:
-    """``"trapezoid"`` if every trajectory has velocities that agree with its positions
-    (:data:`VELOCITY_AGREEMENT`), else ``"euler"``: one rule for a whole data set, so that
-    every trajectory's potential carries the same kind of error."""
-    for traj in trajs:
-        if traj.velocities is None or traj.n_samples < 2 or not velocity_disagreement(
-                traj.positions, traj.velocities, traj.dt) <= VELOCITY_AGREEMENT:
-            return "euler"
-    return "trapezoid"
+    """The potential rule for a data set: one rule for all, so that every trajectory's
+    potential carries the same kind of error.
+
+    ``"euler"`` unless every trajectory has velocities; otherwise the velocity timing
+    (:data:`TIMINGS`) that best explains all the steps decides: ``"trapezoid_late"`` for
+    ``"late"``, ``"trapezoid"`` for the others, and ``"euler"`` if even the best leaves a
+    :func:`velocity_disagreement` above :data:`VELOCITY_AGREEMENT`.
+    """
+    if any(t.velocities is None or t.n_samples < 2 for t in trajs):
+        return "euler"
+    totals = {}
+    for timing in TIMINGS:
+        sums = [_step_misses(t.positions, t.velocities, t.dt, timing) for t in trajs]
+        moved = sum(m for _, m in sums)
+        totals[timing] = math.sqrt(sum(e for e, _ in sums) / moved) if moved > 0 else math.inf
+    best = min(TIMINGS, key=totals.get)
+    if not totals[best] <= VELOCITY_AGREEMENT:
+        return "euler"
+    return "trapezoid_late" if best == "late" else "trapezoid"
 
 
 def estimate_potential(traj: Trajectory, method: str = "euler") -> np.ndarray:
@@ -125,9 +168,11 @@ def estimate_potential(traj: Trajectory, method: str = "euler") -> np.ndarray:
     Parameters
     ----------
     traj : Trajectory
-        The demonstration; ``method="trapezoid"`` needs its velocities.
-    method : {"auto", "euler", "trapezoid"}
-        Integration rule; ``"auto"`` is :func:`choose_method` for this trajectory alone.
+        The demonstration; the trapezoid rules need its velocities.
+    method : {"auto", "euler", "trapezoid", "trapezoid_late"}
+        Integration rule (``"trapezoid_late"``: velocities reported one sample late, see
+        :func:`trapezoid_potential`); ``"auto"`` is :func:`choose_method` for this
+        trajectory alone.
 
     Returns
     -------
@@ -138,10 +183,11 @@ def estimate_potential(traj: Trajectory, method: str = "euler") -> np.ndarray:
         method = choose_method([traj])
     if method == "euler":
         return euler_potential(traj.positions, traj.dt)
-    if method == "trapezoid":
+    if method in ("trapezoid", "trapezoid_late"):
         if traj.velocities is None:
             raise ValueError(
                 f"trajectory {traj.name}: the trapezoid estimate needs velocities"
             )
-        return trapezoid_potential(traj.positions, traj.velocities)
+        return trapezoid_potential(traj.positions, traj.velocities,
+                                   late=method == "trapezoid_late")
     raise ValueError(f"unknown potential estimate {method!r}; expected one of {METHODS}")
