@@ -137,6 +137,13 @@ def test_default_integration_uses_recorded_velocities_that_explain_the_motion():
     auto = PolicyAlign(random_state=0).fit(demos)
     euler = PolicyAlign(integration="euler", random_state=0).fit(demos)
     assert auto.integration_ == auto.fit_summary_["integration"] == "trapezoid"
+    # Both rules were fitted and the regressor's CV chose: the biased Euler potentials
+    # are the ones no single smooth function explains across held-out demonstrations.
+    cv = auto.fit_summary_["integration_cv"]
+    assert set(cv) == {"euler", "trapezoid"} and cv["trapezoid"] < 0.5 * cv["euler"]
+    # A regressor without CV scores cannot choose: the paper's Euler rule.
+    local = PolicyAlign(regressor=LocalLinearRegression(), random_state=0).fit(demos)
+    assert local.integration_ == "euler"
     assert metrics.nupe(pot.policy(X), auto.policy(X)) < 0.01 * metrics.nupe(
         pot.policy(X), euler.policy(X))
     # A driver that leaves the velocity field at zero: the velocities are not used.

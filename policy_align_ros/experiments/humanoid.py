@@ -203,7 +203,7 @@ def plot_figure(data: dict, path: Path) -> None:
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.2))
     phi = data["phi"]
-    for ax, key, title in ((axes[0], "aligned", "aligned Euler potential"),
+    for ax, key, title in ((axes[0], "aligned", "aligned potential estimates"),
                            (axes[1], "learnt", "learnt potential f(q)")):
         pred = data[key] - np.mean(data[key] - phi)
         ax.plot(phi, pred, ".", ms=2, alpha=0.5)

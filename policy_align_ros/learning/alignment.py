@@ -25,7 +25,7 @@ with ``sum_k q_km`` replaced by the group's share of point ``m``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -62,6 +62,9 @@ class LocalModelTable:
         Responsibilities ``q_km`` (each row sums to 1).
     f : ndarray, shape (nnz,)
         Local predictions ``f_km = f_k(x_m)``.
+    source : ndarray of int, shape (nnz,)
+        The sample (index into the arrays the table was built from) whose potential is
+        ``f_km``: :meth:`with_potential` swaps the potentials without a new search.
     weights : ndarray, shape (n_points,)
         Number of samples each query point stands for (1 without merging).
     n_points, n_trajectories : int
@@ -72,9 +75,15 @@ class LocalModelTable:
     cols: np.ndarray
     q: np.ndarray
     f: np.ndarray
+    source: np.ndarray
     weights: np.ndarray
     n_points: int
     n_trajectories: int
+
+    def with_potential(self, phi: np.ndarray) -> LocalModelTable:
+        """The same table for other potential estimates ``phi`` (M,) at the same samples
+        (the responsibilities depend on the states only)."""
+        return replace(self, f=np.asarray(phi, dtype=float)[self.source])
 
 
 def thin_along_trajectories(
@@ -163,33 +172,39 @@ def local_model_table(
         return _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours,
                               closest)
     weights = np.diff(np.append(ref, len(X))).astype(float)
-    X, labels, phi = X[ref], labels[ref], phi[ref]
+    X_ref, labels_ref = X[ref], labels[ref]
     if mode == "tree":
-        searches = _nearest_per_trajectory_tree(X, labels, tree, labels, radius, per_point)
+        searches = _nearest_per_trajectory_tree(X_ref, labels_ref, tree, labels_ref, radius,
+                                                per_point)
     else:
-        searches = _nearest_per_trajectory_dense(X, labels, X, labels, radius)
-    return _assemble(labels, phi, phi, weights, searches, sigma2, K)
+        searches = _nearest_per_trajectory_dense(X_ref, labels_ref, X_ref, labels_ref, radius)
+    return _assemble(labels_ref, ref, ref, phi, weights, searches, sigma2, K)
 
 
-def _assemble(labels, phi_query, phi_ref, weights, searches, sigma2, K) -> LocalModelTable:
-    """Table from the own-trajectory entries (distance 0) and the neighbour searches."""
+def _assemble(labels, query, ref, phi, weights, searches, sigma2, K) -> LocalModelTable:
+    """Table from the own-trajectory entries (distance 0) and the neighbour searches.
+
+    ``query`` and ``ref`` are the sample indices of the query and reference points; the
+    searches index into them.
+    """
     M = len(labels)
     rows_parts = [np.arange(M)]
     cols_parts = [labels.astype(np.int64)]
     d_parts = [np.zeros(M)]
-    f_parts = [phi_query.astype(float)]
+    source_parts = [np.asarray(query, dtype=np.int64)]
     for i, k, j, d2 in searches:
         rows_parts.append(i)
         cols_parts.append(k)
         d_parts.append(d2)
-        f_parts.append(phi_ref[j])
+        source_parts.append(ref[j])
     rows = np.concatenate(rows_parts)
     cols = np.concatenate(cols_parts)
     d2 = np.concatenate(d_parts)
-    f = np.concatenate(f_parts)
+    source = np.concatenate(source_parts)
     w = np.exp(-0.5 * d2 / sigma2)
     q = w / np.bincount(rows, weights=w, minlength=M)[rows]
-    return LocalModelTable(rows, cols, q, f, weights, M, K)
+    return LocalModelTable(rows, cols, q, np.asarray(phi, dtype=float)[source], source,
+                           weights, M, K)
 
 
 def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, closest):
@@ -247,7 +262,7 @@ def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, cl
                 if keep.any():
                     yield rows[keep], np.full(int(keep.sum()), j), seg[arg[keep]], best[keep]
 
-    return _assemble(labels[qry], phi[qry], phi[ref], weights, searches(), sigma2, K)
+    return _assemble(labels[qry], qry, ref, phi, weights, searches(), sigma2, K)
 
 
 def _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point):

@@ -6,7 +6,9 @@ trained on ``(x_kn, phi_hat_kn + b_k)`` for the kept trajectories (eq. 16) and t
 policy is ``pi_hat(x) = -grad f(x)``, in state units per second when the trajectories carry
 times (per step otherwise).
 
-1. estimate ``phi_hat_k`` along each trajectory (``integration``);
+1. estimate ``phi_hat_k`` along each trajectory (``integration``; with ``"auto"`` and
+   recorded velocities, both the Euler and the trapezoid estimates go through steps 3-4
+   and the regressor's cross-validation score decides);
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
 3. align each group (``b = -pinv(H) a`` restricted to the group) and keep the largest;
 4. fit the global regressor on the kept, aligned data. The default,
@@ -19,6 +21,7 @@ times (per step otherwise).
 from __future__ import annotations
 
 import copy
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -63,10 +66,13 @@ class PolicyAlign:
     ----------
     sigma : {"narrow", "medium", "wide"} or float
         Kernel width rule (paper eqs. 17-19) or ``sigma^2`` itself (squared state units).
-    integration : {"auto", "euler", "trapezoid"}
-        Rule for the potential along each trajectory; ``"trapezoid"`` needs velocities;
-        ``"auto"`` takes it when every trajectory has velocities that agree with its
-        positions, else ``"euler"`` (see :mod:`policy_align_ros.learning.potential`).
+    integration : {"auto", "euler", "trapezoid", "trapezoid_late"}
+        Rule for the potential along each trajectory; the trapezoid rules need
+        velocities (:mod:`policy_align_ros.learning.potential`). ``"auto"``: where every
+        trajectory has velocities that explain its steps, the Euler rule and the
+        trapezoid with the matching velocity timing are both aligned and fitted, and the
+        one with the better cross-validation score of the regressor is kept (the Euler
+        rule for regressors without one); otherwise the Euler rule.
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
         Kept well below ``eigen_tol``: many tiny weights add up to a link that decides
@@ -93,8 +99,9 @@ class PolicyAlign:
 
     Attributes
     ----------
-    integration_ : {"euler", "trapezoid"}
-        The rule used (also ``fit_summary_["integration"]``, saved with the model).
+    integration_ : {"euler", "trapezoid", "trapezoid_late"}
+        The rule used (also ``fit_summary_["integration"]``, saved with the model;
+        ``fit_summary_["integration_cv"]`` holds the scores it was chosen by).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,
@@ -197,48 +204,64 @@ class PolicyAlign:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
 
-        self.integration_ = (choose_method(trajs) if self.integration == "auto"
-                             else self.integration)
-        phi = [estimate_potential(t, self.integration_) for t in trajs]
         X = np.concatenate([t.positions for t in trajs])
         labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
-        phi_all = np.concatenate(phi)
         positions = [t.positions for t in trajs]
         closest = closest_approach_matrix(thin_trajectories(positions, HEURISTIC_POINTS))
         self.sigma2_ = resolve_sigma2(self.sigma, positions, closest)
         timings["sigma"] = time.perf_counter() - t0
         self._log(f"{len(trajs)} trajectories, {len(X)} samples, sigma^2 = {self.sigma2_:.4g}")
 
+        rules = [self.integration]
+        if self.integration == "auto":
+            rules = list(dict.fromkeys(["euler", choose_method(trajs)]))
         t1 = time.perf_counter()
+        phi = {rule: [estimate_potential(t, rule) for t in trajs] for rule in rules}
         table = local_model_table(
-            X, labels, phi_all, self.sigma2_,
+            X, labels, np.concatenate(phi[rules[0]]), self.sigma2_,
             weight_tol=self.weight_tol, merge_tol=self.merge_tol,
             max_neighbours=self.max_neighbours, closest=closest,
         )
+        # The outlier groups depend on the states only, not on the potentials.
         _, _, W = alignment_system(table)
         self.groups_ = weakly_connected_groups(W, self.eigen_tol)
-        H, a, _ = alignment_system(table, self.groups_)
-        self.offsets_ = solve_offsets(H, a)
         self.inliers_ = largest_group(self.groups_)
-        self.aligned_potentials_ = [p + b for p, b in zip(phi, self.offsets_, strict=True)]
+        keep = self.inliers_
+        aligned = {}
+        for rule in rules:
+            H, a, _ = alignment_system(table.with_potential(np.concatenate(phi[rule])),
+                                       self.groups_)
+            offsets = solve_offsets(H, a)
+            aligned[rule] = (offsets, [p + b for p, b in zip(phi[rule], offsets, strict=True)])
         timings["alignment"] = time.perf_counter() - t1
         self._log(
-            f"aligned with {len(table.q)} responsibilities; kept {len(self.inliers_)} of "
+            f"aligned with {len(table.q)} responsibilities; kept {len(keep)} of "
             f"{len(trajs)} trajectories ({timings['alignment']:.2f} s)"
         )
 
         t2 = time.perf_counter()
-        keep = self.inliers_
         Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
-        ytr = np.concatenate([self.aligned_potentials_[k][masks[k]] for k in keep])
         gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
-        regressor = TrendKernelRegression(random_state=self.random_state)
-        if self.regressor is not None:
-            regressor = copy.deepcopy(self.regressor)
-        self.regressor_ = regressor.fit(Xtr, ytr, groups=gtr)
+        template = (TrendKernelRegression(random_state=self.random_state)
+                    if self.regressor is None else self.regressor)
+        fits, scores = {}, {}
+        for rule in rules:
+            ytr = np.concatenate([aligned[rule][1][k][masks[k]] for k in keep])
+            fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr)
+            scores[rule] = _cv_score(fits[rule])
+            if len(rules) > 1 and scores[rule] is None:
+                break  # a regressor without CV scores cannot choose: the paper's Euler rule
+        # Between potential rules, the one whose aligned potentials the regressor's CV
+        # predicts best across held-out demonstrations: a biased rule leaves potentials no
+        # single smooth function explains.
+        self.integration_ = rules[0] if any(v is None for v in scores.values()) else min(
+            scores, key=scores.get)
+        self.offsets_, self.aligned_potentials_ = aligned[self.integration_]
+        self.regressor_ = fits[self.integration_]
         timings["regression"] = time.perf_counter() - t2
         timings["total"] = time.perf_counter() - t0
-        self._log(f"global model fitted on {len(Xtr)} samples ({timings['regression']:.2f} s)")
+        self._log(f"global model fitted on {len(Xtr)} samples with the {self.integration_} "
+                  f"potentials ({timings['regression']:.2f} s)")
 
         self.support_states_, groups = support_states([trajs[k].positions for k in keep])
         self.support_spacing_ = support_spacing(self.support_states_, groups)
@@ -256,6 +279,8 @@ class PolicyAlign:
             "n_groups": int(self.groups_.max() + 1),
             "n_responsibilities": int(len(table.q)),
             "integration": self.integration_,
+            "integration_cv": {rule: score for rule, score in scores.items()
+                               if score is not None},
             "timings_s": timings,
         }
         return self
@@ -403,3 +428,13 @@ class PolicyAlign:
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"{path}: malformed policy_align model file ({err})") from None
         return model
+
+
+def _cv_score(regressor) -> float | None:
+    """The regressor's cross-validation score of the hyperparameters it chose, if any."""
+    best = getattr(regressor, "cv_best_", None)
+    scores = getattr(regressor, "cv_scores_", None)
+    if best is None or not scores or best not in scores:
+        return None
+    score = float(scores[best])
+    return score if math.isfinite(score) else None

@@ -22,10 +22,14 @@ trapezoid rule averages the gradient at both ends of the step, which is exact fo
 quadratic potential under held commands and second order for smooth motion; measured
 velocities enter it linearly, so their noise does not bias it. It needs to know which
 velocity moved the state over a step: recorders differ (:data:`TIMINGS`), and a velocity
-one sample late doubles the Euler bias instead of removing it. ``"auto"`` therefore uses
-the trapezoid where velocities were recorded, with the timing that explains the steps
-best (:func:`choose_method`), and the Euler rule otherwise (no velocities, or velocity
-fields a driver leaves at zero or fills with something else).
+one sample late doubles the Euler bias instead of removing it. And the trapezoid is only
+exact while the constraint holds still over a step: a constraint that turns with the
+state (a hand plane seen in joint space) or a commanded velocity that is not the
+projected policy costs it accuracy that the Euler rule need not lose. So
+:func:`choose_method` names the trapezoid with the velocity timing that explains the
+steps best (or the Euler rule: no velocities, or velocity fields a driver leaves at zero
+or fills with something else), and ``PolicyAlign(integration="auto")`` fits both that
+and the Euler rule and keeps the one the regressor's cross-validation scores better.
 """
 
 from __future__ import annotations
