@@ -192,6 +192,7 @@ def run_node(
     args: Sequence[str] | None = None,
     *,
     executor_factory: Callable[[], Any] = SingleThreadedExecutor,
+    finish: Callable[[Any], None] | None = None,
 ) -> int:
     """``main()`` body of every node executable (ros2/demos Jazzy style).
 
@@ -211,6 +212,9 @@ def run_node(
         Command line (``--ros-args ...``); ``sys.argv`` when None.
     executor_factory : callable
         Executor class, e.g. MultiThreadedExecutor for a node with a worker callback group.
+    finish : callable, optional
+        Called with the node after the loop, before it is destroyed, while the context
+        is still valid (the recorder saves what is left there).
 
     Returns
     -------
@@ -249,6 +253,8 @@ def run_node(
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if node is not None:
+            if finish is not None:
+                finish(node)
             node.destroy_node()
         rclpy.try_shutdown()
     return code

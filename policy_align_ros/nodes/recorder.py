@@ -52,14 +52,12 @@ from __future__ import annotations
 
 import sys
 
-import rclpy
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
     ParameterDescriptor,
     SetParametersResult,
 )
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -74,6 +72,7 @@ from policy_align_ros.data.recording import (
     default_fallback_dirs,
     validate_gap,
 )
+from policy_align_ros.nodes._common import run_node
 
 __all__ = ["RecorderNode", "main"]
 
@@ -303,24 +302,16 @@ class RecorderNode(Node):
                 "(~/stop_demo was not called)")
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``recorder``."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = RecorderNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ValueError as err:  # invalid parameters at start-up
-        print(f"recorder: error: {err}", file=sys.stderr)
-        raise SystemExit(2) from None
-    finally:
-        if node is not None:
-            node.shutdown()
-            node.destroy_node()
-        rclpy.try_shutdown()
+def main(args: list[str] | None = None) -> int:
+    """Console script ``recorder``: :func:`run_node`'s stop flag, then :meth:`shutdown`
+    saves what is left before the node is destroyed.
+
+    With rclpy's own signal handlers, SIGTERM shut the context down under ``rclpy.spin``
+    and ``destroy_node`` then spun forever (a recorder left behind at 60 % CPU by the
+    README walkthrough's clean-up).
+    """
+    return run_node(RecorderNode, args, finish=RecorderNode.shutdown)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
