@@ -217,8 +217,9 @@ class PolicyAlign:
             rules = list(dict.fromkeys(["euler", choose_method(trajs)]))
         t1 = time.perf_counter()
         phi = {rule: [estimate_potential(t, rule) for t in trajs] for rule in rules}
+        phi_all = {rule: np.concatenate(phi[rule]) for rule in rules}
         table = local_model_table(
-            X, labels, np.concatenate(phi[rules[0]]), self.sigma2_,
+            X, labels, phi_all[rules[0]], self.sigma2_,
             weight_tol=self.weight_tol, merge_tol=self.merge_tol,
             max_neighbours=self.max_neighbours, closest=closest,
         )
@@ -229,8 +230,8 @@ class PolicyAlign:
         keep = self.inliers_
         aligned = {}
         for rule in rules:
-            H, a, _ = alignment_system(table.with_potential(np.concatenate(phi[rule])),
-                                       self.groups_)
+            rule_table = table if rule == rules[0] else table.with_potential(phi_all[rule])
+            H, a, _ = alignment_system(rule_table, self.groups_)
             offsets = solve_offsets(H, a)
             aligned[rule] = (offsets, [p + b for p, b in zip(phi[rule], offsets, strict=True)])
         timings["alignment"] = time.perf_counter() - t1

@@ -140,7 +140,11 @@ def velocity_disagreement(positions: np.ndarray, velocities: np.ndarray,
         are those of the motion (a constraint switch adds one bad step), 1 for velocities
         left at zero, 2 for the opposite sign; ``inf`` if nothing moves.
     """
-    miss, moved = _step_misses(positions, velocities, dt, timing)
+    return _relative_miss(*_step_misses(positions, velocities, dt, timing))
+
+
+def _relative_miss(miss: float, moved: float) -> float:
+    """``sqrt(miss / moved)``, ``inf`` when nothing moved."""
     return math.sqrt(miss / moved) if moved > 0 else math.inf
 
 
@@ -158,8 +162,7 @@ def choose_method(trajs: list[Trajectory]) -> str:
     totals = {}
     for timing in TIMINGS:
         sums = [_step_misses(t.positions, t.velocities, t.dt, timing) for t in trajs]
-        moved = sum(m for _, m in sums)
-        totals[timing] = math.sqrt(sum(e for e, _ in sums) / moved) if moved > 0 else math.inf
+        totals[timing] = _relative_miss(sum(e for e, _ in sums), sum(m for _, m in sums))
     best = min(TIMINGS, key=totals.get)
     if not totals[best] <= VELOCITY_AGREEMENT:
         return "euler"
