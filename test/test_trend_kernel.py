@@ -8,7 +8,11 @@ import pytest
 
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.regressors import REGISTRY, NotFittedError, TrendKernelRegression
-from policy_align_ros.learning.regressors.trend_kernel import CURVATURE_FLOOR, quadratic_features
+from policy_align_ros.learning.regressors.trend_kernel import (
+    CURVATURE_FLOOR,
+    _solve_shared,
+    quadratic_features,
+)
 
 
 def _descent(grad, starts, steps, dt):
@@ -58,6 +62,22 @@ def test_quadratic_features_give_the_frobenius_norm():
     coef = np.where(iu == ju, S[iu, ju], math.sqrt(2.0) * S[iu, ju])
     np.testing.assert_allclose(F[:, 5:] @ coef, np.einsum("ij,jk,ik->i", Z, S, Z))
     assert coef @ coef == pytest.approx((S**2).sum())
+
+
+def test_shared_block_solves_equal_the_direct_solves():
+    # The CV factors the trend's block once for all kernel penalties (Schur complement).
+    rng = np.random.default_rng(7)
+    A = rng.standard_normal((200, 30))
+    M, b, q = A.T @ A / 200, rng.standard_normal(30), 12
+    penalties = []
+    for k in (1e-6, 1e-2, 1.0):
+        P = np.zeros((30, 30))
+        P[:q, :q] = np.diag(np.full(q, 1e-3))
+        B = rng.standard_normal((30 - q, 30 - q))
+        P[q:, q:] = k * (B @ B.T + np.eye(30 - q))
+        penalties.append(P)
+    for P, w in zip(penalties, _solve_shared(M, b, penalties, q), strict=True):
+        np.testing.assert_allclose(w, np.linalg.solve(M + P, b), rtol=1e-9, atol=1e-12)
 
 
 def test_gradient_matches_finite_differences():

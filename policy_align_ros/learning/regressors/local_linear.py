@@ -77,13 +77,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from policy_align_ros.learning.regressors._common import NotFittedError, assign_folds
+from policy_align_ros.learning.regressors._common import (
+    NotFittedError,
+    assign_folds,
+    single_blas_thread,
+)
 
-try:  # Optional: OpenBLAS threads slow the many small products here down a lot.
-    from threadpoolctl import ThreadpoolController
-except ImportError:  # pragma: no cover - depends on the environment
-    ThreadpoolController = None
-_CONTROLLER = None  # built once: inspecting the loaded BLAS libraries takes ~10 ms
 #: Below this many query points a prediction is too small for BLAS threads to matter,
 #: and the executor's 1 kHz control step cannot afford even a cheap thread-limit switch.
 SMALL_QUERY = 64
@@ -135,20 +134,6 @@ _STATE_VERSION = 3
 #: older model files still load: ``increment_weight`` (removed derivative equations, which
 #: were off by default; a state with a positive weight loads with its fitted models as is).
 _REMOVED_PARAMS = ("increment_weight",)
-
-
-def single_blas_thread() -> contextlib.AbstractContextManager:
-    """Context limiting BLAS to one thread (when threadpoolctl is installed).
-
-    The fit and the prediction run many small matrix products; on a shared machine
-    OpenBLAS's thread pool made them up to 8 times slower than one thread.
-    """
-    global _CONTROLLER
-    if ThreadpoolController is None:
-        return contextlib.nullcontext()
-    if _CONTROLLER is None:
-        _CONTROLLER = ThreadpoolController()
-    return _CONTROLLER.limit(limits=1, user_api="blas")
 
 
 def _blas_context(n_queries: int) -> contextlib.AbstractContextManager:
