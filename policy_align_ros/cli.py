@@ -87,6 +87,9 @@ def _build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                        help="suite only: a TrendKernelRegression parameter of the new model "
                             "(repeatable), e.g. offset_ridge=inf, for ablations")
+    bench.add_argument("--noise", type=float, default=0.0, metavar="F",
+                       help="suite only: white noise on the recorded positions of the "
+                            "training demonstrations, of RMS norm F median steps per sample")
     return parser
 
 

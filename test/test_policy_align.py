@@ -63,7 +63,7 @@ def test_policy_is_invariant_to_constants_added_to_trajectory_potentials(monkeyp
     shifts = iter(np.random.default_rng(9).normal(scale=50.0, size=25))
     original = pa_module.estimate_potential
     monkeypatch.setattr(pa_module, "estimate_potential",
-                        lambda traj, method: original(traj, method) + next(shifts))
+                        lambda traj, *args: original(traj, *args) + next(shifts))
     shifted = PolicyAlign(sigma="medium").fit(data.trajectories)
     X = np.random.default_rng(1).uniform(-1.5, 1.5, size=(50, 2))
     np.testing.assert_allclose(shifted.policy(X), reference.policy(X), rtol=1e-6, atol=1e-9)
@@ -149,3 +149,31 @@ def test_default_integration_uses_recorded_velocities_that_explain_the_motion():
     # A driver that leaves the velocity field at zero: the velocities are not used.
     zeroed = [Trajectory(d.positions, d.times, np.zeros_like(d.velocities)) for d in demos]
     assert PolicyAlign(random_state=0).fit(zeroed).integration_ == "euler"
+
+
+def test_noisy_recordings_without_velocities_still_give_the_policy(monkeypatch):
+    # Position noise as large as the median step (100 Hz): every squared step gains
+    # 2 s^2 on average, which the fit estimates and removes.
+    rng = np.random.default_rng(6)
+    pot = QuadraticPotential([0.3, -0.2, 0.1], np.diag([0.5, 1.0, 2.0]))
+    clean = []
+    for k in range(16):
+        rows = rng.standard_normal((2, 3))
+        clean.append(rollout(rng.uniform(-1, 1, 3), pot,
+                             lambda x, t, pi, r=rows: r[:1] if t < 1.0 else r[1:], 200,
+                             0.01, name=str(k)).trajectory)
+    steps = np.concatenate([np.linalg.norm(np.diff(d.positions, axis=0), axis=1)
+                            for d in clean])
+    sd = np.median(steps) / np.sqrt(3)
+    noisy = [Trajectory(d.positions + sd * rng.standard_normal(d.positions.shape), d.times)
+             for d in clean]
+    model = PolicyAlign(random_state=0).fit(noisy)
+    assert model.position_noise_ == pytest.approx(3 * sd**2, rel=0.15)
+    assert 0.1 < model.fit_summary_["noise_to_step"] < 2.0
+    X = rng.uniform(-1, 1, (200, 3))
+    corrected = metrics.nupe(pot.policy(X), model.policy(X))
+    assert corrected < 0.01
+    # The same fit without the correction: the noise's drift swamps the potential.
+    monkeypatch.setattr(pa_module, "position_noise", lambda positions: 0.0)
+    uncorrected = PolicyAlign(random_state=0).fit(noisy)
+    assert metrics.nupe(pot.policy(X), uncorrected.policy(X)) > 5 * corrected

@@ -8,6 +8,7 @@ from policy_align_ros.learning.potential import (
     choose_method,
     estimate_potential,
     euler_potential,
+    position_noise,
     trapezoid_potential,
     velocity_disagreement,
 )
@@ -107,3 +108,49 @@ def test_velocities_reported_one_sample_late_are_detected_and_shifted():
     np.testing.assert_allclose(estimate_potential(traj, "auto")[:-1], truth[:-1],
                                atol=1e-12)
     assert err["trapezoid_late"] < 0.05 * err["euler"]
+
+
+def _noisy(X, sd, seed):
+    return X + sd * np.random.default_rng(seed).standard_normal(X.shape)
+
+
+def test_position_noise_is_measured_and_smooth_motion_is_not_taken_for_noise():
+    W = np.diag([0.5, 2.0])
+    runs = [_held_commands(W, x0, 0.01, 400) for x0 in ((1.0, -0.5), (-0.8, 0.9))]
+    clean = [X for _, X, _, _ in runs]
+    steps = np.concatenate([np.sum(np.diff(X, axis=0) ** 2, axis=1) for X in clean])
+    assert position_noise(clean) < 1e-6 * steps.mean()
+    sd = 2e-3  # per coordinate; the total variance is 2 sd^2
+    noisy = [_noisy(X, sd, k) for k, X in enumerate(clean)]
+    assert position_noise(noisy) == pytest.approx(2 * sd**2, rel=0.1)
+    assert position_noise([np.zeros((4, 2))]) == 0.0  # too short to tell
+
+
+def test_euler_rule_corrected_for_noise_is_unbiased():
+    # Noise as large as the steps adds 2 s^2 to every squared step: uncorrected, the
+    # potential drifts with time far beyond its true drop.
+    W = np.diag([0.5, 2.0])
+    t, X, _, phi = _held_commands(W, (1.0, -0.5), 0.01, 400)
+    truth = phi[-1] - phi[0]
+    drift, corrected = [], []
+    for seed in range(20):
+        Y = _noisy(X, 2e-3, seed)
+        noise = position_noise([Y])
+        drift.append(euler_potential(Y, 0.01)[-1])
+        corrected.append(euler_potential(Y, 0.01, noise)[-1])
+    assert abs(np.mean(drift) - truth) > 0.5 * abs(truth)
+    assert np.mean(corrected) == pytest.approx(truth, rel=0.1)
+
+
+def test_noisy_positions_do_not_hide_velocities_that_explain_them():
+    W = np.diag([0.5, 2.0])
+    t, X, V, _ = _held_commands(W, (1.0, -0.5), 0.01, 400)
+    Y = _noisy(X, 2e-3, 0)
+    traj = Trajectory(Y, times=t, velocities=V)
+    assert velocity_disagreement(Y, V, np.diff(t), "ahead") > 0.5
+    noise = position_noise([Y])
+    assert velocity_disagreement(Y, V, np.diff(t), "ahead", noise) < 0.3
+    assert choose_method([traj]) == "euler"
+    assert choose_method([traj], noise) == "trapezoid"
+    zeros = Trajectory(Y, times=t, velocities=np.zeros_like(V))
+    assert choose_method([zeros], noise) == "euler"

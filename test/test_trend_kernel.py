@@ -78,6 +78,10 @@ def test_shared_block_solves_equal_the_direct_solves():
         penalties.append(P)
     for P, w in zip(penalties, _solve_shared(M, b, penalties, q), strict=True):
         np.testing.assert_allclose(w, np.linalg.solve(M + P, b), rtol=1e-9, atol=1e-12)
+    # The trailing block shared instead (the kernel's, while the trend's penalty varies).
+    tail = [P[::-1, ::-1].copy() for P in penalties]
+    for P, w in zip(tail, _solve_shared(M, b, tail, -q), strict=True):
+        np.testing.assert_allclose(w, np.linalg.solve(M + P, b), rtol=1e-9, atol=1e-12)
 
 
 def test_gradient_matches_finite_differences():

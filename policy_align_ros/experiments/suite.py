@@ -23,7 +23,10 @@ its nUPE on the new-start demonstrations; the pick is "good" when its nUPE is wi
 of the best candidate's.
 
 Seeds: defaults were chosen on the tuning seeds (``--seed 1000``); the README shows the
-reporting seeds (``--seed 0``, 3 data sets).
+reporting seeds (``--seed 0``, 3 data sets). ``--noise F`` adds white noise of RMS norm
+``F`` times the data set's median step to every recorded position of the training
+demonstrations (the recorded velocities, the test demonstrations and the rollouts stay
+exact), to measure how recordings from real sensors fare.
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ from policy_align_ros.experiments.demonstrators import (
     TaskSpacePotential,
     rollout,
 )
-from policy_align_ros.learning import PolicyAlign, metrics
+from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.learning.regressors import LocalLinearRegression, TrendKernelRegression
 
@@ -333,11 +336,13 @@ def _stack(demos, masks=None):
     return X, pi, N
 
 
-def _refit(model: PolicyAlign, regressor, demos, masks) -> tuple[PolicyAlign, float]:
-    """A copy of ``model`` whose global model is ``regressor`` fitted on its aligned data."""
+def _refit(model: PolicyAlign, regressor, trajs: list[Trajectory], masks
+           ) -> tuple[PolicyAlign, float]:
+    """A copy of ``model`` whose global model is ``regressor`` fitted on its aligned data
+    (``trajs``: the recordings ``model`` was fitted on)."""
     t0 = time.perf_counter()
     keep = model.inliers_
-    X = np.concatenate([demos[k].trajectory.positions[masks[k]] for k in keep])
+    X = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
     y = np.concatenate([model.aligned_potentials_[k][masks[k]] for k in keep])
     g = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
     out = copy.copy(model)
@@ -379,7 +384,7 @@ def _policy_time_us(model: PolicyAlign, x: np.ndarray, repeats: int = 200) -> fl
     return float(np.median(times)) / 1e3
 
 
-def _candidate_check(model: PolicyAlign, demos, masks, X, pi) -> dict[str, float]:
+def _candidate_check(model: PolicyAlign, trajs, masks, X, pi) -> dict[str, float]:
     """nUPE of every CV candidate refitted with fixed hyperparameters vs the CV pick."""
     chosen = model.regressor_
     scores = {}
@@ -388,7 +393,7 @@ def _candidate_check(model: PolicyAlign, demos, masks, X, pi) -> dict[str, float
         reg = TrendKernelRegression(trend_ridge=t, kernel_ridge=k, offset_ridge=o,
                                     length_scale=1.0 if math.isnan(ell) else ell,
                                     random_state=chosen.random_state)
-        refit, _ = _refit(model, reg, demos, masks)
+        refit, _ = _refit(model, reg, trajs, masks)
         scores[(t, ell, k, o)] = metrics.nupe(pi, refit.policy(X))
     best = min(scores.values())
     picked = chosen.cv_best_
@@ -416,10 +421,25 @@ def parse_settings(items: list[str]) -> dict[str, str | float]:
     return out
 
 
+def _with_noise(demos: list[Demonstration], level: float, seed: int) -> list[Trajectory]:
+    """The demonstrations' trajectories with white noise of RMS norm ``level`` median
+    steps added to every position (a separate stream: the data sets stay the same)."""
+    trajs = [d.trajectory for d in demos]
+    if level == 0.0:
+        return trajs
+    steps = np.concatenate([np.linalg.norm(np.diff(t.positions, axis=0), axis=1)
+                            for t in trajs])
+    sd = level * float(np.median(steps)) / math.sqrt(trajs[0].n_dims)
+    rng = np.random.default_rng([seed, 7])
+    return [Trajectory(t.positions + sd * rng.standard_normal(t.positions.shape), t.times,
+                       t.velocities, name=t.name) for t in trajs]
+
+
 def run_case(task: tuple) -> dict:
     """Generate one data set of a case, fit, and measure both global models."""
     name, seed = task[:2]
     settings = task[2] if len(task) > 2 else {}
+    noise = task[3] if len(task) > 3 else 0.0
     case = CASES[name]
     rng = np.random.default_rng(seed)
     problem = case.make(rng)
@@ -434,7 +454,8 @@ def run_case(task: tuple) -> dict:
     t0 = time.perf_counter()
     base = PolicyAlign(sigma=problem.sigma, random_state=seed,
                        regressor=TrendKernelRegression(random_state=seed, **settings))
-    base.fit([d.trajectory for d in train], train_mask=masks)
+    recorded = _with_noise(train, noise, seed)
+    base.fit(recorded, train_mask=masks)
     total = time.perf_counter() - t0
     regression_time = base.fit_summary_["timings_s"]["regression"]
     Xd, pid, Nd = _stack(test)
@@ -443,7 +464,8 @@ def run_case(task: tuple) -> dict:
     result = {"case": name, "seed": seed, "n": case.n, "rate": case.rate,
               "discarded_pct": metrics.percent_discarded(base), "models": {}}
     models = {"new": (base, total)}
-    previous, t_prev = _refit(base, LocalLinearRegression(random_state=seed), train, masks)
+    previous, t_prev = _refit(base, LocalLinearRegression(random_state=seed), recorded,
+                              masks)
     models["previous"] = (previous, total - regression_time + t_prev)
     for label, (model, fit_time) in models.items():
         demo = _errors(model, Xd, pid, Nd)
@@ -454,7 +476,7 @@ def run_case(task: tuple) -> dict:
             "fit_s": fit_time, "policy_us": _policy_time_us(model, Xd[0]),
             **_closed_loop(model, problem, starts, goals),
         }
-    result["cv"] = _candidate_check(base, train, masks, Xd, pid)
+    result["cv"] = _candidate_check(base, recorded, masks, Xd, pid)
     result["chosen"] = {name: getattr(base.regressor_, name + "_") for name in
                         ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")}
     return result
@@ -513,7 +535,10 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown suite case(s) {unknown}; known: {sorted(CASES)}")
     n_sets = args.datasets or 3
     settings = parse_settings(getattr(args, "set", None) or [])
-    tasks = [(name, args.seed + i, settings) for i in range(n_sets) for name in names]
+    noise = float(getattr(args, "noise", 0.0) or 0.0)
+    if not (math.isfinite(noise) and noise >= 0.0):
+        raise ValueError(f"--noise must be a finite number >= 0, got {noise}")
+    tasks = [(name, args.seed + i, settings, noise) for i in range(n_sets) for name in names]
     # Slow cases first, so that the worker pool stays busy.
     tasks.sort(key=lambda t: -CASES[t[0]].n)
     t0 = time.perf_counter()
@@ -521,6 +546,7 @@ def main(args: argparse.Namespace) -> int:
     table = format_table(results)
     took = time.perf_counter() - t0
     changed = "".join(f", {k}={v}" for k, v in settings.items())
+    changed += f", position noise {noise:g} median steps" if noise else ""
     text = (f"Suite, seeds {args.seed}..{args.seed + n_sets - 1}, {len(tasks)} data sets, "
             f"{took:.0f} s with --jobs {args.jobs}{changed}\n\n{table}\n")
     print(text)

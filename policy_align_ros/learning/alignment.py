@@ -288,18 +288,38 @@ def _nearest_per_trajectory_tree(X, labels, tree, ref_labels, radius, per_point)
 
 
 def _nearest_per_trajectory_dense(X, labels, R, ref_labels, radius):
-    """Same as the tree search, from one (M, N_k) distance block per trajectory."""
-    sq_x = np.einsum("ij,ij->i", X, X)
+    """Same as the tree search, from distance blocks of whole reference trajectories.
+
+    The nearest reference point of every query is found in single precision (half the
+    work of the matrix product, which dominates: 22-D, 10^4 points, 0.69 s -> 0.39 s),
+    on data centred first so that the expanded distances do not cancel; its squared
+    distance is then computed again exactly. Two references within single-precision
+    round-off of each other may swap, which changes a weight by as little.
+    """
+    centre = R.mean(axis=0)
+    X32 = (X - centre).astype(np.float32)
+    R32 = (R - centre).astype(np.float32)
+    sq_r = np.einsum("ij,ij->i", R32, R32)
     M = len(X)
-    for k in range(int(ref_labels[-1]) + 1):
-        idx = np.flatnonzero(ref_labels == k)
-        Rk = R[idx]
-        d2 = sq_x[:, None] + np.einsum("ij,ij->i", Rk, Rk)[None, :] - 2.0 * X @ Rk.T
-        arg = np.argmin(d2, axis=1)
-        best = np.maximum(d2[np.arange(M), arg], 0.0)
-        keep = (best <= radius**2) & (labels != k)
-        m = np.flatnonzero(keep)
-        yield m, np.full(len(m), k, dtype=np.int64), idx[arg[keep]], best[keep]
+    K = int(ref_labels[-1]) + 1
+    bounds = np.searchsorted(ref_labels, np.arange(K + 1))
+    per_block = max(1, _CHUNK_PAIRS // max(M, 1))
+    k0 = 0
+    while k0 < K:
+        k1 = k0 + 1
+        while k1 < K and bounds[k1 + 1] - bounds[k0] <= per_block:
+            k1 += 1
+        rows = slice(bounds[k0], bounds[k1])
+        # ||x - r||^2 - ||x||^2: the same nearest r for every x, one pass less.
+        part = sq_r[rows, None] - 2.0 * (R32[rows] @ X32.T)
+        for k in range(k0, k1):
+            block = part[bounds[k] - bounds[k0]:bounds[k + 1] - bounds[k0]]
+            j = bounds[k] + np.argmin(block, axis=0)
+            diff = X - R[j]
+            best = np.einsum("ij,ij->i", diff, diff)
+            m = np.flatnonzero((best <= radius**2) & (labels != k))
+            yield m, np.full(len(m), k, dtype=np.int64), j[m], best[m]
+        k0 = k1
 
 
 def dense_local_model_table(

@@ -43,7 +43,12 @@ from policy_align_ros.learning.bandwidth import (
     thin_trajectories,
 )
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
-from policy_align_ros.learning.potential import METHODS, choose_method, estimate_potential
+from policy_align_ros.learning.potential import (
+    METHODS,
+    choose_method,
+    estimate_potential,
+    position_noise,
+)
 from policy_align_ros.learning.regressors import (
     NotFittedError,
     TrendKernelRegression,
@@ -102,6 +107,12 @@ class PolicyAlign:
     integration_ : {"euler", "trapezoid", "trapezoid_late"}
         The rule used (also ``fit_summary_["integration"]``, saved with the model;
         ``fit_summary_["integration_cv"]`` holds the scores it was chosen by).
+    position_noise_ : float
+        Estimated variance of white noise on the states, summed over the coordinates
+        (squared state units; :func:`~policy_align_ros.learning.potential.position_noise`);
+        the Euler rule and the velocity check are corrected for it.
+        ``fit_summary_["noise_to_step"]`` is the share of the mean squared step it
+        explains: near 1, the recording's steps are mostly noise.
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,
@@ -212,11 +223,13 @@ class PolicyAlign:
         timings["sigma"] = time.perf_counter() - t0
         self._log(f"{len(trajs)} trajectories, {len(X)} samples, sigma^2 = {self.sigma2_:.4g}")
 
+        t1 = time.perf_counter()
+        self.position_noise_ = position_noise(positions)
         rules = [self.integration]
         if self.integration == "auto":
-            rules = list(dict.fromkeys(["euler", choose_method(trajs)]))
-        t1 = time.perf_counter()
-        phi = {rule: [estimate_potential(t, rule) for t in trajs] for rule in rules}
+            rules = list(dict.fromkeys(["euler", choose_method(trajs, self.position_noise_)]))
+        phi = {rule: [estimate_potential(t, rule, self.position_noise_) for t in trajs]
+               for rule in rules}
         phi_all = {rule: np.concatenate(phi[rule]) for rule in rules}
         table = local_model_table(
             X, labels, phi_all[rules[0]], self.sigma2_,
@@ -282,6 +295,8 @@ class PolicyAlign:
             "integration": self.integration_,
             "integration_cv": {rule: score for rule, score in scores.items()
                                if score is not None},
+            "position_noise_rms": math.sqrt(self.position_noise_),
+            "noise_to_step": _noise_to_step(positions, self.position_noise_),
             "timings_s": timings,
         }
         return self
@@ -429,6 +444,13 @@ class PolicyAlign:
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"{path}: malformed policy_align model file ({err})") from None
         return model
+
+
+def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:
+    """``2 noise`` over the mean squared step: the share of the steps that is noise."""
+    squared = [np.einsum("ij,ij->i", d, d) for d in (np.diff(p, axis=0) for p in positions)]
+    mean = float(np.mean(np.concatenate(squared)))
+    return 2.0 * noise / mean if mean > 0 else math.inf
 
 
 def _cv_score(regressor) -> float | None:
