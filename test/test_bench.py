@@ -3,8 +3,10 @@
 import json
 
 import numpy as np
+import pytest
 
 from policy_align_ros.cli import main
+from policy_align_ros.experiments import suite
 from policy_align_ros.experiments.scale import _child, make_scale_dataset
 
 
@@ -56,3 +58,21 @@ def test_suite_rejects_unknown_cases_and_settings(tmp_path, capsys):
     assert "unknown suite case" in capsys.readouterr().err
     assert main(["bench", "suite", "--set", "bogus=1", "--out", str(tmp_path)]) == 2
     assert "expected NAME=VALUE" in capsys.readouterr().err
+    assert main(["bench", "suite", "--noise", "-1", "--out", str(tmp_path)]) == 2
+    assert "--noise" in capsys.readouterr().err
+
+
+def test_suite_noise_has_the_requested_size_and_spares_the_velocities():
+    rng = np.random.default_rng(0)
+    problem = suite.CASES["quad_aniso_3"].make(rng)
+    demos = suite._demos(problem, problem.sample_starts(rng, 5), rng)
+    noisy = suite._with_noise(demos, 0.5, seed=0)
+    clean = [d.trajectory for d in demos]
+    steps = np.concatenate([np.linalg.norm(np.diff(t.positions, axis=0), axis=1)
+                            for t in clean])
+    pairs = list(zip(noisy, clean, strict=True))
+    added = np.concatenate([n.positions - c.positions for n, c in pairs])
+    rms_norm = np.sqrt(np.mean(np.sum(added**2, axis=1)))
+    assert rms_norm == pytest.approx(0.5 * np.median(steps), rel=0.05)
+    assert all(np.array_equal(n.velocities, c.velocities) for n, c in pairs)
+    assert suite._with_noise(demos, 0.0, seed=0)[0] is clean[0]
