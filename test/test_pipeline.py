@@ -8,6 +8,7 @@ Datasets are rosbag2 bags of 2-D demonstrations (joints ``j1``, ``j2``, 20 Hz) o
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -99,6 +100,14 @@ def test_training_block_holds_the_summary(clean, dataset):
     line = result.line()
     assert "of 6 training demonstrations" in line and "2 held out" in line
     assert f"held-out nCPE {block['heldout_ncpe_observed']:.4f}" in line and str(path) in line
+    # Noise-free recordings: nothing to report.
+    assert block["noise_to_step"] < 1e-6 and "position noise" not in line
+
+
+def test_the_summary_line_names_noisy_recordings(clean):
+    result, _ = clean
+    noisy = dataclasses.replace(result, summary={**result.summary, "noise_to_step": 0.42})
+    assert "position noise 42 % of the mean squared step (corrected)" in noisy.line()
 
 
 def test_same_dataset_twice_and_copied_bags_are_skipped_as_duplicates(

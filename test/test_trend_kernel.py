@@ -10,6 +10,8 @@ from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.regressors import REGISTRY, NotFittedError, TrendKernelRegression
 from policy_align_ros.learning.regressors.trend_kernel import (
     CURVATURE_FLOOR,
+    OFFSET_RIDGE_GRID,
+    TREND_RIDGE_GRID,
     _solve_shared,
     quadratic_features,
 )
@@ -141,6 +143,12 @@ def test_cv_adds_the_kernel_residual_where_a_quadratic_cannot_fit():
                 / np.sum(grad(Xt) ** 2))
 
     assert nupe(model) < 0.05 < nupe(trend_only)
+    # With the residual kept, its trend and offset penalties were scored again with it:
+    # every pair of the grids, and the pick is the best of them.
+    t, ell, k, o = model.cv_best_
+    with_residual = {key: v for key, v in model.cv_scores_.items() if key[1:3] == (ell, k)}
+    assert len(with_residual) == len(TREND_RIDGE_GRID) * len(OFFSET_RIDGE_GRID)
+    assert min(with_residual, key=with_residual.get) == model.cv_best_
 
 
 def test_state_round_trip_survives_json():

@@ -50,6 +50,10 @@ from policy_align_ros.data.bags import load_dataset
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.state_spec import parse_state_spec
 
+#: Share of the mean squared step explained by position noise from which the summary
+#: line mentions it (the fit corrects for any amount; see PolicyAlign.position_noise_).
+NOISY_STEPS = 0.1
+
 __all__ = [
     "Gates",
     "PipelineResult",
@@ -289,8 +293,11 @@ class PipelineResult:
             text += f", {len(demos['duplicates'])} duplicates skipped"
         if s["skipped_bags"]:
             text += f", {len(s['skipped_bags'])} bags skipped"
-        text += (f"); state {s['state']}; sigma^2={s['sigma2']:.4g}; "
-                 f"fit {s['fit_time_s']:.2f} s; held-out nCPE "
+        text += f"); state {s['state']}; sigma^2={s['sigma2']:.4g}; "
+        noisy = s.get("noise_to_step")
+        if noisy is not None and noisy >= NOISY_STEPS:
+            text += f"position noise {100 * noisy:.0f} % of the mean squared step (corrected); "
+        text += (f"fit {s['fit_time_s']:.2f} s; held-out nCPE "
                  + ("n/a" if ncpe is None else f"{ncpe:.4f}") + " (along observed motion)")
         current = s.get("current_model") or {}
         if current.get("heldout_ncpe_observed") is not None:
@@ -579,6 +586,7 @@ def learn_pipeline(
         "skipped_bags": skipped_bags,
         "cut_short_bags": cut_short,
         "sigma2": float(model.sigma2_),
+        "noise_to_step": _jsonable(model.fit_summary_["noise_to_step"]),
         "fit_time_s": float(fit_s),
         "heldout_ncpe_observed": ncpe,
         "state": state,

@@ -339,7 +339,10 @@ def _upper(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Indices of the upper triangle of an (n, n) matrix, and the feature scale of each
     entry (1 on the diagonal, sqrt 2 off it; see :func:`quadratic_features`)."""
     iu, ju = np.triu_indices(n)
-    return iu, ju, np.where(iu == ju, 1.0, math.sqrt(2.0))
+    out = (iu, ju, np.where(iu == ju, 1.0, math.sqrt(2.0)))
+    for a in out:
+        a.flags.writeable = False  # shared between calls
+    return out
 
 
 def _symmetric(coef: np.ndarray, n: int) -> np.ndarray:
@@ -534,11 +537,9 @@ class TrendKernelRegression:
             # 2. ... then the residual its length scale and penalty, jointly with the trend.
             finite_k = [k for k in k_grid if math.isfinite(k)]
             t_best, o_best = best[0], best[3]
-            kernel_grams = {}
             for ell in lengths if finite_k else ():
-                grams = kernel_grams[ell] = _FoldGrams(
-                    np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold, n,
-                    base=trend_grams)
+                grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold,
+                                   n, base=trend_grams)
                 Kcc = _gaussian(C, C, ell)
                 scores = grams.scores([self._penalty(n, t_best, k, Kcc) for k in finite_k],
                                       o_best, shared=_n_trend(n))
@@ -552,16 +553,18 @@ class TrendKernelRegression:
             # apart with the residual, whose nUPE they took from 0.02 to 0.15).
             if math.isfinite(best[2]) and (len(t_grid) > 1 or len(o_grid) > 1):
                 ell, k = best[1], best[2]
+                # Summed again rather than kept from stage 2: four length scales' sums
+                # held at once doubled the peak memory of a 22-D fit.
+                grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold,
+                                   n, base=trend_grams)
                 Kcc = _gaussian(C, C, ell)
                 for o in o_grid:
-                    scores = kernel_grams[ell].scores(
-                        [self._penalty(n, t, k, Kcc) for t in t_grid], o,
-                        shared=-len(C))
+                    scores = grams.scores([self._penalty(n, t, k, Kcc) for t in t_grid], o,
+                                          shared=-len(C))
                     for t, (score, _) in zip(t_grid, scores, strict=True):
                         self.cv_scores_[(t, ell, k, o)] = score
                 best = min((key for key in self.cv_scores_ if key[1:3] == (ell, k)),
                            key=self.cv_scores_.get)
-            del kernel_grams
             self.cv_best_ = best
             if math.isnan(best[1]):
                 best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
