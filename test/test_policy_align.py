@@ -177,3 +177,24 @@ def test_noisy_recordings_without_velocities_still_give_the_policy(monkeypatch):
     monkeypatch.setattr(pa_module, "position_noise", lambda positions: 0.0)
     uncorrected = PolicyAlign(random_state=0).fit(noisy)
     assert metrics.nupe(pot.policy(X), uncorrected.policy(X)) > 5 * corrected
+
+
+def test_auto_removes_the_euler_rescaling_of_an_isotropic_potential():
+    # With H a multiple of the identity the Euler potentials are the true ones times a
+    # constant, invisible to the CV; trusted velocities measure it.
+    rng = np.random.default_rng(8)
+    w, dt = 0.5, 0.05
+    pot = QuadraticPotential([0.3, -0.2, 0.1], w * np.eye(3))
+    demos = []
+    for k in range(12):
+        rows = rng.standard_normal((2, 3))
+        demos.append(rollout(rng.uniform(-1, 1, 3), pot,
+                             lambda x, t, pi, r=rows: r[:1] if t < 1.0 else r[1:], 60, dt,
+                             name=str(k)).trajectory)
+    auto = PolicyAlign(random_state=0).fit(demos)
+    euler = PolicyAlign(integration="euler", random_state=0).fit(demos)
+    assert auto.euler_scale_ == pytest.approx(1.0 - w * dt, rel=1e-6)
+    assert auto.fit_summary_["euler_scale"] == auto.euler_scale_ and euler.euler_scale_ == 1.0
+    X = rng.uniform(-1, 1, (200, 3))
+    assert metrics.nupe(pot.policy(X), auto.policy(X)) < 1e-4
+    assert metrics.nupe(pot.policy(X), euler.policy(X)) > 1e-4

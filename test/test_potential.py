@@ -8,6 +8,7 @@ from policy_align_ros.learning.potential import (
     choose_method,
     estimate_potential,
     euler_potential,
+    euler_scale,
     position_noise,
     trapezoid_potential,
     velocity_disagreement,
@@ -154,3 +155,18 @@ def test_noisy_positions_do_not_hide_velocities_that_explain_them():
     assert choose_method([traj], noise) == "trapezoid"
     zeros = Trajectory(Y, times=t, velocities=np.zeros_like(V))
     assert choose_method([zeros], noise) == "euler"
+
+
+def test_euler_scale_measures_the_euler_bias_of_an_isotropic_potential():
+    # phi = w |x|^2 under held commands: every Euler drop is the true one over (1 - w dt).
+    w, dt = 0.5, 0.05
+    trajs = []
+    for x0 in ((1.0, -0.5), (-0.3, 0.8)):
+        t, X, V, phi = _held_commands(w * np.eye(2), x0, dt, 60)
+        trajs.append(Trajectory(X, times=t, velocities=V))
+    c = euler_scale(trajs, "trapezoid")
+    assert c == pytest.approx(1.0 - w * dt, rel=1e-9)
+    t, X, V, phi = _held_commands(w * np.eye(2), (1.0, -0.5), dt, 60)
+    np.testing.assert_allclose(c * euler_potential(X, dt), phi - phi[0], atol=1e-12)
+    resting = Trajectory(np.zeros((5, 2)), velocities=np.zeros((5, 2)))
+    assert euler_scale([resting], "trapezoid") == 1.0

@@ -47,6 +47,7 @@ from policy_align_ros.learning.potential import (
     METHODS,
     choose_method,
     estimate_potential,
+    euler_scale,
     position_noise,
 )
 from policy_align_ros.learning.regressors import (
@@ -77,7 +78,9 @@ class PolicyAlign:
         trajectory has velocities that explain its steps, the Euler rule and the
         trapezoid with the matching velocity timing are both aligned and fitted, and the
         one with the better cross-validation score of the regressor is kept (the Euler
-        rule for regressors without one); otherwise the Euler rule.
+        rule for regressors without one), and the Euler potentials are first rescaled by
+        the velocities' measure of the Euler rule's bias (``euler_scale_``); otherwise the
+        Euler rule.
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
         Kept well below ``eigen_tol``: many tiny weights add up to a link that decides
@@ -107,6 +110,10 @@ class PolicyAlign:
     integration_ : {"euler", "trapezoid", "trapezoid_late"}
         The rule used (also ``fit_summary_["integration"]``, saved with the model;
         ``fit_summary_["integration_cv"]`` holds the scores it was chosen by).
+    euler_scale_ : float
+        Factor applied to the Euler potentials with ``integration="auto"`` where
+        velocities are trusted (:func:`~policy_align_ros.learning.potential.euler_scale`;
+        1 otherwise; also ``fit_summary_["euler_scale"]``).
     position_noise_ : float
         Estimated variance of white noise on the states, summed over the coordinates
         (squared state units; :func:`~policy_align_ros.learning.potential.position_noise`);
@@ -230,6 +237,11 @@ class PolicyAlign:
             rules = list(dict.fromkeys(["euler", choose_method(trajs, self.position_noise_)]))
         phi = {rule: [estimate_potential(t, rule, self.position_noise_) for t in trajs]
                for rule in rules}
+        self.euler_scale_ = 1.0
+        if len(rules) > 1:
+            # Trusted velocities measure the Euler rule's bias: a rescaling, to first order.
+            self.euler_scale_ = euler_scale(trajs, rules[1], self.position_noise_)
+            phi["euler"] = [self.euler_scale_ * p for p in phi["euler"]]
         phi_all = {rule: np.concatenate(phi[rule]) for rule in rules}
         table = local_model_table(
             X, labels, phi_all[rules[0]], self.sigma2_,
@@ -295,6 +307,7 @@ class PolicyAlign:
             "integration": self.integration_,
             "integration_cv": {rule: score for rule, score in scores.items()
                                if score is not None},
+            "euler_scale": self.euler_scale_,
             "position_noise_rms": math.sqrt(self.position_noise_),
             "noise_to_step": _noise_to_step(positions, self.position_noise_),
             "timings_s": timings,

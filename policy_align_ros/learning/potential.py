@@ -41,8 +41,8 @@ import numpy as np
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS",
-           "velocity_disagreement", "choose_method", "position_noise", "VELOCITY_AGREEMENT",
-           "TIMINGS"]
+           "velocity_disagreement", "choose_method", "position_noise", "euler_scale",
+           "VELOCITY_AGREEMENT", "TIMINGS"]
 
 METHODS = ("auto", "euler", "trapezoid", "trapezoid_late")
 #: Velocity timing conventions: which recorded velocity moved the state from ``x_i`` to
@@ -218,6 +218,36 @@ def choose_method(trajs: list[Trajectory], noise: float = 0.0) -> str:
     if not totals[best] <= VELOCITY_AGREEMENT:
         return "euler"
     return "trapezoid_late" if best == "late" else "trapezoid"
+
+
+def euler_scale(trajs: list[Trajectory], rule: str, noise: float = 0.0) -> float:
+    """The factor that removes the Euler rule's first-order bias on average.
+
+    Over a step under a held command the Euler rule misses ``dx' H dx / 2`` of the drop, a
+    share ``dt h / 2`` of it for the curvature ``h`` along the step: for a potential whose
+    Hessian is a multiple of the identity, the same share on every step, so the Euler
+    potentials are the true ones times a constant that no cross-validation over shapes
+    can see. Where the velocities are trusted (``rule``, a trapezoid rule named by
+    :func:`choose_method`), the ratio of the trapezoid's drop to the Euler rule's on each
+    step measures that share. Its median over all steps, each weighted by its Euler drop
+    (steps that move little are mostly noise; a constraint switch spoils the trapezoid on
+    one step), is returned.
+
+    Returns
+    -------
+    float
+        The factor, > 0; 1 when no step moved.
+    """
+    euler = np.concatenate([-np.diff(estimate_potential(t, "euler", noise)) for t in trajs])
+    trap = np.concatenate([-np.diff(estimate_potential(t, rule)) for t in trajs])
+    moved = euler > 0
+    if not moved.any():
+        return 1.0
+    ratio, weight = trap[moved] / euler[moved], euler[moved]
+    order = np.argsort(ratio)
+    cumulative = np.cumsum(weight[order])
+    median = float(ratio[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+    return median if math.isfinite(median) and median > 0 else 1.0
 
 
 def estimate_potential(traj: Trajectory, method: str = "euler", noise: float = 0.0
