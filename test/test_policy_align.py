@@ -121,18 +121,25 @@ def test_errors_are_clear():
         model.policy(np.array([[np.nan, 0.0]]))
 
 
+def _switching_demos(pot, rng, n_demos, n_samples, dt, switch_t):
+    """Held-command demonstrations of ``pot`` in 3-D from uniform starts, each under one
+    random constraint row re-drawn once at ``switch_t`` seconds."""
+    demos = []
+    for k in range(n_demos):
+        rows = rng.standard_normal((2, 3))
+        demos.append(rollout(rng.uniform(-1, 1, 3), pot,
+                             lambda x, t, pi, r=rows: r[:1] if t < switch_t else r[1:],
+                             n_samples, dt, name=str(k)).trajectory)
+    return demos
+
+
 def test_default_integration_uses_recorded_velocities_that_explain_the_motion():
     # Held velocity commands (Euler steps at 50 Hz) of a 3-D quadratic, one constraint row
     # per demonstration re-drawn once: the trapezoid rule is exact on such data, the Euler
     # rule biased at order dt, and "auto" must see that the velocities can be trusted.
     rng = np.random.default_rng(5)
     pot = QuadraticPotential([0.3, -0.2, 0.1], np.diag([0.5, 1.0, 2.0]))
-    demos = []
-    for k in range(12):
-        rows = rng.standard_normal((2, 3))
-        demos.append(rollout(rng.uniform(-1, 1, 3), pot,
-                             lambda x, t, pi, r=rows: r[:1] if t < 0.6 else r[1:], 60, 0.02,
-                             name=str(k)).trajectory)
+    demos = _switching_demos(pot, rng, 12, 60, 0.02, switch_t=0.6)
     X = rng.uniform(-1, 1, (200, 3))
     auto = PolicyAlign(random_state=0).fit(demos)
     euler = PolicyAlign(integration="euler", random_state=0).fit(demos)
@@ -156,12 +163,7 @@ def test_noisy_recordings_without_velocities_still_give_the_policy(monkeypatch):
     # 2 s^2 on average, which the fit estimates and removes.
     rng = np.random.default_rng(6)
     pot = QuadraticPotential([0.3, -0.2, 0.1], np.diag([0.5, 1.0, 2.0]))
-    clean = []
-    for k in range(16):
-        rows = rng.standard_normal((2, 3))
-        clean.append(rollout(rng.uniform(-1, 1, 3), pot,
-                             lambda x, t, pi, r=rows: r[:1] if t < 1.0 else r[1:], 200,
-                             0.01, name=str(k)).trajectory)
+    clean = _switching_demos(pot, rng, 16, 200, 0.01, switch_t=1.0)
     steps = np.concatenate([np.linalg.norm(np.diff(d.positions, axis=0), axis=1)
                             for d in clean])
     sd = np.median(steps) / np.sqrt(3)
@@ -185,12 +187,7 @@ def test_auto_removes_the_euler_rescaling_of_an_isotropic_potential():
     rng = np.random.default_rng(8)
     w, dt = 0.5, 0.05
     pot = QuadraticPotential([0.3, -0.2, 0.1], w * np.eye(3))
-    demos = []
-    for k in range(12):
-        rows = rng.standard_normal((2, 3))
-        demos.append(rollout(rng.uniform(-1, 1, 3), pot,
-                             lambda x, t, pi, r=rows: r[:1] if t < 1.0 else r[1:], 60, dt,
-                             name=str(k)).trajectory)
+    demos = _switching_demos(pot, rng, 12, 60, dt, switch_t=1.0)
     auto = PolicyAlign(random_state=0).fit(demos)
     euler = PolicyAlign(integration="euler", random_state=0).fit(demos)
     assert auto.euler_scale_ == pytest.approx(1.0 - w * dt, rel=1e-6)
