@@ -164,9 +164,11 @@ def test_euler_scale_measures_the_euler_bias_of_an_isotropic_potential():
     for x0 in ((1.0, -0.5), (-0.3, 0.8)):
         t, X, V, phi = _held_commands(w * np.eye(2), x0, dt, 60)
         trajs.append(Trajectory(X, times=t, velocities=V))
-    c = euler_scale(trajs, "trapezoid")
+    c = euler_scale([estimate_potential(t, "euler") for t in trajs],
+                    [estimate_potential(t, "trapezoid") for t in trajs])
     assert c == pytest.approx(1.0 - w * dt, rel=1e-9)
     t, X, V, phi = _held_commands(w * np.eye(2), (1.0, -0.5), dt, 60)
     np.testing.assert_allclose(c * euler_potential(X, dt), phi - phi[0], atol=1e-12)
     resting = Trajectory(np.zeros((5, 2)), velocities=np.zeros((5, 2)))
-    assert euler_scale([resting], "trapezoid") == 1.0
+    assert euler_scale([estimate_potential(resting, "euler")],
+                       [estimate_potential(resting, "trapezoid")]) == 1.0

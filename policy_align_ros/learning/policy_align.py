@@ -240,7 +240,7 @@ class PolicyAlign:
         self.euler_scale_ = 1.0
         if len(rules) > 1:
             # Trusted velocities measure the Euler rule's bias: a rescaling, to first order.
-            self.euler_scale_ = euler_scale(trajs, rules[1], self.position_noise_)
+            self.euler_scale_ = euler_scale(phi["euler"], phi[rules[1]])
             phi["euler"] = [self.euler_scale_ * p for p in phi["euler"]]
         phi_all = {rule: np.concatenate(phi[rule]) for rule in rules}
         table = local_model_table(

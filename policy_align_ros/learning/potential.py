@@ -220,26 +220,32 @@ def choose_method(trajs: list[Trajectory], noise: float = 0.0) -> str:
     return "trapezoid_late" if best == "late" else "trapezoid"
 
 
-def euler_scale(trajs: list[Trajectory], rule: str, noise: float = 0.0) -> float:
+def euler_scale(euler: list[np.ndarray], trapezoid: list[np.ndarray]) -> float:
     """The factor that removes the Euler rule's first-order bias on average.
 
     Over a step under a held command the Euler rule misses ``dx' H dx / 2`` of the drop, a
     share ``dt h / 2`` of it for the curvature ``h`` along the step: for a potential whose
     Hessian is a multiple of the identity, the same share on every step, so the Euler
     potentials are the true ones times a constant that no cross-validation over shapes
-    can see. Where the velocities are trusted (``rule``, a trapezoid rule named by
+    can see. Where the velocities are trusted (the trapezoid rule named by
     :func:`choose_method`), the ratio of the trapezoid's drop to the Euler rule's on each
     step measures that share. Its median over all steps, each weighted by its Euler drop
     (steps that move little are mostly noise; a constraint switch spoils the trapezoid on
     one step), is returned.
+
+    Parameters
+    ----------
+    euler, trapezoid : list of ndarray, shape (N_k,)
+        The same trajectories' potentials by the Euler rule (noise-corrected) and by the
+        trapezoid rule (:func:`estimate_potential`).
 
     Returns
     -------
     float
         The factor, > 0; 1 when no step moved.
     """
-    euler = np.concatenate([-np.diff(estimate_potential(t, "euler", noise)) for t in trajs])
-    trap = np.concatenate([-np.diff(estimate_potential(t, rule)) for t in trajs])
+    euler = np.concatenate([-np.diff(p) for p in euler])
+    trap = np.concatenate([-np.diff(p) for p in trapezoid])
     moved = euler > 0
     if not moved.any():
         return 1.0
