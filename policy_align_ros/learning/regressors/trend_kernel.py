@@ -537,10 +537,14 @@ class TrendKernelRegression:
             # 2. ... then the residual its length scale and penalty, jointly with the trend.
             finite_k = [k for k in k_grid if math.isfinite(k)]
             t_best, o_best = best[0], best[3]
+
+            def kernel_sums(ell: float) -> tuple[_FoldGrams, np.ndarray]:
+                """Fold sums of trend and kernel features, and the centres' Gram."""
+                return (_FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo,
+                                   demo_fold, n, base=trend_grams), _gaussian(C, C, ell))
+
             for ell in lengths if finite_k else ():
-                grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold,
-                                   n, base=trend_grams)
-                Kcc = _gaussian(C, C, ell)
+                grams, Kcc = kernel_sums(ell)
                 scores = grams.scores([self._penalty(n, t_best, k, Kcc) for k in finite_k],
                                       o_best, shared=_n_trend(n))
                 for k, (score, error) in zip(finite_k, scores, strict=True):
@@ -555,9 +559,7 @@ class TrendKernelRegression:
                 ell, k = best[1], best[2]
                 # Summed again rather than kept from stage 2: four length scales' sums
                 # held at once doubled the peak memory of a 22-D fit.
-                grams = _FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo, demo_fold,
-                                   n, base=trend_grams)
-                Kcc = _gaussian(C, C, ell)
+                grams, Kcc = kernel_sums(ell)
                 for o in o_grid:
                     scores = grams.scores([self._penalty(n, t, k, Kcc) for t in t_grid], o,
                                           shared=-len(C))
