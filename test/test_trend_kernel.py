@@ -128,6 +128,21 @@ def test_cv_scores_of_an_exact_fit_are_exact_not_round_off():
     assert 0.0 <= score < 1e-9
 
 
+def test_cv_ties_at_an_exact_fit_go_to_the_isotropic_bowl_on_free_offsets():
+    # An exact isotropic quadratic: every trend penalty fits it to round-off, so the CV
+    # scores tie and must not be ranked by their round-off.
+    rng = np.random.default_rng(4)
+    c = rng.normal(scale=0.3, size=2)
+    X, g = _descent(lambda X: 1.6 * (X - c), rng.normal(size=(12, 2)), 30, 0.05)
+    y = 0.8 * ((X - c) ** 2).sum(axis=1) + rng.normal(scale=3.0, size=12)[g]
+    model = TrendKernelRegression(random_state=0).fit(X, y, groups=g)
+    tied = [k for k, v in model.cv_scores_.items() if v < 1e-12]
+    assert len(tied) > 1
+    assert model.trend_ridge_ == math.inf and model.offset_ridge_ == 0.0
+    assert math.isinf(model.kernel_ridge_)
+    assert set(model.cv_standard_errors_) == set(model.cv_scores_)
+
+
 def test_cv_adds_the_kernel_residual_where_a_quadratic_cannot_fit():
     rng = np.random.default_rng(3)
     value, grad = _two_minima()

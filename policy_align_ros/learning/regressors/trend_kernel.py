@@ -400,6 +400,8 @@ class TrendKernelRegression:
         Held-out shape error (over the within-demonstration spread) per evaluated
         ``(trend_ridge, length_scale, kernel_ridge, offset_ridge)``; ``length_scale`` is
         NaN for the trend alone.
+    cv_standard_errors_ : dict
+        Standard error over the folds of every entry of ``cv_scores_``.
     cv_best_ : tuple or None
         The key of ``cv_scores_`` chosen (None without cross-validation).
     mean_, scale_ : ndarray (n,), float
@@ -519,6 +521,7 @@ class TrendKernelRegression:
         k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
         o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
         self.cv_scores_: dict[tuple[float, float, float, float], float] = {}
+        self.cv_standard_errors_: dict[tuple[float, float, float, float], float] = {}
         self.cv_best_ = None
 
         if n_folds < 2:
@@ -527,13 +530,13 @@ class TrendKernelRegression:
         else:
             # 1. The trend alone picks its penalty and the offsets' ...
             trend_grams = grams = _FoldGrams(F, u, demo, demo_fold, n)
-            se: dict[tuple[float, float, float, float], float] = {}
+            se = self.cv_standard_errors_
             for o in o_grid:
                 scores = grams.scores([self._trend_penalty(n, t) for t in t_grid], o)
                 for t, (score, error) in zip(t_grid, scores, strict=True):
                     self.cv_scores_[(t, math.nan, math.inf, o)], se[t, math.nan, math.inf, o] \
                         = score, error
-            best = min(self.cv_scores_, key=self.cv_scores_.get)
+            best = _simplest_tied(self.cv_scores_, list(self.cv_scores_))
             # 2. ... then the residual its length scale and penalty, jointly with the trend.
             finite_k = [k for k in k_grid if math.isfinite(k)]
             t_best, o_best = best[0], best[3]
@@ -563,10 +566,10 @@ class TrendKernelRegression:
                 for o in o_grid:
                     scores = grams.scores([self._penalty(n, t, k, Kcc) for t in t_grid], o,
                                           shared=-len(C))
-                    for t, (score, _) in zip(t_grid, scores, strict=True):
-                        self.cv_scores_[(t, ell, k, o)] = score
-                best = min((key for key in self.cv_scores_ if key[1:3] == (ell, k)),
-                           key=self.cv_scores_.get)
+                    for t, (score, error) in zip(t_grid, scores, strict=True):
+                        self.cv_scores_[(t, ell, k, o)], se[t, ell, k, o] = score, error
+                best = _simplest_tied(self.cv_scores_,
+                                      [key for key in self.cv_scores_ if key[1:3] == (ell, k)])
             self.cv_best_ = best
             if math.isnan(best[1]):
                 best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
@@ -704,6 +707,7 @@ class TrendKernelRegression:
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"regressor state: bad or missing field ({err})") from None
         model.cv_scores_ = {}
+        model.cv_standard_errors_ = {}
         model.cv_best_ = None
         model._unpack()
         return model
@@ -725,6 +729,16 @@ def _simplest_within_one_se(scores: dict, se: dict, trend_ridge: float, offset_r
     within = [k for k in keys if scores[k] <= bound]
     return min(within, key=lambda k: (math.isfinite(k[2]), -k[2],
                                       0.0 if math.isnan(k[1]) else -k[1]))
+
+
+def _simplest_tied(scores: dict, keys: list) -> tuple[float, float, float, float]:
+    """The best-scoring of ``keys``; among scores within :data:`CV_RESOLUTION` of the best
+    (an exact fit, where the differences are round-off), the largest trend penalty and
+    then the smallest offset penalty: the model closest to an isotropic bowl, on offsets
+    that owe nothing to the alignment's errors."""
+    low = min(scores[k] for k in keys)
+    tied = [k for k in keys if scores[k] <= low + CV_RESOLUTION]
+    return max(tied, key=lambda k: (k[0], -k[3], -scores[k]))
 
 
 def _grid(value: str | float, grid) -> list[float]:
