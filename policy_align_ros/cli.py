@@ -90,6 +90,9 @@ def _build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--noise", type=float, default=0.0, metavar="F",
                        help="suite only: white noise on the recorded positions of the "
                             "training demonstrations, of RMS norm F median steps per sample")
+    bench.add_argument("--demos", type=int, default=None, metavar="K",
+                       help="suite only: K training demonstrations per data set instead of "
+                            "the case's own number")
     return parser
 
 

@@ -39,13 +39,15 @@ def test_scale_data_and_child_report():
 
 def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys):
     args = ["bench", "suite", "--cases", "quad_iso_2", "--datasets", "1", "--jobs", "1",
-            "--seed", "3", "--set", "n_centres=50", "--out", str(tmp_path)]
+            "--seed", "3", "--set", "n_centres=50", "--demos", "12", "--out", str(tmp_path)]
     assert main(args) == 0
     table = (tmp_path / "suite.md").read_text()
     assert "| quad_iso_2 | 2 | 50 Hz | previous |" in table
     assert "| quad_iso_2 | 2 | 50 Hz | new |" in table
     assert "n_centres=50" in table and "CV pick within 20 %" in table
+    assert "12 training demonstrations per data set" in table
     (result,) = json.loads((tmp_path / "suite.json").read_text())
+    assert result["n_train"] == 12
     new = result["models"]["new"]
     # A 2-D quadratic from new starts: the new model must be accurate and settle at the goal.
     assert new["demo_nupe"] < 0.05 and new["free_rel_max"] < 0.05
@@ -60,6 +62,8 @@ def test_suite_rejects_unknown_cases_and_settings(tmp_path, capsys):
     assert "expected NAME=VALUE" in capsys.readouterr().err
     assert main(["bench", "suite", "--noise", "-1", "--out", str(tmp_path)]) == 2
     assert "--noise" in capsys.readouterr().err
+    assert main(["bench", "suite", "--demos", "1", "--out", str(tmp_path)]) == 2
+    assert "--demos" in capsys.readouterr().err
 
 
 def test_suite_noise_has_the_requested_size_and_spares_the_velocities():

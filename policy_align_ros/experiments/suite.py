@@ -26,7 +26,8 @@ Seeds: defaults were chosen on the tuning seeds (``--seed 1000``); the README sh
 reporting seeds (``--seed 0``, 3 data sets). ``--noise F`` adds white noise of RMS norm
 ``F`` times the data set's median step to every recorded position of the training
 demonstrations (the recorded velocities, the test demonstrations and the rollouts stay
-exact), to measure how recordings from real sensors fare.
+exact), to measure how recordings from real sensors fare. ``--demos K`` trains on ``K``
+demonstrations per data set instead of the case's own number (how few are enough).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -440,9 +441,12 @@ def run_case(task: tuple) -> dict:
     name, seed = task[:2]
     settings = task[2] if len(task) > 2 else {}
     noise = task[3] if len(task) > 3 else 0.0
+    n_train = task[4] if len(task) > 4 else None
     case = CASES[name]
     rng = np.random.default_rng(seed)
     problem = case.make(rng)
+    if n_train:
+        problem = replace(problem, n_train=n_train)
     train = _demos(problem, problem.sample_starts(rng, problem.n_train), rng)
     test = _demos(problem, problem.sample_starts(rng, N_TEST_DEMOS), rng)
     masks = [rng.random(d.trajectory.n_samples) >= HOLDOUT for d in train]
@@ -462,6 +466,7 @@ def run_case(task: tuple) -> dict:
     Xs, pis, Ns = _stack([train[k] for k in base.inliers_],
                          [~masks[k] for k in base.inliers_])
     result = {"case": name, "seed": seed, "n": case.n, "rate": case.rate,
+              "n_train": problem.n_train,
               "discarded_pct": metrics.percent_discarded(base), "models": {}}
     models = {"new": (base, total)}
     previous, t_prev = _refit(base, LocalLinearRegression(random_state=seed), recorded,
@@ -538,7 +543,12 @@ def main(args: argparse.Namespace) -> int:
     noise = float(getattr(args, "noise", 0.0) or 0.0)
     if not (math.isfinite(noise) and noise >= 0.0):
         raise ValueError(f"--noise must be a finite number >= 0, got {noise}")
-    tasks = [(name, args.seed + i, settings, noise) for i in range(n_sets) for name in names]
+    n_train = getattr(args, "demos", None)
+    if n_train is not None and n_train < 2:
+        raise ValueError(f"--demos must be at least 2 (whole demonstrations are held out "
+                         f"for the CV), got {n_train}")
+    tasks = [(name, args.seed + i, settings, noise, n_train)
+             for i in range(n_sets) for name in names]
     # Slow cases first, so that the worker pool stays busy.
     tasks.sort(key=lambda t: -CASES[t[0]].n)
     t0 = time.perf_counter()
@@ -547,6 +557,7 @@ def main(args: argparse.Namespace) -> int:
     took = time.perf_counter() - t0
     changed = "".join(f", {k}={v}" for k, v in settings.items())
     changed += f", position noise {noise:g} median steps" if noise else ""
+    changed += f", {n_train} training demonstrations per data set" if n_train else ""
     text = (f"Suite, seeds {args.seed}..{args.seed + n_sets - 1}, {len(tasks)} data sets, "
             f"{took:.0f} s with --jobs {args.jobs}{changed}\n\n{table}\n")
     print(text)
