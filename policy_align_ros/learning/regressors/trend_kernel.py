@@ -48,11 +48,13 @@ start, and it does not charge the model for the alignment's error in the held-ou
 demonstration's offset. The trend's penalty and the offsets' are chosen first with the
 trend alone, then the residual's length scale and penalty at those, and, when a residual
 is kept, the trend's and the offsets' penalties again with it (the trend alone cannot
-tell them apart where a quadratic does not fit). All fold errors come from per-fold sums
-(one pass over the data per length scale), so the search costs a few small Cholesky
-solves per candidate; ``docs/notes/trend_kernel.md`` has the measurements. The data are
-thinned evenly in arc length along each demonstration first (a robot at rest adds
-samples but no information), to at most ``max_fit_points`` samples.
+tell them apart where a quadratic does not fit). Scores closer than
+:data:`CV_RESOLUTION` are ties, settled toward the simpler model. All fold errors come
+from per-fold sums (one pass over the data per length scale), so the search costs a few
+small Cholesky solves per candidate; ``docs/notes/trend_kernel.md`` has the
+measurements. The data are thinned evenly in arc length along each demonstration first
+(a robot at rest adds samples but no information), to at most ``max_fit_points``
+samples.
 """
 
 from __future__ import annotations
