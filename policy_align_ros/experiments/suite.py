@@ -455,10 +455,10 @@ def run_case(task: tuple) -> dict:
              "unseen": [_expert_goal(problem, x0, problem.unseen_constraint)
                         for x0 in starts]}
 
+    recorded = _with_noise(train, noise, seed)
     t0 = time.perf_counter()
     base = PolicyAlign(sigma=problem.sigma, random_state=seed,
                        regressor=TrendKernelRegression(random_state=seed, **settings))
-    recorded = _with_noise(train, noise, seed)
     base.fit(recorded, train_mask=masks)
     total = time.perf_counter() - t0
     regression_time = base.fit_summary_["timings_s"]["regression"]

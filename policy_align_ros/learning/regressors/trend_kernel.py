@@ -538,7 +538,8 @@ class TrendKernelRegression:
                 for t, (score, error) in zip(t_grid, scores, strict=True):
                     self.cv_scores_[(t, math.nan, math.inf, o)], se[t, math.nan, math.inf, o] \
                         = score, error
-            best = _simplest_tied(self.cv_scores_, list(self.cv_scores_))
+            best = _simplest_within(self.cv_scores_, list(self.cv_scores_), 0.0,
+                                    _simpler_trend)
             # 2. ... then the residual its length scale and penalty, jointly with the trend.
             finite_k = [k for k in k_grid if math.isfinite(k)]
             t_best, o_best = best[0], best[3]
@@ -555,7 +556,12 @@ class TrendKernelRegression:
                 for k, (score, error) in zip(finite_k, scores, strict=True):
                     self.cv_scores_[(t_best, ell, k, o_best)] = score
                     se[t_best, ell, k, o_best] = error
-            best = _simplest_within_one_se(self.cv_scores_, se, t_best, o_best)
+            # The simplest residual within one standard error of the best.
+            keys = [key for key in self.cv_scores_ if (key[0], key[3]) == (t_best, o_best)]
+            lowest = min(keys, key=self.cv_scores_.get)
+            best = _simplest_within(self.cv_scores_, keys,
+                                    se[lowest] if math.isfinite(se[lowest]) else 0.0,
+                                    _simpler_residual)
             # 3. With a residual, the trend's and the offsets' penalties again: the trend
             # alone cannot tell them apart where a quadratic does not fit (suite arm case:
             # offset penalties 1e-4 and 1e-2 scored within 6 % with the trend alone, 3x
@@ -570,8 +576,9 @@ class TrendKernelRegression:
                                           shared=-len(C))
                     for t, (score, error) in zip(t_grid, scores, strict=True):
                         self.cv_scores_[(t, ell, k, o)], se[t, ell, k, o] = score, error
-                best = _simplest_tied(self.cv_scores_,
-                                      [key for key in self.cv_scores_ if key[1:3] == (ell, k)])
+                best = _simplest_within(
+                    self.cv_scores_, [key for key in self.cv_scores_ if key[1:3] == (ell, k)],
+                    0.0, _simpler_trend)
             self.cv_best_ = best
             if math.isnan(best[1]):
                 best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
@@ -715,32 +722,28 @@ class TrendKernelRegression:
         return model
 
 
-def _simplest_within_one_se(scores: dict, se: dict, trend_ridge: float, offset_ridge: float
-                            ) -> tuple[float, float, float, float]:
-    """The simplest residual whose CV score is within one standard error of the best
-    (or within :data:`CV_RESOLUTION`).
-
-    Among the candidates at the chosen trend and offset penalties, no residual is simpler
-    than any, a larger kernel penalty simpler than a smaller one, and a longer length
-    scale simpler than a shorter one: differences within the folds' noise do not buy a
-    more flexible model.
-    """
-    keys = [k for k in scores if k[0] == trend_ridge and k[3] == offset_ridge]
-    best = min(keys, key=scores.get)
-    bound = scores[best] + max(se[best] if math.isfinite(se[best]) else 0.0, CV_RESOLUTION)
-    within = [k for k in keys if scores[k] <= bound]
-    return min(within, key=lambda k: (math.isfinite(k[2]), -k[2],
-                                      0.0 if math.isnan(k[1]) else -k[1]))
-
-
-def _simplest_tied(scores: dict, keys: list) -> tuple[float, float, float, float]:
-    """The best-scoring of ``keys``; among scores within :data:`CV_RESOLUTION` of the best
-    (an exact fit, where the differences are round-off), the largest trend penalty and
-    then the smallest offset penalty: the model closest to an isotropic bowl, on offsets
-    that owe nothing to the alignment's errors."""
+def _simplest_within(scores: dict, keys: list, margin: float, simpler
+                     ) -> tuple[float, float, float, float]:
+    """The simplest of ``keys`` (the largest by ``simpler``) whose CV score is within
+    ``margin`` of the best, or within :data:`CV_RESOLUTION` of it (round-off), whichever
+    is wider: differences within the folds' noise do not buy a more flexible model."""
     low = min(scores[k] for k in keys)
-    tied = [k for k in keys if scores[k] <= low + CV_RESOLUTION]
-    return max(tied, key=lambda k: (k[0], -k[3], -scores[k]))
+    bound = low + max(margin, CV_RESOLUTION)
+    return max((k for k in keys if scores[k] <= bound), key=lambda k: (simpler(k), -scores[k]))
+
+
+def _simpler_residual(key: tuple[float, float, float, float]) -> tuple:
+    """Ordering of residuals at one trend and offset penalty, simplest largest: none, then
+    a larger kernel penalty, then a longer length scale (used with one standard error)."""
+    _, ell, kernel_ridge, _ = key
+    return (not math.isfinite(kernel_ridge), kernel_ridge, 0.0 if math.isnan(ell) else ell)
+
+
+def _simpler_trend(key: tuple[float, float, float, float]) -> tuple:
+    """Ordering of trend and offset penalties, simplest largest: the larger trend penalty
+    (closer to an isotropic bowl), then the smaller offset penalty (offsets that owe
+    nothing to the alignment's errors). Used for ties at an exact fit only."""
+    return (key[0], -key[3])
 
 
 def _grid(value: str | float, grid) -> list[float]:
