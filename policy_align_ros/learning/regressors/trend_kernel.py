@@ -81,13 +81,17 @@ __all__ = ["TrendKernelRegression", "quadratic_features"]
 
 #: Candidate trend penalties (on standardised data); ``inf`` is the isotropic bowl.
 TREND_RIDGE_GRID = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, math.inf)
-#: Candidate kernel penalties; ``inf`` drops the kernel residual.
-KERNEL_RIDGE_GRID = (1e-6, 1e-4, 1e-2, math.inf)
+#: Candidate kernel penalties; ``inf`` drops the kernel residual. The smallest lets a long
+#: length scale act as a smooth global correction of the trend (near the flat limit,
+#: Gaussian features span low-order polynomials only with large weights).
+KERNEL_RIDGE_GRID = (1e-8, 1e-6, 1e-4, 1e-2, math.inf)
 #: Candidate offset penalties (standardised units): 0 re-fits every demonstration's offset
 #: freely, ``inf`` keeps the alignment's.
 OFFSET_RIDGE_GRID = (0.0, 1e-4, 1e-2, math.inf)
-#: Candidate length scales, as factors of the median distance between centres.
-LENGTH_FACTORS = (0.08, 0.16, 0.32, 0.64)
+#: Candidate length scales, as factors of the median distance between centres: from local
+#: features (two minima) to about the data's diameter, where the residual bends the whole
+#: trend (a potential that grows faster or slower than a quadratic; the arm case).
+LENGTH_FACTORS = (0.16, 0.32, 0.64, 1.28, 2.56)
 #: Smallest eigenvalue of the trend's Hessian, relative to its largest (keeps a minimum).
 CURVATURE_FLOOR = 0.01
 #: CV scores (shape error over the spread) closer than this are not told apart: the
