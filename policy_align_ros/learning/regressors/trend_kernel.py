@@ -572,7 +572,7 @@ class TrendKernelRegression:
             # apart with the residual, whose nUPE they took from 0.02 to 0.15).
             if math.isfinite(best[2]) and (len(t_grid) > 1 or len(o_grid) > 1):
                 ell, k = best[1], best[2]
-                # Summed again rather than kept from stage 2: four length scales' sums
+                # Summed again rather than kept from stage 2: every length scale's sums
                 # held at once doubled the peak memory of a 22-D fit.
                 grams, Kcc = kernel_sums(ell)
                 for o in o_grid:
