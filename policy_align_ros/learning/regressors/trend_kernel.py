@@ -61,6 +61,7 @@ samples.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from typing import Any
@@ -257,6 +258,32 @@ class _FoldGrams:
             G = G - (Ak * c[:, None]).T @ Ak
             r = r - Ak.T @ (c * self.sk[train])
         return G, r, m
+
+
+@dataclasses.dataclass(frozen=True)
+class _CVData:
+    """The standardised data of one CV search, samples sorted by fold.
+
+    ``F`` (m, p_t) trend features, ``Z`` (m, n) states, ``u`` (m,) targets, ``C`` (m_c, n)
+    kernel centres, ``demo`` (m,) and ``demo_fold`` (K,) as in :class:`_FoldGrams`;
+    ``trend`` the fold sums of ``F``, shared by every length scale.
+    """
+
+    F: np.ndarray
+    Z: np.ndarray
+    u: np.ndarray
+    C: np.ndarray
+    demo: np.ndarray
+    demo_fold: np.ndarray
+    n: int
+    trend: _FoldGrams
+
+    def kernel_sums(self, ell: float) -> tuple[_FoldGrams, np.ndarray]:
+        """Fold sums of the trend and kernel features at length scale ``ell``, and the
+        centres' Gram (m_c, m_c)."""
+        A = np.hstack([self.F, _gaussian(self.Z, self.C, ell)])
+        return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend),
+                _gaussian(self.C, self.C, ell))
 
 
 def _gram(A: np.ndarray) -> np.ndarray:
@@ -531,84 +558,82 @@ class TrendKernelRegression:
         self.cv_scores_: dict[tuple[float, float, float, float], float] = {}
         self.cv_standard_errors_: dict[tuple[float, float, float, float], float] = {}
         self.cv_best_ = None
-
         if n_folds < 2:
             best = (t_grid[len(t_grid) // 2], lengths[len(lengths) // 2],
                     k_grid[len(k_grid) // 2], o_grid[-1])
         else:
-            # 1. The trend alone scores its penalties and the offsets' ...
-            trend_grams = grams = _FoldGrams(F, u, demo, demo_fold, n)
-            se = self.cv_standard_errors_
-            for o in o_grid:
-                scores = grams.scores([self._trend_penalty(n, t) for t in t_grid], o)
-                for t, (score, error) in zip(t_grid, scores, strict=True):
-                    self.cv_scores_[(t, math.nan, math.inf, o)], se[t, math.nan, math.inf, o] \
-                        = score, error
-            # 2. ... then the residual its length scale and penalty, jointly with the trend:
-            # at the first stage's pick, and with free offsets at their best trend penalty.
-            # Where a quadratic does not fit, the trend alone can rank the offset penalties
-            # wrongly (a 7-D velocity-limited attractor: CV 0.044 and nUPE 0.21 through the
-            # first stage's pick, 0.005 and 0.067 through free offsets).
-            stage_one = _simplest_within(self.cv_scores_, list(self.cv_scores_), 0.0,
-                                         _simpler_trend)
-            paths = {stage_one[3]: stage_one[0]}  # offset penalty -> trend penalty
-            if 0.0 in o_grid:
-                paths.setdefault(0.0, _simplest_within(
-                    self.cv_scores_, [key for key in self.cv_scores_ if key[3] == 0.0], 0.0,
-                    _simpler_trend)[0])
-            finite_k = [k for k in k_grid if math.isfinite(k)]
-            if self.cv_scores_[stage_one] <= CV_RESOLUTION and math.inf in k_grid:
-                # The trend alone fits the held-out shapes to round-off: a residual can only
-                # tie with it, and ties go to the simpler model (bench scale's exact 22-D
-                # quadratic spent most of its fit here for nothing).
-                finite_k = []
-
-            def kernel_sums(ell: float) -> tuple[_FoldGrams, np.ndarray]:
-                """Fold sums of trend and kernel features, and the centres' Gram."""
-                return (_FoldGrams(np.hstack([F, _gaussian(Z, C, ell)]), u, demo,
-                                   demo_fold, n, base=trend_grams), _gaussian(C, C, ell))
-
-            for ell in lengths if finite_k else ():
-                grams, Kcc = kernel_sums(ell)
-                for o, t in paths.items():
-                    scores = grams.scores([self._penalty(n, t, k, Kcc) for k in finite_k], o,
-                                          shared=_n_trend(n))
-                    for k, (score, error) in zip(finite_k, scores, strict=True):
-                        self.cv_scores_[(t, ell, k, o)], se[t, ell, k, o] = score, error
-            # The better path, and on it the simplest residual within one standard error of
-            # its best score (no residual only if the kernel penalty is left to the CV).
-            keys = [key for key in self.cv_scores_ if paths.get(key[3]) == key[0]
-                    and (math.inf in k_grid or math.isfinite(key[2]))]
-            path = _simplest_within(self.cv_scores_, keys, 0.0, _simpler_trend)
-            keys = [key for key in keys if key[3] == path[3]]
-            lowest = min(keys, key=self.cv_scores_.get)
-            best = _simplest_within(self.cv_scores_, keys,
-                                    se[lowest] if math.isfinite(se[lowest]) else 0.0,
-                                    _simpler_residual)
-            # 3. With a residual, the trend's and the offsets' penalties again: the trend
-            # alone cannot tell them apart where a quadratic does not fit (suite arm case:
-            # offset penalties 1e-4 and 1e-2 scored within 6 % with the trend alone, 3x
-            # apart with the residual, whose nUPE they took from 0.02 to 0.15).
-            if math.isfinite(best[2]) and (len(t_grid) > 1 or len(o_grid) > 1):
-                ell, k = best[1], best[2]
-                # Summed again rather than kept from stage 2: every length scale's sums
-                # held at once doubled the peak memory of a 22-D fit.
-                grams, Kcc = kernel_sums(ell)
-                for o in o_grid:
-                    scores = grams.scores([self._penalty(n, t, k, Kcc) for t in t_grid], o,
-                                          shared=-len(C))
-                    for t, (score, error) in zip(t_grid, scores, strict=True):
-                        self.cv_scores_[(t, ell, k, o)], se[t, ell, k, o] = score, error
-                best = _simplest_within(
-                    self.cv_scores_, [key for key in self.cv_scores_ if key[1:3] == (ell, k)],
-                    0.0, _simpler_trend)
-            self.cv_best_ = best
+            cv = _CVData(F, Z, u, C, demo, demo_fold, n, _FoldGrams(F, u, demo, demo_fold, n))
+            best = self.cv_best_ = self._cv_search(cv, lengths, t_grid, k_grid, o_grid)
             if math.isnan(best[1]):
                 best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
         (self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
          self.offset_ridge_) = best
         self._final_fit(F, Z, u, C, n, demo)
         return self
+
+    def _cv_search(self, cv: _CVData, lengths: list[float], t_grid: list[float],
+                   k_grid: list[float], o_grid: list[float]
+                   ) -> tuple[float, float, float, float]:
+        """Score the candidates in three stages into ``cv_scores_``; return the pick."""
+        n = cv.n
+        # 1. The trend alone scores its penalties and the offsets' ...
+        for o in o_grid:
+            self._record([(t, math.nan, math.inf, o) for t in t_grid],
+                         cv.trend.scores([self._trend_penalty(n, t) for t in t_grid], o))
+        # 2. ... then the residual its length scale and penalty, jointly with the trend: at
+        # the first stage's pick, and with free offsets at their best trend penalty. Where
+        # a quadratic does not fit, the trend alone can rank the offset penalties wrongly
+        # (a 7-D velocity-limited attractor: CV 0.044 and nUPE 0.21 through the first
+        # stage's pick, 0.005 and 0.067 through free offsets).
+        scores = self.cv_scores_
+        stage_one = _simplest_within(scores, list(scores), 0.0, _simpler_trend)
+        paths = {stage_one[3]: stage_one[0]}  # offset penalty -> trend penalty
+        if 0.0 in o_grid:
+            paths.setdefault(0.0, _simplest_within(
+                scores, [key for key in scores if key[3] == 0.0], 0.0, _simpler_trend)[0])
+        finite_k = [k for k in k_grid if math.isfinite(k)]
+        if scores[stage_one] <= CV_RESOLUTION and math.inf in k_grid:
+            # The trend alone fits the held-out shapes to round-off: a residual can only tie
+            # with it, and ties go to the simpler model (bench scale's exact 22-D quadratic
+            # spent most of its fit here for nothing).
+            finite_k = []
+        for ell in lengths if finite_k else ():
+            grams, Kcc = cv.kernel_sums(ell)
+            for o, t in paths.items():
+                self._record([(t, ell, k, o) for k in finite_k],
+                             grams.scores([self._penalty(n, t, k, Kcc) for k in finite_k], o,
+                                          shared=_n_trend(n)))
+        # The better path, and on it the simplest residual within one standard error of its
+        # best score (no residual only if the kernel penalty is left to the CV).
+        keys = [key for key in scores if paths.get(key[3]) == key[0]
+                and (math.inf in k_grid or math.isfinite(key[2]))]
+        path = _simplest_within(scores, keys, 0.0, _simpler_trend)
+        keys = [key for key in keys if key[3] == path[3]]
+        error = self.cv_standard_errors_[min(keys, key=scores.get)]
+        best = _simplest_within(scores, keys, error if math.isfinite(error) else 0.0,
+                                _simpler_residual)
+        # 3. With a residual, the trend's and the offsets' penalties again: the trend alone
+        # cannot tell them apart where a quadratic does not fit (suite arm case: offset
+        # penalties 1e-4 and 1e-2 scored within 6 % with the trend alone, 3x apart with the
+        # residual, whose nUPE they took from 0.02 to 0.15).
+        if math.isfinite(best[2]) and (len(t_grid) > 1 or len(o_grid) > 1):
+            ell, k = best[1], best[2]
+            # Summed again rather than kept from stage 2: every length scale's sums held at
+            # once doubled the peak memory of a 22-D fit.
+            grams, Kcc = cv.kernel_sums(ell)
+            for o in o_grid:
+                self._record([(t, ell, k, o) for t in t_grid],
+                             grams.scores([self._penalty(n, t, k, Kcc) for t in t_grid], o,
+                                          shared=-len(cv.C)))
+            best = _simplest_within(scores, [key for key in scores if key[1:3] == (ell, k)],
+                                    0.0, _simpler_trend)
+        return best
+
+    def _record(self, keys: list[tuple[float, float, float, float]],
+                scores: list[tuple[float, float]]) -> None:
+        """Store the CV score and standard error of every candidate ``keys[i]``."""
+        for key, (score, error) in zip(keys, scores, strict=True):
+            self.cv_scores_[key], self.cv_standard_errors_[key] = score, error
 
     @staticmethod
     def _trend_penalty(n: int, trend_ridge: float) -> np.ndarray:
