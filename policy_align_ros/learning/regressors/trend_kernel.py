@@ -51,9 +51,9 @@ and at the best trend penalty with free offsets (the trend alone can rank the of
 penalties wrongly where a quadratic does not fit), and the better of the two paths is
 kept; when a residual is kept, the trend's and the offsets' penalties are scored again
 with it. Scores closer than :data:`CV_RESOLUTION` are ties, settled toward the simpler
-model; a trend alone that fits to that resolution skips the residual's search. All fold errors come
-from per-fold sums (one pass over the data per length scale), so the search costs a few
-small Cholesky solves per candidate; ``docs/notes/trend_kernel.md`` has the
+model; a trend alone that fits to that resolution skips the residual's search. All fold
+errors come from per-fold sums (one pass over the data per length scale), so the search
+costs a few small Cholesky solves per candidate; ``docs/notes/trend_kernel.md`` has the
 measurements. The data are thinned evenly in arc length along each demonstration first
 (a robot at rest adds samples but no information), to at most ``max_fit_points``
 samples.
