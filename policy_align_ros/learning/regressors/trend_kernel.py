@@ -412,7 +412,8 @@ class TrendKernelRegression:
         Kernel length scale in standardised units, or ``"cv"`` (``LENGTH_FACTORS`` times
         the median distance between centres).
     kernel_ridge : "cv" or float
-        RKHS penalty of the residual (``inf``: no residual), or ``"cv"``.
+        RKHS penalty of the residual (``inf``: no residual; a finite value always keeps
+        the residual), or ``"cv"`` (``KERNEL_RIDGE_GRID``, ``inf`` included).
     offset_ridge : "cv" or float
         Penalty on corrections of every demonstration's offset (0: free; ``inf``: none),
         or ``"cv"`` (``OFFSET_RIDGE_GRID``).
