@@ -46,6 +46,7 @@ def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys):
     assert "| quad_iso_2 | 2 | 50 Hz | new |" in table
     assert "n_centres=50" in table and "CV pick within 20 %" in table
     assert "12 training demonstrations per data set" in table
+    assert (tmp_path / "suite.png").stat().st_size > 0
     (result,) = json.loads((tmp_path / "suite.json").read_text())
     assert result["n_train"] == 12
     new = result["models"]["new"]

@@ -28,8 +28,8 @@ BLOCKS = {
     "scale": ("scale/scale.md", None),
     "demo": ("demo/report.txt", "```"),
 }
-FIGURES = {"toy/toy.png": "toy.png", "grasp/grasp.png": "grasp.png",
-           "humanoid/humanoid.png": "humanoid.png",
+FIGURES = {"suite/suite.png": "suite.png", "toy/toy.png": "toy.png",
+           "grasp/grasp.png": "grasp.png", "humanoid/humanoid.png": "humanoid.png",
            "demo/demo_distance.png": "demo_distance.png", "demo/demo_hands.png": "demo_hands.png"}
 
 

@@ -564,7 +564,55 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     atomic_write_text(out / "suite.md", text)
     atomic_write_text(out / "suite.json", json.dumps(results, indent=1, default=_json))
+    plot_figure(results, out / "suite.png")
     return 0
+
+
+def plot_figure(results: list[dict], path: Path) -> None:
+    """Per data set: nUPE from new starts and the worst free rollout's end/start for both
+    global models, and the CV pick's nUPE against the best candidate's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from policy_align_ros.experiments.grasp import _save_fig
+
+    cases = [name for name in CASES if any(r["case"] == name for r in results)]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6),
+                             gridspec_kw={"width_ratios": [1.3, 1.3, 1.0]})
+    styles = {"previous": ("0.55", "o", -0.12), "new": ("C0", "s", 0.12)}
+    for ax, key, label in ((axes[0], "demo_nupe", "nUPE, held-out demos from new starts"),
+                           (axes[1], "free_rel_max",
+                            "free rollouts: worst end / start (dashed: 5 %)")):
+        for model, (colour, marker, shift) in styles.items():
+            x = [cases.index(r["case"]) + shift for r in results]
+            y = [r["models"][model][key] for r in results]
+            ax.plot(x, y, marker, color=colour, ms=5, ls="none", label=model)
+        ax.set_yscale("log")
+        ax.set_xticks(range(len(cases)), cases, rotation=45, ha="right")
+        ax.set_title(label)
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0].legend()
+    axes[1].axhline(0.05, color="k", lw=0.8, ls="--")  # the quadratics' 5 % target
+    best = np.array([r["cv"]["best_candidate_nupe"] for r in results])
+    picked = np.array([r["cv"]["picked_nupe"] for r in results])
+    good = picked <= 1.2 * best
+    ax = axes[2]
+    ax.plot(best[good], picked[good], "o", color="C2", ms=5, label="within 20 %")
+    ax.plot(best[~good], picked[~good], "x", color="C3", ms=7, label="not within 20 %")
+    span = np.array([best.min(), best.max()])
+    ax.plot(span, span, "k-", lw=0.8)
+    ax.plot(span, 1.2 * span, "k--", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("best CV candidate's nUPE")
+    ax.set_ylabel("CV pick's nUPE")
+    ax.set_title("CV pick against the best candidate")
+    ax.legend()
+    fig.tight_layout()
+    _save_fig(fig, path)
+    plt.close(fig)
 
 
 def _json(value):
