@@ -54,6 +54,22 @@ def _two_minima():
     return value, grad
 
 
+def _velocity_limited(n, rng, r2=None):
+    """phi = sqrt(r^2 + x'Wx): quadratic near the goal, a cone far from it (r^2 = 0.09 n
+    unless given)."""
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    W = q @ np.diag(np.geomspace(0.5, 3.0, n)) @ q.T
+    r2 = 0.09 * n if r2 is None else r2
+
+    def value(X):
+        return np.sqrt(r2 + np.einsum("ij,jk,ik->i", X, W, X))
+
+    def grad(X):
+        return (X @ W) / value(X)[:, None]
+
+    return value, grad
+
+
 def test_quadratic_features_give_the_frobenius_norm():
     rng = np.random.default_rng(0)
     Z = rng.normal(size=(4, 3))
@@ -175,37 +191,13 @@ def test_cv_bends_the_trend_with_a_long_length_scale_for_a_velocity_limited_attr
     # as long as the data needs length scales beyond the median spacing of the centres
     # (with at most 0.64 of it: nUPE 0.14 on these data).
     rng = np.random.default_rng(0)
-    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
-    W = q @ np.diag(np.geomspace(0.5, 3.0, 3)) @ q.T
-
-    def grad(X):
-        s = np.einsum("ij,jk,ik->i", X, W, X)
-        return (X @ W) / np.sqrt(0.09 + s)[:, None]
-
-    def value(X):
-        return np.sqrt(0.09 + np.einsum("ij,jk,ik->i", X, W, X))
-
+    value, grad = _velocity_limited(3, rng, r2=0.09)
     X, g = _descent(grad, rng.uniform(-1, 1, size=(25, 3)), 60, 0.05)
     model = TrendKernelRegression(random_state=0).fit(X, value(X), groups=g)
     assert model.length_scale_ > 0.64 * _median_distance(model.centres_)
     Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 3)), 60, 0.05)
     nupe = np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
     assert nupe < 0.05
-
-
-def _velocity_limited(n, rng):
-    """phi = sqrt(r^2 + x'Wx): quadratic near the goal, a cone far from it."""
-    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
-    W = q @ np.diag(np.geomspace(0.5, 3.0, n)) @ q.T
-    r2 = 0.09 * n
-
-    def value(X):
-        return np.sqrt(r2 + np.einsum("ij,jk,ik->i", X, W, X))
-
-    def grad(X):
-        return (X @ W) / value(X)[:, None]
-
-    return value, grad
 
 
 def test_cv_searches_the_residual_with_free_offsets_too():

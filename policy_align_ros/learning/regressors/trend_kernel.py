@@ -275,8 +275,12 @@ class _CVData:
     C: np.ndarray
     demo: np.ndarray
     demo_fold: np.ndarray
-    n: int
     trend: _FoldGrams
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.Z.shape[1]
 
     def kernel_sums(self, ell: float) -> tuple[_FoldGrams, np.ndarray]:
         """Fold sums of the trend and kernel features at length scale ``ell``, and the
@@ -563,7 +567,7 @@ class TrendKernelRegression:
             best = (t_grid[len(t_grid) // 2], lengths[len(lengths) // 2],
                     k_grid[len(k_grid) // 2], o_grid[-1])
         else:
-            cv = _CVData(F, Z, u, C, demo, demo_fold, n, _FoldGrams(F, u, demo, demo_fold, n))
+            cv = _CVData(F, Z, u, C, demo, demo_fold, _FoldGrams(F, u, demo, demo_fold, n))
             best = self.cv_best_ = self._cv_search(cv, lengths, t_grid, k_grid, o_grid)
             if math.isnan(best[1]):
                 best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
@@ -589,9 +593,9 @@ class TrendKernelRegression:
         scores = self.cv_scores_
         stage_one = _simplest_within(scores, list(scores), 0.0, _simpler_trend)
         paths = {stage_one[3]: stage_one[0]}  # offset penalty -> trend penalty
-        if 0.0 in o_grid:
-            paths.setdefault(0.0, _simplest_within(
-                scores, [key for key in scores if key[3] == 0.0], 0.0, _simpler_trend)[0])
+        if 0.0 in o_grid and 0.0 not in paths:
+            paths[0.0] = _simplest_within(scores, [key for key in scores if key[3] == 0.0],
+                                          0.0, _simpler_trend)[0]
         finite_k = [k for k in k_grid if math.isfinite(k)]
         if scores[stage_one] <= CV_RESOLUTION and math.inf in k_grid:
             # The trend alone fits the held-out shapes to round-off: a residual can only tie
