@@ -72,6 +72,54 @@ def test_trapezoid_is_exact_under_held_commands_where_euler_is_biased():
     assert np.abs(estimate_potential(traj, "euler") - (phi - phi[0])).max() > 1e-3
 
 
+def _switching_commands(W, x0, dt, steps, switch_every, rng):
+    """Held commands ``v = N_k (-2 W x)`` under one random row ``A_k``, re-drawn every
+    ``switch_every`` samples; returns positions, velocities and the potential x'Wx."""
+    X, V = [np.asarray(x0, dtype=float)], []
+    for i in range(steps):
+        if i % switch_every == 0:
+            a = rng.standard_normal(len(x0))
+            N = np.eye(len(x0)) - np.outer(a, a) / (a @ a)
+        V.append(N @ (-2.0 * W @ X[-1]))
+        if i < steps - 1:
+            X.append(X[-1] + dt * V[-1])
+    X = np.array(X)
+    return X, np.array(V), np.einsum("ij,jk,ik->i", X, W, X)
+
+
+def test_trapezoid_stays_accurate_across_constraint_switches():
+    # A switch between two samples puts a velocity of one constraint along a step of the
+    # other into the plain trapezoid; that step is then wrong by a first-order amount.
+    rng = np.random.default_rng(3)
+    W = np.diag([0.5, 1.0, 2.0])
+    X, V, phi = _switching_commands(W, (1.0, -0.8, 0.6), 0.05, 90, 30, rng)
+    steps = np.diff(X, axis=0)
+    plain = -np.concatenate(([0.0], np.cumsum(0.5 * np.einsum(
+        "ij,ij->i", V[:-1] + V[1:], steps))))
+    truth = phi - phi[0]
+    plain_error = np.abs(plain - truth).max()
+    assert plain_error > 1e-4 * np.ptp(truth)
+    # What is left is the third-order error of the one-sided estimate at the two switches.
+    assert np.abs(trapezoid_potential(X, V) - truth).max() < 0.02 * plain_error
+
+
+def test_switch_detection_leaves_a_turning_constraint_to_the_trapezoid():
+    # A constraint that turns a little with every step (a hand plane seen in joint space)
+    # is no switch: the curvature estimates must be the trapezoid's own.
+    from policy_align_ros.learning.potential import step_curvatures
+
+    W = np.diag([0.5, 2.0])
+    X, V = [np.array([1.0, -0.5])], []
+    for i in range(80):
+        a = np.array([np.cos(0.02 * i), np.sin(0.02 * i)])
+        V.append((np.eye(2) - np.outer(a, a)) @ (-2.0 * W @ X[-1]) + 0.1 * a)
+        X.append(X[-1] + 0.05 * V[-1])
+    X, V = np.array(X[:-1]), np.array(V)
+    steps = np.diff(X, axis=0)
+    np.testing.assert_array_equal(step_curvatures(steps, V),
+                                  np.einsum("ij,ij->i", V[:-1] - V[1:], steps))
+
+
 def test_auto_trusts_velocities_only_where_they_explain_the_positions():
     W = np.diag([0.5, 2.0])
     t, X, V, phi = _held_commands(W, (1.0, -0.5), 0.05, 60)

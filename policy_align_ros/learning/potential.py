@@ -9,7 +9,14 @@ observed through a projection ``xdot = N pi``, a step satisfies
 
 or, with measured velocities ``v_i = N_i pi_i``, the trapezoid rule
 
-    phi_{i+1} - phi_i ~= -(v_i + v_{i+1})^T (x_{i+1} - x_i) / 2.
+    phi_{i+1} - phi_i ~= -(v_i + v_{i+1})^T (x_{i+1} - x_i) / 2
+                       = -v_i^T dx_i + F_i / 2,   F_i = (v_i - v_{i+1})^T dx_i,
+
+with ``F_i`` its estimate of the step's curvature term ``dx_i^T H dx_i`` (``H`` the
+Hessian of ``phi``). ``F_i`` is exact only while ``dx_i`` lies in the range of ``N_{i+1}``;
+across a constraint switch it is wrong by a first-order amount, and one such step cost
+the suite's quadratics more than all their other steps together
+(:func:`step_curvatures` replaces it there).
 
 Both return potentials with ``phi_1 = 0``; the unknown offset is found by alignment. With
 times in seconds, the learnt policy ``-grad phi`` is in state units per second.
@@ -42,7 +49,7 @@ from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS",
            "velocity_disagreement", "choose_method", "position_noise", "euler_scale",
-           "VELOCITY_AGREEMENT", "TIMINGS"]
+           "VELOCITY_AGREEMENT", "TIMINGS", "step_curvatures", "SWITCH_RATIO"]
 
 METHODS = ("auto", "euler", "trapezoid", "trapezoid_late")
 #: Velocity timing conventions: which recorded velocity moved the state from ``x_i`` to
@@ -53,6 +60,9 @@ METHODS = ("auto", "euler", "trapezoid", "trapezoid_late")
 TIMINGS = ("ahead", "mid", "late")
 #: Largest :func:`velocity_disagreement` at which ``"auto"`` trusts recorded velocities.
 VELOCITY_AGREEMENT = 0.5
+#: How many times worse than its neighbours both curvature estimates that span a step
+#: must agree before :func:`step_curvatures` takes that step for a constraint switch.
+SWITCH_RATIO = 3.0
 
 
 def position_noise(positions: list[np.ndarray]) -> float:
@@ -140,9 +150,56 @@ def trapezoid_potential(positions: np.ndarray, velocities: np.ndarray, late: boo
     if late:
         velocities = np.concatenate([velocities[1:], velocities[-1:]])
     steps = np.diff(positions, axis=0)
-    mean_v = 0.5 * (velocities[:-1] + velocities[1:])
-    drops = np.einsum("ij,ij->i", mean_v, steps)
+    drops = (np.einsum("ij,ij->i", velocities[:-1], steps)
+             - 0.5 * step_curvatures(steps, velocities))
     return np.concatenate(([0.0], -np.cumsum(drops)))
+
+
+def step_curvatures(steps: np.ndarray, velocities: np.ndarray) -> np.ndarray:
+    """The trapezoid rule's curvature term per step, robust to constraint switches.
+
+    Two estimates of ``q_i = dx_i' H dx_i`` use the velocities on either side of step
+    ``i``: ``F_i = (v_i - v_{i+1})' dx_i`` (the trapezoid's own; exact for a quadratic
+    under held commands) and ``B_i = (v_{i-1} - v_i)' dx_i`` (``= dx_{i-1}' H dx_i``, off
+    by a third-order amount). A switch between samples ``i`` and ``i+1`` spoils ``F_i``
+    and ``B_{i+1}`` by first-order amounts, as both take a velocity of one constraint
+    along a step of the other. So step ``i`` takes ``B_i`` where ``F_i`` disagrees with
+    ``B_{i+1}`` (rescaled to step ``i``) more than :data:`SWITCH_RATIO` times as much as
+    ``B_i`` does with ``F_{i-1}``, and the same pattern, mirrored, marks step ``i+1``: a
+    switch breaks both pairs that straddle it, smooth motion and constraints that turn
+    with the state break neither.
+
+    Parameters
+    ----------
+    steps : ndarray, shape (N-1, n)
+        ``dx_i = x_{i+1} - x_i``.
+    velocities : ndarray, shape (N, n)
+        ``v_i``, already aligned so that ``v_i`` moved the state over step ``i``.
+
+    Returns
+    -------
+    ndarray, shape (N-1,)
+        ``F_i``, with ``B_i`` at the steps taken for switches.
+    """
+    forward = np.einsum("ij,ij->i", velocities[:-1] - velocities[1:], steps)
+    if len(steps) < 4:
+        return forward
+    # backward[j] is B_{j+1}, for steps 1 .. N-2.
+    backward = np.einsum("ij,ij->i", velocities[:-2] - velocities[1:-1], steps[1:])
+    length = np.sqrt(np.einsum("ij,ij->i", steps, steps))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        i = np.arange(1, len(steps) - 1)
+        # after[k]: F_i against B_{i+1} scaled to step i; before[k]: B_i against F_{i-1}.
+        after = np.abs(forward[i] - backward[i] * length[i] / length[i + 1])
+        before = np.abs(backward[i - 1] - forward[i - 1] * (length[i] / length[i - 1]) ** 2)
+    after, before = np.nan_to_num(after), np.nan_to_num(before)
+    broken = after > SWITCH_RATIO * before
+    # The switch between i and i+1 also shows from step i+1's side, mirrored.
+    broken[:-1] &= before[1:] > SWITCH_RATIO * after[1:]
+    broken[-1] = False
+    out = forward.copy()
+    out[i[broken]] = backward[i[broken] - 1]
+    return out
 
 
 def _step_misses(positions: np.ndarray, velocities: np.ndarray, dt: np.ndarray | float,
