@@ -120,6 +120,22 @@ def test_switch_detection_leaves_a_turning_constraint_to_the_trapezoid():
                                   np.einsum("ij,ij->i", V[:-1] - V[1:], steps))
 
 
+def test_a_start_from_rest_is_not_taken_for_a_switch():
+    # Recordings begin with the robot at rest (a first step of zero length, a first
+    # velocity of zero): a step that does not move says nothing about the curvature, and
+    # once it counted as perfect agreement, which sent the next step to the one-sided
+    # estimate -v_1' dx_1 (the sign of the whole drop wrong).
+    from policy_align_ros.learning.potential import step_curvatures
+
+    W = np.diag([0.5, 2.0])
+    _, X, V, _ = _held_commands(W, (1.0, -0.5), 0.05, 40)
+    X = np.vstack([X[:1], X])
+    V = np.vstack([np.zeros((1, 2)), V])
+    steps = np.diff(X, axis=0)
+    np.testing.assert_array_equal(step_curvatures(steps, V),
+                                  np.einsum("ij,ij->i", V[:-1] - V[1:], steps))
+
+
 def test_auto_trusts_velocities_only_where_they_explain_the_positions():
     W = np.diag([0.5, 2.0])
     t, X, V, phi = _held_commands(W, (1.0, -0.5), 0.05, 60)

@@ -192,7 +192,7 @@ def step_curvatures(steps: np.ndarray, velocities: np.ndarray) -> np.ndarray:
         # after[k]: F_i against B_{i+1} scaled to step i; before[k]: B_i against F_{i-1}.
         after = np.abs(forward[i] - backward[i] * length[i] / length[i + 1])
         before = np.abs(backward[i - 1] - forward[i - 1] * (length[i] / length[i - 1]) ** 2)
-    after, before = np.nan_to_num(after), np.nan_to_num(before)
+    # A step that does not move tells nothing: its NaN comparisons are False.
     broken = after > SWITCH_RATIO * before
     # The switch between i and i+1 also shows from step i+1's side, mirrored.
     broken[:-1] &= before[1:] > SWITCH_RATIO * after[1:]
