@@ -10,6 +10,7 @@ from policy_align_ros.learning.potential import (
     euler_potential,
     euler_scale,
     position_noise,
+    step_curvatures,
     trapezoid_potential,
     velocity_disagreement,
 )
@@ -103,11 +104,16 @@ def test_trapezoid_stays_accurate_across_constraint_switches():
     assert np.abs(trapezoid_potential(X, V) - truth).max() < 0.02 * plain_error
 
 
+def _assert_trapezoid_curvatures_kept(X, V):
+    """No step taken for a switch: every curvature term is the trapezoid's own."""
+    steps = np.diff(X, axis=0)
+    np.testing.assert_array_equal(step_curvatures(steps, V),
+                                  np.einsum("ij,ij->i", V[:-1] - V[1:], steps))
+
+
 def test_switch_detection_leaves_a_turning_constraint_to_the_trapezoid():
     # A constraint that turns a little with every step (a hand plane seen in joint space)
     # is no switch: the curvature estimates must be the trapezoid's own.
-    from policy_align_ros.learning.potential import step_curvatures
-
     W = np.diag([0.5, 2.0])
     X, V = [np.array([1.0, -0.5])], []
     for i in range(80):
@@ -115,9 +121,7 @@ def test_switch_detection_leaves_a_turning_constraint_to_the_trapezoid():
         V.append((np.eye(2) - np.outer(a, a)) @ (-2.0 * W @ X[-1]) + 0.1 * a)
         X.append(X[-1] + 0.05 * V[-1])
     X, V = np.array(X[:-1]), np.array(V)
-    steps = np.diff(X, axis=0)
-    np.testing.assert_array_equal(step_curvatures(steps, V),
-                                  np.einsum("ij,ij->i", V[:-1] - V[1:], steps))
+    _assert_trapezoid_curvatures_kept(X, V)
 
 
 def test_a_start_from_rest_is_not_taken_for_a_switch():
@@ -125,15 +129,11 @@ def test_a_start_from_rest_is_not_taken_for_a_switch():
     # velocity of zero): a step that does not move says nothing about the curvature, and
     # once it counted as perfect agreement, which sent the next step to the one-sided
     # estimate -v_1' dx_1 (the sign of the whole drop wrong).
-    from policy_align_ros.learning.potential import step_curvatures
-
     W = np.diag([0.5, 2.0])
     _, X, V, _ = _held_commands(W, (1.0, -0.5), 0.05, 40)
     X = np.vstack([X[:1], X])
     V = np.vstack([np.zeros((1, 2)), V])
-    steps = np.diff(X, axis=0)
-    np.testing.assert_array_equal(step_curvatures(steps, V),
-                                  np.einsum("ij,ij->i", V[:-1] - V[1:], steps))
+    _assert_trapezoid_curvatures_kept(X, V)
 
 
 def test_auto_trusts_velocities_only_where_they_explain_the_positions():
