@@ -52,7 +52,8 @@ def _build_parser() -> argparse.ArgumentParser:
                        help="refuse sigma^2 below this fraction of the data variance "
                             "(default 1e-4)")
     learn.add_argument("--max-discarded-fraction", type=float, default=None,
-                       help="refuse when more demonstrations are discarded (default 0.5)")
+                       help="refuse when more demonstrations are too weakly connected to "
+                            "align (default 0.5)")
     learn.add_argument("--heldout-tolerance", type=float, default=None,
                        help="refuse a held-out nCPE above the current model's + this "
                             "(default 0.02)")

@@ -145,7 +145,8 @@ def test_targets_and_report_text_follow_the_numbers():
                        "unseen_constraint_1: final <= expert + 0.05 rad": False,
                        "unseen_constraint_1: held frame drift <= 1 mm": False}
     text = report_text({**report, "targets": targets})
-    assert "5 recorded, 4 for training (0 of them discarded as outliers), 1 held out" in text
+    assert ("5 recorded, 4 for training (0 of them discarded, 0 too weakly connected to "
+            "align and levelled by the global model), 1 held out") in text
     assert "1.0000 -> 0.0400; expert 0.0010" in text
     assert "f held, drift 1.50 mm" in text
     assert "heldout_ncpe_fresh <= 0.2: MISSED" in text

@@ -118,11 +118,11 @@ def test_a_refused_fit_answers_false_keeps_the_model_and_publishes_nothing(rig, 
     published = []
     real_publish = r.node._pub.publish
     r.node._pub.publish = lambda msg: (published.append(msg.data), real_publish(msg))
-    # A kernel far narrower than the gaps between demonstrations: most are discarded.
+    # A kernel far narrower than the gaps between demonstrations: most cannot be aligned.
     assert r.node.set_parameters([Parameter("sigma", value="1e-6")])[0].successful
     response = r.learn()
     assert not response.success
-    assert response.message.startswith("refused: outlier detection discarded")
+    assert response.message.startswith("refused: outlier detection found")
     assert "kept unchanged" in response.message
     assert model.read_bytes() == before and published == []
     time.sleep(0.3)  # a stray announcement would have arrived by now

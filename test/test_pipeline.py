@@ -157,19 +157,20 @@ def test_degenerate_fit_is_refused_keeps_the_old_model_and_force_writes_it(
     # A kernel far narrower than the gaps between demonstrations: each is its own group.
     refused = learn_pipeline([dataset], path, sigma=1e-6)
     assert refused.refused and not refused.written
-    assert "discarded" in refused.refusals[0] and "max_discarded_fraction" in refused.line()
+    assert "too weakly connected" in refused.refusals[0]
+    assert "max_discarded_fraction" in refused.line()
     assert refused.line().startswith("refused: ") and "kept unchanged" in refused.line()
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.npz"]
     # The command line: exit 1, the reason on stderr, the model untouched.
     args = dict(inputs=[str(dataset)], out=str(path), joints=None, sigma="1e-6", gap=0.5)
     assert run_learn(argparse.Namespace(**args)) == 1
-    assert "refused: outlier detection discarded" in capsys.readouterr().err
+    assert "refused: outlier detection found" in capsys.readouterr().err
     assert path.read_bytes() == before
     # force writes it and records what it overrode.
     assert run_learn(argparse.Namespace(**args, force=True)) == 0
     block = PolicyAlign.load(path).fit_summary_["pipeline"]
-    assert block["forced"] and "discarded" in block["refusals"][0]
+    assert block["forced"] and "too weakly connected" in block["refusals"][0]
     assert block["sigma2"] == pytest.approx(1e-6)
 
 

@@ -90,6 +90,34 @@ def test_regressor_sees_only_training_samples_of_kept_demonstrations():
     assert set(np.unique(groups)) == set(model.inliers_)
 
 
+def test_a_trajectory_the_alignment_cannot_level_is_levelled_by_the_global_model():
+    # Eight demonstrations meet at the attractor; a ninth runs far from all of them, so the
+    # alignment cannot find its offset (paper: an outlier). Its shape is still data.
+    pot = QuadraticPotential(np.zeros(2), 0.5)
+    starts = [2.0 * np.array([np.cos(a), np.sin(a)]) for a in np.linspace(0.0, 2.0, 8)]
+    demos = [rollout(x0, pot, lambda x, t, pi: np.zeros((0, 2)), 40, 0.2).trajectory
+             for x0 in starts]
+    # Held on the line x1 = -3 (a wall), it slides down x2 only.
+    wall = rollout(np.array([-3.0, 2.5]), pot, lambda x, t, pi: np.array([[1.0, 0.0]]),
+                   30, 0.2)
+    demos.append(wall.trajectory)
+    far = wall.trajectory.positions
+    model = PolicyAlign(sigma="narrow", random_state=0).fit(demos)
+    assert model.groups_[8] != 0 and np.all(model.groups_[:8] == 0)
+    assert 8 in model.inliers_ and metrics.percent_discarded(model) == 0.0
+    assert metrics.percent_unaligned(model) == pytest.approx(100.0 / 9)
+    assert model.fit_summary_["n_levelled_by_model"] == 1
+    # Levelled by the model: its aligned potential matches the truth's level there.
+    e = model.aligned_potentials_[8] - pot.value(far)
+    ref = model.aligned_potentials_[0] - pot.value(demos[0].positions)
+    assert abs(e.mean() - ref.mean()) < 0.05 * np.ptp(pot.value(far))
+    # A regressor that cannot re-fit offsets freely is given the aligned set only.
+    local = PolicyAlign(sigma="narrow", random_state=0,
+                        regressor=LocalLinearRegression()).fit(demos)
+    np.testing.assert_array_equal(local.inliers_, np.arange(8))
+    assert metrics.percent_discarded(local) == pytest.approx(100.0 / 9)
+
+
 def test_timed_trajectories_give_a_policy_per_second():
     # Unconstrained exact flow of phi = 0.5 ||x||^2 (pi = -x), sampled at 20 Hz.
     rng = np.random.default_rng(2)

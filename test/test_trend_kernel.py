@@ -131,6 +131,28 @@ def test_cv_picks_the_trend_alone_for_a_quadratic_potential():
     assert err.mean() / (np.linalg.norm(grad(Q), axis=1) ** 2).mean() < 1e-3
 
 
+def test_free_groups_carry_shape_only_whatever_their_level():
+    # Demonstration 0 at a level 1000 off: with a free offset the fit is the same as with
+    # its true level, at every offset penalty the CV may pick (here the alignment's, inf).
+    rng = np.random.default_rng(4)
+    value, grad = _two_minima()
+    X, g = _descent(grad, rng.uniform(-1.5, 1.5, size=(12, 2)), 25, 0.1)
+    y = value(X)
+    shifted = y + 1000.0 * (g == 0)
+    Q = rng.uniform(-1.2, 1.2, size=(100, 2))
+    fits = [TrendKernelRegression(offset_ridge=math.inf, random_state=0).fit(
+        X, target, groups=g, free_groups=free)
+        for target, free in ((y, None), (shifted, np.array([0])))]
+    np.testing.assert_allclose(fits[1].gradient(Q), fits[0].gradient(Q), rtol=0, atol=0.05)
+    truth = np.linalg.norm(grad(Q), axis=1).mean()
+    assert np.linalg.norm(fits[1].gradient(Q) - grad(Q), axis=1).mean() < 0.1 * truth
+    tied = TrendKernelRegression(offset_ridge=math.inf, random_state=0).fit(
+        X, shifted, groups=g)
+    assert np.linalg.norm(tied.gradient(Q) - grad(Q), axis=1).mean() > truth
+    with pytest.raises(ValueError, match="free_groups names ids not in groups"):
+        TrendKernelRegression().fit(X, y, groups=g, free_groups=np.array([99]))
+
+
 def test_cv_scores_of_an_exact_fit_are_exact_not_round_off():
     # Exact quadratic values with a different offset per demonstration: with free offsets
     # the trend fits every fold exactly. Scores formed from expanded sums (u'u - 2 w'r +

@@ -713,7 +713,9 @@ def _learning_summary(model: PolicyAlign, s: DemoSettings, recorded: list[str]) 
     """The demonstrations block and fit numbers, from the model file's header.
 
     ``training`` counts the demonstrations of the training split (``discarded`` of them
-    were dropped as outliers by the fit), ``held_out`` those kept for scoring.
+    were left out of the global model, ``unaligned`` of them were too weakly connected to
+    align and levelled by the global model instead), ``held_out`` those kept for
+    scoring.
     """
     training = model.fit_summary_ or {}
     pipeline = training.get("pipeline")
@@ -721,11 +723,13 @@ def _learning_summary(model: PolicyAlign, s: DemoSettings, recorded: list[str]) 
         demos = pipeline["demonstrations"]
         train = list(demos.get("training", []))
         discarded = list(demos.get("discarded", []))
+        unaligned = list(demos.get("unaligned", discarded))
         return {
             "demonstrations": {
                 "recorded": len(recorded), "found": int(demos.get("found", len(recorded))),
                 "training": len(train), "held_out": len(demos["held_out"]),
-                "discarded": len(discarded), "duplicates": len(demos.get("duplicates", [])),
+                "discarded": len(discarded), "unaligned": len(unaligned),
+                "duplicates": len(demos.get("duplicates", [])),
                 "held_out_names": list(demos["held_out"]), "discarded_names": discarded},
             "sigma2": float(pipeline.get("sigma2", model.sigma2_)),
             "fit_time_s": float(pipeline["fit_time_s"]),
@@ -963,7 +967,9 @@ def report_text(report: dict) -> str:
         f"robot {report['robot']}, state {report['state']} "
         f"({report.get('state_spec', report['state'])}), seed {report.get('seed')}",
         f"demonstrations: {demos['recorded']} recorded, {demos['training']} for training "
-        f"({demos['discarded']} of them discarded as outliers), {demos['held_out']} held out",
+        f"({demos['discarded']} of them discarded, "
+        f"{demos.get('unaligned', demos['discarded']) - demos['discarded']} too weakly "
+        f"connected to align and levelled by the global model), {demos['held_out']} held out",
         f"sigma^2: {report['sigma2']:.4g}; fit time: {report['fit_time_s']:.2f} s",
         f"held-out nCPE on {report.get('heldout_ncpe_fresh_demos', '?')} fresh "
         f"demonstrations (true N, paper's measure): {report['heldout_ncpe_fresh']:.4g}",

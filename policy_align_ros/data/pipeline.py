@@ -115,8 +115,11 @@ class Gates:
         then sees single samples, as happens when demonstrations coincide. Default 1e-4
         (a kernel width of 1 % of the data's spread). Not applied to an explicit sigma^2.
     max_discarded_fraction : float
-        Refuse when outlier detection discards more than this fraction of the training
-        demonstrations. Default 0.5 ("most").
+        Refuse when outlier detection finds more than this fraction of the training
+        demonstrations too weakly connected to align (the paper's outliers). The default
+        global model levels and keeps them, but most of the data would then tie together
+        through the model alone: a sign of a kernel far too narrow or of demonstrations
+        that never meet. Default 0.5 ("most").
     heldout_tolerance : float
         Refuse when the new model's held-out nCPE exceeds the current model's on the same
         held-out demonstrations (those the current model was not trained on) by more than
@@ -286,9 +289,11 @@ class PipelineResult:
         demos = s["demonstrations"]
         n_train, n_out = len(demos["training"]), len(demos["held_out"])
         n_disc = len(demos["discarded"])
+        n_free = len(demos.get("unaligned", ())) - n_disc
         ncpe = s["heldout_ncpe_observed"]
         text = (f"learnt from {n_train - n_disc} of {n_train} training demonstrations "
-                f"({n_disc} discarded, {n_out} held out")
+                f"({n_disc} discarded, {n_free} levelled by the global model, {n_out} held "
+                f"out")
         if demos["duplicates"]:
             text += f", {len(demos['duplicates'])} duplicates skipped"
         if s["skipped_bags"]:
@@ -552,6 +557,7 @@ def learn_pipeline(
     held_names = [demo_names[k] for k in test_k]
     kept = set(int(i) for i in model.inliers_)
     discarded = [train_names[i] for i in range(len(train)) if i not in kept]
+    unaligned = [train_names[i] for i in np.flatnonzero(model.groups_ != 0)]
     current = _current_model_check(path, model, held, held_names,
                                    [fingerprint(trajs[k]) for k in test_k], ncpe)
     refusals: list[str] = []
@@ -563,10 +569,11 @@ def learn_pipeline(
             f"sigma^2 collapsed to {model.sigma2_:.3g}, {model.sigma2_ / variance:.2g} of "
             f"the data's variance {variance:.3g} (min_sigma2_fraction "
             f"{gates.min_sigma2_fraction:g}; near-identical demonstrations?)")
-    if train and len(discarded) > gates.max_discarded_fraction * len(train):
+    if train and len(unaligned) > gates.max_discarded_fraction * len(train):
         refusals.append(
-            f"outlier detection discarded {len(discarded)} of {len(train)} training "
-            f"demonstrations (max_discarded_fraction {gates.max_discarded_fraction:g})")
+            f"outlier detection found {len(unaligned)} of {len(train)} training "
+            f"demonstrations too weakly connected to align (max_discarded_fraction "
+            f"{gates.max_discarded_fraction:g})")
     old, new = current.get("heldout_ncpe_observed"), current.get("new_ncpe_observed")
     if old is not None and new is not None and new > old + gates.heldout_tolerance:
         refusals.append(
@@ -579,6 +586,7 @@ def learn_pipeline(
             "training": train_names,
             "held_out": held_names,
             "discarded": discarded,
+            "unaligned": unaligned,
             "duplicates": list(duplicate_of),
         },
         "duplicate_of": duplicate_of,

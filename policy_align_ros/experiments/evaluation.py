@@ -2,7 +2,8 @@
 
 Notation: for each trajectory ``k`` a random ``holdout`` share of its samples is hidden
 from the global regression (``train_mask``); the errors are measured on the hidden samples
-of the trajectories PolicyAlign kept. ``phi``, ``pi`` and ``N`` are the ground truth
+of the trajectories PolicyAlign kept (``inliers_``), the alignment's error on those of the
+aligned set (group 0 of ``groups_``: the others' levels come from the global model). ``phi``, ``pi`` and ``N`` are the ground truth
 potential, unconstrained policy and nullspace projector at every sample.
 """
 
@@ -13,10 +14,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from policy_align_ros.learning import PolicyAlign, metrics
+from policy_align_ros.learning.outliers import largest_group
 
 __all__ = ["holdout_masks", "evaluate_policy_align", "METRIC_NAMES"]
 
-METRIC_NAMES = ("alignment_nmse", "potential_nmse", "nupe", "ncpe", "discarded_pct")
+METRIC_NAMES = ("alignment_nmse", "potential_nmse", "nupe", "ncpe", "discarded_pct",
+                "unaligned_pct")
 
 
 def holdout_masks(
@@ -47,24 +50,24 @@ def evaluate_policy_align(
     Returns
     -------
     dict
-        ``alignment_nmse``, ``potential_nmse``, ``nupe``, ``ncpe``, ``discarded_pct``.
+        ``alignment_nmse``, ``potential_nmse``, ``nupe``, ``ncpe``, ``discarded_pct``,
+        ``unaligned_pct``.
     """
-    keep = model.inliers_
-    test = [~np.asarray(train_masks[k]) for k in keep]
-
-    def gather(seq):
-        return np.concatenate([np.asarray(seq[k])[t] for k, t in zip(keep, test, strict=True)])
+    def gather(seq, keep=model.inliers_):
+        return np.concatenate([np.asarray(seq[k])[~np.asarray(train_masks[k])] for k in keep])
 
     X = gather(positions)
     true_phi = gather(phi)
     true_pi = gather(pi)
     N = gather(nullspace)
-    aligned = gather(model.aligned_potentials_)
+    aligned_set = largest_group(model.groups_)
     pi_hat = model.policy(X)
     return {
-        "alignment_nmse": metrics.potential_nmse(aligned, true_phi),
+        "alignment_nmse": metrics.potential_nmse(gather(model.aligned_potentials_, aligned_set),
+                                                 gather(phi, aligned_set)),
         "potential_nmse": metrics.potential_nmse(model.potential(X), true_phi),
         "nupe": metrics.nupe(true_pi, pi_hat),
         "ncpe": metrics.ncpe(true_pi, pi_hat, N),
         "discarded_pct": metrics.percent_discarded(model),
+        "unaligned_pct": metrics.percent_unaligned(model),
     }

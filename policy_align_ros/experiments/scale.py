@@ -25,6 +25,7 @@ import numpy as np
 
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 from policy_align_ros.learning.model_io import atomic_write_text
+from policy_align_ros.learning.outliers import largest_group
 
 __all__ = ["make_scale_dataset", "run_scale_bench", "SIZES"]
 
@@ -66,9 +67,10 @@ def _child(n_traj: int, n_samples: int, seed: int) -> dict:
     fit_s = time.perf_counter() - start
     # Ground truth: phi = 0.05 ||x||^2, pi = -0.1 x (per second), on 5000 random samples.
     rng = np.random.default_rng(seed + 1)
-    kept = [data[k].positions for k in model.inliers_]
-    X = np.concatenate(kept)
-    aligned = np.concatenate([model.aligned_potentials_[k] for k in model.inliers_])
+    # The aligned set (the others' levels come from the global model).
+    aligned_set = largest_group(model.groups_)
+    X = np.concatenate([data[k].positions for k in aligned_set])
+    aligned = np.concatenate([model.aligned_potentials_[k] for k in aligned_set])
     pick = rng.choice(len(X), size=min(5000, len(X)), replace=False)
     accuracy = {
         "alignment_nmse": metrics.potential_nmse(aligned[pick], 0.05 * np.sum(X[pick] ** 2, 1)),

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import inspect
 import json
 import math
 import time
@@ -52,6 +53,7 @@ from policy_align_ros.experiments.demonstrators import (
 )
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 from policy_align_ros.learning.model_io import atomic_write_text
+from policy_align_ros.learning.outliers import largest_group
 from policy_align_ros.learning.regressors import LocalLinearRegression, TrendKernelRegression
 
 __all__ = ["CASES", "Case", "run_case", "main"]
@@ -340,14 +342,19 @@ def _stack(demos, masks=None):
 def _refit(model: PolicyAlign, regressor, trajs: list[Trajectory], masks
            ) -> tuple[PolicyAlign, float]:
     """A copy of ``model`` whose global model is ``regressor`` fitted on its aligned data
-    (``trajs``: the recordings ``model`` was fitted on)."""
+    (``trajs``: the recordings ``model`` was fitted on), as ``PolicyAlign.fit`` would: the
+    trajectories outside the aligned set only if ``regressor`` re-fits their offsets."""
     t0 = time.perf_counter()
+    free = np.setdiff1d(model.inliers_, largest_group(model.groups_))
+    extra = {"free_groups": free} if free.size else {}
     keep = model.inliers_
+    if "free_groups" not in inspect.signature(regressor.fit).parameters:
+        keep, extra = largest_group(model.groups_), {}
     X = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
     y = np.concatenate([model.aligned_potentials_[k][masks[k]] for k in keep])
     g = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
     out = copy.copy(model)
-    out.regressor_ = regressor.fit(X, y, groups=g)
+    out.regressor_ = regressor.fit(X, y, groups=g, **extra)
     return out, time.perf_counter() - t0
 
 
@@ -467,7 +474,8 @@ def run_case(task: tuple) -> dict:
                          [~masks[k] for k in base.inliers_])
     result = {"case": name, "seed": seed, "n": case.n, "rate": case.rate,
               "n_train": problem.n_train,
-              "discarded_pct": metrics.percent_discarded(base), "models": {}}
+              "discarded_pct": metrics.percent_discarded(base),
+              "unaligned_pct": metrics.percent_unaligned(base), "models": {}}
     models = {"new": (base, total)}
     previous, t_prev = _refit(base, LocalLinearRegression(random_state=seed), recorded,
                               masks)

@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 
 from policy_align_ros.experiments.toy import POTENTIALS, make_toy_dataset  # noqa: E402
 from policy_align_ros.learning import PolicyAlign  # noqa: E402
+from policy_align_ros.learning.outliers import largest_group  # noqa: E402
 from policy_align_ros.learning.potential import euler_potential  # noqa: E402
 
 __all__ = ["plot_toy_figure"]
@@ -27,7 +28,7 @@ def plot_toy_figure(path: str | Path, seed: int = 0, sigma: str = "narrow") -> P
     rng = np.random.default_rng(seed)
     data = make_toy_dataset("parabola", 40, 40, rng)
     model = PolicyAlign(sigma=sigma, random_state=seed).fit(data.trajectories)
-    kept = set(model.inliers_.tolist())
+    kept = set(largest_group(model.groups_).tolist())
 
     grid = np.linspace(-2.2, 2.2, 60)
     G1, G2 = np.meshgrid(grid, grid)
@@ -42,7 +43,8 @@ def plot_toy_figure(path: str | Path, seed: int = 0, sigma: str = "narrow") -> P
     for k, traj in enumerate(data.trajectories):
         style = dict(color="C0", lw=1.0) if k in kept else dict(color="C3", lw=1.0, ls="--")
         ax.plot(traj.positions[:, 0], traj.positions[:, 1], **style)
-    ax.set(title="(a) trajectories (red dashed: discarded)", xlabel="x1", ylabel="x2",
+    ax.set(title="(a) trajectories (red dashed: outside the aligned set)", xlabel="x1",
+           ylabel="x2",
            aspect="equal")
 
     panels = [
@@ -79,8 +81,9 @@ def plot_toy_figure(path: str | Path, seed: int = 0, sigma: str = "narrow") -> P
     ax.legend(loc="upper right", fontsize=8)
 
     fig.suptitle(
-        f"Toy data (parabola, K=N=40, sigma {sigma}): kept {len(kept)} of "
-        f"{len(data.trajectories)} trajectories, sigma^2 = {model.sigma2_:.2g}"
+        f"Toy data (parabola, K=N=40, sigma {sigma}): {len(kept)} of "
+        f"{len(data.trajectories)} trajectories aligned, {len(model.inliers_) - len(kept)} "
+        f"levelled by the global model, sigma^2 = {model.sigma2_:.2g}"
     )
     fig.tight_layout()
     path = Path(path)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["potential_nmse", "nupe", "ncpe", "percent_discarded"]
+__all__ = ["potential_nmse", "nupe", "ncpe", "percent_discarded", "percent_unaligned"]
 
 
 def potential_nmse(predicted: np.ndarray, true: np.ndarray) -> float:
@@ -52,9 +52,17 @@ def ncpe(pi: np.ndarray, pi_hat: np.ndarray, N: np.ndarray) -> float:
 
 
 def percent_discarded(model) -> float:
-    """Percentage of trajectories a fitted ``PolicyAlign`` discarded as outliers."""
+    """Percentage of trajectories a fitted ``PolicyAlign`` left out of its global model."""
     total = len(model.offsets_)
     return 100.0 * (total - len(model.inliers_)) / total
+
+
+def percent_unaligned(model) -> float:
+    """Percentage of trajectories outside a fitted ``PolicyAlign``'s aligned set: those the
+    alignment could not level (the paper's outliers). Its default regressor levels them
+    and keeps them; with other regressors they are discarded."""
+    total = len(model.offsets_)
+    return 100.0 * (total - int(np.sum(model.groups_ == 0))) / total
 
 
 def _policies(pi: np.ndarray, pi_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

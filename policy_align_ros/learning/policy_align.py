@@ -10,17 +10,23 @@ times (per step otherwise).
    recorded velocities, both the Euler and the trapezoid estimates go through steps 3-4
    and the regressor's cross-validation score decides);
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
-3. align each group (``b = -pinv(H) a`` restricted to the group) and keep the largest;
-4. fit the global regressor on the kept, aligned data. The default,
+3. align each group (``b = -pinv(H) a`` restricted to the group); the largest group is
+   the aligned set;
+4. fit the global regressor on the aligned data. The default,
    :class:`~policy_align_ros.learning.regressors.TrendKernelRegression`, may correct the
    offsets of step 3 jointly with its model (its ``offset_ridge``, chosen by
    cross-validation over whole demonstrations); ``aligned_potentials_`` keep the
-   alignment's offsets.
+   alignment's offsets. A regressor whose ``fit`` takes ``free_groups`` (the default
+   does) is also given the trajectories outside the aligned set, with offsets it re-fits
+   freely: the paper discards them because no offset can be found for them by the
+   alignment, but their shape is data all the same (``docs/notes/outliers.md``). Their
+   ``offsets_`` are then the levels the global model gives them.
 """
 
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import sys
 import time
@@ -107,6 +113,13 @@ class PolicyAlign:
 
     Attributes
     ----------
+    groups_ : ndarray of int, shape (K,)
+        The alignment's groups of well connected trajectories; group 0, the largest, is
+        the aligned set (:func:`~policy_align_ros.learning.outliers.weakly_connected_groups`).
+    inliers_ : ndarray of int
+        Trajectories the global model is fitted on: the aligned set, and the other groups'
+        trajectories when the regressor re-fits their offsets (``free_groups``); the rest
+        are discarded.
     integration_ : {"euler", "trapezoid", "trapezoid_late"}
         The rule used (also ``fit_summary_["integration"]``, saved with the model;
         ``fit_summary_["integration_cv"]`` holds the scores it was chosen by).
@@ -251,8 +264,13 @@ class PolicyAlign:
         # The outlier groups depend on the states only, not on the potentials.
         _, _, W = alignment_system(table)
         self.groups_ = weakly_connected_groups(W, self.eigen_tol)
-        self.inliers_ = largest_group(self.groups_)
-        keep = self.inliers_
+        template = (TrendKernelRegression(random_state=self.random_state)
+                    if self.regressor is None else self.regressor)
+        free = np.zeros(0, dtype=np.int64)
+        if _takes_free_groups(template):
+            free = np.flatnonzero((self.groups_ != 0)
+                                  & np.array([m.any() for m in masks], dtype=bool))
+        keep = self.inliers_ = np.union1d(largest_group(self.groups_), free)
         aligned = {}
         for rule in rules:
             rule_table = table if rule == rules[0] else table.with_potential(phi_all[rule])
@@ -261,19 +279,19 @@ class PolicyAlign:
             aligned[rule] = (offsets, [p + b for p, b in zip(phi[rule], offsets, strict=True)])
         timings["alignment"] = time.perf_counter() - t1
         self._log(
-            f"aligned with {len(table.q)} responsibilities; kept {len(keep)} of "
-            f"{len(trajs)} trajectories ({timings['alignment']:.2f} s)"
+            f"aligned with {len(table.q)} responsibilities; {len(keep) - len(free)} of "
+            f"{len(trajs)} trajectories aligned, {len(free)} more levelled by the global "
+            f"model ({timings['alignment']:.2f} s)"
         )
 
         t2 = time.perf_counter()
         Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
         gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
-        template = (TrendKernelRegression(random_state=self.random_state)
-                    if self.regressor is None else self.regressor)
+        extra = {"free_groups": free} if free.size else {}
         fits, scores = {}, {}
         for rule in rules:
             ytr = np.concatenate([aligned[rule][1][k][masks[k]] for k in keep])
-            fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr)
+            fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr, **extra)
             scores[rule] = _cv_score(fits[rule])
             if len(rules) > 1 and scores[rule] is None:
                 break  # a regressor without CV scores cannot choose: the paper's Euler rule
@@ -282,8 +300,9 @@ class PolicyAlign:
         # single smooth function explains.
         self.integration_ = rules[0] if any(v is None for v in scores.values()) else min(
             scores, key=scores.get)
-        self.offsets_, self.aligned_potentials_ = aligned[self.integration_]
         self.regressor_ = fits[self.integration_]
+        self.offsets_, self.aligned_potentials_ = _level_free(
+            *aligned[self.integration_], free, self.regressor_, trajs, masks)
         timings["regression"] = time.perf_counter() - t2
         timings["total"] = time.perf_counter() - t0
         self._log(f"global model fitted on {len(Xtr)} samples with the {self.integration_} "
@@ -302,6 +321,7 @@ class PolicyAlign:
             "n_trajectories": len(trajs),
             "n_samples": int(len(X)),
             "n_inliers": int(len(keep)),
+            "n_levelled_by_model": int(len(free)),
             "n_groups": int(self.groups_.max() + 1),
             "n_responsibilities": int(len(table.q)),
             "integration": self.integration_,
@@ -474,3 +494,26 @@ def _cv_score(regressor) -> float | None:
         return None
     score = float(scores[best])
     return score if math.isfinite(score) else None
+
+
+def _takes_free_groups(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``free_groups`` (offsets it re-fits freely)."""
+    try:
+        return "free_groups" in inspect.signature(regressor.fit).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def _level_free(offsets: np.ndarray, potentials: list[np.ndarray], free: np.ndarray,
+                regressor, trajs: list[Trajectory], masks: list[np.ndarray]
+                ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Offsets and aligned potentials with the trajectories ``free`` moved to the level of
+    the global model: the mean of ``f(x) - phi`` over their training samples, which is the
+    free offset a least-squares fit gives them."""
+    offsets, potentials = offsets.copy(), list(potentials)
+    for k in free:
+        x = trajs[k].positions[masks[k]]
+        level = float(np.mean(regressor.predict(x) - potentials[k][masks[k]]))
+        offsets[k] += level
+        potentials[k] = potentials[k] + level
+    return offsets, potentials

@@ -60,8 +60,8 @@ _GATE_PARAMETERS = {
         "refuse a fit whose sigma^2 (from a sigma rule) is below this fraction of the "
         "training states' variance", (0.0, 1.0)),
     "max_discarded_fraction": (
-        "refuse a fit whose outlier detection discards more than this fraction of the "
-        "training demonstrations", (0.0, 1.0)),
+        "refuse a fit whose outlier detection finds more than this fraction of the "
+        "training demonstrations too weakly connected to align", (0.0, 1.0)),
     "heldout_tolerance": (
         "refuse a fit whose held-out nCPE exceeds the current model's on the same "
         "demonstrations by more than this", (0.0, 10.0)),

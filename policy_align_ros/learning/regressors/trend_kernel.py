@@ -31,7 +31,9 @@ all (trajectories pass far from each other). So the fit may correct them: it min
 demonstration corrections ``b_k`` together (``offset_ridge = 0``: free offsets, the
 demonstrations then tie together through the shape of ``f`` alone; ``inf``: the
 alignment's offsets). The ``b_k`` are eliminated in closed form, so this costs no more
-than the fit without them. On a 22-D quadratic (``policy-align bench suite --cases
+than the fit without them. Demonstrations named in ``fit(..., free_groups=...)`` always
+have free offsets, whatever ``offset_ridge``: the alignment could not level them (weakly
+connected trajectories), so only their shape is data. On a 22-D quadratic (``policy-align bench suite --cases
 quad_aniso_22 --seed 1000``), free offsets brought the trend's nUPE on new starts from
 0.24 to 0.03; see ``docs/notes/trend_kernel.md``.
 
@@ -152,10 +154,14 @@ class _FoldGrams:
     """
 
     def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
-                 n: int, base: _FoldGrams | None = None):
+                 n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None):
         """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
-        shared by every length scale), so only the blocks of the new columns are summed."""
+        shared by every length scale), so only the blocks of the new columns are summed.
+        ``free`` (K,) bool: demonstrations whose offsets are free at every
+        ``offset_ridge`` (default: none)."""
         self.n = n
+        self.free = (np.zeros(len(demo_fold), dtype=bool) if free is None
+                     else np.asarray(free, dtype=bool))
         n_demos = len(demo_fold)
         onehot = scipy.sparse.csr_matrix(
             (np.ones(len(u)), (demo, np.arange(len(u)))), shape=(n_demos, len(u)))
@@ -252,8 +258,12 @@ class _FoldGrams:
         """Gram and right-hand side of demonstrations ``train`` (bool, K) whose sums are
         ``G, r``, with their offsets eliminated; and their number of samples."""
         m = float(self.nk[train].sum())
-        if math.isfinite(offset_ridge):
-            c = 1.0 / (self.nk[train] + m * offset_ridge)
+        free = self.free[train]
+        if math.isfinite(offset_ridge) or free.any():
+            nk = self.nk[train]
+            c = (np.zeros_like(nk) if math.isinf(offset_ridge)
+                 else 1.0 / (nk + m * offset_ridge))
+            c[free] = 1.0 / nk[free]
             Ak = self.Ak[train]
             G = G - (Ak * c[:, None]).T @ Ak
             r = r - Ak.T @ (c * self.sk[train])
@@ -286,7 +296,8 @@ class _CVData:
         """Fold sums of the trend and kernel features at length scale ``ell``, and the
         centres' Gram (m_c, m_c)."""
         A = np.hstack([self.F, _gaussian(self.Z, self.C, ell)])
-        return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend),
+        return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
+                           free=self.trend.free),
                 _gaussian(self.C, self.C, ell))
 
 
@@ -511,13 +522,15 @@ class TrendKernelRegression:
                 raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
 
     # -- fit --------------------------------------------------------------------------
-    def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None
-            ) -> TrendKernelRegression:
+    def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
+            free_groups: np.ndarray | None = None) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
         thinned in arc length). Without ``groups`` all samples form one demonstration and
         the hyperparameters that are ``"cv"`` fall back to mid-grid values.
+        ``free_groups`` (ids in ``groups``) are demonstrations whose offsets are always
+        re-fitted freely: ``y`` carries their shape only.
 
         Returns
         -------
@@ -525,12 +538,21 @@ class TrendKernelRegression:
         """
         self._check_params()
         X, y, groups = check_Xy(X, y, groups)
+        free = np.zeros(0, dtype=groups.dtype) if free_groups is None else np.asarray(
+            free_groups)
+        if free.ndim != 1 or (free.size and not np.issubdtype(free.dtype, np.integer)):
+            raise ValueError(f"free_groups must be a 1-D int array, got {free.dtype} "
+                             f"{free.shape}")
+        unknown = np.setdiff1d(free, groups)
+        if unknown.size:
+            raise ValueError(f"free_groups names ids not in groups: {unknown[:5].tolist()}")
         # Hundreds of factorisations of a few hundred unknowns: OpenBLAS's threads cost
         # more than they bring there (22-D, 6000 samples: 1.9 s with them, 0.75 s without).
         with single_blas_thread():
-            return self._fit(X, y, groups)
+            return self._fit(X, y, groups, free)
 
-    def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> TrendKernelRegression:
+    def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray
+             ) -> TrendKernelRegression:
         rng = np.random.default_rng(self.random_state)
         idx = thin_by_arc_length(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
@@ -538,14 +560,20 @@ class TrendKernelRegression:
         self.n_features_in_ = n
         self.mean_ = X.mean(axis=0)
         self.scale_ = float(np.sqrt(np.mean(np.var(X, axis=0)))) or 1.0
-        self.y_mean_ = float(y.mean())
-        self.y_scale_ = float(y.std()) or 1.0
+        # Demonstrations with free offsets carry no level: the outputs' scale (the unit of
+        # every penalty) comes from the others.
+        levelled = ~np.isin(groups, free_groups)
+        if not levelled.any():
+            levelled[:] = True
+        self.y_mean_ = float(y[levelled].mean())
+        self.y_scale_ = float(y[levelled].std()) or 1.0
         Z = (X - self.mean_) / self.scale_
         u = (y - self.y_mean_) / self.y_scale_
 
         centre_idx = np.sort(rng.choice(m, size=min(self.n_centres, m), replace=False))
         C = Z[centre_idx]
         demo_ids, demo = np.unique(groups, return_inverse=True)
+        free = np.isin(demo_ids, free_groups)
         n_folds = min(self.n_folds, len(demo_ids))
         demo_fold = np.zeros(len(demo_ids), dtype=np.int64)
         if n_folds >= 2:
@@ -567,13 +595,14 @@ class TrendKernelRegression:
             best = (t_grid[len(t_grid) // 2], lengths[len(lengths) // 2],
                     k_grid[len(k_grid) // 2], o_grid[-1])
         else:
-            cv = _CVData(F, Z, u, C, demo, demo_fold, _FoldGrams(F, u, demo, demo_fold, n))
+            cv = _CVData(F, Z, u, C, demo, demo_fold,
+                         _FoldGrams(F, u, demo, demo_fold, n, free=free))
             best = self.cv_best_ = self._cv_search(cv, lengths, t_grid, k_grid, o_grid)
             if math.isnan(best[1]):
                 best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
         (self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
          self.offset_ridge_) = best
-        self._final_fit(F, Z, u, C, n, demo)
+        self._final_fit(F, Z, u, C, n, demo, free)
         return self
 
     def _cv_search(self, cv: _CVData, lengths: list[float], t_grid: list[float],
@@ -656,7 +685,7 @@ class TrendKernelRegression:
         return P
 
     def _final_fit(self, F: np.ndarray, Z: np.ndarray, u: np.ndarray, C: np.ndarray, n: int,
-                   demo: np.ndarray) -> None:
+                   demo: np.ndarray, free: np.ndarray) -> None:
         p_t = _n_trend(n)
         if math.isinf(self.kernel_ridge_):
             A, P = F, self._trend_penalty(n, self.trend_ridge_)
@@ -666,7 +695,8 @@ class TrendKernelRegression:
             P = self._penalty(n, self.trend_ridge_, self.kernel_ridge_,
                               _gaussian(C, C, self.length_scale_))
             self.centres_ = C
-        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n)
+        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
+                           free=free)
         G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all,
                                  self.offset_ridge_)
         w = _convex_solve(G / m + P, r / m, n)
