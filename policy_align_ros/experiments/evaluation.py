@@ -3,8 +3,9 @@
 Notation: for each trajectory ``k`` a random ``holdout`` share of its samples is hidden
 from the global regression (``train_mask``); the errors are measured on the hidden samples
 of the trajectories PolicyAlign kept (``inliers_``), the alignment's error on those of the
-aligned set (group 0 of ``groups_``: the others' levels come from the global model). ``phi``, ``pi`` and ``N`` are the ground truth
-potential, unconstrained policy and nullspace projector at every sample.
+aligned set (group 0 of ``groups_``: the others' levels come from the global model).
+``phi``, ``pi`` and ``N`` are the ground truth potential, unconstrained policy and nullspace
+projector at every sample.
 """
 
 from __future__ import annotations

@@ -33,9 +33,10 @@ demonstrations then tie together through the shape of ``f`` alone; ``inf``: the
 alignment's offsets). The ``b_k`` are eliminated in closed form, so this costs no more
 than the fit without them. Demonstrations named in ``fit(..., free_groups=...)`` always
 have free offsets, whatever ``offset_ridge``: the alignment could not level them (weakly
-connected trajectories), so only their shape is data. On a 22-D quadratic (``policy-align bench suite --cases
-quad_aniso_22 --seed 1000``), free offsets brought the trend's nUPE on new starts from
-0.24 to 0.03; see ``docs/notes/trend_kernel.md``.
+connected trajectories), so only their shape is data (``docs/notes/outliers.md``). On a
+22-D quadratic (``policy-align bench suite --cases quad_aniso_22 --seed 1000``), free
+offsets brought the trend's nUPE on new starts from 0.24 to 0.03; see
+``docs/notes/trend_kernel.md``.
 
 Choosing the hyperparameters
 ----------------------------
