@@ -331,7 +331,7 @@ def format_table(results: Sequence[dict]) -> str:
             f"| {key} | {_fmt([r[key] for r in results], False)} | {pm:.3g} ± {ps:.2g} |")
     for key in ("PA nUPE", "PA reach end, worst hand (mm)",
                 "expert reach end, worst hand (mm)", "reached ball (%)",
-                "constrained samples (%)", "unseen active (%)",
+                "constrained samples (%)", "unseen active (%)", "unaligned (%)",
                 "sigma2", "time PolicyAlign (s)", "time naive (s)"):
         lines.append(f"| {key} | {_fmt([r[key] for r in results], False)} | — |")
     return "\n".join(lines) + "\n"

@@ -239,7 +239,7 @@ def format_table(results: Sequence[dict]) -> str:
     for key, (pm, ps) in PAPER.items():
         vals = np.array([r[key] for r in results])
         lines.append(f"| {key} | {vals.mean():.4g} ± {vals.std():.2g} | {pm:.4g} ± {ps:.2g} |")
-    for key in ("sigma2", "time generate (s)", "time PolicyAlign (s)"):
+    for key in ("unaligned (%)", "sigma2", "time generate (s)", "time PolicyAlign (s)"):
         vals = np.array([r[key] for r in results])
         lines.append(f"| {key} | {vals.mean():.4g} ± {vals.std():.2g} | — |")
     return "\n".join(lines) + "\n"
