@@ -223,3 +223,33 @@ def test_auto_removes_the_euler_rescaling_of_an_isotropic_potential():
     X = rng.uniform(-1, 1, (200, 3))
     assert metrics.nupe(pot.policy(X), auto.policy(X)) < 1e-4
     assert metrics.nupe(pot.policy(X), euler.policy(X)) > 1e-4
+
+
+def test_demonstrations_are_split_where_the_constraint_switches_inside_a_period(monkeypatch):
+    # Continuous-time recordings: the constraint changes twice per demonstration at random
+    # times inside sample periods, where no rule gets the step's potential drop right.
+    from test_potential import _continuous_demo
+
+    rng = np.random.default_rng(8)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    W, c = q @ np.diag([1.0, 3.0, 9.0]) @ q.T, np.array([0.1, -0.2, 0.3])
+
+    def demos(k):
+        return [_continuous_demo(W, c, c + rng.uniform(-1, 1, 3), 50,
+                                 np.sort(rng.uniform(0, 4, 2)), rng) for _ in range(k)]
+
+    train, test = demos(20), demos(5)
+    X = np.concatenate([t.positions for t in test])
+    pi = -(X - c) @ W
+
+    def nupe(model):
+        return metrics.nupe(pi, model.policy(X))
+
+    model = PolicyAlign(random_state=0).fit(train)
+    assert model.fit_summary_["n_pieces"] >= 20 + 30  # most of the 40 switches found
+    assert [len(p) for p in model.aligned_potentials_] == [t.n_samples for t in train]
+    assert len(model.offsets_) == 20 and set(model.inliers_) == set(range(20))
+    monkeypatch.setattr(pa_module, "switch_cuts", lambda t: np.zeros(0, dtype=np.int64))
+    whole = PolicyAlign(random_state=0).fit(train)
+    assert whole.fit_summary_["n_pieces"] == 20
+    assert nupe(model) < 1e-6 and nupe(model) < 1e-2 * nupe(whole)

@@ -5,12 +5,14 @@ import pytest
 
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.learning.potential import (
+    best_timing,
     choose_method,
     estimate_potential,
     euler_potential,
     euler_scale,
     position_noise,
     step_curvatures,
+    switch_cuts,
     trapezoid_potential,
     velocity_disagreement,
 )
@@ -236,3 +238,38 @@ def test_euler_scale_measures_the_euler_bias_of_an_isotropic_potential():
     resting = Trajectory(np.zeros((5, 2)), velocities=np.zeros((5, 2)))
     assert euler_scale([estimate_potential(resting, "euler")],
                        [estimate_potential(resting, "trapezoid")]) == 1.0
+
+
+def _continuous_demo(W, c, x0, hz, switch_times, rng, sub=50, dur=4.0):
+    """A constrained gradient flow integrated in fine substeps; the constraint (one random
+    row) changes at ``switch_times`` (s), inside sample periods; instantaneous velocities
+    are recorded at the samples (timing "mid")."""
+    n = len(x0)
+    projectors = [np.eye(n) - np.linalg.pinv(A) @ A
+                  for A in rng.standard_normal((len(switch_times) + 1, 1, n))]
+    dt, h = 1.0 / hz, 1.0 / hz / sub
+    X, V = [], []
+    x, t = np.array(x0, dtype=float), 0.0
+    for _ in range(int(dur * hz)):
+        N = projectors[int(np.searchsorted(switch_times, t))]
+        X.append(x.copy())
+        V.append(N @ (-W @ (x - c)))
+        for _ in range(sub):
+            N = projectors[int(np.searchsorted(switch_times, t))]
+            x = x + h * N @ (-W @ (x - c))
+            t += h
+    return Trajectory(np.array(X), dt * np.arange(len(X)), np.array(V))
+
+
+def test_switch_cuts_find_switches_inside_a_period_and_nothing_else():
+    rng = np.random.default_rng(5)
+    W, c = np.diag([1.0, 3.0, 8.0]), np.array([0.2, -0.1, 0.3])
+    switched = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array([1.013, 2.517]), rng)
+    # Sample i is at i / 50 s: the switches fall inside steps 50 and 125.
+    np.testing.assert_array_equal(switch_cuts(switched), [50, 125])
+    smooth = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array([]), rng)
+    assert switch_cuts(smooth).size == 0
+    # A cut never leaves a piece shorter than min_samples.
+    early = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array([0.021]), rng)
+    assert switch_cuts(early, min_samples=3).size == 0
+    assert best_timing([switched, smooth]) == "mid"

@@ -8,7 +8,11 @@ times (per step otherwise).
 
 1. estimate ``phi_hat_k`` along each trajectory (``integration``; with ``"auto"`` and
    recorded velocities, both the Euler and the trapezoid estimates go through steps 3-4
-   and the regressor's cross-validation score decides);
+   and the regressor's cross-validation score decides). Trajectories whose instantaneous
+   velocities show a constraint switch inside a sample period are first split there
+   (:func:`~policy_align_ros.learning.potential.switch_cuts`): no rule gets that step's
+   drop right, and the alignment levels the pieces; the learnt attributes are merged
+   back per trajectory;
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
 3. align each group (``b = -pinv(H) a`` restricted to the group); the largest group is
    the aligned set;
@@ -51,10 +55,12 @@ from policy_align_ros.learning.bandwidth import (
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.potential import (
     METHODS,
+    best_timing,
     choose_method,
     estimate_potential,
     euler_scale,
     position_noise,
+    switch_cuts,
 )
 from policy_align_ros.learning.regressors import (
     NotFittedError,
@@ -245,6 +251,12 @@ class PolicyAlign:
 
         t1 = time.perf_counter()
         self.position_noise_ = position_noise(positions)
+        parents, parent_masks = trajs, masks
+        trajs, masks, owner = self._split_at_switches(trajs, masks)
+        if len(trajs) > len(parents):
+            labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
+            closest = closest_approach_matrix(
+                thin_trajectories([t.positions for t in trajs], HEURISTIC_POINTS))
         rules = [self.integration]
         if self.integration == "auto":
             rules = list(dict.fromkeys(["euler", choose_method(trajs, self.position_noise_)]))
@@ -308,6 +320,11 @@ class PolicyAlign:
         self._log(f"global model fitted on {len(Xtr)} samples with the {self.integration_} "
                   f"potentials ({timings['regression']:.2f} s)")
 
+        n_pieces = len(trajs)
+        if len(trajs) > len(parents):
+            self._merge_pieces(owner, len(parents))
+            trajs, masks = parents, parent_masks
+            keep = self.inliers_
         self.support_states_, groups = support_states([trajs[k].positions for k in keep])
         self.support_spacing_ = support_spacing(self.support_states_, groups)
         self._support_tree = None
@@ -322,6 +339,7 @@ class PolicyAlign:
             "n_samples": int(len(X)),
             "n_inliers": int(len(keep)),
             "n_levelled_by_model": int(len(free)),
+            "n_pieces": int(n_pieces),
             "n_groups": int(self.groups_.max() + 1),
             "n_responsibilities": int(len(table.q)),
             "integration": self.integration_,
@@ -333,6 +351,41 @@ class PolicyAlign:
             "timings_s": timings,
         }
         return self
+
+    def _split_at_switches(self, trajs: list[Trajectory], masks: list[np.ndarray]
+                           ) -> tuple[list[Trajectory], list[np.ndarray], np.ndarray]:
+        """Pieces of the trajectories between constraint switches inside a sample period
+        (:func:`~policy_align_ros.learning.potential.switch_cuts`), their masks, and the
+        trajectory each piece comes from. Only where the velocities are sampled at the
+        samples (timing ``"mid"``) and trusted: there no rule gets such a step right, and
+        the alignment levels the pieces, which touch."""
+        owner = np.arange(len(trajs))
+        if (self.integration not in ("auto", "trapezoid")
+                or best_timing(trajs, self.position_noise_) != "mid"
+                or choose_method(trajs, self.position_noise_) != "trapezoid"):
+            return trajs, masks, owner
+        pieces, piece_masks, owners = [], [], []
+        for k, (t, m) in enumerate(zip(trajs, masks, strict=True)):
+            bounds = [0, *(int(i) + 1 for i in switch_cuts(t)), t.n_samples]
+            for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+                pieces.append(Trajectory(t.positions[a:b],
+                                         None if t.times is None else t.times[a:b],
+                                         t.velocities[a:b], name=f"{t.name}[{a}:{b}]"))
+                piece_masks.append(m[a:b])
+                owners.append(k)
+        return pieces, piece_masks, np.array(owners, dtype=np.int64)
+
+    def _merge_pieces(self, owner: np.ndarray, n_parents: int) -> None:
+        """Learnt per-piece attributes back to the trajectories: offsets of each first
+        piece, aligned potentials joined, a trajectory kept if any piece is, its group the
+        best of its pieces'."""
+        first = np.searchsorted(owner, np.arange(n_parents))
+        self.offsets_ = self.offsets_[first]
+        self.aligned_potentials_ = [np.concatenate([self.aligned_potentials_[j]
+                                                    for j in np.flatnonzero(owner == k)])
+                                    for k in range(n_parents)]
+        self.groups_ = np.array([self.groups_[owner == k].min() for k in range(n_parents)])
+        self.inliers_ = np.unique(owner[self.inliers_])
 
     @staticmethod
     def _check_masks(

@@ -48,6 +48,7 @@ import numpy as np
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS",
+           "best_timing", "switch_cuts",
            "velocity_disagreement", "choose_method", "position_noise", "euler_scale",
            "VELOCITY_AGREEMENT", "TIMINGS", "step_curvatures", "SWITCH_RATIO"]
 
@@ -265,16 +266,25 @@ def choose_method(trajs: list[Trajectory], noise: float = 0.0) -> str:
     variance of noise on the states (:func:`position_noise`); without its correction,
     steps dominated by noise look like velocities left at zero.
     """
-    if any(t.velocities is None or t.n_samples < 2 for t in trajs):
+    totals = _timing_misses(trajs, noise)
+    if totals is None:
         return "euler"
-    totals = {}
-    for timing in TIMINGS:
-        sums = [_step_misses(t.positions, t.velocities, t.dt, timing, noise) for t in trajs]
-        totals[timing] = _relative_miss(sum(e for e, _ in sums), sum(m for _, m in sums))
     best = min(TIMINGS, key=totals.get)
     if not totals[best] <= VELOCITY_AGREEMENT:
         return "euler"
     return "trapezoid_late" if best == "late" else "trapezoid"
+
+
+def _timing_misses(trajs: list[Trajectory], noise: float) -> dict[str, float] | None:
+    """:func:`velocity_disagreement` of all the trajectories together, per timing; None
+    unless every trajectory has velocities."""
+    if any(t.velocities is None or t.n_samples < 2 for t in trajs):
+        return None
+    totals = {}
+    for timing in TIMINGS:
+        sums = [_step_misses(t.positions, t.velocities, t.dt, timing, noise) for t in trajs]
+        totals[timing] = _relative_miss(sum(e for e, _ in sums), sum(m for _, m in sums))
+    return totals
 
 
 def euler_scale(euler: list[np.ndarray], trapezoid: list[np.ndarray]) -> float:
@@ -311,6 +321,47 @@ def euler_scale(euler: list[np.ndarray], trapezoid: list[np.ndarray]) -> float:
     cumulative = np.cumsum(weight[order])
     median = float(ratio[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
     return median if math.isfinite(median) and median > 0 else 1.0
+
+
+def best_timing(trajs: list[Trajectory], noise: float = 0.0) -> str | None:
+    """The velocity timing (:data:`TIMINGS`) that best explains every trajectory's steps,
+    or ``None`` without velocities (see :func:`choose_method`)."""
+    totals = _timing_misses(trajs, noise)
+    return None if totals is None else min(TIMINGS, key=totals.get)
+
+
+def switch_cuts(traj: Trajectory, min_samples: int = 3) -> np.ndarray:
+    """Steps across which the constraint switched *inside* the sample period.
+
+    With velocities sampled at the samples (timing ``"mid"``), a step ``i`` is explained
+    by ``dt_i (v_i + v_{i+1}) / 2`` to second order, except where the constraint changed
+    between the two samples: then the step is part one constraint's motion, part the
+    other's, and no rule from the two end velocities gets its potential drop right to
+    first order. Such a step misses by far more than its neighbours; the steps whose
+    relative miss is more than :data:`SWITCH_RATIO` times both neighbours' are returned,
+    as long as every piece keeps ``min_samples`` samples.
+
+    Returns
+    -------
+    ndarray of int
+        Step indices ``i`` (the cut falls between samples ``i`` and ``i + 1``).
+    """
+    if traj.velocities is None or traj.n_samples < 2 * min_samples + 1:
+        return np.zeros(0, dtype=np.int64)
+    steps = np.diff(traj.positions, axis=0)
+    dt = np.reshape(traj.dt, (-1, 1)) if np.ndim(traj.dt) else traj.dt
+    v = traj.velocities
+    miss = np.linalg.norm(steps - dt * 0.5 * (v[:-1] + v[1:]), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = miss / np.linalg.norm(steps, axis=1)
+    i = np.arange(1, len(steps) - 1)
+    cut = (rel[i] > SWITCH_RATIO * rel[i - 1]) & (rel[i] > SWITCH_RATIO * rel[i + 1])
+    kept, last = [], -1  # the previous piece starts at sample last + 1
+    for j in i[cut]:
+        if j - last >= min_samples and traj.n_samples - (j + 1) >= min_samples:
+            kept.append(int(j))
+            last = j
+    return np.array(kept, dtype=np.int64)
 
 
 def estimate_potential(traj: Trajectory, method: str = "euler", noise: float = 0.0
