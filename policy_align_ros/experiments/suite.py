@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import inspect
 import json
 import math
 import time
@@ -54,7 +53,11 @@ from policy_align_ros.experiments.demonstrators import (
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.learning.outliers import largest_group
-from policy_align_ros.learning.regressors import LocalLinearRegression, TrendKernelRegression
+from policy_align_ros.learning.regressors import (
+    LocalLinearRegression,
+    TrendKernelRegression,
+    takes_free_groups,
+)
 
 __all__ = ["CASES", "Case", "run_case", "main"]
 
@@ -348,7 +351,7 @@ def _refit(model: PolicyAlign, regressor, trajs: list[Trajectory], masks
     free = np.setdiff1d(model.inliers_, largest_group(model.groups_))
     extra = {"free_groups": free} if free.size else {}
     keep = model.inliers_
-    if "free_groups" not in inspect.signature(regressor.fit).parameters:
+    if not takes_free_groups(regressor):
         keep, extra = largest_group(model.groups_), {}
     X = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
     y = np.concatenate([model.aligned_potentials_[k][masks[k]] for k in keep])

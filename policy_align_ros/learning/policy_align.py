@@ -30,7 +30,6 @@ times (per step otherwise).
 from __future__ import annotations
 
 import copy
-import inspect
 import math
 import sys
 import time
@@ -66,6 +65,7 @@ from policy_align_ros.learning.regressors import (
     NotFittedError,
     TrendKernelRegression,
     regressor_class,
+    takes_free_groups,
 )
 from policy_align_ros.learning.support import (
     query_support,
@@ -279,7 +279,7 @@ class PolicyAlign:
         template = (TrendKernelRegression(random_state=self.random_state)
                     if self.regressor is None else self.regressor)
         free = np.zeros(0, dtype=np.int64)
-        if _takes_free_groups(template):
+        if takes_free_groups(template):
             free = np.flatnonzero((self.groups_ != 0)
                                   & np.array([m.any() for m in masks], dtype=bool))
         keep = self.inliers_ = np.union1d(largest_group(self.groups_), free)
@@ -361,8 +361,7 @@ class PolicyAlign:
         the alignment levels the pieces, which touch."""
         owner = np.arange(len(trajs))
         if (self.integration not in ("auto", "trapezoid")
-                or best_timing(trajs, self.position_noise_) != "mid"
-                or choose_method(trajs, self.position_noise_) != "trapezoid"):
+                or best_timing(trajs, self.position_noise_) != "mid"):
             return trajs, masks, owner
         pieces, piece_masks, owners = [], [], []
         for k, (t, m) in enumerate(zip(trajs, masks, strict=True)):
@@ -547,14 +546,6 @@ def _cv_score(regressor) -> float | None:
         return None
     score = float(scores[best])
     return score if math.isfinite(score) else None
-
-
-def _takes_free_groups(regressor) -> bool:
-    """Whether ``regressor.fit`` accepts ``free_groups`` (offsets it re-fits freely)."""
-    try:
-        return "free_groups" in inspect.signature(regressor.fit).parameters
-    except (TypeError, ValueError):
-        return False
 
 
 def _level_free(offsets: np.ndarray, potentials: list[np.ndarray], free: np.ndarray,

@@ -259,32 +259,16 @@ def choose_method(trajs: list[Trajectory], noise: float = 0.0) -> str:
     """The potential rule for a data set: one rule for all, so that every trajectory's
     potential carries the same kind of error.
 
-    ``"euler"`` unless every trajectory has velocities; otherwise the velocity timing
-    (:data:`TIMINGS`) that best explains all the steps decides: ``"trapezoid_late"`` for
-    ``"late"``, ``"trapezoid"`` for the others, and ``"euler"`` if even the best leaves a
-    :func:`velocity_disagreement` above :data:`VELOCITY_AGREEMENT`. ``noise``: the
-    variance of noise on the states (:func:`position_noise`); without its correction,
-    steps dominated by noise look like velocities left at zero.
+    ``"euler"`` unless every trajectory has velocities that explain the steps
+    (:func:`best_timing`); then ``"trapezoid_late"`` for the timing ``"late"`` and
+    ``"trapezoid"`` for the others. ``noise``: the variance of noise on the states
+    (:func:`position_noise`); without its correction, steps dominated by noise look like
+    velocities left at zero.
     """
-    totals = _timing_misses(trajs, noise)
-    if totals is None:
+    timing = best_timing(trajs, noise)
+    if timing is None:
         return "euler"
-    best = min(TIMINGS, key=totals.get)
-    if not totals[best] <= VELOCITY_AGREEMENT:
-        return "euler"
-    return "trapezoid_late" if best == "late" else "trapezoid"
-
-
-def _timing_misses(trajs: list[Trajectory], noise: float) -> dict[str, float] | None:
-    """:func:`velocity_disagreement` of all the trajectories together, per timing; None
-    unless every trajectory has velocities."""
-    if any(t.velocities is None or t.n_samples < 2 for t in trajs):
-        return None
-    totals = {}
-    for timing in TIMINGS:
-        sums = [_step_misses(t.positions, t.velocities, t.dt, timing, noise) for t in trajs]
-        totals[timing] = _relative_miss(sum(e for e, _ in sums), sum(m for _, m in sums))
-    return totals
+    return "trapezoid_late" if timing == "late" else "trapezoid"
 
 
 def euler_scale(euler: list[np.ndarray], trapezoid: list[np.ndarray]) -> float:
@@ -324,10 +308,17 @@ def euler_scale(euler: list[np.ndarray], trapezoid: list[np.ndarray]) -> float:
 
 
 def best_timing(trajs: list[Trajectory], noise: float = 0.0) -> str | None:
-    """The velocity timing (:data:`TIMINGS`) that best explains every trajectory's steps,
-    or ``None`` without velocities (see :func:`choose_method`)."""
-    totals = _timing_misses(trajs, noise)
-    return None if totals is None else min(TIMINGS, key=totals.get)
+    """The velocity timing (:data:`TIMINGS`) that best explains all the trajectories'
+    steps together, or ``None`` unless every trajectory has velocities and the best
+    timing's :func:`velocity_disagreement` is within :data:`VELOCITY_AGREEMENT`."""
+    if any(t.velocities is None or t.n_samples < 2 for t in trajs):
+        return None
+    totals = {}
+    for timing in TIMINGS:
+        sums = [_step_misses(t.positions, t.velocities, t.dt, timing, noise) for t in trajs]
+        totals[timing] = _relative_miss(sum(e for e, _ in sums), sum(m for _, m in sums))
+    best = min(TIMINGS, key=totals.get)
+    return best if totals[best] <= VELOCITY_AGREEMENT else None
 
 
 def switch_cuts(traj: Trajectory, min_samples: int = 3) -> np.ndarray:

@@ -11,9 +11,15 @@ any registered regressor saves and loads.
   held-out demonstrations.
 - :class:`LocalLinearRegression`: receptive fields with local linear models (the LWPR
   family the paper uses); purely local.
+
+A regressor may also take ``fit(..., free_groups=ids)``: demonstrations whose offsets it
+re-fits freely (:func:`takes_free_groups`); PolicyAlign then gives it the trajectories the
+alignment could not level.
 """
 
 from __future__ import annotations
+
+import inspect
 
 from policy_align_ros.learning.regressors._common import NotFittedError
 from policy_align_ros.learning.regressors.local_linear import LocalLinearRegression
@@ -26,6 +32,7 @@ __all__ = [
     "TrendKernelRegression",
     "register",
     "regressor_class",
+    "takes_free_groups",
 ]
 
 REGISTRY: dict[str, type] = {}
@@ -48,6 +55,14 @@ def regressor_class(name: str) -> type:
         raise ValueError(
             f"unknown regressor {name!r}; registered: {sorted(REGISTRY)}"
         ) from None
+
+
+def takes_free_groups(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``free_groups`` (offsets it re-fits freely)."""
+    try:
+        return "free_groups" in inspect.signature(regressor.fit).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 register(TrendKernelRegression)
