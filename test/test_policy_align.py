@@ -253,3 +253,26 @@ def test_demonstrations_are_split_where_the_constraint_switches_inside_a_period(
     whole = PolicyAlign(random_state=0).fit(train)
     assert whole.fit_summary_["n_pieces"] == 20
     assert nupe(model) < 1e-6 and nupe(model) < 1e-2 * nupe(whole)
+
+
+def test_a_switch_in_the_first_steps_leaves_those_samples_out_of_the_fit():
+    # Every demonstration switches inside its first or second step, where a piece would
+    # keep one or two samples, and once more later.
+    from test_potential import _continuous_demo
+
+    rng = np.random.default_rng(11)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    W, c = q @ np.diag([1.0, 3.0, 9.0]) @ q.T, np.array([0.1, -0.2, 0.3])
+
+    def demos(k):
+        return [_continuous_demo(W, c, c + rng.uniform(-1, 1, 3), 50,
+                                 np.array([rng.uniform(0.002, 0.038), rng.uniform(1, 3)]), rng)
+                for _ in range(k)]
+
+    train, test = demos(16), demos(5)
+    model = PolicyAlign(random_state=0).fit(train)
+    assert model.fit_summary_["n_samples_left_out"] >= 16
+    assert [len(p) for p in model.aligned_potentials_] == [t.n_samples for t in train]
+    assert all(np.all(np.isfinite(p)) for p in model.aligned_potentials_)
+    X = np.concatenate([t.positions for t in test])
+    assert metrics.nupe(-(X - c) @ W, model.policy(X)) < 1e-6

@@ -269,7 +269,10 @@ def test_switch_cuts_find_switches_inside_a_period_and_nothing_else():
     np.testing.assert_array_equal(switch_cuts(switched), [50, 125])
     smooth = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array([]), rng)
     assert switch_cuts(smooth).size == 0
-    # A cut never leaves a piece shorter than min_samples.
-    early = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array([0.021]), rng)
-    assert switch_cuts(early, min_samples=3).size == 0
+    # In the first steps, where the stiff motion's miss falls fast, in the last one, and
+    # in two steps in a row, where the larger neighbour of either step is the other.
+    for times, steps in (([0.013], [0]), ([0.021], [1]), ([3.971], [198]),
+                         ([2.011, 2.031], [100, 101])):
+        demo = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array(times), rng)
+        np.testing.assert_array_equal(switch_cuts(demo), steps)
     assert best_timing([switched, smooth]) == "mid"

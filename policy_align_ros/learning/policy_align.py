@@ -11,7 +11,8 @@ times (per step otherwise).
    and the regressor's cross-validation score decides). Trajectories whose instantaneous
    velocities show a constraint switch inside a sample period are first split there
    (:func:`~policy_align_ros.learning.potential.switch_cuts`): no rule gets that step's
-   drop right, and the alignment levels the pieces; the learnt attributes are merged
+   drop right, and the alignment levels the pieces (those of fewer than
+   :data:`MIN_PIECE_SAMPLES` samples are left out); the learnt attributes are merged
    back per trajectory;
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
 3. align each group (``b = -pinv(H) a`` restricted to the group); the largest group is
@@ -74,7 +75,11 @@ from policy_align_ros.learning.support import (
 )
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
-__all__ = ["PolicyAlign"]
+__all__ = ["PolicyAlign", "MIN_PIECE_SAMPLES"]
+
+#: Fewest samples a piece of a trajectory split at constraint switches must keep to be
+#: fitted; shorter ones (a switch in the first or last two steps) are left out.
+MIN_PIECE_SAMPLES = 3
 
 
 class PolicyAlign:
@@ -252,8 +257,10 @@ class PolicyAlign:
         t1 = time.perf_counter()
         self.position_noise_ = position_noise(positions)
         parents, parent_masks = trajs, masks
-        trajs, masks, owner = self._split_at_switches(trajs, masks)
-        if len(trajs) > len(parents):
+        trajs, masks, spans = self._split_at_switches(trajs, masks)
+        split = trajs is not parents
+        if split:
+            X = np.concatenate([t.positions for t in trajs])
             labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
             closest = closest_approach_matrix(
                 thin_trajectories([t.positions for t in trajs], HEURISTIC_POINTS))
@@ -321,8 +328,9 @@ class PolicyAlign:
                   f"potentials ({timings['regression']:.2f} s)")
 
         n_pieces = len(trajs)
-        if len(trajs) > len(parents):
-            self._merge_pieces(owner, len(parents))
+        n_left_out = int(sum(t.n_samples for t in parents) - sum(t.n_samples for t in trajs))
+        if split:
+            self._merge_pieces(spans, parents)
             trajs, masks = parents, parent_masks
             keep = self.inliers_
         self.support_states_, groups = support_states([trajs[k].positions for k in keep])
@@ -336,10 +344,11 @@ class PolicyAlign:
         self.timed_ = trajs[0].times is not None
         self.fit_summary_ = {
             "n_trajectories": len(trajs),
-            "n_samples": int(len(X)),
+            "n_samples": int(sum(t.n_samples for t in trajs)),
             "n_inliers": int(len(keep)),
             "n_levelled_by_model": int(len(free)),
             "n_pieces": int(n_pieces),
+            "n_samples_left_out": n_left_out,
             "n_groups": int(self.groups_.max() + 1),
             "n_responsibilities": int(len(table.q)),
             "integration": self.integration_,
@@ -356,34 +365,55 @@ class PolicyAlign:
                            ) -> tuple[list[Trajectory], list[np.ndarray], np.ndarray]:
         """Pieces of the trajectories between constraint switches inside a sample period
         (:func:`~policy_align_ros.learning.potential.switch_cuts`), their masks, and the
-        trajectory each piece comes from. Only where the velocities are sampled at the
-        samples (timing ``"mid"``) and trusted: there no rule gets such a step right, and
-        the alignment levels the pieces, which touch."""
-        owner = np.arange(len(trajs))
+        ``(trajectory, first sample, end)`` each piece spans (P, 3). Only where the
+        velocities are sampled at the samples (timing ``"mid"``) and trusted: there no
+        rule gets such a step right, and the alignment levels the pieces, which touch.
+        Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples (a switch in the first or
+        last steps, or two switches close together) are left out of the fit; a trajectory
+        that would keep no piece is kept whole."""
+        spans = np.array([(k, 0, t.n_samples) for k, t in enumerate(trajs)], dtype=np.int64)
         if (self.integration not in ("auto", "trapezoid")
                 or best_timing(trajs, self.position_noise_) != "mid"):
-            return trajs, masks, owner
-        pieces, piece_masks, owners = [], [], []
+            return trajs, masks, spans
+        pieces, piece_masks, out = [], [], []
         for k, (t, m) in enumerate(zip(trajs, masks, strict=True)):
             bounds = [0, *(int(i) + 1 for i in switch_cuts(t)), t.n_samples]
-            for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-                pieces.append(Trajectory(t.positions[a:b],
-                                         None if t.times is None else t.times[a:b],
-                                         t.velocities[a:b], name=f"{t.name}[{a}:{b}]"))
+            kept = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+                    if b - a >= MIN_PIECE_SAMPLES] or [(0, t.n_samples)]
+            for a, b in kept:
+                pieces.append(t if (a, b) == (0, t.n_samples) else Trajectory(
+                    t.positions[a:b], None if t.times is None else t.times[a:b],
+                    t.velocities[a:b], name=f"{t.name}[{a}:{b}]"))
                 piece_masks.append(m[a:b])
-                owners.append(k)
-        return pieces, piece_masks, np.array(owners, dtype=np.int64)
+                out.append((k, a, b))
+        return pieces, piece_masks, np.array(out, dtype=np.int64)
 
-    def _merge_pieces(self, owner: np.ndarray, n_parents: int) -> None:
+    def _merge_pieces(self, spans: np.ndarray, parents: list[Trajectory]) -> None:
         """Learnt per-piece attributes back to the trajectories: offsets of each first
         piece, aligned potentials joined, a trajectory kept if any piece is, its group the
-        best of its pieces'."""
-        first = np.searchsorted(owner, np.arange(n_parents))
+        best of its pieces'. Samples left out (pieces too short to fit) get the aligned
+        potential of the nearest fitted sample plus the chosen rule's own estimate of the
+        drop between them, the best that is known there."""
+        owner = spans[:, 0]
+        first = np.searchsorted(owner, np.arange(len(parents)))
         self.offsets_ = self.offsets_[first]
-        self.aligned_potentials_ = [np.concatenate([self.aligned_potentials_[j]
-                                                    for j in np.flatnonzero(owner == k)])
-                                    for k in range(n_parents)]
-        self.groups_ = np.array([self.groups_[owner == k].min() for k in range(n_parents)])
+        aligned = []
+        for k, t in enumerate(parents):
+            rows = np.flatnonzero(owner == k)
+            values = np.full(t.n_samples, np.nan)
+            for j in rows:
+                values[spans[j, 1]:spans[j, 2]] = self.aligned_potentials_[j]
+            known = np.flatnonzero(~np.isnan(values))
+            if len(known) < t.n_samples:
+                whole = estimate_potential(t, self.integration_, self.position_noise_)
+                if self.integration_ == "euler":
+                    whole = self.euler_scale_ * whole
+                gaps = np.flatnonzero(np.isnan(values))
+                near = known[np.abs(gaps[:, None] - known[None, :]).argmin(axis=1)]
+                values[gaps] = values[near] + whole[gaps] - whole[near]
+            aligned.append(values)
+        self.aligned_potentials_ = aligned
+        self.groups_ = np.array([self.groups_[owner == k].min() for k in range(len(parents))])
         self.inliers_ = np.unique(owner[self.inliers_])
 
     @staticmethod

@@ -64,6 +64,8 @@ VELOCITY_AGREEMENT = 0.5
 #: How many times worse than its neighbours both curvature estimates that span a step
 #: must agree before :func:`step_curvatures` takes that step for a constraint switch.
 SWITCH_RATIO = 3.0
+#: Relative step misses below this are round-off (``sqrt`` of the machine epsilon).
+ROUND_OFF = math.sqrt(np.finfo(float).eps)
 
 
 def position_noise(positions: list[np.ndarray]) -> float:
@@ -321,23 +323,27 @@ def best_timing(trajs: list[Trajectory], noise: float = 0.0) -> str | None:
     return best if totals[best] <= VELOCITY_AGREEMENT else None
 
 
-def switch_cuts(traj: Trajectory, min_samples: int = 3) -> np.ndarray:
+def switch_cuts(traj: Trajectory) -> np.ndarray:
     """Steps across which the constraint switched *inside* the sample period.
 
     With velocities sampled at the samples (timing ``"mid"``), a step ``i`` is explained
     by ``dt_i (v_i + v_{i+1}) / 2`` to second order, except where the constraint changed
     between the two samples: then the step is part one constraint's motion, part the
     other's, and no rule from the two end velocities gets its potential drop right to
-    first order. Such a step misses by far more than its neighbours; the steps whose
-    relative miss is more than :data:`SWITCH_RATIO` times both neighbours' are returned,
-    as long as every piece keeps ``min_samples`` samples.
+    first order. Elsewhere the step's relative miss varies smoothly, if fast where stiff
+    motion decays (it falls about geometrically); a switch makes it jump. A step is
+    returned where its relative miss is more than :data:`SWITCH_RATIO` times the
+    geometric mean of its neighbours' (the first and the last step: its one
+    neighbour's), and above round-off (``sqrt(eps)``). The geometric mean, unlike the
+    larger neighbour, still finds a switch right after a fast first step or next to
+    another switch (``docs/notes/potential.md``, session 10).
 
     Returns
     -------
     ndarray of int
-        Step indices ``i`` (the cut falls between samples ``i`` and ``i + 1``).
+        Step indices ``i`` (the cut falls between samples ``i`` and ``i + 1``), sorted.
     """
-    if traj.velocities is None or traj.n_samples < 2 * min_samples + 1:
+    if traj.velocities is None or traj.n_samples < 3:
         return np.zeros(0, dtype=np.int64)
     steps = np.diff(traj.positions, axis=0)
     dt = np.reshape(traj.dt, (-1, 1)) if np.ndim(traj.dt) else traj.dt
@@ -345,14 +351,12 @@ def switch_cuts(traj: Trajectory, min_samples: int = 3) -> np.ndarray:
     miss = np.linalg.norm(steps - dt * 0.5 * (v[:-1] + v[1:]), axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = miss / np.linalg.norm(steps, axis=1)
-    i = np.arange(1, len(steps) - 1)
-    cut = (rel[i] > SWITCH_RATIO * rel[i - 1]) & (rel[i] > SWITCH_RATIO * rel[i + 1])
-    kept, last = [], -1  # the previous piece starts at sample last + 1
-    for j in i[cut]:
-        if j - last >= min_samples and traj.n_samples - (j + 1) >= min_samples:
-            kept.append(int(j))
-            last = j
-    return np.array(kept, dtype=np.int64)
+    rel = np.where(np.isfinite(rel), rel, 0.0)  # a step of zero length holds no switch
+    neighbours = np.empty_like(rel)
+    neighbours[1:-1] = np.sqrt(rel[:-2] * rel[2:])
+    neighbours[0], neighbours[-1] = rel[1], rel[-2]
+    cut = (rel > SWITCH_RATIO * neighbours) & (rel > ROUND_OFF)
+    return np.flatnonzero(cut).astype(np.int64)
 
 
 def estimate_potential(traj: Trajectory, method: str = "euler", noise: float = 0.0
