@@ -1,0 +1,173 @@
+"""A single-index trend against today's global model: the measurement behind the session-10
+lead in ``docs/notes/trend_kernel.md``. A prototype, not part of the package.
+
+Usage: ``python tools/single_index_check.py KIND N [SEED]`` with ``KIND`` one of ``sat``
+(a velocity-limited attractor, ``phi = sqrt(r^2 + q) - r``) or ``quart`` (``phi = q / 2 +
+q^2 / (4 r^2)``), ``q = (x - c)' W (x - c)``, in ``N`` dimensions; 30 demonstrations
+(80 from 10-D up) of 4 s at 50 Hz under one to three random constraint rows re-drawn at
+random times, and 10 more from new starts to score.
+
+``PolicyAlign()`` is fitted as a user would. Then, on its aligned potentials, the
+single-index model ``f(z) = sum_j beta_j B_j(q(z))`` is fitted, with
+``q = ||L'(z - z0)||^2`` (``L`` lower triangular), the basis
+``{q / s^2, sqrt(q + c_j^2) - c_j}`` and ``c_j = s * FACTORS`` (``s`` the median of
+``sqrt(q)`` at the start), with one free offset per demonstration. ``(L, z0)`` start from
+the trend-alone fit of ``TrendKernelRegression`` and are fitted by variable projection:
+``beta`` and the offsets come from linear least squares inside the residual, and the
+Jacobian is Kaufman's, ``-P_perp (dB/dtheta) beta``. Both models' nUPE on the new
+starts is printed.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from policy_align_ros.experiments.demonstrators import rollout
+from policy_align_ros.learning import PolicyAlign, metrics
+from policy_align_ros.learning.regressors import TrendKernelRegression
+
+#: Knees of the profile's basis, as factors of the median ``sqrt(q)``.
+FACTORS = np.array([1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0])
+
+
+class RadialPotential:
+    """``phi = g((x - c)' W (x - c))`` for the two profiles ``g`` of the module docstring."""
+
+    def __init__(self, kind: str, centre: np.ndarray, W: np.ndarray, r: float) -> None:
+        self.kind, self.centre, self.W, self.r = kind, centre, W, r
+
+    def _q(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        D = np.atleast_2d(X) - self.centre
+        return D, np.einsum("ij,jk,ik->i", D, self.W, D)
+
+    def value(self, X: np.ndarray) -> np.ndarray:
+        _, q = self._q(X)
+        if self.kind == "sat":
+            return np.sqrt(self.r**2 + q) - self.r
+        return q / 2 + q**2 / (4 * self.r**2)
+
+    def policy(self, X: np.ndarray) -> np.ndarray:
+        D, q = self._q(X)
+        slope = (1 / np.sqrt(self.r**2 + q) if self.kind == "sat" else 1 + q / self.r**2)
+        return -(D @ self.W) * slope[:, None]
+
+
+def make_potential(kind: str, n: int, rng: np.random.Generator) -> RadialPotential:
+    """Condition number 10, centre in [-1, 1]^n."""
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    W = Q @ np.diag(np.exp(rng.uniform(0, np.log(10), n)) / np.sqrt(10)) @ Q.T
+    r = 0.3 * np.sqrt(n) if kind == "sat" else np.sqrt(n)
+    return RadialPotential(kind, rng.uniform(-1, 1, n), 3.0 * W, r)
+
+
+def random_rows(n: int, duration: float, rng: np.random.Generator):
+    """One to n/2 random constraint rows, re-drawn at one to three random times."""
+    times = np.sort(rng.uniform(0, duration, rng.integers(1, 4)))
+    rows = [rng.standard_normal((int(rng.integers(1, max(1, n // 2) + 1)), n))
+            for _ in range(len(times) + 1)]
+
+    def constraint(x, t, pi):
+        return rows[int(np.searchsorted(times, t))]
+    return constraint
+
+
+def profile_basis(q: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Basis columns (m, 8) at ``q`` (m,) and their derivatives in ``q``."""
+    c = s * FACTORS
+    root = np.sqrt(q[:, None] + c**2)
+    return (np.column_stack([q / s**2, root - c]),
+            np.column_stack([np.full(len(q), 1 / s**2), 0.5 / root]))
+
+
+def fit_single_index(Z: np.ndarray, u: np.ndarray, demo: np.ndarray, L0: np.ndarray,
+                     z0: np.ndarray, max_nfev: int = 50):
+    """Variable projection over ``(L, z0)``; returns ``(L, z0, s, beta, result)``."""
+    m, n = Z.shape
+    il = np.tril_indices(n)
+    offsets = np.zeros((m, demo.max() + 1))
+    offsets[np.arange(m), demo] = 1.0
+    q0 = np.einsum("ij,ij->i", (Z - z0) @ L0, (Z - z0) @ L0)
+    s = math.sqrt(float(np.median(q0)))
+
+    def unpack(theta):
+        L = np.zeros((n, n))
+        L[il] = theta[:len(il[0])]
+        return L, theta[len(il[0]):]
+
+    def design(theta):
+        L, z = unpack(theta)
+        E = Z - z
+        D = E @ L
+        B, dB = profile_basis(np.einsum("ij,ij->i", D, D), s)
+        Q, R = np.linalg.qr(np.hstack([offsets, B]))
+        return L, E, D, dB, Q, R
+
+    def residual(theta):
+        *_, Q, _ = design(theta)
+        return u - Q @ (Q.T @ u)
+
+    def jacobian(theta):
+        L, E, D, dB, Q, R = design(theta)
+        coef = scipy.linalg.lstsq(R, Q.T @ u)[0]
+        slope = dB @ coef[offsets.shape[1]:]
+        dq = np.hstack([2 * E[:, il[0]] * D[:, il[1]], -2 * D @ L.T])
+        M = slope[:, None] * dq
+        return -(M - Q @ (Q.T @ M))
+
+    result = scipy.optimize.least_squares(residual, np.concatenate([L0[il], z0]),
+                                          jac=jacobian, max_nfev=max_nfev, x_scale="jac")
+    L, E, D, dB, Q, R = design(result.x)
+    coef = scipy.linalg.lstsq(R, Q.T @ u)[0]
+    return L, unpack(result.x)[1], s, coef[offsets.shape[1]:], result
+
+
+def single_index_gradient(Z, L, z0, s, beta) -> np.ndarray:
+    """``grad_z f`` (m, n) of the fitted model."""
+    D = (Z - z0) @ L
+    _, dB = profile_basis(np.einsum("ij,ij->i", D, D), s)
+    return (dB @ beta)[:, None] * 2.0 * D @ L.T
+
+
+def main() -> None:
+    kind, n = sys.argv[1], int(sys.argv[2])
+    seed = int(sys.argv[3]) if len(sys.argv) > 3 else 7 + 100 * n
+    rng = np.random.default_rng(seed)
+    pot = make_potential(kind, n, rng)
+    k, dt, steps, duration = (30 if n < 10 else 80), 0.02, 200, 4.0
+    train = [rollout(pot.centre + rng.uniform(-1, 1, n), pot, random_rows(n, duration, rng),
+                     steps, dt, name=str(i)) for i in range(k)]
+    test = [rollout(pot.centre + rng.uniform(-1, 1, n), pot, random_rows(n, duration, rng),
+                    steps, dt) for _ in range(10)]
+    Xt = np.concatenate([d.trajectory.positions for d in test])
+    pi = np.concatenate([d.policy for d in test])
+
+    model = PolicyAlign(random_state=0).fit([d.trajectory for d in train])
+    print(f"{kind} {n}-D: PolicyAlign() today nUPE {metrics.nupe(pi, model.policy(Xt)):.4f}")
+
+    X = np.concatenate([d.trajectory.positions for d in train])
+    y = np.concatenate(model.aligned_potentials_)
+    groups = np.repeat(np.arange(k), steps)
+    trend = TrendKernelRegression(kernel_ridge=math.inf).fit(X, y, groups=groups)
+    H = trend._p * np.eye(n) + 2.0 * trend._S
+    z0 = -np.linalg.solve(H, trend._b)
+    lam, V = np.linalg.eigh(H)
+    L0 = np.linalg.cholesky((V * np.maximum(lam, 0.01 * lam[-1])) @ V.T)
+    sub = np.random.default_rng(0).choice(len(X), min(3000, len(X)), replace=False)
+    Z = (X[sub] - trend.mean_) / trend.scale_
+    u = (y[sub] - y.mean()) / y.std()
+    t0 = time.perf_counter()
+    L, z, s, beta, result = fit_single_index(Z, u, groups[sub], L0, z0)
+    grad = single_index_gradient((Xt - trend.mean_) / trend.scale_, L, z, s, beta)
+    nupe = metrics.nupe(pi, -grad * y.std() / trend.scale_)
+    print(f"{kind} {n}-D: single-index trend nUPE {nupe:.4f} "
+          f"({time.perf_counter() - t0:.1f} s, {result.nfev} evaluations)")
+
+
+if __name__ == "__main__":
+    main()
