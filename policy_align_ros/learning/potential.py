@@ -205,10 +205,10 @@ def step_curvatures(steps: np.ndarray, velocities: np.ndarray) -> np.ndarray:
     return out
 
 
-def _step_misses(positions: np.ndarray, velocities: np.ndarray, dt: np.ndarray | float,
-                 timing: str, noise: float = 0.0) -> tuple[float, float]:
-    """Sum of ``||dx_i - dt_i u_i||^2`` for the timing's velocity ``u_i``, and of
-    ``||dx_i||^2``; both less the ``2 noise`` per step that noise on the states adds."""
+def _step_residuals(positions: np.ndarray, velocities: np.ndarray, dt: np.ndarray | float,
+                    timing: str) -> tuple[np.ndarray, np.ndarray]:
+    """The steps ``dx_i`` (N-1, n) and what the timing's velocity ``u_i`` leaves of them,
+    ``dx_i - dt_i u_i`` (N-1, n)."""
     steps = np.diff(positions, axis=0)
     dt = np.reshape(dt, (-1, 1)) if np.ndim(dt) else dt
     if timing == "ahead":
@@ -219,8 +219,16 @@ def _step_misses(positions: np.ndarray, velocities: np.ndarray, dt: np.ndarray |
         u = velocities[1:]
     else:
         raise ValueError(f"unknown velocity timing {timing!r}; expected one of {TIMINGS}")
+    return steps, steps - dt * u
+
+
+def _step_misses(positions: np.ndarray, velocities: np.ndarray, dt: np.ndarray | float,
+                 timing: str, noise: float = 0.0) -> tuple[float, float]:
+    """Sum of ``||dx_i - dt_i u_i||^2`` for the timing's velocity ``u_i``, and of
+    ``||dx_i||^2``; both less the ``2 noise`` per step that noise on the states adds."""
+    steps, residual = _step_residuals(positions, velocities, dt, timing)
     floor = 2.0 * noise * len(steps)
-    return (max(float(np.sum((steps - dt * u) ** 2)) - floor, 0.0),
+    return (max(float(np.sum(residual**2)) - floor, 0.0),
             float(np.sum(steps**2)) - floor)
 
 
@@ -345,12 +353,9 @@ def switch_cuts(traj: Trajectory) -> np.ndarray:
     """
     if traj.velocities is None or traj.n_samples < 3:
         return np.zeros(0, dtype=np.int64)
-    steps = np.diff(traj.positions, axis=0)
-    dt = np.reshape(traj.dt, (-1, 1)) if np.ndim(traj.dt) else traj.dt
-    v = traj.velocities
-    miss = np.linalg.norm(steps - dt * 0.5 * (v[:-1] + v[1:]), axis=1)
+    steps, residual = _step_residuals(traj.positions, traj.velocities, traj.dt, "mid")
     with np.errstate(divide="ignore", invalid="ignore"):
-        rel = miss / np.linalg.norm(steps, axis=1)
+        rel = np.linalg.norm(residual, axis=1) / np.linalg.norm(steps, axis=1)
     rel = np.where(np.isfinite(rel), rel, 0.0)  # a step of zero length holds no switch
     neighbours = np.empty_like(rel)
     neighbours[1:-1] = np.sqrt(rel[:-2] * rel[2:])
