@@ -370,7 +370,7 @@ class PolicyAlign:
         rule gets such a step right, and the alignment levels the pieces, which touch.
         Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples (a switch in the first or
         last steps, or two switches close together) are left out of the fit; a trajectory
-        that would keep no piece is kept whole."""
+        that would keep no piece is kept whole. Nothing cut: the inputs themselves."""
         spans = np.array([(k, 0, t.n_samples) for k, t in enumerate(trajs)], dtype=np.int64)
         if (self.integration not in ("auto", "trapezoid")
                 or best_timing(trajs, self.position_noise_) != "mid"):
@@ -386,6 +386,9 @@ class PolicyAlign:
                     t.velocities[a:b], name=f"{t.name}[{a}:{b}]"))
                 piece_masks.append(m[a:b])
                 out.append((k, a, b))
+        if len(pieces) == len(trajs) and all(
+                p is t for p, t in zip(pieces, trajs, strict=True)):
+            return trajs, masks, spans  # the caller then redoes no per-trajectory work
         return pieces, piece_masks, np.array(out, dtype=np.int64)
 
     def _merge_pieces(self, spans: np.ndarray, parents: list[Trajectory]) -> None:
