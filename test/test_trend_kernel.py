@@ -181,7 +181,9 @@ def test_cv_ties_at_an_exact_fit_go_to_the_isotropic_bowl_on_free_offsets():
     assert math.isinf(model.kernel_ridge_)
     assert set(model.cv_standard_errors_) == set(model.cv_scores_)
     # A residual could only tie with an exact trend: its search is skipped.
-    assert all(math.isnan(key[1]) for key in model.cv_scores_)
+    assert all(math.isnan(key[2]) for key in model.cv_scores_)
+    # ... and so is the single-index trend's.
+    assert {key[0] for key in model.cv_scores_} == {"quadratic"}
 
 
 def test_cv_adds_the_kernel_residual_where_a_quadratic_cannot_fit():
@@ -201,8 +203,8 @@ def test_cv_adds_the_kernel_residual_where_a_quadratic_cannot_fit():
     assert nupe(model) < 0.05 < nupe(trend_only)
     # With the residual kept, its trend and offset penalties were scored again with it:
     # every pair of the grids, and the pick is the best of them.
-    t, ell, k, o = model.cv_best_
-    with_residual = {key: v for key, v in model.cv_scores_.items() if key[1:3] == (ell, k)}
+    _, t, ell, k, o = model.cv_best_
+    with_residual = {key: v for key, v in model.cv_scores_.items() if key[2:4] == (ell, k)}
     assert len(with_residual) == len(TREND_RIDGE_GRID) * len(OFFSET_RIDGE_GRID)
     assert min(with_residual, key=with_residual.get) == model.cv_best_
 
@@ -215,11 +217,44 @@ def test_cv_bends_the_trend_with_a_long_length_scale_for_a_velocity_limited_attr
     rng = np.random.default_rng(0)
     value, grad = _velocity_limited(3, rng, r2=0.09)
     X, g = _descent(grad, rng.uniform(-1, 1, size=(25, 3)), 60, 0.05)
-    model = TrendKernelRegression(random_state=0).fit(X, value(X), groups=g)
+    model = TrendKernelRegression(trend_form="quadratic", random_state=0).fit(X, value(X),
+                                                                             groups=g)
     assert model.length_scale_ > 0.64 * _median_distance(model.centres_)
     Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 3)), 60, 0.05)
     nupe = np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
     assert nupe < 0.05
+
+
+def test_cv_picks_the_single_index_trend_for_a_velocity_limited_attractor():
+    # 7-D cone far from the goal, offsets as an alignment leaves them: no quadratic and no
+    # residual as long as the data extrapolates it (nUPE 0.10 below), one profile of one
+    # quadratic form does. Its held-out score comes from indices fitted without the fold.
+    rng = np.random.default_rng(0)
+    value, grad = _velocity_limited(7, rng)
+    X, g = _descent(grad, rng.uniform(-1, 1, size=(30, 7)), 60, 0.05)
+    y = value(X) + 0.05 * rng.standard_normal(30)[g]
+    model = TrendKernelRegression(trend_form="cv", random_state=0).fit(X, y, groups=g)
+    assert model.trend_form_ == "single_index" and model.cv_best_[0] == "single_index"
+    assert model.index_matrix_.shape == (7, 7) and len(model.alpha_) == 0
+    Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 7)), 60, 0.05)
+    nupe = np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
+    assert nupe < 1e-3
+    # The gradient is the model's own: central differences of predict, in state units.
+    h = 1e-5
+    fd = np.stack([(model.predict(Xt[:5] + h * e) - model.predict(Xt[:5] - h * e)) / (2 * h)
+                   for e in np.eye(7)], axis=1)
+    np.testing.assert_allclose(model.gradient(Xt[:5]), fd, rtol=1e-5, atol=1e-8)
+
+
+def test_cv_keeps_the_quadratic_and_residual_for_two_minima():
+    # No single quadratic form's profile has two minima: the CV must not pick it.
+    rng = np.random.default_rng(3)
+    value, grad = _two_minima()
+    X, g = _descent(grad, rng.uniform([-1.8, -1.2], [1.8, 1.2], size=(30, 2)), 60, 0.05)
+    model = TrendKernelRegression(trend_form="cv", random_state=0).fit(X, value(X), groups=g)
+    assert model.trend_form_ == "quadratic" and math.isfinite(model.kernel_ridge_)
+    single = [v for k, v in model.cv_scores_.items() if k[0] == "single_index"]
+    assert single and min(single) > model.cv_scores_[model.cv_best_]
 
 
 def test_cv_searches_the_residual_with_free_offsets_too():
@@ -231,7 +266,7 @@ def test_cv_searches_the_residual_with_free_offsets_too():
     value, grad = _velocity_limited(7, rng)
     X, g = _descent(grad, rng.uniform(-1, 1, size=(30, 7)), 60, 0.05)
     y = value(X) + 0.05 * rng.standard_normal(30)[g]
-    model = TrendKernelRegression(random_state=0).fit(X, y, groups=g)
+    model = TrendKernelRegression(trend_form="quadratic", random_state=0).fit(X, y, groups=g)
     Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 7)), 60, 0.05)
     nupe = np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
     assert nupe < 0.15
@@ -248,7 +283,7 @@ def test_a_fixed_kernel_penalty_keeps_the_residual():
     model = TrendKernelRegression(kernel_ridge=1e-2, random_state=0).fit(X, value(X), groups=g)
     assert model.kernel_ridge_ == 1e-2 and math.isfinite(model.length_scale_)
     assert len(model.alpha_) == len(model.centres_) > 0
-    assert math.isfinite(model.cv_best_[2])
+    assert math.isfinite(model.cv_best_[3])
 
 
 def test_state_round_trip_survives_json():
@@ -266,6 +301,24 @@ def test_state_round_trip_survives_json():
     with pytest.raises(ValueError, match="regressor state"):
         TrendKernelRegression.from_state({k: v for k, v in arrays.items() if k != "trend"},
                                          meta)
+
+
+def test_single_index_state_round_trip_survives_json():
+    rng = np.random.default_rng(4)
+    value, grad = _velocity_limited(3, rng)
+    X, g = _descent(grad, rng.uniform(-1, 1, size=(12, 3)), 40, 0.05)
+    model = TrendKernelRegression(trend_form="single_index", random_state=0).fit(
+        X, value(X), groups=g)
+    assert model.trend_form_ == "single_index"
+    arrays, meta = model.get_state()
+    meta = json.loads(json.dumps(meta, allow_nan=False))
+    loaded = TrendKernelRegression.from_state(arrays, meta)
+    Q = rng.uniform(-2, 2, size=(20, 3))
+    np.testing.assert_array_equal(loaded.predict(Q), model.predict(Q))
+    np.testing.assert_array_equal(loaded.gradient(Q), model.gradient(Q))
+    assert loaded.trend_form_ == "single_index" and math.isnan(loaded.trend_ridge_)
+    with pytest.raises(ValueError, match="regressor state"):
+        TrendKernelRegression.from_state({**arrays, "index_matrix": np.eye(2)}, meta)
 
 
 @pytest.mark.parametrize("name", sorted(REGISTRY))
@@ -288,7 +341,7 @@ def test_errors_are_clear():
         TrendKernelRegression().predict(np.zeros((1, 2)))
     X = np.random.default_rng(6).normal(size=(20, 2))
     for bad in ({"trend_ridge": -1.0}, {"kernel_ridge": "auto"}, {"length_scale": math.inf},
-                {"n_centres": 0}, {"n_folds": 1}):
+                {"n_centres": 0}, {"n_folds": 1}, {"trend_form": "cubic"}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             TrendKernelRegression(**bad).fit(X, X[:, 0])
     model = TrendKernelRegression().fit(X, X[:, 0])

@@ -10,11 +10,12 @@ random times, and 10 more from new starts to score.
 ``PolicyAlign()`` is fitted as a user would. Then, on its aligned potentials, the
 single-index model ``f(z) = sum_j beta_j B_j(q(z))`` is fitted, with
 ``q = ||L'(z - z0)||^2`` (``L`` lower triangular), the basis
-``{q / s^2, sqrt(q + c_j^2) - c_j}`` and ``c_j = s * FACTORS`` (``s`` the median of
+``{q / s^2, sqrt(q + c_j^2) - c_j}`` and ``c_j = s * KNEES`` (``s`` the median of
 ``sqrt(q)`` at the start), with one free offset per demonstration. ``(L, z0)`` start from
-the trend-alone fit of ``TrendKernelRegression`` and are fitted by variable projection:
-``beta`` and the offsets come from linear least squares inside the residual, and the
-Jacobian is Kaufman's, ``-P_perp (dB/dtheta) beta``. Both models' nUPE on the new
+the trend-alone fit of ``TrendKernelRegression`` and are fitted by variable projection
+(``policy_align_ros.learning.regressors.single_index.fit_index``, which this prototype
+became): ``beta`` and the offsets come from linear least squares inside the residual,
+and the Jacobian is Kaufman's, ``-P_perp (dB/dtheta) beta``. Both models' nUPE on the new
 starts is printed.
 """
 
@@ -26,14 +27,16 @@ import time
 
 import numpy as np
 import scipy.linalg
-import scipy.optimize
 
 from policy_align_ros.experiments.demonstrators import rollout
 from policy_align_ros.learning import PolicyAlign, metrics
 from policy_align_ros.learning.regressors import TrendKernelRegression
-
-#: Knees of the profile's basis, as factors of the median ``sqrt(q)``.
-FACTORS = np.array([1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0])
+from policy_align_ros.learning.regressors.single_index import (
+    fit_index,
+    index_form,
+    profile_basis,
+    profile_gradient,
+)
 
 
 class RadialPotential:
@@ -77,63 +80,6 @@ def random_rows(n: int, duration: float, rng: np.random.Generator):
     return constraint
 
 
-def profile_basis(q: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Basis columns (m, 8) at ``q`` (m,) and their derivatives in ``q``."""
-    c = s * FACTORS
-    root = np.sqrt(q[:, None] + c**2)
-    return (np.column_stack([q / s**2, root - c]),
-            np.column_stack([np.full(len(q), 1 / s**2), 0.5 / root]))
-
-
-def fit_single_index(Z: np.ndarray, u: np.ndarray, demo: np.ndarray, L0: np.ndarray,
-                     z0: np.ndarray, max_nfev: int = 50):
-    """Variable projection over ``(L, z0)``; returns ``(L, z0, s, beta, result)``."""
-    m, n = Z.shape
-    il = np.tril_indices(n)
-    offsets = np.zeros((m, demo.max() + 1))
-    offsets[np.arange(m), demo] = 1.0
-    q0 = np.einsum("ij,ij->i", (Z - z0) @ L0, (Z - z0) @ L0)
-    s = math.sqrt(float(np.median(q0)))
-
-    def unpack(theta):
-        L = np.zeros((n, n))
-        L[il] = theta[:len(il[0])]
-        return L, theta[len(il[0]):]
-
-    def design(theta):
-        L, z = unpack(theta)
-        E = Z - z
-        D = E @ L
-        B, dB = profile_basis(np.einsum("ij,ij->i", D, D), s)
-        Q, R = np.linalg.qr(np.hstack([offsets, B]))
-        return L, E, D, dB, Q, R
-
-    def residual(theta):
-        *_, Q, _ = design(theta)
-        return u - Q @ (Q.T @ u)
-
-    def jacobian(theta):
-        L, E, D, dB, Q, R = design(theta)
-        coef = scipy.linalg.lstsq(R, Q.T @ u)[0]
-        slope = dB @ coef[offsets.shape[1]:]
-        dq = np.hstack([2 * E[:, il[0]] * D[:, il[1]], -2 * D @ L.T])
-        M = slope[:, None] * dq
-        return -(M - Q @ (Q.T @ M))
-
-    result = scipy.optimize.least_squares(residual, np.concatenate([L0[il], z0]),
-                                          jac=jacobian, max_nfev=max_nfev, x_scale="jac")
-    L, E, D, dB, Q, R = design(result.x)
-    coef = scipy.linalg.lstsq(R, Q.T @ u)[0]
-    return L, unpack(result.x)[1], s, coef[offsets.shape[1]:], result
-
-
-def single_index_gradient(Z, L, z0, s, beta) -> np.ndarray:
-    """``grad_z f`` (m, n) of the fitted model."""
-    D = (Z - z0) @ L
-    _, dB = profile_basis(np.einsum("ij,ij->i", D, D), s)
-    return (dB @ beta)[:, None] * 2.0 * D @ L.T
-
-
 def main() -> None:
     kind, n = sys.argv[1], int(sys.argv[2])
     seed = int(sys.argv[3]) if len(sys.argv) > 3 else 7 + 100 * n
@@ -162,12 +108,15 @@ def main() -> None:
     Z = (X[sub] - trend.mean_) / trend.scale_
     u = (y[sub] - y.mean()) / y.std()
     t0 = time.perf_counter()
-    L, z, s, beta, result = fit_single_index(Z, u, groups[sub], L0, z0)
-    grad = single_index_gradient((Xt - trend.mean_) / trend.scale_, L, z, s, beta)
+    s = math.sqrt(float(np.median(index_form(Z, L0, z0)[1])))
+    L, z = fit_index(Z, u, groups[sub], L0, z0, s, max_nfev=50)
+    _, demo = np.unique(groups[sub], return_inverse=True)
+    design = np.hstack([np.eye(demo.max() + 1)[demo], profile_basis(index_form(Z, L, z)[1], s)[0]])
+    beta = scipy.linalg.lstsq(design, u)[0][demo.max() + 1:]
+    grad = profile_gradient((Xt - trend.mean_) / trend.scale_, L, z, s, beta)
     nupe = metrics.nupe(pi, -grad * y.std() / trend.scale_)
     print(f"{kind} {n}-D: single-index trend nUPE {nupe:.4f} "
-          f"({time.perf_counter() - t0:.1f} s, {result.nfev} evaluations)")
-
+          f"({time.perf_counter() - t0:.1f} s)")
 
 if __name__ == "__main__":
     main()

@@ -399,13 +399,16 @@ def _candidate_check(model: PolicyAlign, trajs, masks, X, pi) -> dict[str, float
     """nUPE of every CV candidate refitted with fixed hyperparameters vs the CV pick."""
     chosen = model.regressor_
     scores = {}
-    for (t, ell, k, o) in chosen.cv_scores_:
-        # Fixed length scales are in standardised units, as the CV grid is.
-        reg = TrendKernelRegression(trend_ridge=t, kernel_ridge=k, offset_ridge=o,
+    for key in chosen.cv_scores_:
+        form, t, ell, k, o = key
+        # Fixed length scales are in standardised units, as the CV grid is. The
+        # single-index trend's index starts from the quadratic its own CV would pick.
+        reg = TrendKernelRegression(trend_form=form, trend_ridge="cv" if math.isnan(t) else t,
+                                    kernel_ridge=k, offset_ridge=o,
                                     length_scale=1.0 if math.isnan(ell) else ell,
                                     random_state=chosen.random_state)
         refit, _ = _refit(model, reg, trajs, masks)
-        scores[(t, ell, k, o)] = metrics.nupe(pi, refit.policy(X))
+        scores[key] = metrics.nupe(pi, refit.policy(X))
     best = min(scores.values())
     picked = chosen.cv_best_
     return {"best_candidate_nupe": best, "picked_nupe": scores[picked],
@@ -421,7 +424,7 @@ def parse_settings(items: list[str]) -> dict[str, str | float]:
         if not sep or name not in known:
             raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME one of "
                              f"{sorted(known)}")
-        if value == "cv":
+        if value == "cv" or name == "trend_form":
             out[name] = value
             continue
         try:
@@ -494,7 +497,8 @@ def run_case(task: tuple) -> dict:
         }
     result["cv"] = _candidate_check(base, recorded, masks, Xd, pid)
     result["chosen"] = {name: getattr(base.regressor_, name + "_") for name in
-                        ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")}
+                        ("trend_form", "trend_ridge", "length_scale", "kernel_ridge",
+                         "offset_ridge")}
     return result
 
 

@@ -60,6 +60,11 @@ costs a few small Cholesky solves per candidate; ``docs/notes/trend_kernel.md`` 
 measurements. The data are thinned evenly in arc length along each demonstration first
 (a robot at rest adds samples but no information), to at most ``max_fit_points``
 samples.
+
+With ``trend_form="cv"`` the CV also scores the single-index trend of
+:mod:`.single_index` (a rising profile of one fitted quadratic form, for potentials that
+flatten or steepen away from the goal), with its index re-fitted without each fold, and
+keeps it if it scores lower; opt-in for now (see the parameter).
 """
 
 from __future__ import annotations
@@ -74,6 +79,7 @@ import scipy.linalg
 import scipy.linalg.blas
 import scipy.sparse
 
+from policy_align_ros.learning.regressors import single_index
 from policy_align_ros.learning.regressors._common import (
     NotFittedError,
     assign_folds,
@@ -108,7 +114,15 @@ CV_RESOLUTION = 1e-10
 JITTER = 1e-9
 #: Rows per block when evaluating kernels (bounds memory on large queries).
 CHUNK = 8192
-_STATE_VERSION = 1
+#: Trend forms the CV chooses from: the quadratic, and the single-index trend of
+#: :mod:`.single_index` (a profile of one quadratic form; no residual on top).
+TREND_FORMS = ("quadratic", "single_index")
+#: Samples (a random subset of the thinned data) on which the single-index trend's index is
+#: fitted, and the residual evaluations allowed: from all data, then per fold from there.
+INDEX_FIT_POINTS = 2000
+INDEX_NFEV = 20
+INDEX_FOLD_NFEV = 6
+_STATE_VERSION = 2
 _HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
 
 
@@ -155,12 +169,16 @@ class _FoldGrams:
     """
 
     def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
-                 n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None):
+                 n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None,
+                 convex: bool = True):
         """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
         shared by every length scale), so only the blocks of the new columns are summed.
         ``free`` (K,) bool: demonstrations whose offsets are free at every
-        ``offset_ridge`` (default: none)."""
+        ``offset_ridge`` (default: none). ``convex``: the first columns of ``A`` are
+        :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps positive
+        definite; otherwise the solves are plain."""
         self.n = n
+        self.convex = convex
         self.free = (np.zeros(len(demo_fold), dtype=bool) if free is None
                      else np.asarray(free, dtype=bool))
         n_demos = len(demo_fold)
@@ -221,30 +239,36 @@ class _FoldGrams:
         :func:`_solve_shared`).
         """
         n_folds = len(self.G)
-        err = np.zeros((len(penalties), n_folds))
-        for f in range(n_folds):
-            held = self.demo_fold == f
-            if offset_ridge == 0.0:
-                G0, r0, G0_all, r0_all = self.free_offset_sums()
-                G = self.G_all - self.G[f] - (G0_all - G0[f])
-                r = self.r_all - self.r[f] - (r0_all - r0[f])
-                m = float(self.nk[~held].sum())
-            else:
-                G, r, m = self.profiled(~held, self.G_all - self.G[f],
-                                        self.r_all - self.r[f], offset_ridge)
-            M = G / m
-            first = _solve_shared(M, r / m, penalties, shared)
-            for i, (penalty, w) in enumerate(zip(penalties, first, strict=True)):
-                w = _convex_solve(M + penalty, r / m, self.n, w)
-                if w is None:
-                    err[i, f] = math.inf
-                    continue
-                err[i, f] = self.shape_error(f, w)
+        err = np.array([self.fold_errors(f, penalties, offset_ridge, shared)
+                        for f in range(n_folds)]).T
         # Per fold scaled so that the mean over folds is the total error over the spread.
         err *= n_folds / self.shape_ss
         with np.errstate(invalid="ignore"):
             se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
         return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]
+
+    def fold_errors(self, f: int, penalties: list[np.ndarray], offset_ridge: float,
+                    shared: int = 0, accept=None) -> list[float]:
+        """Held-out squared shape residuals of fold ``f`` per penalty, fitted on the other
+        folds (``inf`` where the solve fails or ``accept(w)`` is false)."""
+        held = self.demo_fold == f
+        if offset_ridge == 0.0:
+            G0, r0, G0_all, r0_all = self.free_offset_sums()
+            G = self.G_all - self.G[f] - (G0_all - G0[f])
+            r = self.r_all - self.r[f] - (r0_all - r0[f])
+            m = float(self.nk[~held].sum())
+        else:
+            G, r, m = self.profiled(~held, self.G_all - self.G[f],
+                                    self.r_all - self.r[f], offset_ridge)
+        M = G / m
+        first = _solve_shared(M, r / m, penalties, shared)
+        out = []
+        for penalty, w in zip(penalties, first, strict=True):
+            if self.convex:
+                w = _convex_solve(M + penalty, r / m, self.n, w)
+            ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
+            out.append(self.shape_error(f, w) if ok else math.inf)
+        return out
 
     def shape_error(self, fold: int, w: np.ndarray) -> float:
         """Squared residuals of fold ``fold``'s demonstrations about their own means."""
@@ -419,6 +443,15 @@ class TrendKernelRegression:
 
     Parameters
     ----------
+    trend_form : "quadratic", "single_index" or "cv"
+        The trend: the quadratic (with the residual), or the single-index trend of
+        :mod:`.single_index` (a profile of one fitted quadratic form, no residual), or
+        ``"cv"`` to choose between them (the single-index trend is only tried when the
+        quadratic does not already fit the held-out shapes to :data:`CV_RESOLUTION`).
+        ``"cv"`` took a 22-D velocity-limited attractor from nUPE 0.34 to 0.0000 and tied
+        everywhere on ``bench suite``, at up to 3x the fit time of its 22-D cases; the
+        default is still the quadratic until every benchmark is re-run with it
+        (``docs/notes/trend_kernel.md``).
     trend_ridge : "cv" or float
         Penalty on the anisotropic part ``S`` of the quadratic trend (standardised units;
         ``inf``: an isotropic bowl only), or ``"cv"`` to choose from ``TREND_RIDGE_GRID``.
@@ -444,12 +477,15 @@ class TrendKernelRegression:
 
     Attributes
     ----------
+    trend_form_ : str
+        The trend used.
     trend_ridge_, length_scale_, kernel_ridge_, offset_ridge_ : float
-        Hyperparameters used.
+        Hyperparameters used (``trend_ridge_`` is NaN for the single-index trend).
     cv_scores_ : dict
         Held-out shape error (over the within-demonstration spread) per evaluated
-        ``(trend_ridge, length_scale, kernel_ridge, offset_ridge)``; ``length_scale`` is
-        NaN for the trend alone.
+        ``(trend_form, trend_ridge, length_scale, kernel_ridge, offset_ridge)``;
+        ``length_scale`` is NaN for the trend alone, ``trend_ridge`` for the single-index
+        trend.
     cv_standard_errors_ : dict
         Standard error over the folds of every entry of ``cv_scores_``.
     cv_best_ : tuple or None
@@ -458,8 +494,12 @@ class TrendKernelRegression:
         Standardisation of the states (state units).
     y_mean_, y_scale_ : float
         Standardisation of the outputs.
-    trend_ : ndarray (2 + n + n (n + 1) / 2,)
-        Trend coefficients (standardised units).
+    trend_ : ndarray (2 + n + n (n + 1) / 2,) or (2 + len(KNEES),)
+        Trend coefficients (standardised units): of :func:`quadratic_features`, or the
+        constant and the profile weights of the single-index trend.
+    index_matrix_, index_goal_, index_scale_ : ndarray (n, n), ndarray (n,), float
+        The single-index trend's ``L``, ``z0`` and ``s`` (standardised units; ``L`` empty
+        (0, n) for the quadratic).
     centres_ : ndarray (m, n)
         Kernel centres, standardised; ``alpha_`` (m,) their weights.
     n_features_in_ : int
@@ -468,6 +508,7 @@ class TrendKernelRegression:
     def __init__(
         self,
         *,
+        trend_form: str = "quadratic",
         trend_ridge: str | float = "cv",
         length_scale: str | float = "cv",
         kernel_ridge: str | float = "cv",
@@ -477,6 +518,7 @@ class TrendKernelRegression:
         n_folds: int = 10,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
+        self.trend_form = trend_form
         self.trend_ridge = trend_ridge
         self.length_scale = length_scale
         self.kernel_ridge = kernel_ridge
@@ -489,6 +531,7 @@ class TrendKernelRegression:
     def get_params(self, deep: bool = True) -> dict[str, Any]:
         """Constructor parameters, as given."""
         return {
+            "trend_form": self.trend_form,
             "trend_ridge": self.trend_ridge,
             "length_scale": self.length_scale,
             "kernel_ridge": self.kernel_ridge,
@@ -504,6 +547,9 @@ class TrendKernelRegression:
         return f"TrendKernelRegression({args})"
 
     def _check_params(self) -> None:
+        if self.trend_form not in ("cv", *TREND_FORMS):
+            raise ValueError(f"trend_form must be 'cv' or one of {TREND_FORMS}, got "
+                             f"{self.trend_form!r}")
         for name in ("trend_ridge", "length_scale", "kernel_ridge"):
             value = getattr(self, name)
             if value == "cv":
@@ -587,31 +633,113 @@ class TrendKernelRegression:
         t_grid = _grid(self.trend_ridge, TREND_RIDGE_GRID)
         k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
         o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
-        self.cv_scores_: dict[tuple[float, float, float, float], float] = {}
-        self.cv_standard_errors_: dict[tuple[float, float, float, float], float] = {}
+        forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
+        self.cv_scores_: dict[tuple, float] = {}
+        self.cv_standard_errors_: dict[tuple, float] = {}
         self.cv_best_ = None
+        self._index: tuple[np.ndarray, np.ndarray, float] | None = None
+        trend = _FoldGrams(F, u, demo, demo_fold, n, free=free)
+        mid = (lengths[len(lengths) // 2], k_grid[len(k_grid) // 2])
+        # Without CV, and as the fallback of a single-index trend whose profile fails to rise.
+        self._quadratic_pick = ("quadratic", t_grid[len(t_grid) // 2], *mid, o_grid[-1])
         if n_folds < 2:
-            best = (t_grid[len(t_grid) // 2], lengths[len(lengths) // 2],
-                    k_grid[len(k_grid) // 2], o_grid[-1])
+            best = self._quadratic_pick
+            if forms == ["single_index"]:
+                best = ("single_index", math.nan, mid[0], math.inf, o_grid[-1])
+                self._fit_index(trend, Z, u, demo, t_grid[len(t_grid) // 2], rng)
         else:
-            cv = _CVData(F, Z, u, C, demo, demo_fold,
-                         _FoldGrams(F, u, demo, demo_fold, n, free=free))
-            best = self.cv_best_ = self._cv_search(cv, lengths, t_grid, k_grid, o_grid)
-            if math.isnan(best[1]):
-                best = (best[0], lengths[len(lengths) // 2], best[2], best[3])
-        (self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
-         self.offset_ridge_) = best
-        self._final_fit(F, Z, u, C, n, demo, free)
+            cv = _CVData(F, Z, u, C, demo, demo_fold, trend)
+            best = self.cv_best_ = self._cv_search(cv, forms, lengths, t_grid, k_grid, o_grid,
+                                                   rng)
+            if math.isnan(best[2]):
+                best = (*best[:2], mid[0], *best[3:])
+        self._final_fit(best, F, Z, u, C, n, demo, free)
         return self
 
-    def _cv_search(self, cv: _CVData, lengths: list[float], t_grid: list[float],
-                   k_grid: list[float], o_grid: list[float]
-                   ) -> tuple[float, float, float, float]:
-        """Score the candidates in three stages into ``cv_scores_``; return the pick."""
+    def _cv_search(self, cv: _CVData, forms: list[str], lengths: list[float],
+                   t_grid: list[float], k_grid: list[float], o_grid: list[float],
+                   rng: np.random.Generator) -> tuple:
+        """Score the candidates of every trend form into ``cv_scores_``; return the pick.
+
+        The single-index trend is fitted and scored when the quadratic's pick does not
+        fit the held-out shapes to :data:`CV_RESOLUTION`, and kept if it scores lower."""
+        quadratic = None
+        if "quadratic" in forms:
+            quadratic = self._quadratic_pick = self._quadratic_search(cv, lengths, t_grid,
+                                                                      k_grid, o_grid)
+            if "single_index" not in forms or self.cv_scores_[quadratic] <= CV_RESOLUTION:
+                return quadratic
+        # The index starts from the quadratic trend alone with free offsets, at its best
+        # trend penalty (the fit that ranks shapes, not levels).
+        keys = [("quadratic", t, math.nan, math.inf, 0.0) for t in t_grid]
+        if all(key in self.cv_scores_ for key in keys):
+            t_init = min(keys, key=self.cv_scores_.get)[1]
+        else:
+            scores = cv.trend.scores([self._trend_penalty(cv.n, t) for t in t_grid], 0.0)
+            t_init = t_grid[int(np.argmin([score for score, _ in scores]))]
+        index = self._index_search(cv, t_init, o_grid, rng)
+        if quadratic is None or (self.cv_scores_[index]
+                                 < self.cv_scores_[quadratic] - CV_RESOLUTION):
+            return index
+        return quadratic
+
+    def _fit_index(self, grams: _FoldGrams, Z: np.ndarray, u: np.ndarray, demo: np.ndarray,
+                   t_init: float, rng: np.random.Generator
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fit the single-index trend's index on a random subset of the samples, from the
+        quadratic trend with free offsets and penalty ``t_init`` (sums in ``grams``);
+        store it in ``_index`` and return the subset's indices."""
+        n = Z.shape[1]
+        L0, z0 = _quadratic_index(grams, n, self._trend_penalty(n, t_init))
+        sub = np.sort(rng.choice(len(u), size=min(INDEX_FIT_POINTS, len(u)), replace=False))
+        q0 = single_index.index_form(Z[sub], L0, z0)[1]
+        s = math.sqrt(float(np.median(q0))) or 1.0
+        L, z = single_index.fit_index(Z[sub], u[sub], demo[sub], L0, z0, s, INDEX_NFEV)
+        self._index = (L, z, s)
+        return sub
+
+    def _index_search(self, cv: _CVData, t_init: float, o_grid: list[float],
+                      rng: np.random.Generator) -> tuple:
+        """Score the single-index trend per offset penalty; return its best key.
+
+        Its index is fitted on all data, then again without every fold's demonstrations
+        (started from the first fit), so a held-out demonstration never shapes the index
+        it is scored with."""
+        n = cv.n
+        sub = self._fit_index(cv.trend, cv.Z, cv.u, cv.demo, t_init, rng)
+        L, z, s = self._index
+        Zs, us, ds = cv.Z[sub], cv.u[sub], cv.demo[sub]
+        n_folds = int(cv.demo_fold.max()) + 1
+        penalty = [JITTER * np.eye(2 + len(single_index.KNEES))]
+        err = np.zeros((len(o_grid), n_folds))
+        for f in range(n_folds):
+            keep = cv.demo_fold[ds] != f
+            Lf, zf = single_index.fit_index(Zs[keep], us[keep], ds[keep], L, z, s,
+                                            INDEX_FOLD_NFEV)
+            A, q_max = _index_design(cv.Z, Lf, zf, s)
+            grams = _FoldGrams(A, cv.u, cv.demo, cv.demo_fold, n, free=cv.trend.free,
+                               convex=False)
+
+            def rises(w: np.ndarray, q_max: float = q_max) -> bool:
+                return single_index.increasing(w[1:], s, q_max)
+
+            for i, o in enumerate(o_grid):
+                err[i, f] = grams.fold_errors(f, penalty, o, accept=rises)[0]
+        err *= n_folds / cv.trend.shape_ss
+        with np.errstate(invalid="ignore"):
+            se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
+        keys = [("single_index", math.nan, math.nan, math.inf, o) for o in o_grid]
+        self._record(keys, [(float(e), float(x)) for e, x in zip(err.mean(axis=1), se,
+                                                                   strict=True)])
+        return _simplest_within(self.cv_scores_, keys, 0.0, lambda key: -key[4])
+
+    def _quadratic_search(self, cv: _CVData, lengths: list[float], t_grid: list[float],
+                          k_grid: list[float], o_grid: list[float]) -> tuple:
+        """Score the quadratic trend's candidates in three stages; return its pick."""
         n = cv.n
         # 1. The trend alone scores its penalties and the offsets' ...
         for o in o_grid:
-            self._record([(t, math.nan, math.inf, o) for t in t_grid],
+            self._record([("quadratic", t, math.nan, math.inf, o) for t in t_grid],
                          cv.trend.scores([self._trend_penalty(n, t) for t in t_grid], o))
         # 2. ... then the residual its length scale and penalty, jointly with the trend: at
         # the first stage's pick, and with free offsets at their best trend penalty. Where
@@ -620,10 +748,10 @@ class TrendKernelRegression:
         # stage's pick, 0.005 and 0.067 through free offsets).
         scores = self.cv_scores_
         stage_one = _simplest_within(scores, list(scores), 0.0, _simpler_trend)
-        paths = {stage_one[3]: stage_one[0]}  # offset penalty -> trend penalty
+        paths = {stage_one[4]: stage_one[1]}  # offset penalty -> trend penalty
         if 0.0 in o_grid and 0.0 not in paths:
-            paths[0.0] = _simplest_within(scores, [key for key in scores if key[3] == 0.0],
-                                          0.0, _simpler_trend)[0]
+            paths[0.0] = _simplest_within(scores, [key for key in scores if key[4] == 0.0],
+                                          0.0, _simpler_trend)[1]
         finite_k = [k for k in k_grid if math.isfinite(k)]
         if scores[stage_one] <= CV_RESOLUTION and math.inf in k_grid:
             # The trend alone fits the held-out shapes to round-off: a residual can only tie
@@ -633,15 +761,15 @@ class TrendKernelRegression:
         for ell in lengths if finite_k else ():
             grams, Kcc = cv.kernel_sums(ell)
             for o, t in paths.items():
-                self._record([(t, ell, k, o) for k in finite_k],
+                self._record([("quadratic", t, ell, k, o) for k in finite_k],
                              grams.scores([self._penalty(n, t, k, Kcc) for k in finite_k], o,
                                           shared=_n_trend(n)))
         # The better path, and on it the simplest residual within one standard error of its
         # best score (no residual only if the kernel penalty is left to the CV).
-        keys = [key for key in scores if paths.get(key[3]) == key[0]
-                and (math.inf in k_grid or math.isfinite(key[2]))]
+        keys = [key for key in scores if paths.get(key[4]) == key[1]
+                and (math.inf in k_grid or math.isfinite(key[3]))]
         path = _simplest_within(scores, keys, 0.0, _simpler_trend)
-        keys = [key for key in keys if key[3] == path[3]]
+        keys = [key for key in keys if key[4] == path[4]]
         error = self.cv_standard_errors_[min(keys, key=scores.get)]
         best = _simplest_within(scores, keys, error if math.isfinite(error) else 0.0,
                                 _simpler_residual)
@@ -649,20 +777,20 @@ class TrendKernelRegression:
         # cannot tell them apart where a quadratic does not fit (suite arm case: offset
         # penalties 1e-4 and 1e-2 scored within 6 % with the trend alone, 3x apart with the
         # residual, whose nUPE they took from 0.02 to 0.15).
-        if math.isfinite(best[2]) and (len(t_grid) > 1 or len(o_grid) > 1):
-            ell, k = best[1], best[2]
+        if math.isfinite(best[3]) and (len(t_grid) > 1 or len(o_grid) > 1):
+            ell, k = best[2], best[3]
             # Summed again rather than kept from stage 2: every length scale's sums held at
             # once doubled the peak memory of a 22-D fit.
             grams, Kcc = cv.kernel_sums(ell)
             for o in o_grid:
-                self._record([(t, ell, k, o) for t in t_grid],
+                self._record([("quadratic", t, ell, k, o) for t in t_grid],
                              grams.scores([self._penalty(n, t, k, Kcc) for t in t_grid], o,
                                           shared=-len(cv.C)))
-            best = _simplest_within(scores, [key for key in scores if key[1:3] == (ell, k)],
+            best = _simplest_within(scores, [key for key in scores if key[2:4] == (ell, k)],
                                     0.0, _simpler_trend)
         return best
 
-    def _record(self, keys: list[tuple[float, float, float, float]],
+    def _record(self, keys: list[tuple],
                 scores: list[tuple[float, float]]) -> None:
         """Store the CV score and standard error of every candidate ``keys[i]``."""
         for key, (score, error) in zip(keys, scores, strict=True):
@@ -683,8 +811,20 @@ class TrendKernelRegression:
         P[p_t:, p_t:] = kernel_ridge * (Kcc + JITTER * np.eye(m)) + JITTER * np.eye(m)
         return P
 
-    def _final_fit(self, F: np.ndarray, Z: np.ndarray, u: np.ndarray, C: np.ndarray, n: int,
-                   demo: np.ndarray, free: np.ndarray) -> None:
+    def _final_fit(self, best: tuple, F: np.ndarray, Z: np.ndarray, u: np.ndarray,
+                   C: np.ndarray, n: int, demo: np.ndarray, free: np.ndarray) -> None:
+        """Fit the hyperparameters ``best`` on all samples and set the learnt attributes."""
+        (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
+         self.offset_ridge_) = best
+        self.index_matrix_, self.index_goal_, self.index_scale_ = (
+            np.zeros((0, n)), np.zeros(0), 0.0)
+        if self.trend_form_ == "single_index":
+            if self._fit_single_index(Z, u, n, demo, free):
+                return
+            # A profile that falls somewhere has no single minimum: the quadratic instead.
+            best = self._quadratic_pick
+            (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
+             self.offset_ridge_) = best
         p_t = _n_trend(n)
         if math.isinf(self.kernel_ridge_):
             A, P = F, self._trend_penalty(n, self.trend_ridge_)
@@ -705,9 +845,31 @@ class TrendKernelRegression:
         self.alpha_ = w[p_t:]
         self._unpack()
 
+    def _fit_single_index(self, Z: np.ndarray, u: np.ndarray, n: int, demo: np.ndarray,
+                          free: np.ndarray) -> bool:
+        """The single-index trend on ``_index``; False if its profile does not rise."""
+        L, z0, s = self._index
+        A, q_max = _index_design(Z, L, z0, s)
+        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
+                           free=free, convex=False)
+        G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all,
+                                 self.offset_ridge_)
+        w = _solve(G / m + JITTER * np.eye(len(G)), r / m)
+        if w is None or not np.all(np.isfinite(w)) or not single_index.increasing(
+                w[1:], s, q_max):
+            return False
+        self.trend_, self.alpha_, self.centres_ = w, np.zeros(0), np.zeros((0, n))
+        self.index_matrix_, self.index_goal_, self.index_scale_ = L, z0, s
+        self._unpack()
+        return True
+
     def _unpack(self) -> None:
         n = self.n_features_in_
         t = self.trend_
+        if self.trend_form_ == "single_index":
+            self._S, self._b, self._p = np.zeros((n, n)), np.zeros(n), 0.0
+            self._c = float(t[0])
+            return
         self._S = _symmetric(t[2 + n:], n)
         self._c, self._b, self._p = float(t[0]), t[1:1 + n], float(t[1 + n])
 
@@ -724,6 +886,10 @@ class TrendKernelRegression:
     def predict(self, X: np.ndarray) -> np.ndarray:
         """Model output ``f(x)``, shape (m,), for states ``X`` (m, n)."""
         Z = self._standardise(X)
+        if self.trend_form_ == "single_index":
+            u = _index_design(Z, self.index_matrix_, self.index_goal_,
+                              self.index_scale_)[0] @ self.trend_
+            return self.y_mean_ + self.y_scale_ * u
         u = (self._c + Z @ self._b + 0.5 * self._p * np.einsum("ij,ij->i", Z, Z)
              + np.einsum("ij,jk,ik->i", Z, self._S, Z))
         if len(self.alpha_):
@@ -735,6 +901,10 @@ class TrendKernelRegression:
     def gradient(self, X: np.ndarray) -> np.ndarray:
         """Exact ``grad_x f(x)``, shape (m, n), in output units per state unit."""
         Z = self._standardise(X)
+        if self.trend_form_ == "single_index":
+            g = single_index.profile_gradient(Z, self.index_matrix_, self.index_goal_,
+                                              self.index_scale_, self.trend_[1:])
+            return g * (self.y_scale_ / self.scale_)
         g = self._b + self._p * Z + 2.0 * Z @ self._S
         if len(self.alpha_):
             ell2 = self.length_scale_**2
@@ -757,6 +927,8 @@ class TrendKernelRegression:
         meta = {
             "version": _STATE_VERSION,
             "params": params,
+            "trend_form": self.trend_form_,
+            "index_scale": self.index_scale_,
             "trend_ridge": _json_float(self.trend_ridge_),
             "length_scale": float(self.length_scale_),
             "kernel_ridge": _json_float(self.kernel_ridge_),
@@ -767,7 +939,8 @@ class TrendKernelRegression:
             "n_features_in": int(self.n_features_in_),
         }
         arrays = {"mean": self.mean_, "trend": self.trend_, "centres": self.centres_,
-                  "alpha": self.alpha_}
+                  "alpha": self.alpha_, "index_matrix": self.index_matrix_,
+                  "index_goal": self.index_goal_}
         return arrays, meta
 
     @classmethod
@@ -784,6 +957,11 @@ class TrendKernelRegression:
             model = cls(**params)
             n = int(meta["n_features_in"])
             model.n_features_in_ = n
+            # Version 1 knew the quadratic trend only.
+            model.trend_form_ = str(meta.get("trend_form", "quadratic"))
+            if model.trend_form_ not in TREND_FORMS:
+                raise ValueError(f"unknown trend_form {model.trend_form_!r}")
+            single = model.trend_form_ == "single_index"
             model.trend_ridge_ = float(meta["trend_ridge"])
             model.length_scale_ = float(meta["length_scale"])
             model.kernel_ridge_ = float(meta["kernel_ridge"])
@@ -792,7 +970,16 @@ class TrendKernelRegression:
             model.y_mean_ = float(meta["y_mean"])
             model.y_scale_ = float(meta["y_scale"])
             model.mean_ = np.asarray(arrays["mean"], dtype=float).reshape(n)
-            model.trend_ = np.asarray(arrays["trend"], dtype=float).reshape(_n_trend(n))
+            model.trend_ = np.asarray(arrays["trend"], dtype=float).reshape(
+                2 + len(single_index.KNEES) if single else _n_trend(n))
+            model.index_matrix_ = np.asarray(arrays["index_matrix"] if single else
+                                             np.zeros((0, n)), dtype=float).reshape(-1, n)
+            model.index_goal_ = np.asarray(arrays["index_goal"] if single else np.zeros(0),
+                                           dtype=float).reshape(n if single else 0)
+            model.index_scale_ = float(meta["index_scale"]) if single else 0.0
+            if single and (model.index_matrix_.shape != (n, n) or not model.index_scale_ > 0):
+                raise ValueError("single-index trend needs an (n, n) index_matrix and "
+                                 "index_scale > 0")
             model.centres_ = np.asarray(arrays["centres"], dtype=float).reshape(-1, n)
             model.alpha_ = np.asarray(arrays["alpha"], dtype=float).reshape(len(model.centres_))
         except (KeyError, TypeError, ValueError) as err:
@@ -804,8 +991,7 @@ class TrendKernelRegression:
         return model
 
 
-def _simplest_within(scores: dict, keys: list, margin: float, simpler
-                     ) -> tuple[float, float, float, float]:
+def _simplest_within(scores: dict, keys: list, margin: float, simpler) -> tuple:
     """The simplest of ``keys`` (the largest by ``simpler``) whose CV score is within
     ``margin`` of the best, or within :data:`CV_RESOLUTION` of it (round-off), whichever
     is wider: differences within the folds' noise do not buy a more flexible model."""
@@ -814,18 +1000,18 @@ def _simplest_within(scores: dict, keys: list, margin: float, simpler
     return max((k for k in keys if scores[k] <= bound), key=lambda k: (simpler(k), -scores[k]))
 
 
-def _simpler_residual(key: tuple[float, float, float, float]) -> tuple:
+def _simpler_residual(key: tuple) -> tuple:
     """Ordering of residuals at one trend and offset penalty, simplest largest: none, then
     a larger kernel penalty, then a longer length scale (used with one standard error)."""
-    _, ell, kernel_ridge, _ = key
+    _, _, ell, kernel_ridge, _ = key
     return (not math.isfinite(kernel_ridge), kernel_ridge, 0.0 if math.isnan(ell) else ell)
 
 
-def _simpler_trend(key: tuple[float, float, float, float]) -> tuple:
+def _simpler_trend(key: tuple) -> tuple:
     """Ordering of trend and offset penalties, simplest largest: the larger trend penalty
     (closer to an isotropic bowl), then the smaller offset penalty (offsets that owe
     nothing to the alignment's errors). Used for ties at an exact fit only."""
-    return (key[0], -key[3])
+    return (key[1], -key[4])
 
 
 def _grid(value: str | float, grid) -> list[float]:
@@ -833,7 +1019,31 @@ def _grid(value: str | float, grid) -> list[float]:
 
 
 def _json_float(value: float) -> float | str:
-    return "inf" if math.isinf(value) else float(value)
+    return "inf" if math.isinf(value) else "nan" if math.isnan(value) else float(value)
+
+
+def _quadratic_index(grams: _FoldGrams, n: int, penalty: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Cholesky factor ``L`` (n, n) of the Hessian of the quadratic trend fitted on all of
+    ``grams``' samples with free offsets, and its minimum ``z0`` (n,): the single-index
+    trend's start (the identity and the origin if the solve fails)."""
+    G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all, 0.0)
+    w = _convex_solve(G / m + penalty, r / m, n)
+    if w is None or not np.all(np.isfinite(w)):
+        return np.eye(n), np.zeros(n)
+    lam, V = np.linalg.eigh(w[1 + n] * np.eye(n) + 2.0 * _symmetric(w[2 + n:_n_trend(n)], n))
+    lam = np.maximum(lam, CURVATURE_FLOOR * lam[-1]) if lam[-1] > 0 else np.ones(n)
+    z0 = -V @ ((V.T @ w[1:1 + n]) / lam)
+    return np.linalg.cholesky((V * lam) @ V.T), z0
+
+
+def _index_design(Z: np.ndarray, L: np.ndarray, z0: np.ndarray, s: float
+                  ) -> tuple[np.ndarray, float]:
+    """The single-index trend's design ``[1, B(q(z))]`` (m, 2 + len(KNEES)) and the
+    largest ``q`` of the samples."""
+    _, q = single_index.index_form(Z, L, z0)
+    B, _ = single_index.profile_basis(q, s)
+    return np.hstack([np.ones((len(Z), 1)), B]), float(q.max(initial=0.0))
 
 
 def _median_distance(C: np.ndarray) -> float:
