@@ -255,6 +255,10 @@ def test_cv_keeps_the_quadratic_and_residual_for_two_minima():
     assert model.trend_form_ == "quadratic" and math.isfinite(model.kernel_ridge_)
     single = [v for k, v in model.cv_scores_.items() if k[0] == "single_index"]
     assert single and min(single) > model.cv_scores_[model.cv_best_]
+    # Forced, it finds no rising profile either and falls back to the quadratic's CV pick.
+    forced = TrendKernelRegression(trend_form="single_index", random_state=0).fit(
+        X, value(X), groups=g)
+    assert forced.trend_form_ == "quadratic" and forced.cv_best_ == model.cv_best_
 
 
 def test_cv_searches_the_residual_with_free_offsets_too():

@@ -678,6 +678,11 @@ class TrendKernelRegression:
             scores = cv.trend.scores([self._trend_penalty(cv.n, t) for t in t_grid], 0.0)
             t_init = t_grid[int(np.argmin([score for score, _ in scores]))]
         index = self._index_search(cv, t_init, o_grid, rng)
+        if quadratic is None and not math.isfinite(self.cv_scores_[index]):
+            # No fold's profile rose (two minima, say): the quadratic as the CV picks it,
+            # not at mid-grid penalties.
+            quadratic = self._quadratic_pick = self._quadratic_search(cv, lengths, t_grid,
+                                                                      k_grid, o_grid)
         if quadratic is None or (self.cv_scores_[index]
                                  < self.cv_scores_[quadratic] - CV_RESOLUTION):
             return index
