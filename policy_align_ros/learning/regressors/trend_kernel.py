@@ -449,7 +449,7 @@ class TrendKernelRegression:
         ``"cv"`` to choose between them (the single-index trend is only tried when the
         quadratic does not already fit the held-out shapes to :data:`CV_RESOLUTION`).
         ``"cv"`` took a 22-D velocity-limited attractor from nUPE 0.34 to 0.0000 and tied
-        everywhere on ``bench suite``, at up to 3x the fit time of its 22-D cases; the
+        everywhere on ``bench suite``, at up to 4x the fit time of its 22-D cases; the
         default is still the quadratic until every benchmark is re-run with it
         (``docs/notes/trend_kernel.md``).
     trend_ridge : "cv" or float
