@@ -70,6 +70,22 @@ def _velocity_limited(n, rng, r2=None):
     return value, grad
 
 
+def _attractor_with_offset_errors():
+    """7-D velocity-limited attractor, every demonstration's values shifted by an offset
+    error as an alignment leaves them: training ``X, y, g``, new-start states ``Xt`` and the
+    true gradient."""
+    rng = np.random.default_rng(0)
+    value, grad = _velocity_limited(7, rng)
+    X, g = _descent(grad, rng.uniform(-1, 1, size=(30, 7)), 60, 0.05)
+    y = value(X) + 0.05 * rng.standard_normal(30)[g]
+    Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 7)), 60, 0.05)
+    return X, y, g, Xt, grad
+
+
+def _nupe(model, Xt, grad):
+    return np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
+
+
 def test_quadratic_features_give_the_frobenius_norm():
     rng = np.random.default_rng(0)
     Z = rng.normal(size=(4, 3))
@@ -221,24 +237,18 @@ def test_cv_bends_the_trend_with_a_long_length_scale_for_a_velocity_limited_attr
                                                                              groups=g)
     assert model.length_scale_ > 0.64 * _median_distance(model.centres_)
     Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 3)), 60, 0.05)
-    nupe = np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
-    assert nupe < 0.05
+    assert _nupe(model, Xt, grad) < 0.05
 
 
 def test_cv_picks_the_single_index_trend_for_a_velocity_limited_attractor():
     # 7-D cone far from the goal, offsets as an alignment leaves them: no quadratic and no
     # residual as long as the data extrapolates it (nUPE 0.10 below), one profile of one
     # quadratic form does. Its held-out score comes from indices fitted without the fold.
-    rng = np.random.default_rng(0)
-    value, grad = _velocity_limited(7, rng)
-    X, g = _descent(grad, rng.uniform(-1, 1, size=(30, 7)), 60, 0.05)
-    y = value(X) + 0.05 * rng.standard_normal(30)[g]
+    X, y, g, Xt, grad = _attractor_with_offset_errors()
     model = TrendKernelRegression(trend_form="cv", random_state=0).fit(X, y, groups=g)
     assert model.trend_form_ == "single_index" and model.cv_best_[0] == "single_index"
     assert model.index_matrix_.shape == (7, 7) and len(model.alpha_) == 0
-    Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 7)), 60, 0.05)
-    nupe = np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
-    assert nupe < 1e-3
+    assert _nupe(model, Xt, grad) < 1e-3
     # The gradient is the model's own: central differences of predict, in state units.
     h = 1e-5
     fd = np.stack([(model.predict(Xt[:5] + h * e) - model.predict(Xt[:5] - h * e)) / (2 * h)
@@ -262,18 +272,12 @@ def test_cv_keeps_the_quadratic_and_residual_for_two_minima():
 
 
 def test_cv_searches_the_residual_with_free_offsets_too():
-    # 7-D velocity-limited attractor, every demonstration's values shifted by an offset
-    # error as an alignment leaves them. The trend alone (a quadratic misfits a cone)
-    # ranks the offset penalties wrongly: searching the residual at its pick only ended
-    # at nUPE 0.24 on these data; with free offsets the residual reaches 0.10.
-    rng = np.random.default_rng(0)
-    value, grad = _velocity_limited(7, rng)
-    X, g = _descent(grad, rng.uniform(-1, 1, size=(30, 7)), 60, 0.05)
-    y = value(X) + 0.05 * rng.standard_normal(30)[g]
+    # The trend alone (a quadratic misfits a cone) ranks the offset penalties wrongly:
+    # searching the residual at its pick only ended at nUPE 0.24 on these data; with free
+    # offsets the residual reaches 0.10.
+    X, y, g, Xt, grad = _attractor_with_offset_errors()
     model = TrendKernelRegression(trend_form="quadratic", random_state=0).fit(X, y, groups=g)
-    Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 7)), 60, 0.05)
-    nupe = np.sum((model.gradient(Xt) - grad(Xt)) ** 2) / np.sum(grad(Xt) ** 2)
-    assert nupe < 0.15
+    assert _nupe(model, Xt, grad) < 0.15
     assert model.offset_ridge_ == 0.0 and math.isfinite(model.kernel_ridge_)
 
 

@@ -241,11 +241,7 @@ class _FoldGrams:
         n_folds = len(self.G)
         err = np.array([self.fold_errors(f, penalties, offset_ridge, shared)
                         for f in range(n_folds)]).T
-        # Per fold scaled so that the mean over folds is the total error over the spread.
-        err *= n_folds / self.shape_ss
-        with np.errstate(invalid="ignore"):
-            se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
-        return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]
+        return _fold_summary(err, self.shape_ss)
 
     def fold_errors(self, f: int, penalties: list[np.ndarray], offset_ridge: float,
                     shared: int = 0, accept=None) -> list[float]:
@@ -277,6 +273,10 @@ class _FoldGrams:
         demo = self.demo[r]
         mean = np.bincount(demo, weights=e, minlength=len(self.nk)) / np.maximum(self.nk, 1)
         return float(np.sum((e - mean[demo]) ** 2))
+
+    def profiled_all(self, offset_ridge: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """:meth:`profiled` over every demonstration: the system of a fit on all data."""
+        return self.profiled(np.ones(len(self.nk), bool), self.G_all, self.r_all, offset_ridge)
 
     def profiled(self, train: np.ndarray, G: np.ndarray, r: np.ndarray, offset_ridge: float
                  ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -326,6 +326,17 @@ class _CVData:
                 _gaussian(self.C, self.C, ell))
 
 
+def _fold_summary(err: np.ndarray, shape_ss: float) -> list[tuple[float, float]]:
+    """CV score and its standard error per candidate from the held-out squared shape
+    residuals ``err`` (candidates, folds) and the spread ``shape_ss`` of all samples."""
+    n_folds = err.shape[1]
+    # Per fold scaled so that the mean over folds is the total error over the spread.
+    err = err * (n_folds / shape_ss)
+    with np.errstate(invalid="ignore"):
+        se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
+    return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]
+
+
 def _gram(A: np.ndarray) -> np.ndarray:
     """``A' A`` (p, p) through the symmetric rank-k update (half the work of ``A.T @ A``)."""
     if A.shape[0] == 0:
@@ -351,8 +362,7 @@ def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = N
     if w is None:
         return None
     p_t = _n_trend(n)
-    H = w[1 + n] * np.eye(n) + 2.0 * _symmetric(w[2 + n:p_t], n)
-    lam, V = np.linalg.eigh(H)
+    lam, V = np.linalg.eigh(_trend_hessian(w, n))
     floor = CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0)
     if lam[0] >= floor:
         return w
@@ -366,6 +376,11 @@ def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = N
         return None
     w[rest] = w_rest
     return w
+
+
+def _trend_hessian(w: np.ndarray, n: int) -> np.ndarray:
+    """Hessian ``p I + 2 S`` (n, n) of the quadratic trend whose coefficients lead ``w``."""
+    return w[1 + n] * np.eye(n) + 2.0 * _symmetric(w[2 + n:_n_trend(n)], n)
 
 
 def _solve_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: int
@@ -638,7 +653,6 @@ class TrendKernelRegression:
         self.cv_standard_errors_: dict[tuple, float] = {}
         self.cv_best_ = None
         self._index: tuple[np.ndarray, np.ndarray, float] | None = None
-        trend = _FoldGrams(F, u, demo, demo_fold, n, free=free)
         mid = (lengths[len(lengths) // 2], k_grid[len(k_grid) // 2])
         # Without CV, and as the fallback of a single-index trend whose profile fails to rise.
         self._quadratic_pick = ("quadratic", t_grid[len(t_grid) // 2], *mid, o_grid[-1])
@@ -646,9 +660,11 @@ class TrendKernelRegression:
             best = self._quadratic_pick
             if forms == ["single_index"]:
                 best = ("single_index", math.nan, mid[0], math.inf, o_grid[-1])
-                self._fit_index(trend, Z, u, demo, t_grid[len(t_grid) // 2], rng)
+                self._fit_index(_FoldGrams(F, u, demo, demo_fold, n, free=free), Z, u, demo,
+                                t_grid[len(t_grid) // 2], rng)
         else:
-            cv = _CVData(F, Z, u, C, demo, demo_fold, trend)
+            cv = _CVData(F, Z, u, C, demo, demo_fold,
+                         _FoldGrams(F, u, demo, demo_fold, n, free=free))
             best = self.cv_best_ = self._cv_search(cv, forms, lengths, t_grid, k_grid, o_grid,
                                                    rng)
             if math.isnan(best[2]):
@@ -730,12 +746,8 @@ class TrendKernelRegression:
 
             for i, o in enumerate(o_grid):
                 err[i, f] = grams.fold_errors(f, penalty, o, accept=rises)[0]
-        err *= n_folds / cv.trend.shape_ss
-        with np.errstate(invalid="ignore"):
-            se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
         keys = [("single_index", math.nan, math.nan, math.inf, o) for o in o_grid]
-        self._record(keys, [(float(e), float(x)) for e, x in zip(err.mean(axis=1), se,
-                                                                   strict=True)])
+        self._record(keys, _fold_summary(err, cv.trend.shape_ss))
         return _simplest_within(self.cv_scores_, keys, 0.0, lambda key: -key[4])
 
     def _quadratic_search(self, cv: _CVData, lengths: list[float], t_grid: list[float],
@@ -841,8 +853,7 @@ class TrendKernelRegression:
             self.centres_ = C
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
                            free=free)
-        G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all,
-                                 self.offset_ridge_)
+        G, r, m = grams.profiled_all(self.offset_ridge_)
         w = _convex_solve(G / m + P, r / m, n)
         if w is None or not np.all(np.isfinite(w)):
             raise ValueError("TrendKernelRegression: the penalised least squares failed")
@@ -857,8 +868,7 @@ class TrendKernelRegression:
         A, q_max = _index_design(Z, L, z0, s)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
                            free=free, convex=False)
-        G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all,
-                                 self.offset_ridge_)
+        G, r, m = grams.profiled_all(self.offset_ridge_)
         w = _solve(G / m + JITTER * np.eye(len(G)), r / m)
         if w is None or not np.all(np.isfinite(w)) or not single_index.increasing(
                 w[1:], s, q_max):
@@ -1032,11 +1042,11 @@ def _quadratic_index(grams: _FoldGrams, n: int, penalty: np.ndarray
     """Cholesky factor ``L`` (n, n) of the Hessian of the quadratic trend fitted on all of
     ``grams``' samples with free offsets, and its minimum ``z0`` (n,): the single-index
     trend's start (the identity and the origin if the solve fails)."""
-    G, r, m = grams.profiled(np.ones(len(grams.nk), bool), grams.G_all, grams.r_all, 0.0)
+    G, r, m = grams.profiled_all(0.0)
     w = _convex_solve(G / m + penalty, r / m, n)
     if w is None or not np.all(np.isfinite(w)):
         return np.eye(n), np.zeros(n)
-    lam, V = np.linalg.eigh(w[1 + n] * np.eye(n) + 2.0 * _symmetric(w[2 + n:_n_trend(n)], n))
+    lam, V = np.linalg.eigh(_trend_hessian(w, n))
     lam = np.maximum(lam, CURVATURE_FLOOR * lam[-1]) if lam[-1] > 0 else np.ones(n)
     z0 = -V @ ((V.T @ w[1:1 + n]) / lam)
     return np.linalg.cholesky((V * lam) @ V.T), z0
