@@ -8,8 +8,8 @@ any registered regressor saves and loads.
 
 - :class:`TrendKernelRegression` (default): a quadratic trend shrunk toward an isotropic
   bowl plus a Gaussian-kernel residual, hyperparameters chosen by CV over whole
-  held-out demonstrations; ``trend_form="cv"`` adds the single-index trend
-  (:mod:`.single_index`) to the families it chooses from.
+  held-out demonstrations, the single-index trend (:mod:`.single_index`) among the
+  families it chooses from.
 - :class:`LocalLinearRegression`: receptive fields with local linear models (the LWPR
   family the paper uses); purely local.
 

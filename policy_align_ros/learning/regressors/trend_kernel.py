@@ -61,10 +61,10 @@ measurements. The data are thinned evenly in arc length along each demonstration
 (a robot at rest adds samples but no information), to at most ``max_fit_points``
 samples.
 
-With ``trend_form="cv"`` the CV also scores the single-index trend of
+By default (``trend_form="cv"``) the CV also scores the single-index trend of
 :mod:`.single_index` (a rising profile of one fitted quadratic form, for potentials that
 flatten or steepen away from the goal), with its index re-fitted without each fold, and
-keeps it if it scores lower; opt-in for now (see the parameter).
+keeps it if it scores lower.
 """
 
 from __future__ import annotations
@@ -458,14 +458,14 @@ class TrendKernelRegression:
 
     Parameters
     ----------
-    trend_form : "quadratic", "single_index" or "cv"
+    trend_form : "cv", "quadratic" or "single_index"
         The trend: the quadratic (with the residual), or the single-index trend of
         :mod:`.single_index` (a profile of one fitted quadratic form, no residual), or
-        ``"cv"`` to choose between them (the single-index trend is only tried when the
-        quadratic does not already fit the held-out shapes to :data:`CV_RESOLUTION`).
-        ``"cv"`` took a 22-D velocity-limited attractor from nUPE 0.34 to 0.0000 and tied
-        everywhere on ``bench suite``, at up to 4x the fit time of its 22-D cases; the
-        default is still the quadratic until every benchmark is re-run with it
+        ``"cv"`` (default) to choose between them. The single-index trend is only tried
+        when the quadratic does not already fit the held-out shapes to
+        :data:`CV_RESOLUTION`. On 16 velocity-limited and quartic attractors in 3-22
+        dimensions it took the median nUPE from new starts from 0.17 to 0.0003, and it
+        ties on ``bench suite``, at about twice the fit time in 22-D
         (``docs/notes/trend_kernel.md``).
     trend_ridge : "cv" or float
         Penalty on the anisotropic part ``S`` of the quadratic trend (standardised units;
@@ -523,7 +523,7 @@ class TrendKernelRegression:
     def __init__(
         self,
         *,
-        trend_form: str = "quadratic",
+        trend_form: str = "cv",
         trend_ridge: str | float = "cv",
         length_scale: str | float = "cv",
         kernel_ridge: str | float = "cv",
