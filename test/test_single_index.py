@@ -9,6 +9,7 @@ from policy_align_ros.learning.regressors.single_index import (
     index_form,
     profile_basis,
     profile_gradient,
+    profile_weights,
 )
 
 
@@ -20,7 +21,7 @@ def _index(n, rng):
 def test_profile_gradient_matches_finite_differences():
     rng = np.random.default_rng(0)
     L, z0 = _index(4, rng)
-    beta = rng.uniform(0.1, 1.0, 1 + len(KNEES))
+    beta = rng.uniform(0.1, 1.0, 1 + 2 * len(KNEES))
     Z = rng.standard_normal((5, 4))
 
     def value(Z):
@@ -40,7 +41,7 @@ def test_the_basis_derivative_is_the_derivative_of_the_basis():
 
 
 def test_a_rising_profile_is_told_from_a_falling_one():
-    beta = np.zeros(1 + len(KNEES))
+    beta = np.zeros(1 + 2 * len(KNEES))
     beta[0], beta[4] = 1.0, 0.5
     assert increasing(beta, 1.0, 4.0)
     beta[4] = -3.0  # sqrt(q + c^2) with a negative weight wins near q = 0
@@ -64,3 +65,26 @@ def test_variable_projection_recovers_a_cone_index_with_unknown_offsets():
         np.linalg.norm(grad_true, axis=1) * np.linalg.norm(grad_fit, axis=1))
     assert np.min(cos) > 0.999
     np.testing.assert_allclose(zf, z0, atol=1e-3)
+
+
+def test_every_basis_column_rises_so_non_negative_weights_give_a_rising_profile():
+    q = np.geomspace(1e-8, 1e4, 400)
+    B, dB = profile_basis(q, 0.8)
+    assert B.shape == dB.shape == (400, 1 + 2 * len(KNEES))
+    assert np.all(dB > 0.0) and np.all(np.diff(B, axis=0) > 0.0)
+    rng = np.random.default_rng(2)
+    assert increasing(rng.uniform(0.0, 1.0, B.shape[1]), 0.8, 1e2)
+    assert not increasing(np.zeros(B.shape[1]), 0.8, 1e2)  # flat: no minimum
+
+
+def test_profile_weights_fit_a_steepening_profile_with_unknown_offsets():
+    # g(q) = q + q^2 / 4 on q in [0, 4], every demonstration shifted by an unknown offset:
+    # non-negative weights on the rising columns reproduce its derivative to a few percent.
+    rng = np.random.default_rng(3)
+    q = rng.uniform(0.0, 4.0, 300)
+    demo = np.repeat(np.arange(15), 20)
+    u = q + q**2 / 4 + rng.standard_normal(15)[demo]
+    beta = profile_weights(profile_basis(q, 1.0)[0], u, demo)
+    assert np.all(beta >= 0.0)
+    grid = np.linspace(0.1, 4.0, 40)
+    np.testing.assert_allclose(profile_basis(grid, 1.0)[1] @ beta, 1 + grid / 2, rtol=0.05)

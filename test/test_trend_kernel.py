@@ -5,14 +5,17 @@ import math
 
 import numpy as np
 import pytest
+import scipy.optimize
 
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.regressors import REGISTRY, NotFittedError, TrendKernelRegression
+from policy_align_ros.learning.regressors.single_index import KNEES
 from policy_align_ros.learning.regressors.trend_kernel import (
     CURVATURE_FLOOR,
     OFFSET_RIDGE_GRID,
     TREND_RIDGE_GRID,
     _median_distance,
+    _nonneg_solve,
     _solve_shared,
     quadratic_features,
 )
@@ -256,6 +259,43 @@ def test_cv_picks_the_single_index_trend_for_a_velocity_limited_attractor():
     np.testing.assert_allclose(model.gradient(Xt[:5]), fd, rtol=1e-5, atol=1e-8)
 
 
+def test_cv_picks_a_steepening_single_index_trend_for_a_quartic_attractor():
+    # phi = q / 2 + q^2 / 4 with q = x'Wx: steeper than any bowl away from the goal. With
+    # signed profile weights (before session 12) every profile fell near the goal and the
+    # CV kept the quadratic family (nUPE 0.37 on these data); the steepening columns rise
+    # by construction (0.08).
+    rng = np.random.default_rng(1)
+    q, _ = np.linalg.qr(rng.standard_normal((7, 7)))
+    W = q @ np.diag(np.geomspace(0.3, 1.5, 7)) @ q.T
+
+    def value(X):
+        form = np.einsum("ij,jk,ik->i", X, W, X)
+        return form / 2 + form**2 / 4
+
+    def grad(X):
+        return (X @ W) * (1.0 + np.einsum("ij,jk,ik->i", X, W, X))[:, None]
+
+    X, g = _descent(grad, rng.uniform(-1, 1, size=(30, 7)), 60, 0.05)
+    y = value(X) + 0.02 * rng.standard_normal(30)[g]
+    Xt, _ = _descent(grad, rng.uniform(-1, 1, size=(10, 7)), 60, 0.05)
+    model = TrendKernelRegression(random_state=0).fit(X, y, groups=g)
+    assert model.trend_form_ == "single_index"
+    assert _nupe(model, Xt, grad) < 0.12
+    assert np.all(model.trend_[1:] >= 0.0)
+
+
+def test_nonneg_solve_is_the_bounded_least_squares_solution():
+    # The single-index profile's weights: the constant free, the rest >= 0.
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((80, 6))
+    u = A @ np.array([0.5, 1.0, -2.0, 0.0, 3.0, -0.5]) + 0.1 * rng.standard_normal(80)
+    w = _nonneg_solve(A.T @ A, A.T @ u, 1)
+    ref = scipy.optimize.lsq_linear(A, u, bounds=([-np.inf] + [0.0] * 5, np.inf),
+                                    tol=1e-12).x
+    np.testing.assert_allclose(w, ref, atol=1e-8)
+    assert w[2] == 0.0 and w[5] == 0.0 and w[0] == pytest.approx(ref[0])
+
+
 def test_cv_keeps_the_quadratic_and_residual_for_two_minima():
     # No single quadratic form's profile has two minima: the CV must not pick it.
     rng = np.random.default_rng(3)
@@ -265,10 +305,23 @@ def test_cv_keeps_the_quadratic_and_residual_for_two_minima():
     assert model.trend_form_ == "quadratic" and math.isfinite(model.kernel_ridge_)
     single = [v for k, v in model.cv_scores_.items() if k[0] == "single_index"]
     assert single and min(single) > model.cv_scores_[model.cv_best_]
-    # Forced, it finds no rising profile either and falls back to the quadratic's CV pick.
+
+
+def test_a_forced_single_index_trend_without_a_rising_profile_falls_back():
+    # Values that fall away from the data's centre (a hill) have no rising profile: every
+    # non-negative profile weight is zero, and the fit is the quadratic as its CV picks it.
+    rng = np.random.default_rng(4)
+    X = rng.uniform(-1, 1, size=(600, 3))
+    g = np.repeat(np.arange(30), 20)
+    y = -np.sum(X**2, axis=1)
     forced = TrendKernelRegression(trend_form="single_index", random_state=0).fit(
-        X, value(X), groups=g)
-    assert forced.trend_form_ == "quadratic" and forced.cv_best_ == model.cv_best_
+        X, y, groups=g)
+    quadratic = TrendKernelRegression(trend_form="quadratic", random_state=0).fit(
+        X, y, groups=g)
+    assert forced.trend_form_ == "quadratic" and forced.cv_best_ == quadratic.cv_best_
+    assert all(not math.isfinite(v) for k, v in forced.cv_scores_.items()
+               if k[0] == "single_index")
+    np.testing.assert_allclose(forced.predict(X[:5]), quadratic.predict(X[:5]))
 
 
 def test_cv_searches_the_residual_with_free_offsets_too():
@@ -298,7 +351,8 @@ def test_state_round_trip_survives_json():
     rng = np.random.default_rng(4)
     value, grad = _quadratic(3, rng)
     X, g = _descent(grad, rng.normal(size=(8, 3)), 20, 0.05)
-    model = TrendKernelRegression(trend_ridge=math.inf, kernel_ridge=1e-3, length_scale=0.5,
+    model = TrendKernelRegression(trend_form="quadratic", trend_ridge=math.inf,
+                                  kernel_ridge=1e-3, length_scale=0.5,
                                   random_state=0).fit(X, value(X), groups=g)
     arrays, meta = model.get_state()
     meta = json.loads(json.dumps(meta, allow_nan=False))
@@ -327,6 +381,15 @@ def test_single_index_state_round_trip_survives_json():
     assert loaded.trend_form_ == "single_index" and math.isnan(loaded.trend_ridge_)
     with pytest.raises(ValueError, match="regressor state"):
         TrendKernelRegression.from_state({**arrays, "index_matrix": np.eye(2)}, meta)
+    # Version 2 files hold the profile without its steepening columns: they load with
+    # those weights zero.
+    old_weights = 2 + len(KNEES)
+    v2 = TrendKernelRegression.from_state({**arrays, "trend": arrays["trend"][:old_weights]},
+                                          {**meta, "version": 2})
+    zeroed = arrays["trend"].copy()
+    zeroed[old_weights:] = 0.0
+    v3 = TrendKernelRegression.from_state({**arrays, "trend": zeroed}, meta)
+    np.testing.assert_array_equal(v2.gradient(Q), v3.gradient(Q))
 
 
 @pytest.mark.parametrize("name", sorted(REGISTRY))
@@ -364,7 +427,8 @@ def test_trend_keeps_a_minimum_when_the_data_suggest_a_saddle():
     X = rng.uniform(-1.0, 1.0, size=(400, 2))
     y = X[:, 0] ** 2 - 0.3 * X[:, 1] ** 2
     g = np.repeat(np.arange(20), 20)
-    model = TrendKernelRegression(trend_ridge=1e-6, kernel_ridge=math.inf, offset_ridge=math.inf,
+    model = TrendKernelRegression(trend_form="quadratic", trend_ridge=1e-6,
+                                  kernel_ridge=math.inf, offset_ridge=math.inf,
                                   random_state=0).fit(X, y, groups=g)
     H = model._p * np.eye(2) + 2.0 * model._S
     lam = np.linalg.eigvalsh(H)

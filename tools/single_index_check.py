@@ -1,16 +1,19 @@
-"""A single-index trend against today's global model: the measurement behind the session-10
-lead in ``docs/notes/trend_kernel.md``. A prototype, not part of the package.
+"""The single-index trend on potentials far from quadratic: the measurement behind the
+session-10 lead in ``docs/notes/trend_kernel.md`` (a prototype, not part of the package),
+and since session 12 the check of the default model on the same data.
 
-Usage: ``python tools/single_index_check.py KIND N [SEED]`` with ``KIND`` one of ``sat``
+Usage: ``python tools/single_index_check.py KIND N [SEED [FORM]]`` with ``KIND`` one of ``sat``
 (a velocity-limited attractor, ``phi = sqrt(r^2 + q) - r``) or ``quart`` (``phi = q / 2 +
 q^2 / (4 r^2)``), ``q = (x - c)' W (x - c)``, in ``N`` dimensions; 30 demonstrations
 (80 from 10-D up) of 4 s at 50 Hz under one to three random constraint rows re-drawn at
 random times, and 10 more from new starts to score.
 
-``PolicyAlign()`` is fitted as a user would. Then, on its aligned potentials, the
+``PolicyAlign(regressor=TrendKernelRegression(trend_form=FORM))`` is fitted as a user
+would (``FORM`` ``cv``, the default, or ``quadratic`` for the quadratic family alone). Then,
+on its aligned potentials, the
 single-index model ``f(z) = sum_j beta_j B_j(q(z))`` is fitted, with
 ``q = ||L'(z - z0)||^2`` (``L`` lower triangular), the basis
-``{q / s^2, sqrt(q + c_j^2) - c_j}`` and ``c_j = s * KNEES`` (``s`` the median of
+of ``single_index.profile_basis`` and ``c_j = s * KNEES`` (``s`` the median of
 ``sqrt(q)`` at the start), with one free offset per demonstration. ``(L, z0)`` start from
 the trend-alone fit of ``TrendKernelRegression`` and are fitted by variable projection
 (``policy_align_ros.learning.regressors.single_index.fit_index``, which this prototype
@@ -26,7 +29,6 @@ import sys
 import time
 
 import numpy as np
-import scipy.linalg
 
 from policy_align_ros.experiments.demonstrators import rollout
 from policy_align_ros.learning import PolicyAlign, metrics
@@ -36,6 +38,7 @@ from policy_align_ros.learning.regressors.single_index import (
     index_form,
     profile_basis,
     profile_gradient,
+    profile_weights,
 )
 
 
@@ -93,8 +96,13 @@ def main() -> None:
     Xt = np.concatenate([d.trajectory.positions for d in test])
     pi = np.concatenate([d.policy for d in test])
 
-    model = PolicyAlign(random_state=0).fit([d.trajectory for d in train])
-    print(f"{kind} {n}-D: PolicyAlign() today nUPE {metrics.nupe(pi, model.policy(Xt)):.4f}")
+    form = sys.argv[4] if len(sys.argv) > 4 else "cv"
+    t0 = time.perf_counter()
+    model = PolicyAlign(regressor=TrendKernelRegression(trend_form=form), random_state=0)
+    model.fit([d.trajectory for d in train])
+    print(f"{kind} {n}-D seed {seed}: PolicyAlign(trend_form={form!r}) nUPE "
+          f"{metrics.nupe(pi, model.policy(Xt)):.4f} (picked {model.regressor_.trend_form_}, "
+          f"fit {time.perf_counter() - t0:.1f} s)")
 
     X = np.concatenate([d.trajectory.positions for d in train])
     y = np.concatenate(model.aligned_potentials_)
@@ -111,8 +119,7 @@ def main() -> None:
     s = math.sqrt(float(np.median(index_form(Z, L0, z0)[1])))
     L, z = fit_index(Z, u, groups[sub], L0, z0, s, max_nfev=50)
     _, demo = np.unique(groups[sub], return_inverse=True)
-    design = np.hstack([np.eye(demo.max() + 1)[demo], profile_basis(index_form(Z, L, z)[1], s)[0]])
-    beta = scipy.linalg.lstsq(design, u)[0][demo.max() + 1:]
+    beta = profile_weights(profile_basis(index_form(Z, L, z)[1], s)[0], u, demo)
     grad = profile_gradient((Xt - trend.mean_) / trend.scale_, L, z, s, beta)
     nupe = metrics.nupe(pi, -grad * y.std() / trend.scale_)
     print(f"{kind} {n}-D: single-index trend nUPE {nupe:.4f} "

@@ -6,20 +6,27 @@ States ``z`` (n,) are standardised (see :mod:`.trend_kernel`). The trend is::
 
     u(z) = beta_0 + sum_j beta_j B_j(q(z)),    q(z) = ||L' (z - z0)||^2
 
-with ``L`` (n, n) lower triangular, the goal ``z0`` (n,) and the *profile* basis
-``B(q) = [q / s^2, sqrt(q + c_j^2) - c_j]``, ``c_j = s * KNEES[j]``, ``s`` a typical
-``sqrt(q)`` of the data. The first column is the quadratic bowl; the others are
-hyperbolas, quadratic for ``q << c_j^2`` and a cone beyond, so the profile bends from a
-bowl near the goal to a bounded slope far from it (a velocity-limited demonstrator) or,
-with negative weights, grows faster than a bowl.
+with ``L`` (n, n) lower triangular, the goal ``z0`` (n,) and the *profile* basis::
+
+    B(q) = [q / s^2,  h_j(q),  h_j(q)^2 / s^2],   h_j(q) = sqrt(q + c_j^2) - c_j
+
+``c_j = s * KNEES[j]``, ``s`` a typical ``sqrt(q)`` of the data. The first column is the
+quadratic bowl. The hyperbolas ``h_j`` are quadratic for ``q << c_j^2`` and a cone
+beyond: they bend the profile from a bowl near the goal to a bounded slope far from it (a
+velocity-limited demonstrator). Their squares (``q - 2 c_j h_j``, with derivative
+``(1 - c_j / sqrt(q + c_j^2)) / s^2``) grow like ``q^2`` below ``c_j^2`` and like the
+bowl beyond: a profile that steepens away from the goal. Every column rises in ``q``, so with the
+profile weights ``beta_j >= 0`` the profile rises by construction and ``z0`` is the
+trend's only minimum. (Signed weights on the first two kinds could steepen a profile too,
+but then it often fell near ``q = 0``, a ridge around the goal.)
 
 A quadratic trend cannot bend that way; a kernel residual can only within its length
 scale of the data. The index ``(L, z0)`` enters nonlinearly and is fitted by variable
-projection (Golub and Pereyra): ``beta`` and one free offset per demonstration come from
-linear least squares inside the residual, and the Jacobian is Kaufman's,
-``-P_perp (dB / dtheta) beta``. Started from a quadratic trend's Hessian and minimum it
-converges in about ten evaluations (``tools/single_index_check.py``,
-``docs/notes/trend_kernel.md``).
+projection (Golub and Pereyra): ``beta`` (non-negative least squares) and one free offset
+per demonstration are solved for inside the residual, and the Jacobian is Kaufman's on
+the active columns, ``-P_perp (dB / dtheta) beta``. Started from a quadratic trend's
+Hessian and minimum it converges in about ten evaluations
+(``tools/single_index_check.py``, ``docs/notes/trend_kernel.md``).
 """
 
 from __future__ import annotations
@@ -27,11 +34,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg
 import scipy.optimize
 
-__all__ = ["KNEES", "fit_index", "increasing", "index_form", "profile_basis",
-           "profile_gradient"]
+__all__ = ["KNEES", "centred", "fit_index", "increasing", "index_form", "profile_basis",
+           "profile_gradient", "profile_weights"]
 
 #: Knees ``c_j / s`` of the hyperbolas: from a fraction of the data's typical radius to
 #: a few times it.
@@ -50,12 +56,29 @@ def profile_basis(q: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
 
     Returns
     -------
-    B, dB : ndarray (m, 1 + len(KNEES))
+    B, dB : ndarray (m, 1 + 2 len(KNEES))
+        Columns: the bowl, the hyperbolas, the steepening columns (module docstring).
     """
     c = s * np.asarray(KNEES)
     root = np.sqrt(q[:, None] + c**2)
-    return (np.column_stack([q / s**2, root - c]),
-            np.column_stack([np.full(len(q), 1.0 / s**2), 0.5 / root]))
+    hyper = q[:, None] / (root + c)  # sqrt(q + c^2) - c without cancellation at small q
+    return (np.column_stack([q / s**2, hyper, hyper**2 / s**2]),
+            np.column_stack([np.full(len(q), 1.0 / s**2), 0.5 / root, hyper / (root * s**2)]))
+
+
+def centred(M: np.ndarray, demo: np.ndarray) -> np.ndarray:
+    """Columns of ``M`` (m, p) minus their mean over each demonstration, ``demo`` (m,) in
+    ``0..K-1``: the residual of a free per-demonstration offset."""
+    nk = np.bincount(demo).astype(float)
+    sums = np.stack([np.bincount(demo, weights=col, minlength=len(nk)) for col in M.T], 1)
+    return M - (sums / np.maximum(nk, 1.0)[:, None])[demo]
+
+
+def profile_weights(B: np.ndarray, u: np.ndarray, demo: np.ndarray) -> np.ndarray:
+    """Non-negative profile weights ``beta`` (p,) fitting ``u`` (m,) with the basis ``B``
+    (m, p) and one free offset per demonstration (``demo`` (m,) in ``0..K-1``)."""
+    return scipy.optimize.nnls(centred(B, demo), centred(u[:, None], demo)[:, 0],
+                               maxiter=50 * B.shape[1])[0]
 
 
 def index_form(Z: np.ndarray, L: np.ndarray, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +89,7 @@ def index_form(Z: np.ndarray, L: np.ndarray, z0: np.ndarray) -> tuple[np.ndarray
 
 def profile_gradient(Z: np.ndarray, L: np.ndarray, z0: np.ndarray, s: float,
                      beta: np.ndarray) -> np.ndarray:
-    """``grad_z u`` (m, n) of the trend with profile weights ``beta`` (1 + len(KNEES),),
+    """``grad_z u`` (m, n) of the trend with profile weights ``beta`` (1 + 2 len(KNEES),),
     the constant excluded: ``g'(q) 2 L D'``."""
     D, q = index_form(Z, L, z0)
     _, dB = profile_basis(q, s)
@@ -74,13 +97,13 @@ def profile_gradient(Z: np.ndarray, L: np.ndarray, z0: np.ndarray, s: float,
 
 
 def increasing(beta: np.ndarray, s: float, q_max: float) -> bool:
-    """Whether the profile ``g(q) = sum_j beta_j B_j(q)`` rises on ``[0, 100 q_max]``.
+    """Whether the profile ``g(q) = sum_j beta_j B_j(q)`` rises on ``(0, 100 q_max]``.
 
     Then ``z0`` is the trend's only minimum and its gradient points away from it
-    everywhere the data reach and well beyond; a profile that falls somewhere would send
-    the policy uphill toward a ridge.
+    everywhere the data reach and well beyond. Non-negative weights rise unless they are
+    all zero (a flat trend); the check guards the fit's output whatever produced it.
     """
-    q = np.concatenate([[0.0], np.geomspace(1e-6 * s**2, 100.0 * max(q_max, s**2), 200)])
+    q = np.geomspace(1e-6 * s**2, 100.0 * max(q_max, s**2), 200)
     _, dB = profile_basis(q, s)
     return bool(np.all(dB @ beta > 0.0))
 
@@ -113,8 +136,7 @@ def fit_index(Z: np.ndarray, u: np.ndarray, demo: np.ndarray, L: np.ndarray,
     m, n = Z.shape
     il = np.tril_indices(n)
     _, k = np.unique(demo, return_inverse=True)
-    offsets = np.zeros((m, int(k.max()) + 1))
-    offsets[np.arange(m), k] = 1.0
+    uc = centred(u[:, None], k)[:, 0]
 
     def unpack(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         L_ = np.zeros((n, n))
@@ -126,27 +148,31 @@ def fit_index(Z: np.ndarray, u: np.ndarray, demo: np.ndarray, L: np.ndarray,
         E = Z - z_
         D = E @ L_
         B, dB = profile_basis(np.einsum("ij,ij->i", D, D), s)
-        Q, R = np.linalg.qr(np.hstack([offsets, B]))
-        return L_, E, D, dB, Q, R
+        Bc = centred(B, k)
+        beta = scipy.optimize.nnls(Bc, uc, maxiter=50 * B.shape[1])[0]
+        # At the NNLS solution the zero weights stay at their bound for small steps: the
+        # projection is onto the active columns.
+        active = beta > 0.0
+        Q = np.linalg.qr(Bc[:, active])[0] if active.any() else np.zeros((m, 0))
+        return L_, E, D, dB, Bc, beta, Q
 
     def residual(theta: np.ndarray) -> np.ndarray:
-        *_, Q, _ = design(theta)
-        return u - Q @ (Q.T @ u)
+        _, _, _, _, Bc, beta, _ = design(theta)
+        return uc - Bc @ beta
 
     def jacobian(theta: np.ndarray) -> np.ndarray:
-        L_, E, D, dB, Q, R = design(theta)
-        coef = scipy.linalg.lstsq(R, Q.T @ u, check_finite=False)[0]
-        slope = dB @ coef[offsets.shape[1]:]
+        L_, E, D, dB, _, beta, Q = design(theta)
+        slope = dB @ beta
         # dq / dL_ij = 2 E_i D_j (i >= j), dq / dz0 = -2 L D
         dq = np.hstack([2.0 * E[:, il[0]] * D[:, il[1]], -2.0 * D @ L_.T])
-        M = slope[:, None] * dq
+        M = centred(slope[:, None] * dq, k)
         return -(M - Q @ (Q.T @ M))
 
     theta0 = np.concatenate([L[il], z0])
     try:
         result = scipy.optimize.least_squares(residual, theta0, jac=jacobian,
                                               max_nfev=max_nfev, x_scale="jac")
-    except (np.linalg.LinAlgError, ValueError):
+    except (np.linalg.LinAlgError, ValueError, RuntimeError):  # RuntimeError: NNLS
         return L, z0
     if not np.all(np.isfinite(result.x)) or not math.isfinite(result.cost):
         return L, z0

@@ -77,6 +77,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 import scipy.linalg.blas
+import scipy.optimize
 import scipy.sparse
 
 from policy_align_ros.learning.regressors import single_index
@@ -122,7 +123,7 @@ TREND_FORMS = ("quadratic", "single_index")
 INDEX_FIT_POINTS = 2000
 INDEX_NFEV = 20
 INDEX_FOLD_NFEV = 6
-_STATE_VERSION = 2
+_STATE_VERSION = 3
 _HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
 
 
@@ -170,15 +171,18 @@ class _FoldGrams:
 
     def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
                  n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None,
-                 convex: bool = True):
+                 convex: bool = True, nonneg: bool = False):
         """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
         shared by every length scale), so only the blocks of the new columns are summed.
         ``free`` (K,) bool: demonstrations whose offsets are free at every
         ``offset_ridge`` (default: none). ``convex``: the first columns of ``A`` are
         :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps positive
-        definite; otherwise the solves are plain."""
+        definite. ``nonneg`` (with ``convex`` false): ``A`` is the single-index design
+        ``[1, B]``, whose profile weights :func:`_nonneg_solve` keeps >= 0. Otherwise the
+        solves are plain."""
         self.n = n
         self.convex = convex
+        self.nonneg = nonneg
         self.free = (np.zeros(len(demo_fold), dtype=bool) if free is None
                      else np.asarray(free, dtype=bool))
         n_demos = len(demo_fold)
@@ -262,6 +266,8 @@ class _FoldGrams:
         for penalty, w in zip(penalties, first, strict=True):
             if self.convex:
                 w = _convex_solve(M + penalty, r / m, self.n, w)
+            elif self.nonneg:
+                w = _nonneg_solve(M + penalty, r / m, 1)
             ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
             out.append(self.shape_error(f, w) if ok else math.inf)
         return out
@@ -442,6 +448,28 @@ def _symmetric(coef: np.ndarray, n: int) -> np.ndarray:
     return S
 
 
+def _nonneg_solve(M: np.ndarray, b: np.ndarray, free: int) -> np.ndarray | None:
+    """Minimise ``w' M w - 2 b' w`` over ``w`` (p,) with ``w[free:] >= 0`` (the
+    single-index profile's weights after its constant); None if ``M`` is not positive
+    definite.
+
+    The first ``free`` entries are eliminated in closed form; the rest is the NNLS problem
+    ``min ||R w - R^-T c||`` on the Cholesky factor ``R`` of their Schur complement.
+    """
+    try:
+        F = scipy.linalg.cho_factor(M[:free, :free], check_finite=False)
+        X = scipy.linalg.cho_solve(F, np.column_stack([M[:free, free:], b[:free]]),
+                                   check_finite=False)
+        R = scipy.linalg.cholesky(M[free:, free:] - M[free:, :free] @ X[:, :-1],
+                                  check_finite=False)
+        c = b[free:] - M[free:, :free] @ X[:, -1]
+        t = scipy.linalg.solve_triangular(R, c, trans="T", check_finite=False)
+        beta = scipy.optimize.nnls(R, t, maxiter=50 * len(t))[0]
+    except (np.linalg.LinAlgError, ValueError, RuntimeError):
+        return None
+    return np.concatenate([X[:, -1] - X[:, :-1] @ beta, beta])
+
+
 def _solve(M: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     try:
         return scipy.linalg.cho_solve(scipy.linalg.cho_factor(M, check_finite=False), b,
@@ -509,7 +537,7 @@ class TrendKernelRegression:
         Standardisation of the states (state units).
     y_mean_, y_scale_ : float
         Standardisation of the outputs.
-    trend_ : ndarray (2 + n + n (n + 1) / 2,) or (2 + len(KNEES),)
+    trend_ : ndarray (2 + n + n (n + 1) / 2,) or (2 + 2 len(KNEES),)
         Trend coefficients (standardised units): of :func:`quadratic_features`, or the
         constant and the profile weights of the single-index trend.
     index_matrix_, index_goal_, index_scale_ : ndarray (n, n), ndarray (n,), float
@@ -731,7 +759,7 @@ class TrendKernelRegression:
         L, z, s = self._index
         Zs, us, ds = cv.Z[sub], cv.u[sub], cv.demo[sub]
         n_folds = int(cv.demo_fold.max()) + 1
-        penalty = [JITTER * np.eye(2 + len(single_index.KNEES))]
+        penalty = [JITTER * np.eye(_n_index_weights())]
         err = np.zeros((len(o_grid), n_folds))
         for f in range(n_folds):
             keep = cv.demo_fold[ds] != f
@@ -739,7 +767,7 @@ class TrendKernelRegression:
                                             INDEX_FOLD_NFEV)
             A, q_max = _index_design(cv.Z, Lf, zf, s)
             grams = _FoldGrams(A, cv.u, cv.demo, cv.demo_fold, n, free=cv.trend.free,
-                               convex=False)
+                               convex=False, nonneg=True)
 
             def rises(w: np.ndarray, q_max: float = q_max) -> bool:
                 return single_index.increasing(w[1:], s, q_max)
@@ -867,9 +895,9 @@ class TrendKernelRegression:
         L, z0, s = self._index
         A, q_max = _index_design(Z, L, z0, s)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
-                           free=free, convex=False)
+                           free=free, convex=False, nonneg=True)
         G, r, m = grams.profiled_all(self.offset_ridge_)
-        w = _solve(G / m + JITTER * np.eye(len(G)), r / m)
+        w = _nonneg_solve(G / m + JITTER * np.eye(len(G)), r / m, 1)
         if w is None or not np.all(np.isfinite(w)) or not single_index.increasing(
                 w[1:], s, q_max):
             return False
@@ -985,8 +1013,11 @@ class TrendKernelRegression:
             model.y_mean_ = float(meta["y_mean"])
             model.y_scale_ = float(meta["y_scale"])
             model.mean_ = np.asarray(arrays["mean"], dtype=float).reshape(n)
-            model.trend_ = np.asarray(arrays["trend"], dtype=float).reshape(
-                2 + len(single_index.KNEES) if single else _n_trend(n))
+            trend = np.asarray(arrays["trend"], dtype=float).ravel()
+            if single and int(meta["version"]) < 3:
+                # Version 2's profile had no steepening columns: their weights are zero.
+                trend = np.concatenate([trend, np.zeros(len(single_index.KNEES))])
+            model.trend_ = trend.reshape(_n_index_weights() if single else _n_trend(n))
             model.index_matrix_ = np.asarray(arrays["index_matrix"] if single else
                                              np.zeros((0, n)), dtype=float).reshape(-1, n)
             model.index_goal_ = np.asarray(arrays["index_goal"] if single else np.zeros(0),
@@ -1052,10 +1083,15 @@ def _quadratic_index(grams: _FoldGrams, n: int, penalty: np.ndarray
     return np.linalg.cholesky((V * lam) @ V.T), z0
 
 
+def _n_index_weights() -> int:
+    """Coefficients of the single-index trend: the constant and the profile's weights."""
+    return 2 + 2 * len(single_index.KNEES)
+
+
 def _index_design(Z: np.ndarray, L: np.ndarray, z0: np.ndarray, s: float
                   ) -> tuple[np.ndarray, float]:
-    """The single-index trend's design ``[1, B(q(z))]`` (m, 2 + len(KNEES)) and the
-    largest ``q`` of the samples."""
+    """The single-index trend's design ``[1, B(q(z))]`` (m, :func:`_n_index_weights`) and
+    the largest ``q`` of the samples."""
     _, q = single_index.index_form(Z, L, z0)
     B, _ = single_index.profile_basis(q, s)
     return np.hstack([np.ones((len(Z), 1)), B]), float(q.max(initial=0.0))
