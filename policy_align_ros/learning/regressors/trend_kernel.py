@@ -261,13 +261,14 @@ class _FoldGrams:
             G, r, m = self.profiled(~held, self.G_all - self.G[f],
                                     self.r_all - self.r[f], offset_ridge)
         M = G / m
-        first = _solve_shared(M, r / m, penalties, shared)
+        if self.nonneg:
+            first = [_nonneg_solve(M + penalty, r / m, 1) for penalty in penalties]
+        else:
+            first = _solve_shared(M, r / m, penalties, shared)
         out = []
         for penalty, w in zip(penalties, first, strict=True):
             if self.convex:
                 w = _convex_solve(M + penalty, r / m, self.n, w)
-            elif self.nonneg:
-                w = _nonneg_solve(M + penalty, r / m, 1)
             ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
             out.append(self.shape_error(f, w) if ok else math.inf)
         return out
