@@ -8,7 +8,11 @@ import pytest
 import scipy.optimize
 
 from policy_align_ros.learning import PolicyAlign
-from policy_align_ros.learning.regressors import REGISTRY, NotFittedError, TrendKernelRegression
+from policy_align_ros.learning.regressors import (
+    REGISTRY,
+    NotFittedError,
+    TrendKernelRegression,
+)
 from policy_align_ros.learning.regressors.single_index import KNEES
 from policy_align_ros.learning.regressors.trend_kernel import (
     CURVATURE_FLOOR,

@@ -746,8 +746,7 @@ class TrendKernelRegression:
         n = Z.shape[1]
         L0, z0 = _quadratic_index(grams, n, self._trend_penalty(n, t_init))
         sub = np.sort(rng.choice(len(u), size=min(INDEX_FIT_POINTS, len(u)), replace=False))
-        q0 = single_index.index_form(Z[sub], L0, z0)[1]
-        s = math.sqrt(float(np.median(q0))) or 1.0
+        s = _profile_scale(Z[sub], L0, z0)
         L, z = single_index.fit_index(Z[sub], u[sub], demo[sub], L0, z0, s, INDEX_NFEV)
         self._index = (L, z, s)
         return sub
@@ -758,12 +757,11 @@ class TrendKernelRegression:
 
         Its index is fitted on all data (the final fit's), then again without every fold's
         demonstrations, started from the quadratic trend fitted without them: a held-out
-        demonstration never shapes the index it is scored with, nor its start. (Started
-        from the fit on all data, four demonstrations in 7-D scored an index that had seen
-        them, and the CV preferred it to the quadratic wrongly.)"""
+        demonstration never shapes the index it is scored with, nor its start or scale.
+        (Started from the fit on all data, four demonstrations in 7-D scored an index that
+        had seen them, and the CV preferred it to the quadratic wrongly.)"""
         n = cv.n
         sub = self._fit_index(cv.trend, cv.Z, cv.u, cv.demo, t_init, rng)
-        _, _, s = self._index
         start_penalty = self._trend_penalty(n, t_init)
         Zs, us, ds = cv.Z[sub], cv.u[sub], cv.demo[sub]
         n_folds = int(cv.demo_fold.max()) + 1
@@ -772,13 +770,14 @@ class TrendKernelRegression:
         for f in range(n_folds):
             keep = cv.demo_fold[ds] != f
             L0, z0 = _quadratic_index(cv.trend, n, start_penalty, fold=f)
+            s = _profile_scale(Zs[keep], L0, z0)
             Lf, zf = single_index.fit_index(Zs[keep], us[keep], ds[keep], L0, z0, s,
                                             INDEX_FOLD_NFEV)
             A, q_max = _index_design(cv.Z, Lf, zf, s)
             grams = _FoldGrams(A, cv.u, cv.demo, cv.demo_fold, n, free=cv.trend.free,
                                convex=False, nonneg=True)
 
-            def rises(w: np.ndarray, q_max: float = q_max) -> bool:
+            def rises(w: np.ndarray, q_max: float = q_max, s: float = s) -> bool:
                 return single_index.increasing(w[1:], s, q_max)
 
             for i, o in enumerate(o_grid):
@@ -1091,6 +1090,12 @@ def _quadratic_index(grams: _FoldGrams, n: int, penalty: np.ndarray, fold: int |
     lam = np.maximum(lam, CURVATURE_FLOOR * lam[-1]) if lam[-1] > 0 else np.ones(n)
     z0 = -V @ ((V.T @ w[1:1 + n]) / lam)
     return np.linalg.cholesky((V * lam) @ V.T), z0
+
+
+def _profile_scale(Z: np.ndarray, L: np.ndarray, z0: np.ndarray) -> float:
+    """The profile basis' scale ``s``: the median ``sqrt(q)`` of ``Z`` (m, n) under the
+    index ``(L, z0)``, or 1."""
+    return math.sqrt(float(np.median(single_index.index_form(Z, L, z0)[1]))) or 1.0
 
 
 def _n_index_weights() -> int:
