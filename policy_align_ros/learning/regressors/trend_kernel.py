@@ -498,7 +498,7 @@ class TrendKernelRegression:
         :data:`CV_RESOLUTION`. On velocity-limited and quartic attractors in 3-22
         dimensions it took the median nUPE from new starts from 0.17 to 0.0003 (16 data
         sets, tuning seeds) and from 0.12 to 0.001 (8 others), and it ties on
-        ``bench suite``, at 1.6-2.5 times the fit time of its 22-D quadratics
+        ``bench suite``, at 1.6-2.6 times the fit time of its 22-D quadratics
         (``docs/notes/trend_kernel.md``).
     trend_ridge : "cv" or float
         Penalty on the anisotropic part ``S`` of the quadratic trend (standardised units;
