@@ -171,17 +171,15 @@ class _FoldGrams:
 
     def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
                  n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None,
-                 convex: bool = True, nonneg: bool = False):
+                 nonneg: bool = False):
         """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
         shared by every length scale), so only the blocks of the new columns are summed.
         ``free`` (K,) bool: demonstrations whose offsets are free at every
-        ``offset_ridge`` (default: none). ``convex``: the first columns of ``A`` are
-        :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps positive
-        definite. ``nonneg`` (with ``convex`` false): ``A`` is the single-index design
-        ``[1, B]``, whose profile weights :func:`_nonneg_solve` keeps >= 0. Otherwise the
-        solves are plain."""
+        ``offset_ridge`` (default: none). The folds' solves: by default the first columns
+        of ``A`` are :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps
+        positive definite; with ``nonneg``, ``A`` is the single-index design ``[1, B]``,
+        whose profile weights :func:`_nonneg_solve` keeps >= 0."""
         self.n = n
-        self.convex = convex
         self.nonneg = nonneg
         self.free = (np.zeros(len(demo_fold), dtype=bool) if free is None
                      else np.asarray(free, dtype=bool))
@@ -254,13 +252,13 @@ class _FoldGrams:
         G, r, m = self.without(f, offset_ridge)
         M = G / m
         if self.nonneg:
-            first = [_nonneg_solve(M + penalty, r / m, 1) for penalty in penalties]
+            solved = [_nonneg_solve(M + penalty, r / m, 1) for penalty in penalties]
         else:
             first = _solve_shared(M, r / m, penalties, shared)
+            solved = [_convex_solve(M + penalty, r / m, self.n, w)
+                      for penalty, w in zip(penalties, first, strict=True)]
         out = []
-        for penalty, w in zip(penalties, first, strict=True):
-            if self.convex:
-                w = _convex_solve(M + penalty, r / m, self.n, w)
+        for w in solved:
             ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
             out.append(self.shape_error(f, w) if ok else math.inf)
         return out
@@ -775,7 +773,7 @@ class TrendKernelRegression:
                                             INDEX_FOLD_NFEV)
             A, q_max = _index_design(cv.Z, Lf, zf, s)
             grams = _FoldGrams(A, cv.u, cv.demo, cv.demo_fold, n, free=cv.trend.free,
-                               convex=False, nonneg=True)
+                               nonneg=True)
 
             def rises(w: np.ndarray, q_max: float = q_max, s: float = s) -> bool:
                 return single_index.increasing(w[1:], s, q_max)
@@ -903,7 +901,7 @@ class TrendKernelRegression:
         L, z0, s = self._index
         A, q_max = _index_design(Z, L, z0, s)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
-                           free=free, convex=False, nonneg=True)
+                           free=free)
         G, r, m = grams.profiled_all(self.offset_ridge_)
         w = _nonneg_solve(G / m + JITTER * np.eye(len(G)), r / m, 1)
         if w is None or not np.all(np.isfinite(w)) or not single_index.increasing(
