@@ -107,7 +107,8 @@ def main() -> None:
     X = np.concatenate([d.trajectory.positions for d in train])
     y = np.concatenate(model.aligned_potentials_)
     groups = np.repeat(np.arange(k), steps)
-    trend = TrendKernelRegression(kernel_ridge=math.inf).fit(X, y, groups=groups)
+    trend = TrendKernelRegression(trend_form="quadratic", kernel_ridge=math.inf).fit(
+        X, y, groups=groups)
     H = trend._p * np.eye(n) + 2.0 * trend._S
     z0 = -np.linalg.solve(H, trend._b)
     lam, V = np.linalg.eigh(H)

@@ -143,7 +143,18 @@ def fit_index(Z: np.ndarray, u: np.ndarray, demo: np.ndarray, L: np.ndarray,
         L_[il] = theta[:len(il[0])]
         return L_, theta[len(il[0]):]
 
+    cache: dict[bytes, tuple] = {}
+
     def design(theta: np.ndarray):
+        # least_squares asks for the Jacobian at the point whose residual it has just
+        # evaluated: one entry saves the second NNLS and QR there.
+        key = theta.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = _design(theta)
+        return cache[key]
+
+    def _design(theta: np.ndarray):
         L_, z_ = unpack(theta)
         E = Z - z_
         D = E @ L_
