@@ -311,6 +311,29 @@ def test_cv_keeps_the_quadratic_and_residual_for_two_minima():
     assert single and min(single) > model.cv_scores_[model.cv_best_]
 
 
+def test_the_single_index_folds_stop_once_it_cannot_win():
+    # Two minima: after one fold the single-index trend's error already exceeds the
+    # quadratic family's whole CV score. Its scores are then lower bounds of those that
+    # all folds give (the forced form scores every fold), and the pick is unchanged.
+    rng = np.random.default_rng(3)
+    value, grad = _two_minima()
+    X, g = _descent(grad, rng.uniform([-1.8, -1.2], [1.8, 1.2], size=(30, 2)), 60, 0.05)
+    y = value(X)
+    cv = TrendKernelRegression(trend_form="cv", random_state=0).fit(X, y, groups=g)
+    forced = TrendKernelRegression(trend_form="single_index", random_state=0).fit(
+        X, y, groups=g)
+    quadratic = TrendKernelRegression(trend_form="quadratic", random_state=0).fit(
+        X, y, groups=g)
+    assert cv.cv_best_ == quadratic.cv_best_
+    np.testing.assert_array_equal(cv.gradient(X[:50]), quadratic.gradient(X[:50]))
+    single = [k for k in cv.cv_scores_ if k[0] == "single_index"]
+    assert single and all(math.isnan(cv.cv_standard_errors_[k]) for k in single)
+    best = cv.cv_scores_[cv.cv_best_]
+    for key in single:
+        assert best <= cv.cv_scores_[key] < forced.cv_scores_[key]
+        assert math.isfinite(forced.cv_standard_errors_[key])
+
+
 def test_a_forced_single_index_trend_without_a_rising_profile_falls_back():
     # Values that fall away from the data's centre (a hill) have no rising profile: every
     # non-negative profile weight is zero, and the fit is the quadratic as its CV picks it.

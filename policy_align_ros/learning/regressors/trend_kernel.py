@@ -119,10 +119,10 @@ CHUNK = 8192
 #: :mod:`.single_index` (a profile of one quadratic form; no residual on top).
 TREND_FORMS = ("quadratic", "single_index")
 #: Samples (a random subset of the thinned data) on which the single-index trend's index is
-#: fitted, and the residual evaluations allowed: from all data, then per fold from there.
+#: fitted, and the residual evaluations allowed, for the final fit and every fold's alike
+#: (the folds score the procedure the final fit runs).
 INDEX_FIT_POINTS = 2000
 INDEX_NFEV = 20
-INDEX_FOLD_NFEV = 6
 _STATE_VERSION = 3
 _HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
 
@@ -531,9 +531,11 @@ class TrendKernelRegression:
         Held-out shape error (over the within-demonstration spread) per evaluated
         ``(trend_form, trend_ridge, length_scale, kernel_ridge, offset_ridge)``;
         ``length_scale`` is NaN for the trend alone, ``trend_ridge`` for the single-index
-        trend.
+        trend. The single-index trend's folds stop once it cannot beat the quadratic
+        family's pick; its scores are then lower bounds.
     cv_standard_errors_ : dict
-        Standard error over the folds of every entry of ``cv_scores_``.
+        Standard error over the folds of every entry of ``cv_scores_`` (NaN for a lower
+        bound).
     cv_best_ : tuple or None
         The key of ``cv_scores_`` chosen (None without cross-validation).
     mean_, scale_ : ndarray (n,), float
@@ -724,7 +726,8 @@ class TrendKernelRegression:
         else:
             scores = cv.trend.scores([self._trend_penalty(cv.n, t) for t in t_grid], 0.0)
             t_init = t_grid[int(np.argmin([score for score, _ in scores]))]
-        index = self._index_search(cv, t_init, o_grid, rng)
+        bound = math.inf if quadratic is None else self.cv_scores_[quadratic] - CV_RESOLUTION
+        index = self._index_search(cv, t_init, o_grid, rng, bound)
         if quadratic is None and not math.isfinite(self.cv_scores_[index]):
             # No fold's profile rose (two minima, say): the quadratic as the CV picks it,
             # not at mid-grid penalties.
@@ -750,8 +753,12 @@ class TrendKernelRegression:
         return sub
 
     def _index_search(self, cv: _CVData, t_init: float, o_grid: list[float],
-                      rng: np.random.Generator) -> tuple:
+                      rng: np.random.Generator, bound: float = math.inf) -> tuple:
         """Score the single-index trend per offset penalty; return its best key.
+
+        The folds stop once those scored already sum to ``bound`` (the score it has to
+        beat) for every offset penalty: the rest can only add error. The scores recorded
+        are then those lower bounds, with standard error NaN.
 
         Its index is fitted on all data (the final fit's), then again without every fold's
         demonstrations, started from the quadratic trend fitted without them: a held-out
@@ -765,12 +772,13 @@ class TrendKernelRegression:
         n_folds = int(cv.demo_fold.max()) + 1
         penalty = [JITTER * np.eye(_n_index_weights())]
         err = np.zeros((len(o_grid), n_folds))
+        stopped = False
         for f in range(n_folds):
             keep = cv.demo_fold[ds] != f
             L0, z0 = _quadratic_index(cv.trend, n, start_penalty, fold=f)
             s = _profile_scale(Zs[keep], L0, z0)
             Lf, zf = single_index.fit_index(Zs[keep], us[keep], ds[keep], L0, z0, s,
-                                            INDEX_FOLD_NFEV)
+                                            INDEX_NFEV)
             A, q_max = _index_design(cv.Z, Lf, zf, s)
             grams = _FoldGrams(A, cv.u, cv.demo, cv.demo_fold, n, free=cv.trend.free,
                                nonneg=True)
@@ -780,8 +788,14 @@ class TrendKernelRegression:
 
             for i, o in enumerate(o_grid):
                 err[i, f] = grams.fold_errors(f, penalty, o, accept=rises)[0]
+            stopped = f + 1 < n_folds and err.sum(axis=1).min() / cv.trend.shape_ss >= bound
+            if stopped:
+                break
         keys = [("single_index", math.nan, math.nan, math.inf, o) for o in o_grid]
-        self._record(keys, _fold_summary(err, cv.trend.shape_ss))
+        summary = _fold_summary(err, cv.trend.shape_ss)
+        if stopped:
+            summary = [(score, math.nan) for score, _ in summary]
+        self._record(keys, summary)
         return _simplest_within(self.cv_scores_, keys, 0.0, lambda key: -key[4])
 
     def _quadratic_search(self, cv: _CVData, lengths: list[float], t_grid: list[float],
