@@ -1,12 +1,14 @@
 """The single-index trend's maths (policy_align_ros.learning.regressors.single_index)."""
 
 import numpy as np
+import scipy.optimize
 
 from policy_align_ros.learning.regressors.single_index import (
     KNEES,
     fit_index,
     increasing,
     index_form,
+    levenberg_marquardt,
     profile_basis,
     profile_gradient,
     profile_weights,
@@ -88,3 +90,24 @@ def test_profile_weights_fit_a_steepening_profile_with_unknown_offsets():
     assert np.all(beta >= 0.0)
     grid = np.linspace(0.1, 4.0, 40)
     np.testing.assert_allclose(profile_basis(grid, 1.0)[1] @ beta, 1 + grid / 2, rtol=0.05)
+
+
+def test_levenberg_marquardt_finds_the_least_squares_solution_of_a_curve_fit():
+    # y = a exp(-b t) + c, from a start far off: the same optimum as SciPy's solver.
+    t = np.linspace(0.0, 4.0, 60)
+    rng = np.random.default_rng(0)
+    y = 2.0 * np.exp(-1.3 * t) + 0.5 + 0.01 * rng.standard_normal(len(t))
+
+    def residual(p):
+        return p[0] * np.exp(-p[1] * t) + p[2] - y
+
+    def jacobian(p):
+        e = np.exp(-p[1] * t)
+        return np.column_stack([e, -p[0] * t * e, np.ones_like(t)])
+
+    start = np.array([1.0, 0.3, 0.0])
+    got = levenberg_marquardt(residual, jacobian, start, 100)
+    want = scipy.optimize.least_squares(residual, start, jac=jacobian, xtol=1e-14,
+                                        ftol=1e-14, gtol=1e-14).x
+    np.testing.assert_allclose(got, want, rtol=1e-5)
+    assert np.sum(residual(got) ** 2) < np.sum(residual(start) ** 2)

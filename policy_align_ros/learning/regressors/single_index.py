@@ -24,8 +24,9 @@ A quadratic trend cannot bend that way; a kernel residual can only within its le
 scale of the data. The index ``(L, z0)`` enters nonlinearly and is fitted by variable
 projection (Golub and Pereyra): ``beta`` (non-negative least squares) and one free offset
 per demonstration are solved for inside the residual, and the Jacobian is Kaufman's on
-the active columns, ``-P_perp (dB / dtheta) beta``. Started from a quadratic trend's
-Hessian and minimum it converges in about ten evaluations
+the active columns, ``-P_perp (dB / dtheta) beta``; the steps are Levenberg-Marquardt's
+on the normal equations. Started from a quadratic trend's Hessian and minimum it
+converges in about ten evaluations
 (``tools/single_index_check.py``, ``docs/notes/trend_kernel.md``).
 """
 
@@ -34,10 +35,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.linalg
 import scipy.optimize
 
-__all__ = ["KNEES", "centred", "fit_index", "increasing", "index_form", "profile_basis",
-           "profile_gradient", "profile_weights"]
+__all__ = ["KNEES", "centred", "fit_index", "increasing", "index_form", "levenberg_marquardt",
+           "profile_basis", "profile_gradient", "profile_weights"]
 
 #: Knees ``c_j / s`` of the hyperbolas: from a fraction of the data's typical radius to
 #: a few times it.
@@ -146,8 +148,8 @@ def fit_index(Z: np.ndarray, u: np.ndarray, demo: np.ndarray, L: np.ndarray,
     cache: dict[bytes, tuple] = {}
 
     def design(theta: np.ndarray):
-        # least_squares asks for the Jacobian at the point whose residual it has just
-        # evaluated: one entry saves the second NNLS and QR there.
+        # The Jacobian is asked for at the point whose residual was just evaluated: one
+        # entry saves the second NNLS and QR there.
         key = theta.tobytes()
         if key not in cache:
             cache.clear()
@@ -179,12 +181,66 @@ def fit_index(Z: np.ndarray, u: np.ndarray, demo: np.ndarray, L: np.ndarray,
         M = centred(slope[:, None] * dq, k)
         return -(M - Q @ (Q.T @ M))
 
-    theta0 = np.concatenate([L[il], z0])
     try:
-        result = scipy.optimize.least_squares(residual, theta0, jac=jacobian,
-                                              max_nfev=max_nfev, x_scale="jac")
+        theta = levenberg_marquardt(residual, jacobian, np.concatenate([L[il], z0]),
+                                    max_nfev)
     except (np.linalg.LinAlgError, ValueError, RuntimeError):  # RuntimeError: NNLS
         return L, z0
-    if not np.all(np.isfinite(result.x)) or not math.isfinite(result.cost):
+    if not np.all(np.isfinite(theta)):
         return L, z0
-    return unpack(result.x)
+    return unpack(theta)
+
+
+def levenberg_marquardt(residual, jacobian, theta: np.ndarray, max_nfev: int,
+                        rtol: float = 1e-10) -> np.ndarray:
+    """Minimise ``||residual(theta)||^2`` by Levenberg-Marquardt steps with Marquardt's
+    scaling, solved on the normal equations.
+
+    Parameters
+    ----------
+    residual, jacobian : callable
+        ``theta`` (p,) -> residual (m,) and its Jacobian (m, p). The Jacobian is only
+        asked for at the last point whose residual was evaluated.
+    theta : ndarray (p,)
+        Start.
+    max_nfev : int
+        Residual evaluations allowed (the start's included).
+    rtol : float
+        Stop when an accepted step lowers the cost by less than this fraction.
+
+    Returns
+    -------
+    ndarray (p,)
+        The point of lowest cost found.
+
+    Notes
+    -----
+    ``J' J`` costs ``m p^2`` and a Cholesky factor ``p^3 / 3`` per step, where
+    ``scipy.optimize.least_squares`` does an SVD of ``J`` (22-D index: 2000 x 275, four
+    times the work; ``docs/notes/trend_kernel.md``).
+    """
+    r = residual(theta)
+    cost = float(r @ r)
+    J = jacobian(theta)
+    damping = 1e-3
+    for _ in range(max_nfev - 1):
+        A, g = J.T @ J, J.T @ r
+        diag = np.maximum(np.diag(A), 1e-12 * max(float(np.max(np.diag(A))), 1e-300))
+        try:
+            factor = scipy.linalg.cho_factor(A + damping * np.diag(diag), check_finite=False)
+        except np.linalg.LinAlgError:
+            damping *= 10.0
+            continue
+        trial = theta - scipy.linalg.cho_solve(factor, g, check_finite=False)
+        r_trial = residual(trial)
+        cost_trial = float(r_trial @ r_trial)
+        if not (math.isfinite(cost_trial) and cost_trial < cost):
+            damping *= 4.0
+            continue
+        converged = cost - cost_trial < rtol * cost
+        theta, r, cost = trial, r_trial, cost_trial
+        if converged:
+            break
+        J = jacobian(theta)
+        damping = max(damping / 3.0, 1e-12)
+    return theta
