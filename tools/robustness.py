@@ -1301,6 +1301,10 @@ class _Feeder:
         self.rig, self.joints, self.q = rig, list(joints), q
         self._type = JointState
         self.last_stamp = None  # of the last message published by the thread
+        # Stamping and publishing happen under one lock, for the thread's messages and for
+        # inject()'s: otherwise a message stamped just before an injected valid one could
+        # be published after it and read, rightly, as a stamp going backwards.
+        self._lock = threading.Lock()
         self._on = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -1317,9 +1321,15 @@ class _Feeder:
     def _run(self) -> None:
         while not self._stop.wait(0.02):
             if self._on.is_set() and self.rig.context.ok():
-                msg = self.message()
-                self.rig.publish(self._type, "/joint_states", msg)
-                self.last_stamp = msg.header.stamp
+                with self._lock:
+                    msg = self.message()
+                    self.rig.publish(self._type, "/joint_states", msg)
+                    self.last_stamp = msg.header.stamp
+
+    def inject(self, make_msg) -> None:
+        """Publish ``make_msg()`` on the feeder's topic, ordered with the feeder's own."""
+        with self._lock:
+            self.rig.publish(self._type, "/joint_states", make_msg())
 
     def on(self) -> None:
         self._on.set()
@@ -1434,7 +1444,7 @@ def cases_executor(lab: Lab) -> list[Result]:
                 rejected = sum(exe.rejected_states.values())
                 before = dict(exe.rejected_states)
                 n = len(commands)
-                rig.publish(feeder._type, "/joint_states", make_msg())
+                feeder.inject(make_msg)
                 if disarms:
                     wait_for(lambda: not exe.controller.armed and any(
                         not c.any() for c in commands[n:]), 5.0)
