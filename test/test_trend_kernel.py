@@ -21,6 +21,7 @@ from policy_align_ros.learning.regressors.trend_kernel import (
     _median_distance,
     _nonneg_solve,
     _solve_shared,
+    effective_dof,
     quadratic_features,
 )
 
@@ -152,6 +153,36 @@ def test_cv_picks_the_trend_alone_for_a_quadratic_potential():
     Q = rng.normal(scale=1.0, size=(200, 5))
     err = np.linalg.norm(model.gradient(Q) - grad(Q), axis=1) ** 2
     assert err.mean() / (np.linalg.norm(grad(Q), axis=1) ** 2).mean() < 1e-3
+
+
+def test_effective_dof_is_the_trace_of_the_ridge_hat_matrix():
+    rng = np.random.default_rng(11)
+    A = rng.standard_normal((60, 8))
+    m = len(A)
+    M = A.T @ A / m
+    for lam in (1e-3, 0.1, 10.0):
+        hat = A @ np.linalg.solve(A.T @ A + m * lam * np.eye(8), A.T)
+        assert effective_dof(M, lam * np.eye(8)) == pytest.approx(np.trace(hat), rel=1e-10)
+    assert effective_dof(M, np.zeros((8, 8))) == pytest.approx(8.0)
+    assert effective_dof(M, 1e9 * np.eye(8)) < 1e-6
+    assert effective_dof(np.zeros((8, 8)), np.zeros((8, 8))) == math.inf
+
+
+def test_the_residual_kept_has_the_fewest_degrees_of_freedom_within_one_error():
+    rng = np.random.default_rng(1)
+    value, grad = _two_minima()
+    X, g = _descent(grad, rng.uniform(-1.5, 1.5, size=(12, 2)), 25, 0.1)
+    y = value(X) + 1e-3 * rng.standard_normal(len(X))
+    model = TrendKernelRegression(random_state=0).fit(X, y, groups=g)
+    compared = model.cv_dof_
+    assert len(compared) >= 2  # several residuals tied within the folds' noise
+    low = min(model.cv_scores_[key] for key in compared)
+    best = min(compared, key=model.cv_scores_.get)
+    assert all(model.cv_scores_[key] <= low + model.cv_standard_errors_[best]
+               for key in compared)
+    simplest = min(compared, key=compared.get)
+    assert simplest[2:4] == model.cv_best_[2:4]
+    assert all(0 < dof < len(X) for dof in compared.values())
 
 
 def test_free_groups_carry_shape_only_whatever_their_level():

@@ -51,15 +51,17 @@ start, and it does not charge the model for the alignment's error in the held-ou
 demonstration's offset. The trend's penalty and the offsets' are scored first with the
 trend alone; the residual's length scale and penalty are searched at the best of those
 and at the best trend penalty with free offsets (the trend alone can rank the offset
-penalties wrongly where a quadratic does not fit), and the better of the two paths is
-kept; when a residual is kept, the trend's and the offsets' penalties are scored again
-with it. Scores closer than :data:`CV_RESOLUTION` are ties, settled toward the simpler
-model; a trend alone that fits to that resolution skips the residual's search. All fold
-errors come from per-fold sums (one pass over the data per length scale), so the search
-costs a few small Cholesky solves per candidate; ``docs/notes/trend_kernel.md`` has the
-measurements. The data are thinned evenly in arc length along each demonstration first
-(a robot at rest adds samples but no information), to at most ``max_fit_points``
-samples.
+penalties wrongly where a quadratic does not fit). The better of the two paths is kept,
+and on it the candidate with the fewest effective degrees of freedom
+(:func:`effective_dof`) among those scored within one standard error of its best (the
+trend alone among them). When a residual is kept, the trend's and the offsets' penalties
+are scored again with it. Scores closer than :data:`CV_RESOLUTION` are ties, settled
+toward the simpler model; a trend alone that fits to that resolution skips the residual's
+search. All fold errors come from per-fold sums (one pass over the data per length
+scale), so the search costs a few small Cholesky solves per candidate;
+``docs/notes/trend_kernel.md`` has the measurements. The data are thinned evenly in arc
+length along each demonstration first (a robot at rest adds samples but no information),
+to at most ``max_fit_points`` samples.
 
 By default (``trend_form="cv"``) the CV also scores the single-index trend of
 :mod:`.single_index` (a rising profile of one fitted quadratic form, for potentials that
@@ -90,7 +92,7 @@ from policy_align_ros.learning.regressors._common import (
     thin_by_arc_length,
 )
 
-__all__ = ["TrendKernelRegression", "quadratic_features"]
+__all__ = ["TrendKernelRegression", "effective_dof", "quadratic_features"]
 
 #: Candidate trend penalties (on standardised data); ``inf`` is the isotropic bowl.
 TREND_RIDGE_GRID = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, math.inf)
@@ -353,6 +355,30 @@ def _gram(A: np.ndarray) -> np.ndarray:
     return upper + np.triu(upper, 1).T  # dsyrk leaves the strict lower triangle at zero
 
 
+def effective_dof(M: np.ndarray, P: np.ndarray) -> float:
+    """Effective degrees of freedom ``tr((M + P)^-1 M)`` of a penalised least-squares fit.
+
+    Parameters
+    ----------
+    M : ndarray (p, p)
+        Normal matrix ``A' A / m`` of the design ``A`` (m, p).
+    P : ndarray (p, p)
+        Penalty on the coefficients (positive semi-definite).
+
+    Returns
+    -------
+    float
+        The trace of the hat matrix ``A (A' A + m P)^-1 A'``: the number of coefficients
+        without a penalty (``M`` of full rank), fewer the more the penalty shrinks them;
+        ``inf`` if ``M + P`` is singular.
+    """
+    try:
+        factor = scipy.linalg.cho_factor(M + P, check_finite=False)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return float(np.trace(scipy.linalg.cho_solve(factor, M, check_finite=False)))
+
+
 def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = None
                   ) -> np.ndarray | None:
     """Solve ``M w = b`` for the coefficients, keeping the trend's Hessian positive definite.
@@ -536,6 +562,9 @@ class TrendKernelRegression:
     cv_standard_errors_ : dict
         Standard error over the folds of every entry of ``cv_scores_`` (NaN for a lower
         bound).
+    cv_dof_ : dict
+        Effective degrees of freedom (:func:`effective_dof`) of the candidates the
+        residual's choice compared: those within one standard error of the best score.
     cv_best_ : tuple or None
         The key of ``cv_scores_`` chosen (None without cross-validation).
     mean_, scale_ : ndarray (n,), float
@@ -684,6 +713,7 @@ class TrendKernelRegression:
         forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
         self.cv_scores_: dict[tuple, float] = {}
         self.cv_standard_errors_: dict[tuple, float] = {}
+        self.cv_dof_: dict[tuple, float] = {}
         self.cv_best_ = None
         self._index: tuple[np.ndarray, np.ndarray, float] | None = None
         mid = (lengths[len(lengths) // 2], k_grid[len(k_grid) // 2])
@@ -829,15 +859,15 @@ class TrendKernelRegression:
                 self._record([("quadratic", t, ell, k, o) for k in finite_k],
                              grams.scores([self._penalty(n, t, k, Kcc) for k in finite_k], o,
                                           shared=_n_trend(n)))
-        # The better path, and on it the simplest residual within one standard error of its
-        # best score (no residual only if the kernel penalty is left to the CV).
+        # The better path, and on it the model with the fewest effective degrees of freedom
+        # within one standard error of its best score (no residual only if the kernel
+        # penalty is left to the CV).
         keys = [key for key in scores if paths.get(key[4]) == key[1]
                 and (math.inf in k_grid or math.isfinite(key[3]))]
         path = _simplest_within(scores, keys, 0.0, _simpler_trend)
         keys = [key for key in keys if key[4] == path[4]]
         error = self.cv_standard_errors_[min(keys, key=scores.get)]
-        best = _simplest_within(scores, keys, error if math.isfinite(error) else 0.0,
-                                _simpler_residual)
+        best = self._fewest_dof_within(cv, keys, error if math.isfinite(error) else 0.0)
         # 3. With a residual, the trend's and the offsets' penalties again: the trend alone
         # cannot tell them apart where a quadratic does not fit (suite arm case: offset
         # penalties 1e-4 and 1e-2 scored within 6 % with the trend alone, 3x apart with the
@@ -854,6 +884,38 @@ class TrendKernelRegression:
             best = _simplest_within(scores, [key for key in scores if key[2:4] == (ell, k)],
                                     0.0, _simpler_trend)
         return best
+
+    def _fewest_dof_within(self, cv: _CVData, keys: list[tuple], margin: float) -> tuple:
+        """Of ``keys`` (one trend and offset penalty; residuals, and the trend alone), the
+        one with the fewest effective degrees of freedom (:func:`effective_dof`, fitted on
+        all samples) among those scored within ``margin``, or :data:`CV_RESOLUTION`, of the
+        best; recorded in ``cv_dof_``.
+
+        A length scale and a penalty trade against each other, so neither orders the
+        residuals by itself: with 10 demonstrations of the suite's arm, "the larger kernel
+        penalty first" took length scale 0.50 and penalty 1e-4 (133 degrees of freedom,
+        nUPE 0.21) over 2.0 and 1e-6 (80, nUPE 0.04); ``docs/notes/trend_kernel.md``.
+        """
+        scores = self.cv_scores_
+        low = min(scores[key] for key in keys)
+        within = [key for key in keys if scores[key] <= low + max(margin, CV_RESOLUTION)]
+        if len(within) == 1:
+            return within[0]
+        n = cv.n
+        designs: dict[float | None, _FoldGrams] = {}
+        one_fold = np.zeros(len(cv.demo_fold), dtype=np.int64)
+        for key in within:
+            _, t, ell, k, o = key
+            if math.isinf(k):
+                A, P, where = cv.F, self._trend_penalty(n, t), None
+            else:
+                A = np.hstack([cv.F, _gaussian(cv.Z, cv.C, ell)])
+                P, where = self._penalty(n, t, k, _gaussian(cv.C, cv.C, ell)), ell
+            if where not in designs:
+                designs[where] = _FoldGrams(A, cv.u, cv.demo, one_fold, n, free=cv.trend.free)
+            G, _, m = designs[where].profiled_all(o)
+            self.cv_dof_[key] = effective_dof(G / m, P)
+        return min(within, key=lambda key: (self.cv_dof_[key], scores[key]))
 
     def _record(self, keys: list[tuple],
                 scores: list[tuple[float, float]]) -> None:
@@ -1052,6 +1114,7 @@ class TrendKernelRegression:
             raise ValueError(f"regressor state: bad or missing field ({err})") from None
         model.cv_scores_ = {}
         model.cv_standard_errors_ = {}
+        model.cv_dof_ = {}
         model.cv_best_ = None
         model._unpack()
         return model
@@ -1064,13 +1127,6 @@ def _simplest_within(scores: dict, keys: list, margin: float, simpler) -> tuple:
     low = min(scores[k] for k in keys)
     bound = low + max(margin, CV_RESOLUTION)
     return max((k for k in keys if scores[k] <= bound), key=lambda k: (simpler(k), -scores[k]))
-
-
-def _simpler_residual(key: tuple) -> tuple:
-    """Ordering of residuals at one trend and offset penalty, simplest largest: none, then
-    a larger kernel penalty, then a longer length scale (used with one standard error)."""
-    _, _, ell, kernel_ridge, _ = key
-    return (not math.isfinite(kernel_ridge), kernel_ridge, 0.0 if math.isnan(ell) else ell)
 
 
 def _simpler_trend(key: tuple) -> tuple:
