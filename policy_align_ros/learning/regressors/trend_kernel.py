@@ -906,13 +906,12 @@ class TrendKernelRegression:
         one_fold = np.zeros(len(cv.demo_fold), dtype=np.int64)
         for key in within:
             _, t, ell, k, o = key
-            if math.isinf(k):
-                A, P, where = cv.F, self._trend_penalty(n, t), None
-            else:
-                A = np.hstack([cv.F, _gaussian(cv.Z, cv.C, ell)])
-                P, where = self._penalty(n, t, k, _gaussian(cv.C, cv.C, ell)), ell
+            where = None if math.isinf(k) else ell  # the trend alone, or a length scale
             if where not in designs:
+                A = cv.F if where is None else np.hstack([cv.F, _gaussian(cv.Z, cv.C, ell)])
                 designs[where] = _FoldGrams(A, cv.u, cv.demo, one_fold, n, free=cv.trend.free)
+            P = (self._trend_penalty(n, t) if where is None
+                 else self._penalty(n, t, k, _gaussian(cv.C, cv.C, ell)))
             G, _, m = designs[where].profiled_all(o)
             self.cv_dof_[key] = effective_dof(G / m, P)
         return min(within, key=lambda key: (self.cv_dof_[key], scores[key]))
