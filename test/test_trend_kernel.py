@@ -16,6 +16,7 @@ from policy_align_ros.learning.regressors import (
 from policy_align_ros.learning.regressors.single_index import KNEES
 from policy_align_ros.learning.regressors.trend_kernel import (
     CURVATURE_FLOOR,
+    DOF_RESOLUTION,
     OFFSET_RIDGE_GRID,
     TREND_RIDGE_GRID,
     _median_distance,
@@ -180,8 +181,8 @@ def test_the_residual_kept_has_the_fewest_degrees_of_freedom_within_one_error():
     best = min(compared, key=model.cv_scores_.get)
     assert all(model.cv_scores_[key] <= low + model.cv_standard_errors_[best]
                for key in compared)
-    simplest = min(compared, key=compared.get)
-    assert simplest[2:4] == model.cv_best_[2:4]
+    picked = [key for key in compared if key[2:4] == model.cv_best_[2:4]]
+    assert picked and compared[picked[0]] <= min(compared.values()) + DOF_RESOLUTION
     assert all(0 < dof < len(X) for dof in compared.values())
 
 

@@ -113,6 +113,9 @@ CURVATURE_FLOOR = 0.01
 #: potential is then known to 1e-5 of its spread either way, and differences come from
 #: round-off (an exact quadratic scored 1e-21 with the trend alone, 1e-18 with a residual).
 CV_RESOLUTION = 1e-10
+#: Effective degrees of freedom closer than this are the same complexity (see
+#: ``TrendKernelRegression._fewest_dof_within``).
+DOF_RESOLUTION = 0.5
 #: Added to the penalty of every coefficient: keeps the solves well posed.
 JITTER = 1e-9
 #: Rows per block when evaluating kernels (bounds memory on large queries).
@@ -889,7 +892,11 @@ class TrendKernelRegression:
         """Of ``keys`` (one trend and offset penalty; residuals, and the trend alone), the
         one with the fewest effective degrees of freedom (:func:`effective_dof`, fitted on
         all samples) among those scored within ``margin``, or :data:`CV_RESOLUTION`, of the
-        best; recorded in ``cv_dof_``.
+        best; recorded in ``cv_dof_``. Counts within :data:`DOF_RESOLUTION` of the fewest
+        are ties, settled toward no residual, then the larger kernel penalty, then the
+        longer length scale: a residual of long length scale and large penalty adds
+        nothing to a 22-D trend of 130 degrees of freedom, and round-off ranked it below
+        the trend alone.
 
         A length scale and a penalty trade against each other, so neither orders the
         residuals by itself: with 10 demonstrations of the suite's arm, "the larger kernel
@@ -914,7 +921,9 @@ class TrendKernelRegression:
                  else self._penalty(n, t, k, _gaussian(cv.C, cv.C, ell)))
             G, _, m = designs[where].profiled_all(o)
             self.cv_dof_[key] = effective_dof(G / m, P)
-        return min(within, key=lambda key: (self.cv_dof_[key], scores[key]))
+        fewest = min(self.cv_dof_.values())
+        simplest = [key for key in within if self.cv_dof_[key] <= fewest + DOF_RESOLUTION]
+        return max(simplest, key=lambda key: (_simpler_residual(key), -scores[key]))
 
     def _record(self, keys: list[tuple],
                 scores: list[tuple[float, float]]) -> None:
@@ -1126,6 +1135,13 @@ def _simplest_within(scores: dict, keys: list, margin: float, simpler) -> tuple:
     low = min(scores[k] for k in keys)
     bound = low + max(margin, CV_RESOLUTION)
     return max((k for k in keys if scores[k] <= bound), key=lambda k: (simpler(k), -scores[k]))
+
+
+def _simpler_residual(key: tuple) -> tuple:
+    """Ordering of residuals of equal complexity, simplest largest: none, then a larger
+    kernel penalty, then a longer length scale."""
+    _, _, ell, kernel_ridge, _ = key
+    return (not math.isfinite(kernel_ridge), kernel_ridge, 0.0 if math.isnan(ell) else ell)
 
 
 def _simpler_trend(key: tuple) -> tuple:
