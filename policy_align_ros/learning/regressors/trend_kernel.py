@@ -904,24 +904,28 @@ class TrendKernelRegression:
         nUPE 0.21) over 2.0 and 1e-6 (80, nUPE 0.04); ``docs/notes/trend_kernel.md``.
         """
         scores = self.cv_scores_
-        low = min(scores[key] for key in keys)
-        within = [key for key in keys if scores[key] <= low + max(margin, CV_RESOLUTION)]
+        within = _within(scores, keys, margin)
         if len(within) == 1:
             return within[0]
         n = cv.n
-        designs: dict[float | None, _FoldGrams] = {}
+        # Per length scale (None: the trend alone), the sums of all samples and Kcc.
+        designs: dict[float | None, tuple[_FoldGrams, np.ndarray | None]] = {}
         one_fold = np.zeros(len(cv.demo_fold), dtype=np.int64)
         for key in within:
             _, t, ell, k, o = key
-            where = None if math.isinf(k) else ell  # the trend alone, or a length scale
+            where = None if math.isinf(k) else ell
             if where not in designs:
-                A = cv.F if where is None else np.hstack([cv.F, _gaussian(cv.Z, cv.C, ell)])
-                designs[where] = _FoldGrams(A, cv.u, cv.demo, one_fold, n, free=cv.trend.free)
-            P = (self._trend_penalty(n, t) if where is None
-                 else self._penalty(n, t, k, _gaussian(cv.C, cv.C, ell)))
-            G, _, m = designs[where].profiled_all(o)
+                A, Kcc = cv.F, None
+                if where is not None:
+                    A, Kcc = np.hstack([cv.F, _gaussian(cv.Z, cv.C, ell)]), _gaussian(
+                        cv.C, cv.C, ell)
+                designs[where] = (_FoldGrams(A, cv.u, cv.demo, one_fold, n,
+                                             free=cv.trend.free), Kcc)
+            grams, Kcc = designs[where]
+            P = self._trend_penalty(n, t) if Kcc is None else self._penalty(n, t, k, Kcc)
+            G, _, m = grams.profiled_all(o)
             self.cv_dof_[key] = effective_dof(G / m, P)
-        fewest = min(self.cv_dof_.values())
+        fewest = min(self.cv_dof_[key] for key in within)
         simplest = [key for key in within if self.cv_dof_[key] <= fewest + DOF_RESOLUTION]
         return max(simplest, key=lambda key: (_simpler_residual(key), -scores[key]))
 
@@ -1132,9 +1136,14 @@ def _simplest_within(scores: dict, keys: list, margin: float, simpler) -> tuple:
     """The simplest of ``keys`` (the largest by ``simpler``) whose CV score is within
     ``margin`` of the best, or within :data:`CV_RESOLUTION` of it (round-off), whichever
     is wider: differences within the folds' noise do not buy a more flexible model."""
-    low = min(scores[k] for k in keys)
-    bound = low + max(margin, CV_RESOLUTION)
-    return max((k for k in keys if scores[k] <= bound), key=lambda k: (simpler(k), -scores[k]))
+    return max(_within(scores, keys, margin), key=lambda k: (simpler(k), -scores[k]))
+
+
+def _within(scores: dict, keys: list, margin: float) -> list:
+    """The ``keys`` whose CV score is within ``margin``, or :data:`CV_RESOLUTION` (whichever
+    is wider), of the best among them."""
+    bound = min(scores[k] for k in keys) + max(margin, CV_RESOLUTION)
+    return [k for k in keys if scores[k] <= bound]
 
 
 def _simpler_residual(key: tuple) -> tuple:
