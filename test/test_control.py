@@ -144,6 +144,74 @@ def test_talos_hands_on_planes_give_a_qdot_zero():
         np.testing.assert_allclose(A @ qdot, 0.0, atol=1e-9)
 
 
+class _Constant:
+    def __init__(self, v: np.ndarray):
+        self.v = v
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return np.tile(self.v, (len(X), 1))
+
+
+def _barrier_below_the_left_hand(robot: Robot, q: np.ndarray):
+    """A floor 2 cm below the left hand, acting within 5 cm; and the hand's z Jacobian."""
+    frame = "arm_left_7_link"
+    p = robot.frame_position(q, frame)
+    spec = {"type": "barrier", "frame": frame, "point": [p[0], p[1], p[2] - 0.02],
+            "normal": [0.0, 0.0, 1.0], "distance": 0.05}
+    return constraint_from_spec(spec, robot), robot.frame_jacobian(q, frame)[2]
+
+
+def test_a_barrier_blocks_the_command_when_the_other_constraints_turn_it_towards_it():
+    # The policy lifts the hand, but a locked joint leaves only the part that lowers it:
+    # the barrier must be judged by the command, not by the policy.
+    robot = Robot.load("talos", TALOS_JOINTS)
+    q = robot.neutral()
+    barrier, jz = _barrier_below_the_left_hand(robot, q)
+    up, down = int(np.argmax(jz)), int(np.argmin(jz))
+    pi = np.zeros(robot.nq)
+    pi[up], pi[down] = 0.3, 0.2
+    assert jz @ pi > 0.0
+    lock = constraint_from_spec({"type": "joints", "joints": [TALOS_JOINTS[up]]}, robot)
+    for constraints in ([lock], [lock, barrier]):
+        step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 1.0), DT,
+                           constraints=constraints, policy=_Constant(pi),
+                           min_singular_value=0.0)
+        qdot, reason = step(q)
+        assert reason == ""
+        if len(constraints) == 1:
+            assert jz @ qdot < -1e-3  # without the barrier the hand would go down
+        else:
+            assert jz @ qdot > -1e-12
+            assert np.linalg.norm(qdot) > 1e-3  # the rest of the command still moves
+
+
+def test_an_armed_run_never_lowers_the_hand_onto_a_barrier_it_was_meant_to_leave():
+    robot = Robot.load("talos", TALOS_JOINTS)
+    q = robot.neutral()
+    barrier, jz = _barrier_below_the_left_hand(robot, q)
+    up, down = int(np.argmax(jz)), int(np.argmin(jz))
+    pi = np.zeros(robot.nq)
+    pi[up], pi[down] = 0.3, 0.2
+    lock = constraint_from_spec({"type": "joints", "joints": [TALOS_JOINTS[up]]}, robot)
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), DT,
+                       constraints=[lock, barrier], policy=_Constant(pi),
+                       min_singular_value=0.0)
+    controller = ArmedController(step, 2.0, 0.1)
+    floor = robot.frame_position(q, "arm_left_7_link")[2] - 0.02
+    t = 1_000_000_000
+    controller.joint_state(q, t, t)
+    assert controller.arm(t)[0]
+    lowest = np.inf
+    for _ in range(300):
+        t += 10_000_000
+        controller.joint_state(q, t, t)
+        out = controller.tick(t)
+        if out.command is not None:
+            q = np.clip(q + DT * out.command, robot.lower, robot.upper)
+        lowest = min(lowest, robot.frame_position(q, "arm_left_7_link")[2] - floor)
+    assert lowest > 0.0199
+
+
 def test_bad_control_step_arguments():
     with pytest.raises(ValueError, match="max_velocity"):
         ControlStep(LOWER, UPPER, 0.0, DT)
@@ -825,6 +893,28 @@ def test_held_frames_latch_at_enable_and_when_the_constraints_change():
     run.tick()
     np.testing.assert_allclose(step.hold_errors(run.q - run.sent[-1] * DT_NS / 1e9), 0.0,
                                atol=1e-12)
+
+
+@pytest.mark.parametrize("setting", [("drift_gain", 5.0), ("drift_clamp_m", 0.05)])
+def test_new_drift_settings_on_a_drifted_frame_do_not_step_the_command(setting):
+    # The correction bypasses the ramp, so a new gain (or a larger clamp) on a frame that
+    # drifted while the old one held would jump the command: the frame is re-latched.
+    name, value = setting
+    robot, hold, _ = _talos_hold_and_plane()
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), DT_NS / 1e9,
+                       constraints=[hold], policy=lambda X: np.zeros_like(X),
+                       drift_gain=0.0 if name == "drift_gain" else 5.0, drift_clamp_m=0.001)
+    run = _Run(step, robot.neutral())
+    run.state()
+    run.arm()
+    run.tick()
+    run.q[TALOS_JOINTS.index("arm_left_4_joint")] += 0.1  # pushed: about 26 mm
+    assert np.linalg.norm(step.hold_errors(run.q)) > 0.02
+    before = run.tick().command.copy()
+    setattr(step, name, value)
+    after = run.tick().command
+    assert np.abs(after - before).max() <= run.control.max_delta + 1e-12
+    np.testing.assert_allclose(step.hold_errors(run.q), 0.0, atol=1e-12)
 
 
 def test_ramp_toward_applies_a_correction_outside_the_null_space_at_once():

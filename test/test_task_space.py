@@ -15,6 +15,7 @@ from policy_align_ros.kinematics import (
     nullspace_projector,
     parse_state_spec,
 )
+from policy_align_ros.kinematics.control import ArmedController, ControlStep
 from policy_align_ros.kinematics.robot import robots_dir
 from policy_align_ros.kinematics.task_space import (
     damped_pinv,
@@ -394,9 +395,44 @@ def test_policy_dimension_and_bad_gains_are_refused(hand_map: TaskSpaceMap) -> N
         TaskSpacePolicy(3.0, hand_map)
 
 
-def test_non_finite_task_policy_gives_zero_command(hand_map: TaskSpaceMap) -> None:
-    tsp = TaskSpacePolicy(lambda X: np.full_like(X, np.nan), hand_map)
-    np.testing.assert_array_equal(tsp.command(hand_map.robot.neutral()), 0.0)
+def test_non_finite_task_policy_faults_the_controller_until_enabled_again(
+        hand_map: TaskSpaceMap) -> None:
+    # A silent zero would keep the controller armed, and it would move again by itself
+    # once the output is finite: the fault must reach the controller.
+    broken = {"now": False}
+
+    def task(X: np.ndarray) -> np.ndarray:
+        out = np.tile([0.05, 0.0, 0.0], (len(X), 1))
+        return out * np.nan if broken["now"] else out
+
+    robot = hand_map.robot
+    tsp = TaskSpacePolicy(task, hand_map)
+    q = robot.neutral()
+    assert np.all(np.isfinite(tsp.command(q)))
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), 0.01, policy=tsp)
+    controller = ArmedController(step, 2.0, 0.1)
+    t = 1_000_000_000
+    controller.joint_state(q, t, t)
+    assert controller.arm(t)[0]
+
+    def run(ticks: int) -> None:
+        nonlocal t
+        for _ in range(ticks):
+            t += 10_000_000
+            controller.joint_state(q, t, t)
+            controller.tick(t)
+
+    run(20)
+    assert np.abs(controller.command).max() > 0.01
+    broken["now"] = True
+    assert np.all(np.isnan(tsp.command(q)))
+    run(100)
+    assert controller.faulted and not controller.armed
+    assert controller.zero_reason == "policy output not finite"
+    broken["now"] = False
+    run(50)
+    assert not controller.armed
+    np.testing.assert_array_equal(controller.command, 0.0)
 
 
 def test_definition_round_trips_and_matches_same_robot(robot: Robot) -> None:
@@ -558,11 +594,13 @@ def test_constraint_may_be_a_callable_such_as_the_executors(robot: Robot,
         TaskSpacePolicy(pol, hand_map, 3)
 
 
-def test_non_finite_constraint_rows_give_zero_command(hand_map: TaskSpaceMap) -> None:
+def test_non_finite_constraint_rows_give_a_non_finite_command(hand_map: TaskSpaceMap
+                                                               ) -> None:
+    # Not zeros: a controller must see that no command can be trusted (see above).
     q = hand_map.robot.neutral()
     pol = Attractor(hand_map.states(q) + 0.05)
     tsp = TaskSpacePolicy(pol, hand_map, lambda q, qdot: np.full((1, q.size), np.inf))
-    np.testing.assert_array_equal(tsp.command(q), 0.0)
+    assert np.all(np.isnan(tsp.command(q)))
 
 
 def test_learning_state_map_maps_positions_and_velocities(robot: Robot) -> None:

@@ -677,12 +677,18 @@ class ControlStep:
                 flat.append(c)
         self._flat = flat
         self._holds = [i for i, c in enumerate(flat) if hasattr(c, "hold_position")]
+        self._unilateral = any(getattr(c, "unilateral", False) for c in flat)
         # Latched at the next latch() or, failing that, at the next evaluate().
         self._references: dict[int, np.ndarray] = {}
 
     @property
     def drift_gain(self) -> float:
-        """Drift-correction gain ``k`` (1/s)."""
+        """Drift-correction gain ``k`` (1/s).
+
+        A new value re-latches the held frames where they are (at the next
+        :meth:`evaluate`): the correction is applied outside the acceleration ramp, so a
+        larger gain on a drifted frame would step the command at once.
+        """
         return self._drift_gain
 
     @drift_gain.setter
@@ -690,11 +696,14 @@ class ControlStep:
         value = float(value)
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"drift_gain: must be finite and >= 0, got {value}")
+        if hasattr(self, "_drift_gain") and value != self._drift_gain:
+            self._references = {}
         self._drift_gain = value
 
     @property
     def drift_clamp_m(self) -> float:
-        """Clamp of a held frame's error in the correction (m)."""
+        """Clamp of a held frame's error in the correction (m); a new value re-latches
+        the held frames, as :attr:`drift_gain` does."""
         return self._drift_clamp
 
     @drift_clamp_m.setter
@@ -702,6 +711,8 @@ class ControlStep:
         value = float(value)
         if not (math.isfinite(value) and value > 0.0):
             raise ValueError(f"drift_clamp_m: must be finite and > 0, got {value}")
+        if hasattr(self, "_drift_clamp") and value != self._drift_clamp:
+            self._references = {}
         self._drift_clamp = value
 
     @property
@@ -748,14 +759,26 @@ class ControlStep:
         """
         return self._rows(q, pi)[0]
 
-    def _rows(self, q: np.ndarray, pi: np.ndarray | None
-              ) -> tuple[np.ndarray, np.ndarray | None]:
-        """``A`` (k, n) and a mask (k,) of the rows of held frames (None without any)."""
+    def _rows(self, q: np.ndarray, pi: np.ndarray | None,
+              also: Sequence[np.ndarray] = ()) -> tuple[np.ndarray, np.ndarray | None]:
+        """``A`` (k, n) and a mask (k,) of the rows of held frames (None without any).
+
+        A unilateral barrier is active when ``pi`` approaches it, or any velocity of
+        ``also`` does (the command that the other constraints and the limit locks made of
+        ``pi`` may approach a barrier that ``pi`` itself recedes from).
+        """
         n = self.n_joints
         if not self._flat:
             return np.zeros((0, n)), None
-        blocks = [np.asarray(c.matrix(q, pi), dtype=float).reshape(-1, n)
-                  for c in self._flat]
+        blocks = []
+        for c in self._flat:
+            block = np.asarray(c.matrix(q, pi), dtype=float).reshape(-1, n)
+            if getattr(c, "unilateral", False):
+                for v in also:
+                    if block.shape[0]:
+                        break
+                    block = np.asarray(c.matrix(q, v), dtype=float).reshape(-1, n)
+            blocks.append(block)
         A = np.vstack(blocks)
         if not self._holds:
             return A, None
@@ -781,8 +804,13 @@ class ControlStep:
         qdot, reason, _ = self.evaluate(q)
         return qdot, reason
 
-    def evaluate(self, q: np.ndarray) -> tuple[np.ndarray, str, np.ndarray]:
+    def evaluate(self, q: np.ndarray, previous: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, str, np.ndarray]:
         """As :meth:`__call__`, plus the projector ``N'`` (n, n) the command lies in.
+
+        A unilateral barrier blocks the command when the policy, the command made of it,
+        or ``previous`` (n,), the last command sent, which a ramp blends in, approaches
+        it.
 
         ``N'`` projects onto the null space of the constraints and the locked joints at
         ``q`` (the identity when the command is zero for a reason), so a ramp can project
@@ -802,16 +830,27 @@ class ControlStep:
             return self._zeros.copy(), "policy output not finite", self._eye
         pi = np.empty(self.n_joints)
         pi[p] = pi_model
-        A, held = self._rows(q, pi)
-        if not np.all(np.isfinite(A)):
-            return self._zeros.copy(), "constraint matrix not finite", self._eye
-        problem, P0 = self._singular(A)
-        if problem:
-            return self._zeros.copy(), problem, self._eye
-        if held is None or self._drift_gain == 0.0:
-            v, P = project_with_locks(q, pi, A, self.lower, self.upper, P0)
-        else:
-            v, P = self._with_correction(q, pi, A, held)
+        # Active set of the unilateral barriers: one that the command approaches joins,
+        # and the command is made again, until none joins (at most one round per barrier).
+        seen = [] if previous is None else [np.asarray(previous, dtype=float)]
+        A, held = self._rows(q, pi, seen)
+        while True:
+            if not np.all(np.isfinite(A)):
+                return self._zeros.copy(), "constraint matrix not finite", self._eye
+            problem, P0 = self._singular(A)
+            if problem:
+                return self._zeros.copy(), problem, self._eye
+            if held is None or self._drift_gain == 0.0:
+                v, P = project_with_locks(q, pi, A, self.lower, self.upper, P0)
+            else:
+                v, P = self._with_correction(q, pi, A, held)
+            if not self._unilateral:
+                break
+            seen.append(v)
+            grown, grown_held = self._rows(q, pi, seen)
+            if grown.shape[0] == A.shape[0]:  # a barrier once active stays so: no change
+                break
+            A, held = grown, grown_held
         s = velocity_scale(q, v, self.dt, self.lower, self.upper, self.max_velocity,
                            self.max_acceleration)
         v = s * v
@@ -1222,7 +1261,7 @@ class ArmedController:
         previous = self.command
         projector = None
         if self.armed:
-            target, reason, projector = step.evaluate(q)
+            target, reason, projector = step.evaluate(q, previous)
             self.extrapolation_scale = step.extrapolation_scale
             if reason:
                 # The policy cannot be trusted here, but q and the constraints still

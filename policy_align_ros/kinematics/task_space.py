@@ -665,7 +665,10 @@ class TaskSpacePolicy:
                           dtype=float).reshape(-1)
 
     def command(self, q: np.ndarray) -> np.ndarray:
-        """Joint velocity (n,) in rad/s at ``q`` (n,); zeros if the policy is not finite.
+        """Joint velocity (n,) in rad/s at ``q`` (n,); NaN if the task-space policy or the
+        constraint matrix is not finite, so that a controller stops and reports a fault
+        (:class:`~policy_align_ros.kinematics.control.ControlStep` does) rather than take
+        a silent zero for a valid command and carry on once the output is finite again.
 
         Joints at a limit that the command would push further out (or beyond
         ``bounds``) are held by adding unit rows to ``A`` and solving again, so the task
@@ -676,7 +679,7 @@ class TaskSpacePolicy:
         pi_x = self.task_policy(x)
         n = q.shape[0]
         if pi_x.shape != (J.shape[0],) or not np.all(np.isfinite(pi_x)):
-            return np.zeros(n)
+            return np.full(n, np.nan)
         z = secondary_velocity(q, self.rest, self.lower, self.upper, **self.gains)
         solve = {"threshold": self.threshold, "damping": self.damping}
         A = np.zeros((0, n))
@@ -684,7 +687,7 @@ class TaskSpacePolicy:
             free = task_to_joint_velocity(J, pi_x, A, z, **solve)
             A = np.asarray(self.constraint.matrix(q, free), dtype=float).reshape(-1, n)
             if not np.all(np.isfinite(A)):
-                return np.zeros(n)
+                return np.full(n, np.nan)
         bounds = None if self.bounds is None else self.bounds(q)
         return joint_velocity_within_limits(q, J, pi_x, A, z, self.lower, self.upper,
                                             bounds=bounds, **solve)
