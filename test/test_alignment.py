@@ -122,3 +122,24 @@ def test_blocked_approximation_matches_the_exact_table(monkeypatch):
         return np.var(err) / np.var(truth)
 
     assert nmse(approx) < 1.5 * nmse(exact) + 1e-3
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e7, 1e8])
+def test_blocked_table_is_exact_far_from_the_origin(monkeypatch, offset):
+    # With every sample kept and every trajectory a neighbour, the blocked table is the
+    # exact one; its expanded distances on uncentred states at 1e8 moved the offsets in
+    # the second digit.
+    import policy_align_ros.learning.alignment as alignment
+
+    X, labels, phi, _ = _problem(seed=2, K=8, N=20)
+    X = X + offset
+    exact = solve_offsets(*alignment_system(
+        local_model_table(X, labels, phi, 0.05, merge_tol=0.0))[:2])
+    monkeypatch.setattr(alignment, "_TREE_MAX_PAIRS", 0)
+    monkeypatch.setattr(alignment, "_DENSE_MAX_ENTRIES", 0)
+    monkeypatch.setattr(alignment, "_BLOCK_QUERIES", 10**12)  # no merging of samples
+    monkeypatch.setattr(alignment, "_BLOCK_REFERENCES", 10**12)
+    blocked_table = local_model_table(X, labels, phi, 0.05, merge_tol=0.0, max_neighbours=8)
+    assert blocked_table.n_points == len(X)
+    blocked = solve_offsets(*alignment_system(blocked_table)[:2])
+    np.testing.assert_allclose(blocked, exact, atol=1e-6 * np.ptp(phi))

@@ -80,3 +80,17 @@ def test_policy_align_fits_demonstrations_that_meet_at_the_attractor():
     model = PolicyAlign(sigma="narrow", random_state=0).fit(trajs)
     assert np.all(np.isfinite(model.offsets_))
     assert len(model.inliers_) == len(trajs)
+
+
+@pytest.mark.parametrize("offset", [1e6, 1e7])
+def test_closest_approach_is_unchanged_far_from_the_origin(offset):
+    # Expanded as |a|^2 + |b|^2 - 2 a.b, uncentred states at 1e7 cancelled every
+    # distance of unit size to 0 (and the medium width to a sixteenth).
+    rng = np.random.default_rng(7)
+    trajs = [np.cumsum(rng.normal(scale=0.05, size=(30, 2)), axis=0) + rng.normal(size=2)
+             for _ in range(6)]
+    near = closest_approach_matrix(trajs)
+    far = closest_approach_matrix([x + offset for x in trajs])
+    np.testing.assert_allclose(far, near, rtol=1e-5)
+    assert sigma2_heuristics([x + offset for x in trajs])["medium"] == pytest.approx(
+        sigma2_heuristics(trajs)["medium"], rel=1e-5)

@@ -149,3 +149,105 @@ def test_state_definition_round_trips_and_old_files_load_as_joint_states(model, 
     bad = save_npz(tmp_path / "bad.npz", header, arrays)
     with pytest.raises(ValueError, match="bad.npz: malformed"):
         PolicyAlign.load(bad)
+
+
+def _toy_trajectories():
+    return make_toy_dataset("sinusoid", 10, 25, np.random.default_rng(3)).trajectories
+
+
+def test_numpy_scalar_and_generator_parameters_save_and_load(tmp_path):
+    from policy_align_ros.learning.regressors import TrendKernelRegression
+
+    trajs = _toy_trajectories()
+    X = np.random.default_rng(1).uniform(-2, 2, size=(20, 2))
+    regressor = TrendKernelRegression(n_centres=np.int64(50),
+                                      random_state=np.random.default_rng(1))
+    model = PolicyAlign(random_state=np.int64(3), sigma=np.float32(0.05),
+                        weight_tol=np.float32(1e-12), regressor=regressor).fit(trajs)
+    loaded = PolicyAlign.load(model.save(tmp_path / "numpy.npz"))
+    np.testing.assert_array_equal(loaded.policy(X), model.policy(X))
+    params = loaded.get_params()
+    assert params["random_state"] == 3 and type(params["random_state"]) is int
+    assert type(params["sigma"]) is float and params["sigma"] == float(np.float32(0.05))
+    reg_params = loaded.regressor_.get_params()
+    assert reg_params["n_centres"] == 50 and type(reg_params["n_centres"]) is int
+    assert reg_params["random_state"] is None  # a Generator's state is not saved
+    # get_params keeps the user's values as given (scikit-learn convention).
+    assert type(model.get_params()["random_state"]) is np.int64
+    assert isinstance(model.regressor_.get_params()["random_state"], np.random.Generator)
+    # A Generator as the estimator's own random_state is saved as None too.
+    seeded = PolicyAlign(random_state=np.random.default_rng(2)).fit(trajs)
+    assert PolicyAlign.load(seeded.save(tmp_path / "gen.npz")).random_state is None
+
+
+def test_a_field_json_cannot_hold_is_named(model, tmp_path):
+    import copy
+
+    broken = copy.copy(model)
+    broken.state_definition_ = {"rest": np.zeros(2)}
+    with pytest.raises(ValueError, match=r"state_definition\.rest.*ndarray"):
+        broken.save(tmp_path / "bad.npz")
+    assert not list(tmp_path.iterdir())
+
+
+def _rewrite(tmp_path, source, header=None, arrays=None):
+    """``source``'s model file with its header and arrays replaced, as ``bad.npz``."""
+    old_header, old_arrays = load_npz(source, "policy_align")
+    path = tmp_path / "bad.npz"
+    np.savez(path, __header__=np.array(json.dumps(
+        old_header if header is None else header(dict(old_header)))),
+             **(old_arrays if arrays is None else arrays(dict(old_arrays))))
+    return path
+
+
+def _set(mapping, key, value):
+    mapping[key] = value
+    return mapping
+
+
+@pytest.mark.parametrize(("header", "arrays", "message"), [
+    (lambda h: [1, 2], None, "header is a JSON list"),
+    (lambda h: _set(h, "training", [1]), None, "training must be a JSON object"),
+    (lambda h: _set(h, "params", [1]), None, "params must be a JSON object"),
+    (lambda h: _set(h, "format_version", "1"), None, "format_version must be a positive"),
+    (lambda h: _set(h, "n_features", 3), None, "regressor takes 2 features"),
+    (None, lambda a: _set(a, "aligned_lengths", np.array([5])), "aligned_lengths.*1 entries"),
+    (None, lambda a: _set(a, "inliers", np.array([0, 99])), "inliers must index"),
+    (None, lambda a: _set(a, "groups", np.zeros(3, dtype=int)), "groups.*3 entries"),
+    (None, lambda a: _set(a, "support_states", np.zeros((4, 3))), "support_states has 3"),
+])
+def test_malformed_model_files_name_the_file_and_the_problem(model, tmp_path, header,
+                                                             arrays, message):
+    good = model.save(tmp_path / "good.npz")
+    bad = _rewrite(tmp_path, good, header, arrays)
+    with pytest.raises(ValueError, match=f"bad.npz: malformed.*{message}"):
+        PolicyAlign.load(bad)
+
+
+def test_euler_scale_and_position_noise_survive_save_and_load(tmp_path):
+    from policy_align_ros.experiments.demonstrators import QuadraticPotential, rollout
+
+    # Held-command demonstrations with velocities of an isotropic quadratic: "auto"
+    # trusts the velocities and rescales the Euler potentials (euler_scale_ != 1).
+    rng = np.random.default_rng(8)
+    pot = QuadraticPotential([0.3, -0.2, 0.1], 0.5 * np.eye(3))
+    rows = rng.standard_normal((8, 1, 3))  # one constraint row per demonstration
+    demos = [rollout(rng.uniform(-1, 1, 3), pot, lambda x, t, pi, r=r: r, 40,
+                     0.05).trajectory for r in rows]
+    model = PolicyAlign(random_state=0).fit(demos)
+    assert model.euler_scale_ != 1.0
+    loaded = PolicyAlign.load(model.save(tmp_path / "a.npz"))
+    assert loaded.euler_scale_ == model.euler_scale_
+    assert loaded.position_noise_ == model.position_noise_
+    again = PolicyAlign.load(loaded.save(tmp_path / "b.npz"))
+    assert (again.euler_scale_, again.position_noise_) == (model.euler_scale_,
+                                                           model.position_noise_)
+    # Files without the exact header values use the training summary, then the defaults.
+    header, arrays = load_npz(tmp_path / "a.npz", "policy_align")
+    del header["euler_scale"], header["position_noise"]
+    older = PolicyAlign.load(save_npz(tmp_path / "older.npz", header, arrays))
+    assert older.euler_scale_ == model.euler_scale_
+    assert older.position_noise_ == pytest.approx(model.position_noise_, rel=1e-12)
+    del header["training"]["euler_scale"], header["training"]["position_noise_rms"]
+    oldest = PolicyAlign.load(save_npz(tmp_path / "oldest.npz", header, arrays))
+    assert (oldest.euler_scale_, oldest.position_noise_) == (1.0, 0.0)

@@ -276,3 +276,78 @@ def test_a_switch_in_the_first_steps_leaves_those_samples_out_of_the_fit():
     assert all(np.all(np.isfinite(p)) for p in model.aligned_potentials_)
     X = np.concatenate([t.positions for t in test])
     assert metrics.nupe(-(X - c) @ W, model.policy(X)) < 1e-6
+
+
+def _offset_demos(offset, seed=0, n_demos=6, n_samples=40, dt=0.05):
+    """Exact Euler steps of ``phi = x' A x / 2`` around ``offset``, with velocities."""
+    rng = np.random.default_rng(seed)
+    A = np.diag([1.0, 2.0])
+    demos = []
+    for k in range(n_demos):
+        x = rng.normal(size=2)
+        xs = [x]
+        for _ in range(n_samples - 1):
+            xs.append(xs[-1] - dt * A @ xs[-1])
+        xs = np.array(xs)
+        demos.append(Trajectory(xs + offset, dt * np.arange(n_samples), -xs @ A,
+                                name=str(k)))
+    return demos
+
+
+def test_kernel_width_and_groups_do_not_depend_on_where_the_states_lie():
+    # Closest approaches expanded on uncentred states cancelled at 1e7: sigma^2 fell to
+    # a sixteenth and half the demonstrations became outliers.
+    X = np.array([[0.5, 0.5], [1.0, -1.0]])
+    near = PolicyAlign(random_state=0).fit(_offset_demos(0.0))
+    for offset in (1e6, 1e7):
+        far = PolicyAlign(random_state=0).fit(_offset_demos(offset))
+        assert far.sigma2_ == pytest.approx(near.sigma2_, rel=1e-5)
+        np.testing.assert_array_equal(far.groups_, near.groups_)
+        np.testing.assert_array_equal(far.inliers_, near.inliers_)
+        np.testing.assert_allclose(far.policy(X + offset), near.policy(X), atol=1e-3)
+
+
+def test_unnamed_trajectories_are_named_by_their_index_in_errors():
+    demos = [Trajectory(t.positions, t.times) for t in _offset_demos(0.0)]
+    with pytest.raises(ValueError, match="trajectory 0: the trapezoid estimate") as err:
+        PolicyAlign(integration="trapezoid").fit(demos)
+    assert "None" not in str(err.value)
+    assert all(t.name is None for t in demos)
+
+
+def test_summary_counts_trajectories_when_demonstrations_are_split(monkeypatch):
+    # Demonstrations split at a constraint switch, and a copy far from all of them that
+    # the global model levels: the counts are of trajectories, not of pieces.
+    from test_potential import _continuous_demo
+
+    rng = np.random.default_rng(3)
+    W, c = np.diag([1.0, 3.0, 9.0]), np.array([0.1, -0.2, 0.3])
+    demos = [_continuous_demo(W, c, c + rng.uniform(-1, 1, 3), 25,
+                              np.array([rng.uniform(0.5, 1.5)]), rng, sub=20, dur=2.0)
+             for _ in range(6)]
+    far = demos[0]
+    demos.append(Trajectory(far.positions + 50.0, far.times, far.velocities))
+    model = PolicyAlign(random_state=0).fit(demos)
+    summary = model.fit_summary_
+    assert summary["n_pieces"] > summary["n_trajectories"] == 7
+    assert model.groups_[6] != 0 and np.all(model.groups_[:6] == 0)
+    assert summary["n_inliers"] == len(model.inliers_) == 7
+    assert summary["n_levelled_by_model"] == 1
+    assert summary["n_groups"] == len(np.unique(model.groups_)) == 2
+
+
+def test_merged_pieces_get_contiguous_groups():
+    # Trajectory 0's pieces lie in groups 0 and 1, trajectory 1's in group 2: merged,
+    # trajectory 1 is in the second of two groups, which must be numbered 1.
+    model = PolicyAlign()
+    model.groups_ = np.array([0, 1, 2, 0])
+    model.inliers_ = np.array([0, 1, 3])
+    model.offsets_ = np.array([0.5, 1.0, 2.0, 3.0])
+    model.aligned_potentials_ = [np.zeros(3), np.ones(3), np.ones(4), np.ones(5)]
+    parents = [Trajectory(np.zeros((6, 2))), Trajectory(np.zeros((4, 2))),
+               Trajectory(np.zeros((5, 2)))]
+    spans = np.array([(0, 0, 3), (0, 3, 6), (1, 0, 4), (2, 0, 5)])
+    model._merge_pieces(spans, parents)
+    np.testing.assert_array_equal(model.groups_, [0, 1, 0])
+    np.testing.assert_array_equal(model.inliers_, [0, 2])
+    np.testing.assert_array_equal(model.offsets_, [0.5, 2.0, 3.0])

@@ -60,3 +60,13 @@ def test_empty_and_single_array_inputs_are_rejected():
 def test_mixing_timed_and_untimed_is_rejected():
     with pytest.raises(ValueError, match="trajectory 1: mixes timed"):
         as_trajectories([Trajectory(np.zeros((2, 1)), times=[0, 1]), np.zeros((2, 1))])
+
+
+def test_unnamed_trajectories_are_named_by_their_index_without_mutating_the_input():
+    named = Trajectory(np.zeros((3, 2)), name="left")
+    unnamed = Trajectory(np.ones((3, 2)))
+    out = as_trajectories([named, unnamed, np.zeros((3, 2))])
+    assert [t.name for t in out] == ["left", "1", "2"]
+    assert out[0] is named  # named ones are returned as given
+    assert unnamed.name is None and out[1] is not unnamed
+    assert out[1].positions is unnamed.positions  # a shallow copy: no data copied

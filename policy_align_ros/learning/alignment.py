@@ -215,6 +215,11 @@ def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, cl
     sigma; each query sees the ``max_neighbours`` trajectories that approach its own most
     closely. Weakly connected trajectories have few neighbours, so the links that outlier
     detection looks for are kept; what is dropped are the far members of crowds.
+
+    The distances are expanded as ``|q|^2 + |r|^2 - 2 q.r``, on states centred first (the
+    mean of all samples subtracted): far from the origin the expansion cancels (states at
+    1e8 state units changed the offsets in the second digit). The thinning works on the
+    states as given, so on ordinary data centring changes the table by round-off only.
     """
     from policy_align_ros.learning.bandwidth import (
         HEURISTIC_POINTS,
@@ -238,7 +243,8 @@ def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, cl
     weights = np.diff(np.append(qry, len(X))).astype(float)
     ref_starts = np.searchsorted(labels[ref], np.arange(K + 1))
     qry_starts = np.searchsorted(labels[qry], np.arange(K + 1))
-    R = X[ref]
+    centred = X - X.mean(axis=0)
+    R = centred[ref]
     sq_r = np.einsum("ij,ij->i", R, R)
     neighbours = np.argsort(closest, axis=1)[:, :max_neighbours]
     r2 = radius**2
@@ -246,7 +252,7 @@ def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, cl
     def searches():
         for k in range(K):
             rows = np.arange(qry_starts[k], qry_starts[k + 1])
-            Q = X[qry[rows]]
+            Q = centred[qry[rows]]
             cand = neighbours[k][np.isfinite(closest[k, neighbours[k]])]
             segs = [np.arange(ref_starts[j], ref_starts[j + 1]) for j in cand]
             cols = np.concatenate(segs)

@@ -12,10 +12,18 @@ import os
 import uuid
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "atomic_write_bytes", "atomic_write_text"]
+__all__ = [
+    "FORMAT_VERSION",
+    "save_npz",
+    "load_npz",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "to_json",
+]
 
 FORMAT_VERSION = 1
 _HEADER = "__header__"
@@ -56,9 +64,71 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, lambda fh: fh.write(text.encode("utf-8")))
 
 
+def to_json(value: Any, field: str) -> Any:
+    """``value`` with NumPy scalars made plain Python numbers, for a JSON header.
+
+    Parameters
+    ----------
+    value : object
+        ``None``, a bool, int, float or str, a NumPy scalar of such a type, or a dict
+        (string keys), list or tuple of these (converted recursively; tuples become lists).
+    field : str
+        Name of the value in the header, for the error message (nested items add
+        ``.key`` or ``[index]``).
+
+    Returns
+    -------
+    object
+        The same value built from plain Python types only; ``value`` is not modified.
+
+    Raises
+    ------
+    ValueError
+        Naming the (nested) field and its type when something cannot be written as JSON
+        (an array, a generator object, a dict with a non-string key, ...).
+    """
+    if value is None or type(value) in (bool, int, float, str):
+        return value
+    if isinstance(value, (bool, int, float, str)):  # np.float64, np.str_, IntEnum, ...
+        return _plain(value, field)
+    if isinstance(value, np.generic):
+        return _plain(value, field)
+    if isinstance(value, dict):
+        out = {}
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise ValueError(f"header field {field!r}: key {key!r} is not a string, "
+                                 "which JSON cannot hold")
+            out[key] = to_json(item, f"{field}.{key}")
+        return out
+    if isinstance(value, (list, tuple)):
+        return [to_json(item, f"{field}[{i}]") for i, item in enumerate(value)]
+    raise ValueError(f"header field {field!r}: a {type(value).__name__} cannot be written "
+                     "as JSON (give a number, string, bool, None, list or dict)")
+
+
+def _plain(value: Any, field: str) -> bool | int | float | str:
+    """A scalar of a subclass of bool, int, float or str, or a NumPy scalar, as the
+    plain Python value."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, (str, np.str_)):
+        return str(value)
+    raise ValueError(f"header field {field!r}: a {type(value).__name__} cannot be written "
+                     "as JSON (give a number, string, bool, None, list or dict)")
+
+
 def save_npz(path: str | Path, header: dict, arrays: dict[str, np.ndarray]) -> Path:
-    """Write ``arrays`` and a JSON ``header`` atomically; returns the path written."""
-    header = {"format_version": FORMAT_VERSION, **header}
+    """Write ``arrays`` and a JSON ``header`` atomically; returns the path written.
+
+    NumPy scalars in ``header`` are written as plain numbers (:func:`to_json`); anything
+    else JSON cannot hold raises a ValueError naming the field, before anything is written.
+    """
+    header = to_json({"format_version": FORMAT_VERSION, **header}, "header")
     payload = {_HEADER: np.array(json.dumps(header))}
     for name, value in arrays.items():
         value = np.asarray(value)
@@ -76,7 +146,8 @@ def load_npz(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     FileNotFoundError
         The file does not exist.
     ValueError
-        The file is truncated, not a model file, of another kind, or of a newer format.
+        The file is truncated, not a model file, of another kind, of a newer format, or
+        its header is not a JSON object or has no integer ``format_version``.
     """
     path = Path(path)
     if not path.is_file():
@@ -94,8 +165,14 @@ def load_npz(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
         raise ValueError(f"{path}: truncated or not a model file ({err})") from None
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from None
+    if not isinstance(header, dict):
+        raise ValueError(f"{path}: malformed model file (the header is a JSON "
+                         f"{type(header).__name__}, not an object)")
     version = header.get("format_version")
-    if not isinstance(version, int) or version > FORMAT_VERSION:
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ValueError(f"{path}: malformed model file (format_version must be a positive "
+                         f"integer, got {version!r})")
+    if version > FORMAT_VERSION:
         raise ValueError(
             f"{path}: model format version {version!r} is newer than this package "
             f"supports ({FORMAT_VERSION}); upgrade policy_align_ros"

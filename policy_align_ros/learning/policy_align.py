@@ -32,10 +32,12 @@ from __future__ import annotations
 
 import copy
 import math
+import numbers
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -117,8 +119,12 @@ class PolicyAlign:
         and ``from_state`` (see :mod:`policy_align_ros.learning.regressors`); default
         ``TrendKernelRegression``, whose gradient is analytic and whose hyperparameters
         are chosen per data set by CV over whole held-out demonstrations.
-    random_state : int or None
-        Seeds every random choice (sigma heuristics on large data, the regressor's CV).
+    random_state : int, numpy.random.Generator or None
+        Seed of the default regressor (``TrendKernelRegression(random_state=...)``: its
+        kernel centres and CV folds), the only random choice of the fit; the kernel width
+        heuristics and the alignment are deterministic. Not used when ``regressor`` is
+        given (seed that one). Saved with the model as a plain int; a Generator, whose
+        state a file cannot hold, is saved as ``None``.
     verbose : bool
         Print the progress of each stage to stderr.
 
@@ -162,7 +168,7 @@ class PolicyAlign:
         eigen_tol: float = 1e-8,
         max_neighbours: int = 32,
         regressor=None,
-        random_state: int | None = 0,
+        random_state: int | np.random.Generator | None = 0,
         verbose: bool = False,
     ) -> None:
         self.sigma = sigma
@@ -191,19 +197,21 @@ class PolicyAlign:
         }
 
     def _validate_params(self) -> None:
+        """Check the constructor arguments (NumPy scalars count as numbers)."""
         if self.integration not in METHODS:
             raise ValueError(
                 f"integration must be one of {METHODS}, got {self.integration!r}"
             )
         for name in ("weight_tol", "eigen_tol"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and 0 < value < 1):
+            if not (isinstance(value, numbers.Real) and 0 < value < 1):
                 raise ValueError(f"{name} must be a float in (0, 1), got {value!r}")
-        if not (isinstance(self.max_neighbours, int) and self.max_neighbours >= 1):
+        if not (isinstance(self.max_neighbours, numbers.Integral)
+                and self.max_neighbours >= 1):
             raise ValueError(
                 f"max_neighbours must be a positive int, got {self.max_neighbours!r}"
             )
-        if not (isinstance(self.merge_tol, (int, float)) and 0 <= self.merge_tol < 1):
+        if not (isinstance(self.merge_tol, numbers.Real) and 0 <= self.merge_tol < 1):
             raise ValueError(f"merge_tol must be a float in [0, 1), got {self.merge_tol!r}")
 
     def _log(self, message: str) -> None:
@@ -297,9 +305,10 @@ class PolicyAlign:
             offsets = solve_offsets(H, a)
             aligned[rule] = (offsets, [p + b for p, b in zip(phi[rule], offsets, strict=True)])
         timings["alignment"] = time.perf_counter() - t1
+        unit = "pieces of trajectories" if split else "trajectories"
         self._log(
             f"aligned with {len(table.q)} responsibilities; {len(keep) - len(free)} of "
-            f"{len(trajs)} trajectories aligned, {len(free)} more levelled by the global "
+            f"{len(trajs)} {unit} aligned, {len(free)} more levelled by the global "
             f"model ({timings['alignment']:.2f} s)"
         )
 
@@ -346,7 +355,10 @@ class PolicyAlign:
             "n_trajectories": len(trajs),
             "n_samples": int(sum(t.n_samples for t in trajs)),
             "n_inliers": int(len(keep)),
-            "n_levelled_by_model": int(len(free)),
+            # Counted in trajectories, as n_inliers (not in pieces where demonstrations
+            # were split): the fitted ones outside the aligned set. Without a split these
+            # are exactly the free groups' trajectories.
+            "n_levelled_by_model": int(np.count_nonzero(self.groups_[keep] != 0)),
             "n_pieces": int(n_pieces),
             "n_samples_left_out": n_left_out,
             "n_groups": int(self.groups_.max() + 1),
@@ -396,7 +408,9 @@ class PolicyAlign:
         piece, aligned potentials joined, a trajectory kept if any piece is, its group the
         best of its pieces'. Samples left out (pieces too short to fit) get the aligned
         potential of the nearest fitted sample plus the chosen rule's own estimate of the
-        drop between them, the best that is known there."""
+        drop between them, the best that is known there. The trajectories' groups are
+        numbered again 0, 1, ... in the order of the pieces' groups (group 0, the aligned
+        set, stays 0), so that ``groups_.max() + 1`` counts them."""
         owner = spans[:, 0]
         first = np.searchsorted(owner, np.arange(len(parents)))
         self.offsets_ = self.offsets_[first]
@@ -416,7 +430,10 @@ class PolicyAlign:
                 values[gaps] = values[near] + whole[gaps] - whole[near]
             aligned.append(values)
         self.aligned_potentials_ = aligned
-        self.groups_ = np.array([self.groups_[owner == k].min() for k in range(len(parents))])
+        merged = np.array([self.groups_[owner == k].min() for k in range(len(parents))])
+        # A group whose pieces all belong to trajectories with a piece in a lower group
+        # vanishes: renumber without gaps, keeping the order.
+        self.groups_ = np.unique(merged, return_inverse=True)[1].reshape(-1).astype(np.int64)
         self.inliers_ = np.unique(owner[self.inliers_])
 
     @staticmethod
@@ -491,10 +508,31 @@ class PolicyAlign:
 
     # -- persistence ------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
-        """Write the fitted model atomically to ``path`` (an ``.npz`` file)."""
+        """Write the fitted model atomically to ``path`` (an ``.npz`` file).
+
+        Parameters
+        ----------
+        path : str or Path
+            The file to write.
+
+        Returns
+        -------
+        Path
+            The path written.
+
+        Raises
+        ------
+        ValueError
+            A hyperparameter, ``state_definition_`` or ``fit_summary_`` entry that JSON
+            cannot hold; the message names the field. NumPy scalars are written as plain
+            numbers and a Generator ``random_state`` as ``None`` (``get_params`` keeps
+            the values as given).
+        """
         self._check_fitted()
         reg_arrays, reg_meta = self.regressor_.get_state()
         params = {k: v for k, v in self.get_params().items() if k != "regressor"}
+        if isinstance(params["random_state"], np.random.Generator):
+            params["random_state"] = None  # a file cannot hold its state
         definition = getattr(self, "state_definition_", None)
         if definition is not None and not isinstance(definition, dict):
             raise ValueError("state_definition_ must be None or a JSON-able dict, got "
@@ -513,6 +551,9 @@ class PolicyAlign:
             "regressor": {"class": type(self.regressor_).__name__, "meta": reg_meta},
             "training": self.fit_summary_,
             "support_spacing": self.support_spacing_,
+            # Exact (fit_summary_ holds its square root) and the Euler rule's factor.
+            "position_noise": self.position_noise_,
+            "euler_scale": self.euler_scale_,
         }
         lengths = np.array([len(p) for p in self.aligned_potentials_])
         arrays = {
@@ -528,40 +569,130 @@ class PolicyAlign:
 
     @classmethod
     def load(cls, path: str | Path) -> PolicyAlign:
-        """Read a model written by ``save``; a bad file gives an error naming it."""
+        """Read a model written by ``save``.
+
+        Parameters
+        ----------
+        path : str or Path
+            An ``.npz`` file written by :meth:`save`.
+
+        Returns
+        -------
+        PolicyAlign
+            The fitted model, with the attributes of a fit (not the regressor's CV
+            scores). Files written before ``position_noise_`` and ``euler_scale_`` were
+            saved give ``0.0`` and ``1.0``: no noise correction and no rescaling, as the
+            code that wrote them did.
+
+        Raises
+        ------
+        FileNotFoundError
+            The file does not exist.
+        ValueError
+            The file is not a readable model file, or its header or arrays are malformed
+            or inconsistent with each other; the message names the file and the problem.
+        """
         header, arrays = model_io.load_npz(path, kind="policy_align")
         try:
-            params = dict(header["params"])
+            params = dict(_field(header, "params", dict))
             model = cls(**params)
+            regressor = _field(header, "regressor", dict)
             reg_arrays = {
                 k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("regressor.")
             }
-            reg_class = regressor_class(header["regressor"]["class"])
-            model.regressor_ = reg_class.from_state(reg_arrays, header["regressor"]["meta"])
+            reg_class = regressor_class(_field(regressor, "class", str))
+            model.regressor_ = reg_class.from_state(reg_arrays, _field(regressor, "meta", dict))
             model.sigma2_ = float(header["sigma2"])
-            model.n_features_in_ = int(header["n_features"])
+            n = _field(header, "n_features", int)
+            if n < 1:
+                raise ValueError(f"n_features must be positive, got {n}")
+            model.n_features_in_ = n
+            reg_n = getattr(model.regressor_, "n_features_in_", n)
+            if reg_n != n:
+                raise ValueError(f"the regressor takes {reg_n} features, n_features is {n}")
             model.joint_names_ = header["joint_names"]
+            if model.joint_names_ is not None and (
+                    not isinstance(model.joint_names_, list) or len(model.joint_names_) != n):
+                raise ValueError(f"joint_names must be null or a list of {n} names")
             # Files written before task-space states have no definition: joint states.
             model.state_definition_ = header.get("state_definition")
             if model.state_definition_ is not None and not isinstance(
                     model.state_definition_, dict):
                 raise ValueError("state_definition is not a dict")
             model.timed_ = header["policy_units"] == "per second"
-            model.fit_summary_ = header["training"]
+            model.fit_summary_ = _field(header, "training", dict)
             # Files written before "auto" existed used the rule they name.
             model.integration_ = model.fit_summary_.get("integration", params.get(
                 "integration", "euler"))
-            model.offsets_ = arrays["offsets"]
-            model.groups_ = arrays["groups"]
-            model.inliers_ = arrays["inliers"]
-            splits = np.cumsum(arrays["aligned_lengths"])[:-1]
-            model.aligned_potentials_ = np.split(arrays["aligned_potentials"], splits)
-            model.support_states_ = np.asarray(arrays["support_states"], dtype=float)
+            model.euler_scale_, model.position_noise_ = _noise_and_scale(
+                header, model.fit_summary_)
+            model.offsets_ = _array(arrays, "offsets", "f", 1)
+            K = len(model.offsets_)
+            expected = model.fit_summary_.get("n_trajectories", K)
+            if expected != K:
+                raise ValueError(f"{K} offsets for n_trajectories = {expected!r}")
+            model.groups_ = _array(arrays, "groups", "iu", 1, K)
+            model.inliers_ = _array(arrays, "inliers", "iu", 1)
+            if np.any(model.inliers_ < 0) or np.any(model.inliers_ >= K):
+                raise ValueError(f"inliers must index the {K} trajectories")
+            lengths = _array(arrays, "aligned_lengths", "iu", 1, K)
+            potentials = _array(arrays, "aligned_potentials", "f", 1)
+            if np.any(lengths < 0) or int(lengths.sum()) != len(potentials):
+                raise ValueError(f"aligned_lengths sum to {int(lengths.sum())}, "
+                                 f"aligned_potentials holds {len(potentials)} values")
+            model.aligned_potentials_ = np.split(potentials, np.cumsum(lengths)[:-1])
+            model.support_states_ = np.asarray(_array(arrays, "support_states", "fiu", 2),
+                                               dtype=float)
+            if model.support_states_.shape[1] != n:
+                raise ValueError(f"support_states has {model.support_states_.shape[1]} "
+                                 f"columns, n_features is {n}")
             model.support_spacing_ = float(header["support_spacing"])
             model._support_tree = None
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise ValueError(f"{path}: malformed policy_align model file ({err})") from None
         return model
+
+
+def _field(mapping: dict, key: str, kind: type) -> Any:
+    """``mapping[key]``, which must be a ``kind`` (an int is not a bool); ValueError (or
+    KeyError when missing) naming the key otherwise."""
+    value = mapping[key]
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise ValueError(f"{key} must be a JSON {_JSON_NAMES.get(kind, kind.__name__)}, "
+                         f"got {type(value).__name__}")
+    return value
+
+
+_JSON_NAMES = {dict: "object", list: "array", str: "string", int: "integer"}
+
+
+def _array(arrays: dict[str, np.ndarray], name: str, kinds: str, ndim: int,
+           length: int | None = None) -> np.ndarray:
+    """The model file's array ``name``, checked for its dtype kinds (``"f"``, ``"iu"``),
+    number of dimensions and (first) length; ValueError naming it otherwise."""
+    value = arrays[name]
+    if value.dtype.kind not in kinds or value.ndim != ndim:
+        raise ValueError(f"array {name!r} must be {ndim}-D of kind {kinds!r}, got "
+                         f"{value.dtype} of shape {value.shape}")
+    if length is not None and len(value) != length:
+        raise ValueError(f"array {name!r} has {len(value)} entries for {length} "
+                         "trajectories")
+    return value
+
+
+def _noise_and_scale(header: dict, summary: dict) -> tuple[float, float]:
+    """``euler_scale_`` and ``position_noise_`` of a model file: the header's exact values,
+    else the training summary's (``position_noise_rms`` squared), else 1 and 0 (files
+    written before either existed)."""
+    scale = float(header.get("euler_scale", summary.get("euler_scale", 1.0)))
+    if "position_noise" in header:
+        noise = float(header["position_noise"])
+    else:
+        noise = float(summary.get("position_noise_rms", 0.0)) ** 2
+    if not (math.isfinite(scale) and math.isfinite(noise)):
+        raise ValueError(f"euler_scale ({scale!r}) and position_noise ({noise!r}) must be "
+                         "finite")
+    return scale, noise
 
 
 def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:

@@ -148,7 +148,12 @@ def trapezoid_potential(positions: np.ndarray, velocities: np.ndarray, late: boo
     Returns
     -------
     ndarray, shape (N,)
-        ``phi_1 = 0`` and ``phi_{i+1} = phi_i - (v_i + v_{i+1})^T (x_{i+1} - x_i) / 2``.
+        ``phi_1 = 0`` and ``phi_{i+1} = phi_i - v_i' dx_i + c_i / 2`` with
+        ``dx_i = x_{i+1} - x_i`` and ``c_i`` the curvature term of
+        :func:`step_curvatures`: ``F_i = (v_i - v_{i+1})' dx_i``, which gives the
+        trapezoid ``phi_i - (v_i + v_{i+1})' dx_i / 2``, except at the steps it marks as
+        constraint switches, where ``c_i`` is ``B_i = (v_{i-1} - v_i)' dx_i`` instead
+        (the velocity after the switch would spoil the drop).
     """
     if late:
         velocities = np.concatenate([velocities[1:], velocities[-1:]])

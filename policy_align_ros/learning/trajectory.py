@@ -8,6 +8,7 @@ policy are in state units per step.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
@@ -122,7 +123,10 @@ def as_trajectories(data: Sequence[Trajectory | np.ndarray]) -> list[Trajectory]
     Returns
     -------
     list of Trajectory
-        One per input, all of the same state dimension ``n``.
+        One per input, all of the same state dimension ``n``. A Trajectory given without
+        a name comes back as a shallow copy named by its index (``"3"``), so that later
+        errors name it; the caller's object is not modified. Named ones are returned as
+        given.
 
     Raises
     ------
@@ -142,6 +146,10 @@ def as_trajectories(data: Sequence[Trajectory | np.ndarray]) -> list[Trajectory]
     for k, item in enumerate(items):
         if isinstance(item, Trajectory):
             traj = item
+            if traj.name is None:
+                # A copy sharing the arrays: the caller's object keeps its own (no) name.
+                traj = copy.copy(item)
+                traj.name = str(k)
         else:
             try:
                 traj = Trajectory(item, name=str(k))

@@ -99,11 +99,16 @@ def profile_gradient(Z: np.ndarray, L: np.ndarray, z0: np.ndarray, s: float,
 
 
 def increasing(beta: np.ndarray, s: float, q_max: float) -> bool:
-    """Whether the profile ``g(q) = sum_j beta_j B_j(q)`` rises on ``(0, 100 q_max]``.
+    """Whether the profile ``g(q) = sum_j beta_j B_j(q)`` rises on
+    ``[1e-6 s^2, 100 max(q_max, s^2)]``.
 
-    Then ``z0`` is the trend's only minimum and its gradient points away from it
-    everywhere the data reach and well beyond. Non-negative weights rise unless they are
-    all zero (a flat trend); the check guards the fit's output whatever produced it.
+    The slope ``g'(q)`` must be positive at 200 points spaced geometrically over that
+    range: from well inside the basis' scale ``s^2`` to a hundred times the largest of the
+    data's ``q_max`` and ``s^2`` (so that data all near the minimum are still checked out
+    to the basis' own scale). Then ``z0`` is the trend's only minimum and its gradient
+    points away from it everywhere the data reach and well beyond. Non-negative weights
+    rise unless they are all zero (a flat trend); the check guards the fit's output
+    whatever produced it.
     """
     q = np.geomspace(1e-6 * s**2, 100.0 * max(q_max, s**2), 200)
     _, dB = profile_basis(q, s)

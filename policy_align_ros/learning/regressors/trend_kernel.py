@@ -82,6 +82,7 @@ import scipy.linalg.blas
 import scipy.optimize
 import scipy.sparse
 
+from policy_align_ros.learning.model_io import to_json
 from policy_align_ros.learning.regressors import single_index
 from policy_align_ros.learning.regressors._common import (
     NotFittedError,
@@ -1053,7 +1054,13 @@ class TrendKernelRegression:
 
     # -- persistence ------------------------------------------------------------------
     def get_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Numeric arrays and a JSON-able header that rebuild this model exactly."""
+        """Numeric arrays and a JSON-able header that rebuild this model exactly.
+
+        The header's ``params`` are the constructor arguments in plain Python types: NumPy
+        scalars (``n_centres=np.int64(300)``) as ints and floats, a Generator
+        ``random_state`` as ``None`` (``get_params`` keeps the values as given). Anything
+        else JSON cannot hold raises a ValueError naming the parameter.
+        """
         self._check_fitted()
         params = self.get_params()
         if isinstance(params["random_state"], np.random.Generator):
@@ -1061,6 +1068,7 @@ class TrendKernelRegression:
         for name in _HYPER:
             if params[name] != "cv":
                 params[name] = _json_float(float(params[name]))
+        params = to_json(params, "TrendKernelRegression params")
         meta = {
             "version": _STATE_VERSION,
             "params": params,
