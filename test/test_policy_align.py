@@ -255,6 +255,36 @@ def test_demonstrations_are_split_where_the_constraint_switches_inside_a_period(
     assert nupe(model) < 1e-6 and nupe(model) < 1e-2 * nupe(whole)
 
 
+def test_demonstrations_are_split_where_samples_were_lost(monkeypatch):
+    # A recorder lost the sample at each of the two constraint switches (10 Hz, 5-D, two
+    # random rows): the steps over the gaps mix two constraints' motion, which no rule
+    # integrates; cut there, the alignment levels the pieces.
+    rng = np.random.default_rng(9)
+    n, dt, n_samples = 5, 0.1, 40
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    pot = QuadraticPotential(rng.uniform(-0.3, 0.3, n),
+                             q @ np.diag(np.linspace(0.5, 2.5, n)) @ q.T)
+    demos = []
+    for k in range(30):
+        rows = rng.standard_normal((3, 2, n))
+        d = rollout(rng.uniform(-1, 1, n), pot,
+                    lambda x, t, pi, r=rows: r[min(int(t / 1.3), 2)], n_samples, dt,
+                    name=str(k)).trajectory
+        keep = np.ones(n_samples, dtype=bool)
+        keep[[13, 26]] = False
+        demos.append(Trajectory(d.positions[keep], d.times[keep], d.velocities[keep],
+                                name=d.name))
+    X = rng.uniform(-1, 1, (200, n))
+    model = PolicyAlign(random_state=0).fit(demos)
+    assert model.fit_summary_["n_pieces"] == 90
+    assert [len(p) for p in model.aligned_potentials_] == [t.n_samples for t in demos]
+    monkeypatch.setattr(pa_module, "sampling_gaps", lambda t: np.zeros(0, dtype=np.int64))
+    whole = PolicyAlign(random_state=0).fit(demos)
+    split_error = metrics.nupe(pot.policy(X), model.policy(X))
+    assert split_error < 1e-8
+    assert metrics.nupe(pot.policy(X), whole.policy(X)) > 1e3 * split_error
+
+
 def test_a_switch_in_the_first_steps_leaves_those_samples_out_of_the_fit():
     # Every demonstration switches inside its first or second step, where a piece would
     # keep one or two samples, and once more later.

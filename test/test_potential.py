@@ -5,12 +5,14 @@ import pytest
 
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.learning.potential import (
+    GAP_RATIO,
     best_timing,
     choose_method,
     estimate_potential,
     euler_potential,
     euler_scale,
     position_noise,
+    sampling_gaps,
     step_curvatures,
     switch_cuts,
     trapezoid_potential,
@@ -276,3 +278,16 @@ def test_switch_cuts_find_switches_inside_a_period_and_nothing_else():
         demo = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array(times), rng)
         np.testing.assert_array_equal(switch_cuts(demo), steps)
     assert best_timing([switched, smooth]) == "mid"
+
+
+def test_sampling_gaps_are_lost_samples_not_jittered_stamps():
+    rng = np.random.default_rng(4)
+    times = 0.01 * np.arange(100) + rng.uniform(-0.002, 0.002, 100)  # a fifth of a step
+    X = rng.standard_normal((100, 2))
+    assert sampling_gaps(Trajectory(X, times)).size == 0
+    keep = np.ones(100, dtype=bool)
+    keep[[30, 61, 62]] = False  # one sample lost, then two in a row
+    gaps = sampling_gaps(Trajectory(X[keep], times[keep]))
+    np.testing.assert_array_equal(gaps, [29, 59])
+    assert np.all(np.diff(times[keep])[gaps] > GAP_RATIO * 0.01 * 0.8)
+    assert sampling_gaps(Trajectory(X)).size == 0  # no times: steps of 1, no gaps

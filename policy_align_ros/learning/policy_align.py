@@ -8,10 +8,11 @@ times (per step otherwise).
 
 1. estimate ``phi_hat_k`` along each trajectory (``integration``; with ``"auto"`` and
    recorded velocities, both the Euler and the trapezoid estimates go through steps 3-4
-   and the regressor's cross-validation score decides). Trajectories whose instantaneous
-   velocities show a constraint switch inside a sample period are first split there
-   (:func:`~policy_align_ros.learning.potential.switch_cuts`): no rule gets that step's
-   drop right, and the alignment levels the pieces (those of fewer than
+   and the regressor's cross-validation score decides). Trajectories are first split at
+   steps that span lost samples (:func:`~policy_align_ros.learning.potential.sampling_gaps`)
+   and, where their instantaneous velocities show one, at a constraint switch inside a
+   sample period (:func:`~policy_align_ros.learning.potential.switch_cuts`): no rule gets
+   such a step's drop right, and the alignment levels the pieces (those of fewer than
    :data:`MIN_PIECE_SAMPLES` samples are left out); the learnt attributes are merged
    back per trajectory;
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
@@ -62,6 +63,7 @@ from policy_align_ros.learning.potential import (
     estimate_potential,
     euler_scale,
     position_noise,
+    sampling_gaps,
     switch_cuts,
 )
 from policy_align_ros.learning.regressors import (
@@ -265,7 +267,7 @@ class PolicyAlign:
         t1 = time.perf_counter()
         self.position_noise_ = position_noise(positions)
         parents, parent_masks = trajs, masks
-        trajs, masks, spans = self._split_at_switches(trajs, masks)
+        trajs, masks, spans = self._split(trajs, masks)
         split = trajs is not parents
         if split:
             X = np.concatenate([t.positions for t in trajs])
@@ -373,29 +375,36 @@ class PolicyAlign:
         }
         return self
 
-    def _split_at_switches(self, trajs: list[Trajectory], masks: list[np.ndarray]
-                           ) -> tuple[list[Trajectory], list[np.ndarray], np.ndarray]:
-        """Pieces of the trajectories between constraint switches inside a sample period
-        (:func:`~policy_align_ros.learning.potential.switch_cuts`), their masks, and the
-        ``(trajectory, first sample, end)`` each piece spans (P, 3). Only where the
-        velocities are sampled at the samples (timing ``"mid"``) and trusted: there no
-        rule gets such a step right, and the alignment levels the pieces, which touch.
-        Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples (a switch in the first or
-        last steps, or two switches close together) are left out of the fit; a trajectory
-        that would keep no piece is kept whole. Nothing cut: the inputs themselves."""
+    def _split(self, trajs: list[Trajectory], masks: list[np.ndarray]
+               ) -> tuple[list[Trajectory], list[np.ndarray], np.ndarray]:
+        """Pieces of the trajectories between steps that no rule gets right, their masks,
+        and the ``(trajectory, first sample, end)`` each piece spans (P, 3).
+
+        Such steps span lost samples
+        (:func:`~policy_align_ros.learning.potential.sampling_gaps`), or, where the
+        velocities are sampled at the samples (timing ``"mid"``) and trusted, a constraint
+        switch inside the sample period
+        (:func:`~policy_align_ros.learning.potential.switch_cuts`). The alignment levels
+        the pieces, which touch. Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples
+        (a cut in the first or last steps, or two cuts close together) are left out of
+        the fit; a trajectory that would keep no piece is kept whole. Nothing cut: the
+        inputs themselves."""
         spans = np.array([(k, 0, t.n_samples) for k, t in enumerate(trajs)], dtype=np.int64)
-        if (self.integration not in ("auto", "trapezoid")
-                or best_timing(trajs, self.position_noise_) != "mid"):
-            return trajs, masks, spans
+        switches = (self.integration in ("auto", "trapezoid")
+                    and best_timing(trajs, self.position_noise_) == "mid")
         pieces, piece_masks, out = [], [], []
         for k, (t, m) in enumerate(zip(trajs, masks, strict=True)):
-            bounds = [0, *(int(i) + 1 for i in switch_cuts(t)), t.n_samples]
+            cuts = sampling_gaps(t)
+            if switches:
+                cuts = np.union1d(cuts, switch_cuts(t))
+            bounds = [0, *(int(i) + 1 for i in cuts), t.n_samples]
             kept = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)
                     if b - a >= MIN_PIECE_SAMPLES] or [(0, t.n_samples)]
             for a, b in kept:
                 pieces.append(t if (a, b) == (0, t.n_samples) else Trajectory(
                     t.positions[a:b], None if t.times is None else t.times[a:b],
-                    t.velocities[a:b], name=f"{t.name}[{a}:{b}]"))
+                    None if t.velocities is None else t.velocities[a:b],
+                    name=f"{t.name}[{a}:{b}]"))
                 piece_masks.append(m[a:b])
                 out.append((k, a, b))
         if len(pieces) == len(trajs) and all(

@@ -48,7 +48,7 @@ import numpy as np
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS",
-           "best_timing", "switch_cuts",
+           "best_timing", "switch_cuts", "sampling_gaps", "GAP_RATIO",
            "velocity_disagreement", "choose_method", "position_noise", "euler_scale",
            "VELOCITY_AGREEMENT", "TIMINGS", "step_curvatures", "SWITCH_RATIO"]
 
@@ -66,6 +66,9 @@ VELOCITY_AGREEMENT = 0.5
 SWITCH_RATIO = 3.0
 #: Relative step misses below this are round-off (``sqrt`` of the machine epsilon).
 ROUND_OFF = math.sqrt(np.finfo(float).eps)
+#: A step longer than this many times its trajectory's median step spans lost samples
+#: (:func:`sampling_gaps`): halfway between an even step (1) and one lost sample (2).
+GAP_RATIO = 1.5
 
 
 def position_noise(positions: list[np.ndarray]) -> float:
@@ -334,6 +337,28 @@ def best_timing(trajs: list[Trajectory], noise: float = 0.0) -> str | None:
         totals[timing] = _relative_miss(sum(e for e, _ in sums), sum(m for _, m in sums))
     best = min(TIMINGS, key=totals.get)
     return best if totals[best] <= VELOCITY_AGREEMENT else None
+
+
+def sampling_gaps(traj: Trajectory) -> np.ndarray:
+    """Steps that span lost samples: longer than :data:`GAP_RATIO` times the median step.
+
+    A recorder that loses messages (a loaded machine, a lossy network) leaves a step over
+    which the state moved at velocities that nobody recorded. Where the constraint or the
+    speed changed in between, no rule gets that step's potential drop right to first
+    order, whatever the velocity timing. Stamps jittered by up to a fifth of a step stay
+    below the ratio. Measured with ``tools/recording_check.py`` (``docs/notes/potential.md``,
+    "Lost samples").
+
+    Returns
+    -------
+    ndarray of int
+        Step indices ``i`` (the cut falls between samples ``i`` and ``i + 1``), sorted;
+        empty for a trajectory without times.
+    """
+    if traj.times is None or traj.n_samples < 3:
+        return np.zeros(0, dtype=np.int64)
+    dt = traj.dt
+    return np.flatnonzero(dt > GAP_RATIO * np.median(dt)).astype(np.int64)
 
 
 def switch_cuts(traj: Trajectory) -> np.ndarray:
