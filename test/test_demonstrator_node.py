@@ -5,6 +5,8 @@ Trigger services on a probe node, which also records the joint states in between
 """
 
 
+import time
+
 import numpy as np
 import pytest
 import rclpy
@@ -13,6 +15,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from policy_align_ros.kinematics import TaskSpaceMap
@@ -21,6 +24,7 @@ from policy_align_ros.nodes.demonstrator import (
     drop_roundoff_at_limits,
     hand_plane_rows,
     random_plane_specs,
+    stale_joint_state,
 )
 from policy_align_ros.nodes.sim_robot import SimRobot
 
@@ -174,3 +178,108 @@ def test_roundoff_out_of_a_limit_is_dropped_but_a_real_push_is_kept():
     np.testing.assert_array_equal(qdot, [0.0, 0.0, 0.5])
     kept = drop_roundoff_at_limits(q, np.array([0.2, 0.3, 0.0]), lower, upper)
     np.testing.assert_array_equal(kept, [0.2, 0.3, 0.0])  # outward 0.2 stays; inward 0.3
+
+
+def test_stale_joint_state_says_why_or_nothing():
+    assert stale_joint_state(None, 5.0, 0.1) == "no joint state received"
+    assert stale_joint_state(4.95, 5.0, 0.1) == ""
+    assert stale_joint_state(5.0, 5.0, 0.1) == ""
+    assert "0.300 s ago" in stale_joint_state(4.7, 5.0, 0.1)
+    assert "clock went back" in stale_joint_state(6.0, 5.0, 0.1)
+
+
+def _spin_until(executor, predicate, timeout: float) -> bool:
+    """Spin until ``predicate()``; the timeout only bounds a failure."""
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.01)
+    return predicate()
+
+
+@pytest.mark.parametrize(("domain_id", "lockstep"), [(185, False), (186, True)])
+def test_stale_joint_states_pause_with_zero_commands_and_destroy_sends_zero(domain_id,
+                                                                            lockstep):
+    # A JointGroupVelocityController holds the last command forever: when the joint states
+    # stop, the demonstrator must command zero (not keep integrating a stale q) and pause
+    # the demonstration; destroying the node must leave a zero command behind.
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    nodes = []
+    try:
+        demo = Demonstrator(context=context, parameter_overrides=[
+            Parameter("robot", value="talos"), Parameter("joints", value=JOINTS),
+            Parameter("rate_hz", value=100.0), Parameter("num_demos", value=1),
+            Parameter("demo_duration_s", value=1.0), Parameter("constraint_frames", value=[""]),
+            Parameter("reach_timeout_s", value=0.1), Parameter("startup_delay_s", value=0.0),
+            Parameter("service_timeout_s", value=20.0),
+            Parameter("step_on_joint_state", value=lockstep)])
+        probe = Node("recorder", context=context)  # the fake recorder, robot and controller
+        nodes += [demo, probe]
+        bad = demo.set_parameters([Parameter("state_timeout_s", value=float("nan"))])
+        assert not bad[0].successful and "state_timeout_s" in bad[0].reason
+        assert not demo.set_parameters([Parameter("state_timeout_s", value=0.0)])[0].successful
+        assert demo.set_parameters([Parameter("state_timeout_s", value=0.1)])[0].successful
+        lower, upper = demo.robot.lower, demo.robot.upper
+        q = np.clip(demo.attractor + 0.2, lower, upper)  # away from it: the expert moves
+        publishing, events, commands = [True], [], []
+
+        def publish_state():
+            if publishing[0]:
+                msg = JointState(name=JOINTS, position=q.tolist())
+                msg.header.stamp = probe.get_clock().now().to_msg()
+                states.publish(msg)
+
+        def trigger(name):
+            def answer(request, response):
+                events.append(name)
+                response.success, response.message = True, name
+                return response
+            return answer
+
+        states = probe.create_publisher(JointState, "/joint_states", 10)
+        probe.create_timer(0.01, publish_state)
+        probe.create_service(Trigger, "~/start_demo", trigger("start"))
+        probe.create_service(Trigger, "~/stop_demo", trigger("stop"))
+        probe.create_subscription(JointState, "/joint_states", lambda msg: None, 10)
+        probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
+                                  lambda msg: commands.append(np.array(msg.data)), 100)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(demo)
+        executor.add_node(probe)
+
+        def moving_in_demo():
+            return demo._state == "demo" and bool(commands) and np.abs(commands[-1]).max() > 0
+
+        assert _spin_until(executor, moving_in_demo, 30.0), (demo._state, events)
+        publishing[0] = False
+        stopped = len(commands)
+        assert _spin_until(executor, lambda: any(
+            not c.any() for c in commands[stopped:]), 10.0), "no zero after the states stop"
+        first_zero = stopped + next(k for k, c in enumerate(commands[stopped:]) if not c.any())
+        # Longer than the whole demonstration (1 s) without joint states: zeros only, and
+        # the demonstration is paused, not run to its end on a stale state.
+        paused_at = time.monotonic()
+        _spin_until(executor, lambda: time.monotonic() - paused_at > 1.5, 3.0)
+        zeros = commands[first_zero:]
+        assert len(zeros) >= 10 and not any(c.any() for c in zeros)
+        assert events == ["start"] and demo._state == "demo"
+        # Joint states again: the demonstration goes on where it was.
+        publishing[0] = True
+        resumed = len(commands)
+        assert _spin_until(executor, lambda: any(
+            c.any() for c in commands[resumed:]), 10.0), "no motion after the states return"
+        assert demo._state == "demo" and np.abs(commands[-1]).max() > 0
+        # Destroyed mid-motion: the last command the controller receives is a zero.
+        executor.remove_node(demo)
+        nodes.remove(demo)
+        before = len(commands)
+        demo.destroy_node()
+        publishing[0] = False
+        assert _spin_until(executor, lambda: len(commands) > before and not commands[-1].any(),
+                           5.0), "no zero command on destroy_node"
+        _spin_until(executor, lambda: False, 0.3)  # nothing may follow it
+        assert not commands[-1].any()
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -533,3 +533,92 @@ def test_idle_split_follows_sim_time(tmp_path):
             harness.close()
     trajs, _, _ = load_dataset(tmp_path, gap_s=0)
     np.testing.assert_array_equal(trajs[0].positions, q)
+
+
+def test_negative_stamps_are_skipped_and_finished_demos_survive(tmp_path, monkeypatch):
+    # The reviewer's session: a good segment, a publisher with an unset clock (sec = -1),
+    # good again. The negative stamps used to be accepted, the next split raised an
+    # OverflowError out of the subscription callback, and shutdown() raised it again.
+    monkeypatch.setenv("ROS_HOME", str(tmp_path / "ros_home"))
+    q = np.random.default_rng(12).normal(size=(15, 2))
+    with _ros(115) as ctx:
+        node = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path / "ds")),
+            Parameter("joints", value=["a", "b"]), Parameter("auto_split_gap_s", value=0.5)])
+        try:
+            now = node.get_clock().now().nanoseconds
+            for k in range(5):
+                node._on_joint_state(_msg(now - 10**9 + k * 10**7, "ab", q[k]))
+            for k in range(5, 10):
+                negative = _msg(-10**9 + k * 10**7, "ab", q[k])
+                assert negative.header.stamp.sec == -1
+                node._on_joint_state(negative)
+            for k in range(10, 15):  # the 1 s gap to the first segment splits it off
+                node._on_joint_state(_msg(now + k * 10**7, "ab", q[k]))
+            rec = node.recorder
+            assert rec.skipped["time_negative"] == 5 and rec.accepted == 10
+            assert [p.name for p in rec.written] == ["demo_0000"] and rec.pending == 0
+            node._on_timer()  # the throttled warning names the reason; must not raise
+            node.shutdown()  # continuous mode: writes the last segment, never raises
+            assert [p.name for p in rec.written] == ["demo_0000", "demo_0001"]
+        finally:
+            node.destroy_node()
+    trajs, _, _ = load_dataset(tmp_path / "ds", gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, q[:5])
+    np.testing.assert_array_equal(trajs[1].positions, q[10:])
+    assert not (tmp_path / "ros_home" / "policy_align_recorder").exists()  # no fallback
+
+
+@pytest.mark.parametrize(("domain_id", "err"), [
+    (116, OverflowError("int too big to convert")),
+    (117, RuntimeError("rosbags writer failed")),
+])
+def test_unexpected_write_error_keeps_the_demo_pending_and_the_node_alive(
+        tmp_path, monkeypatch, domain_id, err):
+    # Any exception of the writer is a failed write: stop_demo answers success=false, the
+    # demonstration stays pending, the timer retries it, and shutdown() does not raise.
+    from policy_align_ros.data import bags
+    from policy_align_ros.nodes import recorder as recorder_module
+
+    monkeypatch.setenv("ROS_HOME", str(tmp_path / "ros_home"))
+    monkeypatch.setattr(recorder_module, "_RETRY_PERIOD_S", 0.0)  # every timer tick
+    real, fail = bags._joint_state_cdr, [True]
+
+    def cdr(*args):
+        if fail[0]:
+            raise err
+        return real(*args)
+
+    monkeypatch.setattr(bags, "_joint_state_cdr", cdr)
+    q = np.random.default_rng(13).normal(size=(20, 2))
+    with _ros(domain_id) as ctx:
+        node = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path / "ds"))])
+        try:
+            rec = node.recorder
+            now = node.get_clock().now().nanoseconds
+            assert node._on_start(Trigger.Request(), Trigger.Response()).success
+            for k in range(10):
+                node._on_joint_state(_msg(now + k * 10**7, "ab", q[k]))
+            failed = node._on_stop(Trigger.Request(), Trigger.Response())
+            assert not failed.success and type(err).__name__ in failed.message
+            assert "kept in memory" in failed.message and rec.pending == 10
+            refused = node._on_start(Trigger.Request(), Trigger.Response())
+            assert not refused.success and "could not be written" in refused.message
+            node._on_timer()  # the retry fails again: logged, not raised
+            assert rec.pending == 10
+            fail[0] = False
+            node._on_timer()  # the retry writes it
+            assert rec.pending == 0 and [p.name for p in rec.written] == ["demo_0000"]
+            # A second demonstration still failing at shutdown: reported, never raised.
+            assert node._on_start(Trigger.Request(), Trigger.Response()).success
+            for k in range(10, 20):
+                node._on_joint_state(_msg(now + k * 10**7, "ab", q[k]))
+            fail[0] = True
+            assert not node._on_stop(Trigger.Request(), Trigger.Response()).success
+            node.shutdown()
+            assert rec.pending == 0 and len(rec.written) == 1  # every directory failed
+        finally:
+            node.destroy_node()
+    trajs, _, _ = load_dataset(tmp_path / "ds", gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, q[:10])

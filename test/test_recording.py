@@ -160,7 +160,7 @@ def test_state_errors_and_parameter_validation(tmp_path):
         DemoRecorder(tmp_path, joints=["a", "a"])
 
 
-def _failing_writes(monkeypatch, err: OSError, fail: list[bool]):
+def _failing_writes(monkeypatch, err: Exception, fail: list[bool]):
     """Make write_joint_state_bag fail with ``err`` mid-bag while ``fail[0]`` is true."""
     real = bags._joint_state_cdr
     calls = {"n": 0}
@@ -307,6 +307,99 @@ def test_close_in_manual_mode_discards_the_unstopped_demo(tmp_path):
     rec.start()
     _feed(rec, np.random.default_rng(10), 10, T0)
     assert rec.close(keep_current=False) == [] and _entries(tmp_path) == []
+
+
+def test_negative_stamps_are_skipped_and_counted_and_demos_still_written(tmp_path):
+    # sec = -1 from a publisher whose clock was never set: accepted, such a stamp made the
+    # whole demonstration unwritable (OverflowError in the bag writer) and stop() raise.
+    rng = np.random.default_rng(13)
+    rec = DemoRecorder(tmp_path / "manual")
+    rec.start()
+    before = _feed(rec, rng, 5, T0)
+    for k in range(4):
+        assert rec.add(-10**9 + k * MS, JOINTS, [0.0] * 3) is None
+    after = _feed(rec, rng, 5, T0 + 10**9)
+    assert rec.skipped["time_negative"] == 4 and rec.accepted == 10
+    path = rec.stop()
+    assert rec.pending == 0 and rec.pending_error == ""
+    read = list(read_joint_states(path))
+    assert [m[1] for m in read] == before[0].tolist() + after[0].tolist()
+    np.testing.assert_array_equal([m[3] for m in read], np.vstack([before[1], after[1]]))
+    # Only negative stamps: nothing recorded, nothing pending, the next start works.
+    rec.start()
+    for k in range(5):
+        rec.add(-10**9 + k * 10 * MS, JOINTS, [0.1 * k, 0.2, 0.3])
+    assert rec.stop() is None and rec.pending == 0 and rec.skipped["time_negative"] == 9
+    rec.start()
+    assert rec.active
+
+    # Continuous mode: the negative stamps neither split nor spoil the segments around them.
+    cont = DemoRecorder(tmp_path / "cont", auto_split_gap_s=0.5)
+    cont.start()
+    first = _feed(cont, rng, 5, T0)
+    for k in range(5):
+        cont.add(-10**9 + k * 10 * MS, JOINTS, [0.0] * 3)
+    second = _feed(cont, rng, 5, T0 + 10**9)  # the 1 s gap writes the first segment
+    assert [p.name for p in cont.written] == ["demo_0000"]
+    results = cont.close(keep_current=True)  # must not raise
+    assert [(r.messages, r.fallback) for r in results] == [(5, False)]
+    assert cont.skipped["time_negative"] == 5 and cont.pending == 0
+    trajs, _, _ = load_dataset(tmp_path / "cont", gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, first[1])
+    np.testing.assert_array_equal(trajs[1].positions, second[1])
+
+
+@pytest.mark.parametrize("err", [OverflowError("can't convert negative int to unsigned"),
+                                 RuntimeError("rosbags writer failed")])
+def test_any_writer_exception_keeps_the_demonstration_pending(tmp_path, monkeypatch, err):
+    # Not only OSError: whatever the writer raises, the demonstration is kept, the caller
+    # gets a PendingWriteError, a retry writes it, and close() reports instead of raising.
+    fail = [True]
+    _failing_writes(monkeypatch, err, fail)
+    rng = np.random.default_rng(14)
+    rec = DemoRecorder(tmp_path / "ds")
+    rec.start()
+    stamps, q, v = _feed(rec, rng, 20, T0)
+    with pytest.raises(PendingWriteError, match=type(err).__name__) as info:
+        rec.stop()
+    assert info.value.__cause__ is err and "kept in memory" in str(info.value)
+    assert rec.pending == 20 and rec.pending_error == f"{type(err).__name__}: {err}"
+    assert _entries(tmp_path / "ds") == []  # no partial bag, no temporary left
+    with pytest.raises(RuntimeError, match="could not be written"):
+        rec.start()
+    with pytest.raises(PendingWriteError):
+        rec.retry_pending()
+    assert rec.pending == 20
+    fail[0] = False
+    path = rec.retry_pending()
+    assert path.name == "demo_0000" and rec.pending == 0
+    read = list(read_joint_states(path))
+    assert [m[1] for m in read] == stamps.tolist()
+    np.testing.assert_array_equal([m[3] for m in read], q)
+    np.testing.assert_array_equal([m[4] for m in read], v)
+
+    # Continuous mode: the split that fails pauses the recording instead of crashing add.
+    cont = DemoRecorder(tmp_path / "cont", auto_split_gap_s=0.5)
+    cont.start()
+    _feed(cont, rng, 12, T0)
+    fail[0] = True
+    with pytest.raises(PendingWriteError):
+        _feed(cont, rng, 1, T0 + 10**9)
+    assert cont.pending == 12 and cont.lost_while_pending == 1
+    # Closing while the writer still fails everywhere: reported, never raised.
+    results = cont.close(keep_current=True, fallback_dirs=[tmp_path / "fb"])
+    assert [(r.messages, r.path) for r in results] == [(12, None)]
+    assert len(results[0].errors) == 2
+    assert all(type(err).__name__ in e for e in results[0].errors)
+    # With a working writer close() saves the pending demonstration.
+    again = DemoRecorder(tmp_path / "again", auto_split_gap_s=0.5)
+    again.start()
+    _feed(again, rng, 12, T0)
+    with pytest.raises(PendingWriteError):
+        _feed(again, rng, 1, T0 + 10**9)
+    fail[0] = False
+    results = again.close(keep_current=True)
+    assert [(r.messages, r.fallback) for r in results] == [(12, False)]
 
 
 @pytest.mark.parametrize("below", ["file/ds", "file"])

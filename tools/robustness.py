@@ -956,6 +956,8 @@ def cases_recorder(lab: Lab) -> list[Result]:
         send_good(3)
         r.expect(rec.accepted == before + 3,
                  "valid messages after the future stamp are not recorded")
+        msg_case("rec-msg-stamp-negative", "JointState stamped before the epoch (sec = -1)",
+                 lambda: state(J2, [0.1, 0.2], stamp=Time(sec=-1)), "time_negative")
         out.append(p(rig, "rec-joints-while-recording",
                      "recorder `joints: [j2, j1]` while a demonstration is recorded",
                      "joints", ["j2", "j1"], "joints"))

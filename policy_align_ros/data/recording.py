@@ -27,7 +27,13 @@ demonstration, at most one: :meth:`DemoRecorder.start` is refused while it exist
 continuous recording pauses (messages counted in ``lost_while_pending``), and
 :meth:`DemoRecorder.stop` or :meth:`DemoRecorder.retry_pending` writes it once the
 directory works again. :meth:`DemoRecorder.close` writes whatever is left, into a fallback
-directory (:func:`default_fallback_dirs`) if the dataset directory still fails.
+directory (:func:`default_fallback_dirs`) if the dataset directory still fails. Any
+exception of the bag writer counts as a failed write, not only ``OSError``: an unexpected
+one (a bug, an ``OverflowError`` on a value a bag cannot hold) must not lose the
+demonstration or escape into a node's callbacks either.
+
+Header stamps before the epoch (negative, e.g. ``sec = -1`` from a publisher whose clock
+was never set) are skipped as ``time_negative``: a bag stores times as unsigned integers.
 """
 
 from __future__ import annotations
@@ -133,6 +139,18 @@ class PendingWriteError(OSError):
     """A demonstration could not be written and is kept in memory (the message says why)."""
 
 
+def _error_text(err: BaseException) -> str:
+    """One line saying why a write failed; the type is named when the error is unexpected.
+
+    ``OSError`` and ``ValueError`` messages name the path and the reason already; a bare
+    ``OverflowError`` message (say "int too big to convert") would be meaningless alone.
+    """
+    text = str(err)
+    if isinstance(err, (OSError, ValueError)):
+        return text or type(err).__name__
+    return f"{type(err).__name__}: {text}" if text else type(err).__name__
+
+
 @dataclass(frozen=True)
 class _Demo:
     """One finished demonstration, ready for write_joint_state_bag (arrays own their data)."""
@@ -200,8 +218,8 @@ class DemoRecorder:
     Attributes
     ----------
     skipped : Counter
-        Skipped messages by reason (see :data:`SKIP_REASONS`, plus ``time_in_future``
-        once it happens), over the lifetime.
+        Skipped messages by reason (see :data:`SKIP_REASONS`, plus ``time_in_future`` and
+        ``time_negative`` once they happen), over the lifetime.
     accepted : int
         Valid messages recorded over the lifetime.
     written : list of Path
@@ -379,8 +397,9 @@ class DemoRecorder:
     ) -> list[SaveResult]:
         """Stop for good, saving the pending demonstration and optionally the current one.
 
-        Never raises for a failed write: each demonstration goes to the dataset directory,
-        else to the first fallback directory that works, and the outcome is returned.
+        Never raises for a failed write, whatever the exception: each demonstration goes
+        to the dataset directory, else to the first fallback directory that works, and the
+        outcome is returned.
 
         Parameters
         ----------
@@ -414,8 +433,8 @@ class DemoRecorder:
                 for k, directory in enumerate(targets):
                     try:
                         path = demo.write(directory)
-                    except (OSError, ValueError) as err:
-                        errors.append(f"{directory}: {err}")
+                    except Exception as err:  # any writer error (module docstring)
+                        errors.append(f"{directory}: {_error_text(err)}")
                         continue
                     self.written.append(path)
                     results.append(SaveResult(len(demo), path, k > 0, tuple(errors)))
@@ -481,7 +500,7 @@ class DemoRecorder:
         Parameters
         ----------
         stamp_ns : int
-            Header stamp in nanoseconds.
+            Header stamp in nanoseconds; a negative one is skipped as ``time_negative``.
         names : sequence of str, length m
         positions : sequence of float, length m
         velocities, efforts : sequence of float, length 0 or m
@@ -515,6 +534,12 @@ class DemoRecorder:
             picked = self._selector.select(names, positions, velocities, efforts)
             if isinstance(picked, str):
                 self.skipped[picked] += 1
+                return None
+            if stamp_ns < 0:
+                # Before the epoch: a publisher whose clock was never set (sec = -1). A bag
+                # stores times as unsigned integers, so the demonstration could never be
+                # written; the message is malformed, like one with a NaN position.
+                self.skipped["time_negative"] += 1
                 return None
             if clock_ns is not None and stamp_ns - clock_ns > self._max_ahead_ns:
                 self.skipped["time_in_future"] += 1
@@ -580,13 +605,17 @@ class DemoRecorder:
         return self._write_pending()
 
     def _write_pending(self) -> Path:
-        """Write the pending demonstration (caller holds the lock); it stays on failure."""
+        """Write the pending demonstration (caller holds the lock); it stays on failure.
+
+        Every exception of the writer becomes a PendingWriteError, so callers (and a
+        node's callbacks) have one failure to handle and the demonstration is retried.
+        """
         demo = self._pending
         assert demo is not None
         try:
             path = demo.write(self.dataset_dir)
-        except (OSError, ValueError) as err:
-            self._pending_error = str(err) or type(err).__name__
+        except Exception as err:  # any writer error (module docstring)
+            self._pending_error = _error_text(err)
             raise PendingWriteError(self._pending_message()) from err
         self._pending, self._pending_error = None, ""
         self.written.append(path)

@@ -37,18 +37,26 @@ It starts once the recorder's services exist and the recorder subscribes to
 redone (``max_retries`` in total); a refused ``start_demo`` ends the run.
 
 Commands go to ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s,
-order = ``joints``); the state comes from ``/joint_states``. Progress is published on
-``~/progress`` (std_msgs/String, transient local) as ``k/K late_ticks=m/t``: ``k`` of ``K``
-demonstrations done, ``m`` late control ticks among ``t`` during demonstrations. With
-``exit_when_done`` the process exits after the last demonstration (status 0, or 1 when the
-recorder refused a call).
+order = ``joints``); the state comes from ``/joint_states``. A JointGroupVelocityController
+holds the last command forever, so the node never commands from an old state: while the
+last joint state arrived more than ``state_timeout_s`` ago (node clock), it publishes zeros
+every period and the demonstration (or the move to its start) pauses, its clock stopped,
+and it goes on where it was when joint states come back (also in lockstep, where a timer
+still watches for joint states that stop). ``destroy_node`` publishes a zero command.
+
+Progress is published on ``~/progress`` (std_msgs/String, transient local) as
+``k/K late_ticks=m/t``: ``k`` of ``K`` demonstrations done, ``m`` late control ticks among
+``t`` during demonstrations. With ``exit_when_done`` the process exits after the last
+demonstration (status 0, or 1 when the recorder refused a call).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
@@ -79,12 +87,39 @@ from policy_align_ros.nodes._common import (
 )
 
 __all__ = ["Demonstrator", "drop_roundoff_at_limits", "hand_plane_rows", "main",
-           "random_plane_specs"]
+           "random_plane_specs", "stale_joint_state"]
 
 DEFAULT_FRAMES = ["arm_left_7_link", "arm_right_7_link"]
 EXPERTS = ("joints", "hands")
 #: A control tick later than this many periods after the previous one counts as late.
 LATE_TICK_PERIODS = 1.5
+#: States that command motion computed from the joint states (paused while they are stale).
+MOVING_STATES = ("reach", "demo")
+
+
+def stale_joint_state(received: float | None, now: float, timeout: float) -> str:
+    """Why the last joint state is too old to command from, or ``""`` when it is fresh.
+
+    Parameters
+    ----------
+    received : float or None
+        Arrival time of the last accepted joint state [s, node clock]; None: none yet.
+    now : float
+        Current time [s, node clock].
+    timeout : float
+        Largest age that counts as fresh [s].
+
+    A clock that went back since the arrival (a restarted simulator's ``/clock``) makes
+    the state stale too: its age is unknown.
+    """
+    if received is None:
+        return "no joint state received"
+    age = now - received
+    if age < 0.0:
+        return f"the clock went back {-age:.3f} s since the last joint state"
+    if age > timeout:
+        return f"last joint state received {age:.3f} s ago (> state_timeout_s)"
+    return ""
 
 
 def random_plane_specs(frames: Sequence[str], rng: np.random.Generator) -> list[dict]:
@@ -179,6 +214,9 @@ class Demonstrator(Node):
             "lockstep with a simulator: one control step per received joint state instead "
             "of on the rate_hz timer, so the command the simulator integrates next comes "
             "from the latest state (rate_hz is then the simulator's rate)", read_only=True))
+        p("state_timeout_s", 0.2, descriptor(
+            "joint states older than this (by arrival) pause the demonstration and command "
+            "zero [s]", float_range=(0.001, 10.0)))
         p("max_velocity", 2.0, descriptor("joint speed limit [rad/s]; the URDF's applies "
                                           "where lower", read_only=True,
                                           float_range=(0.01, 10.0)))
@@ -232,6 +270,8 @@ class Demonstrator(Node):
         self._failures = 0
         self._selector = JointSelector(joints)
         self._q: np.ndarray | None = None
+        self._q_received: float | None = None  # arrival of self._q [s, node clock]
+        self._paused_at: float | None = None  # start of a pause for stale joint states
         self._state = "wait"
         self._since = self._now()
         self._last_tick: float | None = None
@@ -252,8 +292,9 @@ class Demonstrator(Node):
         self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
         self._lockstep = bool(value("step_on_joint_state").value)
         self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
-        if not self._lockstep:
-            self.create_timer(self.period, self._on_timer)
+        # In lockstep the joint states drive the steps; the timer still catches joint
+        # states that stop coming (no step would then replace the last command).
+        self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
 
     def _make_hand_expert(self, targets, gain: float) -> TaskSpaceExpert:
         if not self.hand_frames:
@@ -283,12 +324,18 @@ class Demonstrator(Node):
             if param.name == "expert" and param.value not in EXPERTS:
                 return reject(f"expert: must be one of {', '.join(EXPERTS)}, "
                               f"got {param.value!r}")
+            # rclpy's range check comes first; the rule is stated here too, as in the
+            # executor, so that it holds whatever range the descriptor is given.
+            if param.name == "state_timeout_s" and not (math.isfinite(param.value)
+                                                        and param.value > 0.0):
+                return reject(f"state_timeout_s: must be finite and > 0, got {param.value}")
         return accept()
 
     def _on_joint_state(self, msg: JointState) -> None:
         q = self._selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
         if not isinstance(q, str):  # a str is why the message was rejected
             self._q = q
+            self._q_received = self._now()
             if self._lockstep:
                 self._on_timer()
 
@@ -299,6 +346,18 @@ class Demonstrator(Node):
 
     def _send(self, qdot: np.ndarray) -> None:
         self._cmd.publish(Float64MultiArray(data=qdot.tolist()))
+
+    def publish_zeros(self, why: str) -> None:
+        """Publish one zero command and wait briefly for subscribers to acknowledge it."""
+        self._send(np.zeros(len(self._selector.joints)))
+        self._cmd.wait_for_all_acked(Duration(seconds=0.2))
+        self.get_logger().info(f"published zero command ({why})")
+
+    def destroy_node(self) -> None:
+        """Stop the robot (zero command) before the node goes away."""
+        if self.context.ok() and hasattr(self, "_cmd"):
+            self.publish_zeros("shutdown")
+        super().destroy_node()
 
     def _finish(self, code: int, why: str) -> None:
         self._send(np.zeros(len(self._selector.joints)))
@@ -335,6 +394,8 @@ class Demonstrator(Node):
             return  # use_sim_time and no /clock yet: time would jump at the first message
         if self._since <= 0.0:
             self._since = now
+        if not self._fresh(now):
+            return
         elapsed = now - self._since
         if self._state == "demo" and self._last_tick is not None:
             self.demo_ticks += 1
@@ -411,6 +472,38 @@ class Demonstrator(Node):
                     self._finish(0, f"all {self.num_demos} demonstrations recorded")
                 else:
                     self._new_start()
+
+    def _fresh(self, now: float) -> bool:
+        """Whether a moving state may command from the last joint state; pauses if not.
+
+        While it is stale the command is zero on every call (a dropped zero must not leave
+        the robot moving) and the state's clock stands still, so the demonstration goes on
+        where it was, its full length on the planes drawn for it.
+        """
+        if self._state not in MOVING_STATES:
+            return True
+        problem = stale_joint_state(self._q_received, now,
+                                    self.get_parameter("state_timeout_s").value)
+        if problem:
+            if self._paused_at is None:
+                self._paused_at = now
+                self.get_logger().warning(f"{problem}: command zero, {self._state} paused")
+            self._send(np.zeros(len(self._selector.joints)))
+            self._last_tick = None  # a pause is not a late control tick
+            return False
+        if self._paused_at is not None:
+            paused = max(0.0, now - self._paused_at)
+            self._since += paused
+            self._paused_at = None
+            self.get_logger().info(f"joint states back: {self._state} resumed after "
+                                   f"{paused:.3f} s")
+        return True
+
+    def _on_watchdog(self) -> None:
+        """Lockstep mode's timer: zero commands once the joint states stop."""
+        now = self._now()
+        if now > 0.0:  # use_sim_time and no /clock yet: nothing to measure against
+            self._fresh(now)
 
     def _expert_command(self, q: np.ndarray) -> np.ndarray:
         """The expert's joint velocity (n,) at ``q`` under the current planes, rad/s."""

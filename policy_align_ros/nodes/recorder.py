@@ -45,7 +45,13 @@ Failures lose no finished demonstration:
 Skipped (malformed) messages are reported in a warning at most every ``warn_period_s``.
 A header stamp more than ``_MAX_STAMP_AHEAD_S`` after the node clock is skipped as
 ``time_in_future`` (a stray stamp must not make the rest of a demonstration look like time
-going backwards); not with ``use_sim_time``, where both come from ``/clock``.
+going backwards); not with ``use_sim_time``, where both come from ``/clock``. A negative
+stamp (``sec < 0``, a publisher whose clock was never set) is skipped as
+``time_negative``; only a zero stamp means "unstamped" and gets the node clock.
+
+No error escapes a callback or :meth:`RecorderNode.shutdown`: an exception leaving a
+callback would end the spin, and with it the recording and the retries of a pending
+demonstration. A write that fails with any exception is handled as a failed write above.
 """
 
 from __future__ import annotations
@@ -152,8 +158,11 @@ class RecorderNode(Node):
             self._last_retry = now  # a failure starts the retry period
             self.get_logger().error(f"{err}; recording paused until it is written")
             return
-        except (OSError, ValueError) as err:
-            self.get_logger().error(f"could not write a demonstration: {err}")
+        except Exception as err:  # never out of a callback: see the module docstring
+            # Throttled: an unexpected error would otherwise repeat at the stream's rate.
+            self.get_logger().error(
+                f"could not record a message: {type(err).__name__}: {err}",
+                throttle_duration_sec=self.get_parameter("warn_period_s").value)
             return
         if path is not None:
             self.get_logger().info(f"demonstration written (time gap): {path}")
@@ -187,7 +196,7 @@ class RecorderNode(Node):
         count = self._recorder.pending or self._recorder.buffered
         try:
             path = self._recorder.stop()
-        except (OSError, ValueError) as err:
+        except Exception as err:  # never out of a callback: see the module docstring
             self._last_retry = self.get_clock().now().nanoseconds
             self.get_logger().error(f"stop_demo: writing failed: {err}")
             response.success, response.message = False, f"writing failed: {err}"
@@ -204,7 +213,7 @@ class RecorderNode(Node):
         now = self.get_clock().now().nanoseconds
         try:
             path = self._recorder.flush_if_idle(now * 1e-9)
-        except (OSError, ValueError) as err:
+        except Exception as err:  # never out of a callback: see the module docstring
             self.get_logger().error(f"could not write a demonstration: {err}")
             self._last_retry = now
             path = None
@@ -218,7 +227,7 @@ class RecorderNode(Node):
             count = self._recorder.pending
             try:
                 path = self._recorder.retry_pending()
-            except (OSError, ValueError) as err:
+            except Exception as err:  # never out of a callback: see the module docstring
                 self.get_logger().error(f"retry failed: {err}")
             else:
                 self.get_logger().info(
@@ -238,6 +247,9 @@ class RecorderNode(Node):
         if skipped.get("time_in_future"):
             detail += (" (time_in_future: header stamps ahead of this node's clock; are the "
                        "clocks synchronised, and use_sim_time the same on every node?)")
+        if skipped.get("time_negative"):
+            detail += (" (time_negative: header stamps before 1970; does the publisher "
+                       "stamp with a clock that was never set?)")
         if lost:
             detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
         self.get_logger().warning(
@@ -283,8 +295,13 @@ class RecorderNode(Node):
         keep = self._recorder.auto_split_gap_s > 0
         unfinished = 0 if keep else self._recorder.buffered
         logger = self.get_logger()
-        for result in self._recorder.close(keep_current=keep,
-                                           fallback_dirs=default_fallback_dirs()):
+        try:
+            results = self._recorder.close(keep_current=keep,
+                                           fallback_dirs=default_fallback_dirs())
+        except Exception as err:  # close() catches write errors; this is the last resort
+            logger.error(f"saving at shutdown failed: {type(err).__name__}: {err}")
+            results = []
+        for result in results:
             if result.path is None:
                 logger.error(
                     f"LOST a demonstration of {result.messages} messages: no directory "
