@@ -358,6 +358,26 @@ def test_every_step_of_a_talos_run_respects_max_acceleration_and_the_constraint(
     assert any(text.startswith("disarmed: disabled") for _, text in run.events)
 
 
+def test_ticks_faster_than_the_period_still_respect_max_acceleration():
+    # One step per joint state of a 1 kHz driver on a 100 Hz controller: ten ticks per
+    # period must not ramp ten times as fast.
+    step = ControlStep(LOWER * 10, UPPER * 10, VMAX, DT, policy=_Linear(np.zeros(N)))
+    run = _Run(step, np.full(N, 0.5))
+    run.state()
+    run.arm()
+    times, sent = [], []
+    for k in range(200):
+        now = run.now + k * DT_NS // 10
+        run.control.joint_state(run.q.copy(), now, now)
+        out = run.control.tick(now)
+        if out.command is not None:
+            times.append(now / 1e9)
+            sent.append(out.command)
+    rate = np.abs(np.diff(sent, axis=0)).max(axis=1) / np.diff(times)
+    assert np.abs(sent[-1]).max() > 0.1  # it did speed up
+    assert rate.max() <= ACC * (1 + 1e-9)
+
+
 def test_a_newly_active_constraint_forcing_a_larger_change_is_logged():
     policy = _Linear(np.full(N, 0.9))  # heads towards the upper limits: all joints move
     step = ControlStep(LOWER, UPPER, VMAX, DT, policy=policy)

@@ -985,7 +985,10 @@ class ArmedController:
     simulated time works); nothing here reads a clock. Per control period the caller
     passes the latest valid joint state (:meth:`joint_state`), reports broken ones
     (:meth:`reject_state`) and calls :meth:`tick`; every call returns an :class:`Output`
-    whose ``command``, when not None, must be published at once.
+    whose ``command``, when not None, must be published at once. A tick sooner than one
+    period after the last published command may change it by the acceleration bound
+    times the time in between only, so calling :meth:`tick` more often (one step per
+    joint state of a driver faster than the period) cannot exceed ``max_acceleration``.
 
     Parameters
     ----------
@@ -1048,6 +1051,7 @@ class ArmedController:
         self._arrival_ns: int | None = None
         self._last_now_ns: int | None = None
         self._forced_reported_ns: int | None = None
+        self._published_ns: int | None = None  # when the last ramped command went out
         self._forced_suppressed = 0
         self._events: list[tuple[str, str]] = []
 
@@ -1275,7 +1279,11 @@ class ArmedController:
             projector = step.hold_projector(q, previous)
             if projector is None:
                 return self.fault("constraint matrix not finite")
-        command, alpha, forced = ramp_toward(previous, target, projector, self.max_delta)
+        limit = self.max_delta
+        if self._published_ns is not None:
+            since = max(0, now_ns - self._published_ns) / 1e9
+            limit = self.max_acceleration * min(step.dt, since)
+        command, alpha, forced = ramp_toward(previous, target, projector, limit)
         # Round-off of the projection (1e-17 rad/s on a joint locked at its limit) would
         # read as "pushed outwards" below and stop every joint.
         command[np.abs(command) < _ROUNDOFF] = 0.0
@@ -1284,8 +1292,9 @@ class ArmedController:
         s = velocity_scale(q, command, step.dt, step.lower, step.upper, step.max_velocity)
         if s < 1.0:
             command = s * command
-        self._report_forced(command - previous, forced, s, now_ns)
+        self._report_forced(command - previous, forced, s, now_ns, limit)
         self.command = command
+        self._published_ns = now_ns
         self.ramp_scale = alpha
         if not self.armed and not np.any(command):
             self._silent = True
@@ -1293,10 +1302,9 @@ class ArmedController:
         return self._output(command.copy())
 
     def _report_forced(self, change: np.ndarray, forced: np.ndarray, s: float,
-                       now_ns: int) -> None:
+                       now_ns: int, limit: float) -> None:
         size_all = np.abs(change)
         size = float(size_all.max(initial=0.0))
-        limit = self.max_delta
         if size <= limit * (1.0 + 1e-9) + 1e-12:
             return
         worst = int(np.argmax(size_all))
