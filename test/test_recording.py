@@ -120,6 +120,23 @@ def test_continuous_mode_splits_at_gaps(tmp_path):
     assert [d.start_ns for d in report.demos] == [s1[0], s2[0]]
 
 
+def test_leaving_continuous_mode_writes_the_segment_so_far(tmp_path):
+    # A continuous segment is data to keep; in manual mode, close() would drop an
+    # unfinished demonstration, so the switch ends the segment and writes it.
+    rng = np.random.default_rng(12)
+    rec = DemoRecorder(tmp_path, auto_split_gap_s=0.5)
+    rec.start()
+    _, q1, _ = _feed(rec, rng, 40, T0)
+    path = rec.set_auto_split_gap(0.0)
+    assert path is not None and path.name == "demo_0000" and rec.active
+    _, q2, _ = _feed(rec, rng, 20, T0 + 10**9)  # now a manual demonstration
+    assert rec.stop().name == "demo_0001"
+    trajs, _, _ = load_dataset(tmp_path, gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, q1)
+    np.testing.assert_array_equal(trajs[1].positions, q2)
+    assert rec.set_auto_split_gap(0.0) is None  # manual to manual: nothing to end
+
+
 def test_flush_if_idle_closes_quiet_stream(tmp_path):
     rng = np.random.default_rng(3)
     rec = DemoRecorder(tmp_path, auto_split_gap_s=0.2)

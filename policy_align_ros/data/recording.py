@@ -279,12 +279,31 @@ class DemoRecorder:
                 raise ValueError("joints: cannot change while a demonstration is recorded")
             self._selector.set_joints(names)
 
-    def set_auto_split_gap(self, auto_split_gap_s: float) -> None:
-        """Change the split gap (seconds, ``0`` = manual); applies to the next message."""
+    def set_auto_split_gap(self, auto_split_gap_s: float) -> Path | None:
+        """Change the split gap (seconds, ``0`` = manual); applies to the next message.
+
+        Switching a continuous recording to manual mode ends its current demonstration
+        and writes it: it was recorded to be kept, and manual mode drops an unfinished
+        demonstration at :meth:`close`. Recording stays on (as a manual demonstration).
+
+        Returns
+        -------
+        Path or None
+            The bag written by the switch, if any.
+
+        Raises
+        ------
+        ValueError
+            A gap that is not a finite number >= 0 (nothing changes).
+        PendingWriteError
+            The switch's write failed; the gap is changed and the demonstration pending.
+        """
         gap = validate_gap(auto_split_gap_s)
         with self._lock:
+            ending = self.auto_split_gap_s > 0 and gap == 0 and self._pending is None
             self.auto_split_gap_s = gap
             self._clock.gap_ns = round(gap * 1e9)
+            return self._write_current() if ending else None
 
     def set_dataset_dir(self, dataset_dir: str | os.PathLike[str]) -> None:
         """Change the directory of the next bags (checked as by check_dataset_dir)."""

@@ -16,7 +16,8 @@ Interface (DESIGN.md section 6):
   and splits at gaps), ``qos_depth`` (read-only), ``warn_period_s``. Changes at run time
   are validated (``SetParametersResult(successful=False, reason=...)`` on bad values) and
   apply to the next bag; ``joints`` cannot change while a demonstration is buffered, and
-  changing ``auto_split_gap_s`` changes the splitting, not whether recording is on.
+  changing ``auto_split_gap_s`` changes the splitting, not whether recording is on
+  (leaving continuous mode writes the demonstration recorded so far).
 
 Failures lose no finished demonstration:
 
@@ -209,6 +210,17 @@ class RecorderNode(Node):
             self.get_logger().info(f"demonstration written: {path} ({count} messages)")
         return response
 
+    def _set_gap(self, gap: float) -> None:
+        """Apply ``auto_split_gap_s``; leaving continuous mode writes the current segment."""
+        try:
+            path = self._recorder.set_auto_split_gap(gap)
+        except PendingWriteError as err:  # the gap is set; the timer retries the write
+            self.get_logger().error(f"{err}; recording paused until it is written")
+            self._last_retry = self.get_clock().now().nanoseconds
+            return
+        if path is not None:
+            self.get_logger().info(f"demonstration written (continuous mode ended): {path}")
+
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
         try:
@@ -281,7 +293,7 @@ class RecorderNode(Node):
                 elif param.name == "joints":
                     self._recorder.set_joints(param.value or None)
                 elif param.name == "auto_split_gap_s":
-                    self._recorder.set_auto_split_gap(param.value)
+                    self._set_gap(param.value)
         except (TypeError, ValueError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
