@@ -131,6 +131,13 @@ def test_timed_trajectories_give_a_policy_per_second():
     assert rel < 0.15  # per second: ~20x smaller than per-sample units would give
 
 
+def test_demonstrations_that_never_move_are_refused():
+    still = [Trajectory(np.tile([0.1 * k, 0.0], (20, 1)), 0.01 * np.arange(20))
+             for k in range(3)]
+    with pytest.raises(ValueError, match="none of them moves"):
+        PolicyAlign().fit(still)
+
+
 def test_errors_are_clear():
     with pytest.raises(NotFittedError, match="not fitted"):
         PolicyAlign().policy(np.zeros((1, 2)))

@@ -253,6 +253,10 @@ class PolicyAlign:
         if joint_names is not None and len(joint_names) != n:
             raise ValueError(f"joint_names has {len(joint_names)} names for a {n}-D state")
         masks = self._check_masks(train_mask, trajs)
+        if all(not np.any(np.diff(t.positions, axis=0)) for t in trajs):
+            # Nothing to learn from (a robot that never moved, a frozen driver): the fit
+            # would otherwise end in a bowl of arbitrary scale fitted to zeros.
+            raise ValueError("trajectories: none of them moves (every step is zero)")
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
 
