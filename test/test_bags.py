@@ -3,6 +3,7 @@ malformed-message accounting, foreign bags, atomic writes. ROS-free."""
 
 from __future__ import annotations
 
+import errno
 import os
 
 import numpy as np
@@ -288,6 +289,21 @@ def test_write_refuses_to_overwrite_and_unique_picks_next_name(tmp_path):
     assert second.name == "demo_0001"
     with pytest.raises(ValueError, match=r"shape \(5, 2\)"):
         write_joint_state_bag(tmp_path / "x", ["a", "b"], stamps, q)
+
+
+def test_a_rename_that_fails_for_another_reason_reports_that_reason(tmp_path, monkeypatch):
+    # Only a name taken by another writer is worth trying the next name for; before, a
+    # denied rename tried 1000 names and then blamed the names.
+    rng = np.random.default_rng(9)
+    stamps, q, _ = _demo(rng, 5)
+
+    def denied(src, dst):
+        raise PermissionError(errno.EACCES, "Permission denied", str(dst))
+
+    monkeypatch.setattr(bags.os, "rename", denied)
+    with pytest.raises(PermissionError, match="Permission denied"):
+        write_joint_state_bag(tmp_path / "demo_0000", ["a", "b", "c"], stamps, q, unique=True)
+    assert not any(p.name.startswith("demo_") for p in tmp_path.iterdir())
 
 
 def test_load_dataset_errors_name_the_path(tmp_path):

@@ -28,6 +28,16 @@ def test_sim_integrates_fresh_commands_and_holds_still_when_stale():
     np.testing.assert_array_equal(sim.qdot, np.zeros(3))
 
 
+def test_a_command_from_after_a_clock_jump_back_is_stale():
+    # A restarted /clock: the last command's time lies ahead of the clock, its age unknown.
+    sim = KinematicSim(LOWER, UPPER, np.zeros(3), command_timeout_s=0.1)
+    sim.set_command(np.array([0.1, 0.2, -0.3]), t=10.0)
+    assert sim.command_is_fresh(10.05)
+    assert not sim.command_is_fresh(5.0)
+    sim.step(0.01, t=5.0)
+    np.testing.assert_array_equal(sim.q, np.zeros(3))
+
+
 def test_sim_never_leaves_the_joint_limits():
     rng = np.random.default_rng(0)
     sim = KinematicSim(LOWER, UPPER, np.zeros(3))

@@ -19,6 +19,7 @@ temporary directory, which readers ignore (:func:`is_temporary`).
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import shutil
@@ -210,8 +211,10 @@ def _rename_into_place(tmp: Path, final: Path, unique: bool) -> Path:
             try:
                 os.rename(tmp, final)
                 return final
-            except OSError:
-                if not unique:
+            except OSError as err:
+                # Only another writer taking the name (a race) is worth the next name; any
+                # other failure (permissions, a full disk) is the error to report.
+                if not unique or err.errno not in (errno.EEXIST, errno.ENOTEMPTY):
                     raise
         elif not unique:
             raise ValueError(f"{final}: exists already, not overwriting")

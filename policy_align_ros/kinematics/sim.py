@@ -124,9 +124,14 @@ class KinematicSim:
         self._command_time = float(t)
 
     def command_is_fresh(self, t: float) -> bool:
-        """Whether the last command, at time ``t``, is younger than the timeout."""
+        """Whether the last command, at time ``t``, is younger than the timeout.
+
+        A command stamped after ``t`` (the clock went back: a restarted ``/clock``) is
+        not: its age is unknown, and holding it could keep the robot moving for as long
+        as the clock takes to catch up.
+        """
         return self._command_time is not None and (
-            t - self._command_time <= self.command_timeout_s
+            0.0 <= t - self._command_time <= self.command_timeout_s
         )
 
     def step(self, dt: float, t: float) -> np.ndarray:
