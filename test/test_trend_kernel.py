@@ -383,6 +383,22 @@ def test_a_forced_single_index_trend_without_a_rising_profile_falls_back():
     np.testing.assert_allclose(forced.predict(X[:5]), quadratic.predict(X[:5]))
 
 
+def test_a_picked_single_index_trend_that_fails_on_all_data_reports_the_fallback(
+        monkeypatch):
+    # The folds can rank the single-index trend first while its fit on all the data does
+    # not rise: the model is then the quadratic family's pick, and cv_best_ must name it
+    # (the suite's pick check and the integration rule's CV score read it).
+    X, y, g, _, _ = _attractor_with_offset_errors()
+    monkeypatch.setattr(TrendKernelRegression, "_fit_single_index", lambda self, *a: False)
+    model = TrendKernelRegression(random_state=0).fit(X, y, groups=g)
+    assert model.trend_form_ == "quadratic"
+    fitted = (model.trend_form_, model.trend_ridge_, model.length_scale_,
+              model.kernel_ridge_, model.offset_ridge_)
+    assert model.cv_best_ in model.cv_scores_
+    assert all(a == b or (isinstance(a, float) and math.isnan(a) and math.isnan(b))
+               for a, b in zip(model.cv_best_, fitted, strict=True))
+
+
 def test_cv_searches_the_residual_with_free_offsets_too():
     # The trend alone (a quadratic misfits a cone) ranks the offset penalties wrongly:
     # searching the residual at its pick only ended at nUPE 0.24 on these data; with free

@@ -961,10 +961,13 @@ class TrendKernelRegression:
         if self.trend_form_ == "single_index":
             if self._fit_single_index(Z, u, n, demo, free):
                 return
-            # A profile that falls somewhere has no single minimum: the quadratic instead.
+            # A profile that falls somewhere has no single minimum: the quadratic instead,
+            # and the CV's pick is then the candidate fitted (its score is the model's).
             best = self._quadratic_pick
             (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
              self.offset_ridge_) = best
+            if self.cv_best_ is not None:
+                self.cv_best_ = best
         p_t = _n_trend(n)
         if math.isinf(self.kernel_ridge_):
             A, P = F, self._trend_penalty(n, self.trend_ridge_)
