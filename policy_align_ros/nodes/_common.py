@@ -32,6 +32,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import Float64MultiArray
 
 __all__ = [
     "DEFAULT_JOINTS",
@@ -93,6 +94,15 @@ def accept() -> SetParametersResult:
 def reject(reason: str) -> SetParametersResult:
     """A refused parameter-set result carrying ``reason``."""
     return SetParametersResult(successful=False, reason=reason)
+
+
+def publish_zero_command(node: Node, publisher: Any, n_joints: int, why: str) -> None:
+    """Publish one zero velocity command (``n_joints`` values) and wait up to 0.2 s for
+    the subscribers to acknowledge it: a forward command controller holds its last
+    command, so the zero must arrive before the node goes away."""
+    publisher.publish(Float64MultiArray(data=[0.0] * n_joints))
+    publisher.wait_for_all_acked(Duration(seconds=0.2))
+    node.get_logger().info(f"published zero command ({why})")
 
 
 def optional_parameter(node: Node, name: str) -> Any:

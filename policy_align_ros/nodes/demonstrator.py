@@ -56,7 +56,6 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
@@ -82,6 +81,7 @@ from policy_align_ros.nodes._common import (
     accept,
     descriptor,
     optional_parameter,
+    publish_zero_command,
     reject,
     run_node,
 )
@@ -349,9 +349,7 @@ class Demonstrator(Node):
 
     def publish_zeros(self, why: str) -> None:
         """Publish one zero command and wait briefly for subscribers to acknowledge it."""
-        self._send(np.zeros(len(self._selector.joints)))
-        self._cmd.wait_for_all_acked(Duration(seconds=0.2))
-        self.get_logger().info(f"published zero command ({why})")
+        publish_zero_command(self, self._cmd, len(self._selector.joints), why)
 
     def destroy_node(self) -> None:
         """Stop the robot (zero command) before the node goes away."""

@@ -68,7 +68,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.duration import Duration
 from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.node import Node
@@ -103,6 +102,7 @@ from policy_align_ros.nodes._common import (
     call_with_timeout,
     descriptor,
     parse_constraint_specs,
+    publish_zero_command,
     reject,
     run_node,
 )
@@ -692,9 +692,7 @@ class Executor(Node):
 
     def publish_zeros(self, why: str) -> None:
         """Publish one zero command and wait briefly for subscribers to acknowledge it."""
-        self._pub.publish(Float64MultiArray(data=[0.0] * self.controller.step.n_joints))
-        self._pub.wait_for_all_acked(Duration(seconds=0.2))
-        self.get_logger().info(f"published zero command ({why})")
+        publish_zero_command(self, self._pub, self.controller.step.n_joints, why)
 
     def destroy_node(self) -> None:
         """Stop the robot (zero command) before the node goes away."""
