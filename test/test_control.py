@@ -152,13 +152,20 @@ class _Constant:
         return np.tile(self.v, (len(X), 1))
 
 
-def _barrier_below_the_left_hand(robot: Robot, q: np.ndarray):
-    """A floor 2 cm below the left hand, acting within 5 cm; and the hand's z Jacobian."""
+def _lift_that_a_lock_turns_towards_a_floor(robot: Robot, q: np.ndarray):
+    """A floor 2 cm below the left hand, acting within 5 cm; a policy ``pi`` that lifts the
+    hand; a lock on the joint that lifts it most, which leaves only the part that lowers
+    it; and the hand's z Jacobian."""
     frame = "arm_left_7_link"
     p = robot.frame_position(q, frame)
     spec = {"type": "barrier", "frame": frame, "point": [p[0], p[1], p[2] - 0.02],
             "normal": [0.0, 0.0, 1.0], "distance": 0.05}
-    return constraint_from_spec(spec, robot), robot.frame_jacobian(q, frame)[2]
+    jz = robot.frame_jacobian(q, frame)[2]
+    up, down = int(np.argmax(jz)), int(np.argmin(jz))
+    pi = np.zeros(robot.nq)
+    pi[up], pi[down] = 0.3, 0.2
+    lock = constraint_from_spec({"type": "joints", "joints": [TALOS_JOINTS[up]]}, robot)
+    return constraint_from_spec(spec, robot), lock, pi, jz
 
 
 def test_a_barrier_blocks_the_command_when_the_other_constraints_turn_it_towards_it():
@@ -166,12 +173,8 @@ def test_a_barrier_blocks_the_command_when_the_other_constraints_turn_it_towards
     # the barrier must be judged by the command, not by the policy.
     robot = Robot.load("talos", TALOS_JOINTS)
     q = robot.neutral()
-    barrier, jz = _barrier_below_the_left_hand(robot, q)
-    up, down = int(np.argmax(jz)), int(np.argmin(jz))
-    pi = np.zeros(robot.nq)
-    pi[up], pi[down] = 0.3, 0.2
+    barrier, lock, pi, jz = _lift_that_a_lock_turns_towards_a_floor(robot, q)
     assert jz @ pi > 0.0
-    lock = constraint_from_spec({"type": "joints", "joints": [TALOS_JOINTS[up]]}, robot)
     for constraints in ([lock], [lock, barrier]):
         step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 1.0), DT,
                            constraints=constraints, policy=_Constant(pi),
@@ -188,11 +191,7 @@ def test_a_barrier_blocks_the_command_when_the_other_constraints_turn_it_towards
 def test_an_armed_run_never_lowers_the_hand_onto_a_barrier_it_was_meant_to_leave():
     robot = Robot.load("talos", TALOS_JOINTS)
     q = robot.neutral()
-    barrier, jz = _barrier_below_the_left_hand(robot, q)
-    up, down = int(np.argmax(jz)), int(np.argmin(jz))
-    pi = np.zeros(robot.nq)
-    pi[up], pi[down] = 0.3, 0.2
-    lock = constraint_from_spec({"type": "joints", "joints": [TALOS_JOINTS[up]]}, robot)
+    barrier, lock, pi, _ = _lift_that_a_lock_turns_towards_a_floor(robot, q)
     step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), DT,
                        constraints=[lock, barrier], policy=_Constant(pi),
                        min_singular_value=0.0)

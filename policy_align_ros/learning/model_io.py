@@ -89,9 +89,7 @@ def to_json(value: Any, field: str) -> Any:
     """
     if value is None or type(value) in (bool, int, float, str):
         return value
-    if isinstance(value, (bool, int, float, str)):  # np.float64, np.str_, IntEnum, ...
-        return _plain(value, field)
-    if isinstance(value, np.generic):
+    if isinstance(value, (bool, int, float, str, np.generic)):  # np.float64, IntEnum, ...
         return _plain(value, field)
     if isinstance(value, dict):
         out = {}
