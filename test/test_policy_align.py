@@ -152,8 +152,10 @@ def test_errors_are_clear():
     model = PolicyAlign().fit(data.trajectories)
     with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
         model.policy(np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="NaN"):
-        model.policy(np.array([[np.nan, 0.0]]))
+    with pytest.raises(ValueError, match=r"NaN or inf \(first at row 1\)"):
+        model.policy(np.array([[0.0, 0.0], [np.nan, 0.0]]))
+    # A single state is one query, as for the regressors themselves.
+    assert model.policy(np.zeros(2)).shape == (1, 2)
 
 
 def _switching_demos(pot, rng, n_demos, n_samples, dt, switch_t):

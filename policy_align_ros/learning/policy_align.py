@@ -72,6 +72,7 @@ from policy_align_ros.learning.regressors import (
     regressor_class,
     takes_free_groups,
 )
+from policy_align_ros.learning.regressors._common import check_query
 from policy_align_ros.learning.support import (
     query_support,
     support_spacing,
@@ -476,16 +477,7 @@ class PolicyAlign:
 
     def _check_X(self, X: np.ndarray) -> np.ndarray:
         self._check_fitted()
-        X = np.asarray(X, dtype=float)
-        if X.ndim == 1:
-            X = X[None, :]
-        if X.ndim != 2 or X.shape[1] != self.n_features_in_:
-            raise ValueError(
-                f"X must have shape (m, {self.n_features_in_}), got {np.shape(X)}"
-            )
-        if not np.all(np.isfinite(X)):
-            raise ValueError("X contains NaN or inf")
-        return X
+        return check_query(X, self.n_features_in_)
 
     def potential(self, X: np.ndarray) -> np.ndarray:
         """Learnt potential ``f(x)``, shape (m,), for states ``X`` of shape (m, n)."""

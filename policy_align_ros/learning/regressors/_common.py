@@ -77,7 +77,8 @@ def check_query(X: np.ndarray, n: int) -> np.ndarray:
     if X.ndim != 2 or X.shape[1] != n:
         raise ValueError(f"X must have shape (m, {n}), got {np.shape(X)}")
     if not np.all(np.isfinite(X)):
-        raise ValueError("X contains NaN or inf")
+        bad = int(np.argwhere(~np.isfinite(X))[0, 0])
+        raise ValueError(f"X contains NaN or inf (first at row {bad})")
     return X
 
 

@@ -80,6 +80,7 @@ from scipy.spatial import cKDTree
 from policy_align_ros.learning.regressors._common import (
     NotFittedError,
     assign_folds,
+    check_query,
     single_blas_thread,
 )
 
@@ -1421,15 +1422,7 @@ class LocalLinearRegression:
 
     def _check_X(self, X: np.ndarray) -> np.ndarray:
         self._check_fitted()
-        X = np.asarray(X, dtype=float)
-        if X.ndim != 2 or X.shape[1] != self.n_features_in_:
-            raise ValueError(
-                f"X must have shape (m, {self.n_features_in_}), got {X.shape}"
-            )
-        if not np.all(np.isfinite(X)):
-            bad = int(np.argwhere(~np.isfinite(X))[0, 0])
-            raise ValueError(f"X contains NaN or inf (first at row {bad})")
-        return X - self.origin_
+        return check_query(X, self.n_features_in_) - self.origin_
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """Prediction ``f(x)``.
