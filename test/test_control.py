@@ -188,6 +188,30 @@ def test_a_barrier_blocks_the_command_when_the_other_constraints_turn_it_towards
             assert np.linalg.norm(qdot) > 1e-3  # the rest of the command still moves
 
 
+class _CountingLock:
+    """A constraint that counts how often its rows are asked for."""
+
+    def __init__(self, inner):
+        self.inner, self.calls = inner, 0
+
+    def matrix(self, q, qdot=None):
+        self.calls += 1
+        return self.inner.matrix(q, qdot)
+
+
+def test_growing_the_active_set_asks_the_other_constraints_for_their_rows_once():
+    robot = Robot.load("talos", TALOS_JOINTS)
+    q = robot.neutral()
+    barrier, lock, pi, jz = _lift_that_a_lock_turns_towards_a_floor(robot, q)
+    counting = _CountingLock(lock)
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 1.0), DT,
+                       constraints=[counting, barrier], policy=_Constant(pi),
+                       min_singular_value=0.0)
+    qdot, reason = step(q)
+    assert reason == "" and jz @ qdot > -1e-12  # the barrier joined in a second round
+    assert counting.calls == 1
+
+
 def test_an_armed_run_never_lowers_the_hand_onto_a_barrier_it_was_meant_to_leave():
     robot = Robot.load("talos", TALOS_JOINTS)
     q = robot.neutral()

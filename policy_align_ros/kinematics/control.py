@@ -677,7 +677,7 @@ class ControlStep:
                 flat.append(c)
         self._flat = flat
         self._holds = [i for i, c in enumerate(flat) if hasattr(c, "hold_position")]
-        self._unilateral = any(getattr(c, "unilateral", False) for c in flat)
+        self._unilateral = [i for i, c in enumerate(flat) if getattr(c, "unilateral", False)]
         # Latched at the next latch() or, failing that, at the next evaluate().
         self._references: dict[int, np.ndarray] = {}
 
@@ -757,28 +757,40 @@ class ControlStep:
         ``pi`` (n,) is the intended velocity, which unilateral constraints (barriers) use
         to act only against motion towards them.
         """
-        return self._rows(q, pi)[0]
+        return self._stack(self._blocks(q, pi))[0]
 
-    def _rows(self, q: np.ndarray, pi: np.ndarray | None,
-              also: Sequence[np.ndarray] = ()) -> tuple[np.ndarray, np.ndarray | None]:
-        """``A`` (k, n) and a mask (k,) of the rows of held frames (None without any).
+    def _blocks(self, q: np.ndarray, pi: np.ndarray | None,
+                also: Sequence[np.ndarray] = ()) -> list[np.ndarray]:
+        """The rows (k_i, n) of every constraint at ``q``.
 
         A unilateral barrier is active when ``pi`` approaches it, or any velocity of
         ``also`` does (the command that the other constraints and the limit locks made of
         ``pi`` may approach a barrier that ``pi`` itself recedes from).
         """
         n = self.n_joints
-        if not self._flat:
-            return np.zeros((0, n)), None
-        blocks = []
-        for c in self._flat:
-            block = np.asarray(c.matrix(q, pi), dtype=float).reshape(-1, n)
-            if getattr(c, "unilateral", False):
-                for v in also:
-                    if block.shape[0]:
-                        break
-                    block = np.asarray(c.matrix(q, v), dtype=float).reshape(-1, n)
-            blocks.append(block)
+        blocks = [np.asarray(c.matrix(q, pi), dtype=float).reshape(-1, n) for c in self._flat]
+        return self._grown(q, blocks, also)
+
+    def _grown(self, q: np.ndarray, blocks: list[np.ndarray],
+               also: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """``blocks`` (one per constraint) with every inactive barrier that a velocity of
+        ``also`` approaches made active (the blocks of all others are the same objects).
+        Only those barriers are evaluated again: the other constraints' Jacobians do not
+        depend on the velocity."""
+        out = list(blocks)
+        for i in self._unilateral:
+            for v in also:
+                if out[i].shape[0]:
+                    break
+                block = np.asarray(self._flat[i].matrix(q, v), dtype=float)
+                if block.size:
+                    out[i] = block.reshape(-1, self.n_joints)
+        return out
+
+    def _stack(self, blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None]:
+        """The rows of ``blocks`` stacked (k, n), and the mask of the held frames' rows."""
+        if not blocks:
+            return np.zeros((0, self.n_joints)), None
         A = np.vstack(blocks)
         if not self._holds:
             return A, None
@@ -832,8 +844,9 @@ class ControlStep:
         pi[p] = pi_model
         # Active set of the unilateral barriers: one that the command approaches joins,
         # and the command is made again, until none joins (at most one round per barrier).
-        seen = [] if previous is None else [np.asarray(previous, dtype=float)]
-        A, held = self._rows(q, pi, seen)
+        blocks = self._blocks(q, pi, [] if previous is None else [np.asarray(previous,
+                                                                               dtype=float)])
+        A, held = self._stack(blocks)
         while True:
             if not np.all(np.isfinite(A)):
                 return self._zeros.copy(), "constraint matrix not finite", self._eye
@@ -846,11 +859,12 @@ class ControlStep:
                 v, P = self._with_correction(q, pi, A, held)
             if not self._unilateral:
                 break
-            seen.append(v)
-            grown, grown_held = self._rows(q, pi, seen)
-            if grown.shape[0] == A.shape[0]:  # a barrier once active stays so: no change
+            # pi and the earlier commands were tested already: only v can add a barrier.
+            grown = self._grown(q, blocks, [v])
+            if all(g is b for g, b in zip(grown, blocks, strict=True)):
                 break
-            A, held = grown, grown_held
+            blocks = grown
+            A, held = self._stack(blocks)
         s = velocity_scale(q, v, self.dt, self.lower, self.upper, self.max_velocity,
                            self.max_acceleration)
         v = s * v
