@@ -375,6 +375,26 @@ def test_summary_counts_trajectories_when_demonstrations_are_split(monkeypatch):
     assert summary["n_groups"] == len(np.unique(model.groups_)) == 2
 
 
+def test_a_piece_left_out_of_a_kept_trajectory_is_levelled_from_its_kept_neighbour():
+    # Trajectory 0's second piece fell into a group of its own, at an arbitrary level:
+    # merged, it continues the kept first piece by the rule's own drop across the cut.
+    model = PolicyAlign()
+    model.groups_ = np.array([0, 1, 0])
+    model.inliers_ = np.array([0, 2])
+    model.offsets_ = np.zeros(3)
+    model.aligned_potentials_ = [np.array([5.0, 4.9, 4.8]), np.array([100.0, 99.9, 99.8]),
+                                 np.zeros(4)]
+    model.integration_, model.position_noise_, model.euler_scale_ = "trapezoid", 0.0, 1.0
+    x = np.column_stack([0.1 * np.arange(6), np.zeros(6)])
+    line = Trajectory(x, 0.1 * np.arange(6), np.tile([1.0, 0.0], (6, 1)))
+    parents = [line, Trajectory(np.zeros((4, 2)))]
+    model._merge_pieces(np.array([(0, 0, 3), (0, 3, 6), (1, 0, 4)]), parents)
+    np.testing.assert_allclose(model.aligned_potentials_[0],
+                               [5.0, 4.9, 4.8, 4.7, 4.6, 4.5], atol=1e-12)
+    np.testing.assert_array_equal(model.groups_, [0, 0])
+    np.testing.assert_array_equal(model.inliers_, [0, 1])
+
+
 def test_merged_pieces_get_contiguous_groups():
     # Trajectory 0's pieces lie in groups 0 and 1, trajectory 1's in group 2: merged,
     # trajectory 1 is in the second of two groups, which must be numbered 1.

@@ -420,17 +420,22 @@ class PolicyAlign:
     def _merge_pieces(self, spans: np.ndarray, parents: list[Trajectory]) -> None:
         """Learnt per-piece attributes back to the trajectories: offsets of each first
         piece, aligned potentials joined, a trajectory kept if any piece is, its group the
-        best of its pieces'. Samples left out (pieces too short to fit) get the aligned
-        potential of the nearest fitted sample plus the chosen rule's own estimate of the
-        drop between them, the best that is known there. The trajectories' groups are
-        numbered again 0, 1, ... in the order of the pieces' groups (group 0, the aligned
-        set, stays 0), so that ``groups_.max() + 1`` counts them."""
+        best of its pieces'. Samples left out (pieces too short to fit, and the pieces of a
+        kept trajectory that were not kept, whose level is their own group's) get the
+        aligned potential of the nearest kept sample plus the chosen rule's own estimate
+        of the drop between them, the best that is known there. The trajectories' groups
+        are numbered again 0, 1, ... in the order of the pieces' groups (group 0, the
+        aligned set, stays 0), so that ``groups_.max() + 1`` counts them."""
         owner = spans[:, 0]
         first = np.searchsorted(owner, np.arange(len(parents)))
         self.offsets_ = self.offsets_[first]
+        kept = np.zeros(len(spans), dtype=bool)
+        kept[self.inliers_] = True
         aligned = []
         for k, t in enumerate(parents):
             rows = np.flatnonzero(owner == k)
+            if kept[rows].any():
+                rows = rows[kept[rows]]
             values = np.full(t.n_samples, np.nan)
             for j in rows:
                 values[spans[j, 1]:spans[j, 2]] = self.aligned_potentials_[j]
