@@ -53,6 +53,7 @@ def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys):
     # A 2-D quadratic from new starts: the new model must be accurate and settle at the goal.
     assert new["demo_nupe"] < 0.05 and new["free_rel_max"] < 0.05
     assert result["cv"]["best_candidate_nupe"] <= result["cv"]["picked_nupe"]
+    assert result["cv"]["picked_candidate"]["offset_ridge"] == result["chosen"]["offset_ridge"]
     assert "suite" in capsys.readouterr().out.lower()
 
 

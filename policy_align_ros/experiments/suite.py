@@ -40,6 +40,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -395,8 +396,10 @@ def _policy_time_us(model: PolicyAlign, x: np.ndarray, repeats: int = 200) -> fl
     return float(np.median(times)) / 1e3
 
 
-def _candidate_check(model: PolicyAlign, trajs, masks, X, pi) -> dict[str, float]:
-    """nUPE of every CV candidate refitted with fixed hyperparameters vs the CV pick."""
+def _candidate_check(model: PolicyAlign, trajs, masks, X, pi) -> dict[str, Any]:
+    """nUPE of every CV candidate refitted with fixed hyperparameters vs the CV pick, and
+    both candidates' hyperparameters (the CV's keys: length scales in standardised
+    units, NaN where a candidate has none)."""
     chosen = model.regressor_
     scores = {}
     for key in chosen.cv_scores_:
@@ -409,10 +412,13 @@ def _candidate_check(model: PolicyAlign, trajs, masks, X, pi) -> dict[str, float
                                     random_state=chosen.random_state)
         refit, _ = _refit(model, reg, trajs, masks)
         scores[key] = metrics.nupe(pi, refit.policy(X))
-    best = min(scores.values())
+    best = min(scores, key=scores.get)
     picked = chosen.cv_best_
-    return {"best_candidate_nupe": best, "picked_nupe": scores[picked],
-            "pick_within_20pct": bool(scores[picked] <= 1.2 * best)}
+    names = ("trend_form", "trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
+    return {"best_candidate_nupe": scores[best], "picked_nupe": scores[picked],
+            "pick_within_20pct": bool(scores[picked] <= 1.2 * scores[best]),
+            "best_candidate": dict(zip(names, best, strict=True)),
+            "picked_candidate": dict(zip(names, picked, strict=True))}
 
 
 def parse_settings(items: list[str]) -> dict[str, str | float]:
