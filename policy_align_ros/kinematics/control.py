@@ -856,7 +856,7 @@ class ControlStep:
             if held is None or self._drift_gain == 0.0:
                 v, P = project_with_locks(q, pi, A, self.lower, self.upper, P0)
             else:
-                v, P = self._with_correction(q, pi, A, held)
+                v, P = self._with_correction(q, pi, A, held, P0)
             if not self._unilateral:
                 break
             # pi and the earlier commands were tested already: only v can add a barrier.
@@ -899,14 +899,16 @@ class ControlStep:
                 f"< min_singular_value {self._min_sv:g} ({k} rows on {n} joints)"), None
 
     def _with_correction(self, q: np.ndarray, pi: np.ndarray, A: np.ndarray,
-                         held: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                         held: np.ndarray, P0: np.ndarray | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
         """``N' pi + qdot_c`` and ``N'``: the projected policy plus the drift correction.
 
         ``qdot_c = B^T (B B^T + l^2 I)^{-1} (-k clamp(e))`` with ``B = A_h N_o``, ``A_h``
         the held rows, ``N_o`` the projector of the other rows and the locked joints and
         ``e`` the held frames' errors, each clamped to ``drift_clamp_m`` in norm. A joint
         that the sum pushes out of its limit is locked too (then both parts are
-        recomputed), as in :func:`project_with_locks`.
+        recomputed), as in :func:`project_with_locks`. ``P0``, when given, is the
+        projector of ``A`` alone (computed by the near-singularity check on the way).
         """
         n = self.n_joints
         if len(self._references) < len(self._holds):
@@ -924,7 +926,8 @@ class ControlStep:
         lam2 = HOLD_DAMPING**2
         for _ in range(n + 1):
             lock_rows = self._eye[locked]
-            P = nullspace_projector(np.vstack([A, lock_rows]), n)
+            P = (P0 if P0 is not None and not locked.any()
+                 else nullspace_projector(np.vstack([A, lock_rows]), n))
             v = P @ pi
             v[locked] = 0.0
             P_o = nullspace_projector(np.vstack([A_o, lock_rows]), n)
