@@ -291,6 +291,23 @@ def test_write_refuses_to_overwrite_and_unique_picks_next_name(tmp_path):
         write_joint_state_bag(tmp_path / "x", ["a", "b"], stamps, q)
 
 
+@pytest.mark.parametrize("joints, stamps, match", [
+    (["a", "a"], [1, 2], "listed twice"),  # a bag every reader would skip entirely
+    (["a", ""], [1, 2], "invalid joint name"),
+    ([], [1, 2], "must not be empty"),
+    (["a", "b"], [-5, 10], "stamp -5 ns of message 0 is out of range"),  # was OverflowError
+    (["a", "b"], [1, 2**31 * 10**9], "of message 1 is out of range"),  # was struct.error
+    (["a", "b"], 7, r"stamps_ns must have shape \(N,\)"),  # was IndexError
+])
+def test_unwritable_input_is_a_value_error_naming_the_bag(tmp_path, joints, stamps, match):
+    n_msgs = np.size(stamps)
+    q = np.zeros((n_msgs, len(joints)))
+    with pytest.raises(ValueError, match=match) as info:
+        write_joint_state_bag(tmp_path / "demo_0000", joints, stamps, q)
+    assert str(tmp_path / "demo_0000") in str(info.value)
+    assert list(tmp_path.iterdir()) == []  # nothing left behind, not even a staging dir
+
+
 def test_a_rename_that_fails_for_another_reason_reports_that_reason(tmp_path, monkeypatch):
     # Only a name taken by another writer is worth trying the next name for; before, a
     # denied rename tried 1000 names and then blamed the names.
@@ -407,6 +424,22 @@ def test_repeated_bags_are_read_once_and_demos_get_unique_names(tmp_path):
                                               "b/demo_0000"]
     assert len(trajs) == 4 and "named twice, read once" in report.summary()
     assert report.skipped_bags == [] and report.available_joints == ["j0", "j1", "j2"]
+
+
+def test_a_bag_of_undecodable_joint_states_is_not_called_empty(tmp_path):
+    # Its messages are JointStates that fail to deserialize (another definition, damage):
+    # the reason said "no sensor_msgs/msg/JointState messages", sending users the wrong way.
+    rng = np.random.default_rng(12)
+    stamps, q, _ = _demo(rng)
+    write_joint_state_bag(tmp_path / "good", ["j0", "j1", "j2"], stamps, q)
+    with Writer(tmp_path / "garbled", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection("/joint_states", JS.__msgtype__, typestore=TS)
+        for stamp in stamps[:7]:
+            writer.write(conn, int(stamp), b"\x00\x01\x00\x00\xff\xff\xff")
+    _, _, report = load_dataset(tmp_path)
+    reason = dict(report.skipped_bags)[str(tmp_path / "garbled")]
+    assert reason == "all 7 JointState message(s) skipped (undecodable=7)"
+    assert report.skipped["undecodable"] == 7 and len(report.demos) == 1
 
 
 def test_bags_giving_nothing_are_named_with_the_reason(tmp_path):

@@ -216,6 +216,22 @@ def test_sigma_parameter_is_validated(rig, tmp_path):
         parse_sigma("-1")
 
 
+def test_sigma_as_a_number_is_accepted_at_start_up_and_at_run_time(rig, tmp_path):
+    # config/learner.yaml documents "sigma^2 as a number": YAML and -p sigma:=0.5 give a
+    # DOUBLE (or INTEGER), which a STRING-typed parameter refused, failing the start-up.
+    _write_dataset(tmp_path / "demos", n_demos=6)
+    r = rig(167, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "m.npz"),
+            sigma=0.5)
+    assert r.node.get_parameter("sigma").value == 0.5
+    response = r.learn()
+    assert response.success, response.message
+    assert "sigma^2=0.5;" in response.message
+    assert r.node.set_parameters([Parameter("sigma", value=2)])[0].successful
+    for bad in (True, -1.0, ["medium"], None):  # None: unset, which would undeclare it
+        assert not r.node.set_parameters([Parameter("sigma", value=bad)])[0].successful
+    assert r.node.get_parameter("sigma").value == 2
+
+
 def test_observed_ncpe_is_zero_for_the_true_policy_and_positive_otherwise():
     rng = np.random.default_rng(1)
     trajs = []

@@ -241,7 +241,10 @@ def test_bad_arguments_name_the_parameter(dataset, tmp_path):
                           ({"state": "frames:a,a"}, "listed twice"),
                           ({"holdout_fraction": 1.5}, "holdout_fraction"),
                           ({"sigma": "huge"}, "sigma"),
-                          ({"state": "frames:a", "robot": None}, "robot: a frames: state")):
+                          ({"state": "frames:a", "robot": None}, "robot: a frames: state"),
+                          # NumPy's "expected non-negative integer" named no parameter.
+                          ({"seed": -1}, "seed: must be an integer >= 0, got -1"),
+                          ({"seed": 1.5}, "seed: must be an integer")):
         with pytest.raises(ValueError, match=match):
             learn_pipeline([dataset], tmp_path / "m.npz", **kwargs)
     assert state_name(" frames: a ,b ") == "frames:a,b"

@@ -39,6 +39,7 @@ from policy_align_ros.data.messages import (
     SKIP_REASONS,
     JointSelector,
     StreamClock,
+    validate_joint_names,
 )
 from policy_align_ros.learning import Trajectory
 
@@ -65,6 +66,8 @@ _JointState = _TYPESTORE.types[JOINT_STATE]
 _Header = _TYPESTORE.types["std_msgs/msg/Header"]
 _Time = _TYPESTORE.types["builtin_interfaces/msg/Time"]
 _EMPTY = np.empty(0, dtype=np.float64)
+# First stamp a header cannot hold: builtin_interfaces/Time's ``sec`` is an int32.
+_STAMP_LIMIT_NS = 2**31 * 1_000_000_000
 
 
 class BagOpenError(ValueError):
@@ -150,14 +153,17 @@ def write_joint_state_bag(
     Raises
     ------
     ValueError
-        On inconsistent shapes, or if ``path`` exists and ``unique`` is not set.
+        On inconsistent shapes, repeated or empty joint names, a stamp outside
+        ``[0, 2^31)`` s, or if ``path`` exists and ``unique`` is not set.
     """
     final = Path(path)
     names = [str(j) for j in joint_names]
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     q = np.asarray(positions, dtype=np.float64)
+    if stamps.ndim != 1:
+        raise ValueError(f"{final}: stamps_ns must have shape (N,), got {stamps.shape}")
     n_msgs = stamps.shape[0]
-    if stamps.ndim != 1 or q.shape != (n_msgs, len(names)):
+    if q.shape != (n_msgs, len(names)):
         raise ValueError(
             f"{final}: positions must have shape ({n_msgs}, {len(names)}) to match stamps "
             f"and joint names, got {q.shape}"
@@ -172,6 +178,21 @@ def write_joint_state_bag(
     )
     if flags.shape != (n_msgs,) or (v is None and flags.any()):
         raise ValueError(f"{final}: has_velocity must be (N,) and needs velocities")
+    # Checked here, not left to the writer: a repeated or empty name gives a bag whose every
+    # message a reader skips, and a stamp out of range fails deep in the serializer with an
+    # OverflowError or struct.error that names neither the bag nor the stamp.
+    if not names:
+        raise ValueError(f"{final}: joint_names must not be empty")
+    try:
+        validate_joint_names(names)
+    except ValueError as err:
+        raise ValueError(f"{final}: {err}") from None
+    out_of_range = np.flatnonzero((stamps < 0) | (stamps >= _STAMP_LIMIT_NS))
+    if out_of_range.size:
+        k = int(out_of_range[0])
+        raise ValueError(
+            f"{final}: stamp {int(stamps[k])} ns of message {k} is out of range (a bag "
+            f"stores times >= 0 and a header stamp at most 2^31 - 1 s)")
     if final.exists() and not unique:
         raise ValueError(f"{final}: exists already, not overwriting")
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -564,7 +585,9 @@ def load_dataset(
         bag_read = 0
         failure = ""
         try:
-            for topic, stamp, names, pos, vel, eff in read_joint_states(bag, counts):
+            # Undecodable messages counted per bag too, or a bag of nothing else would be
+            # reported as holding no JointState message at all.
+            for topic, stamp, names, pos, vel, eff in read_joint_states(bag, bag_counts):
                 report.messages_read += 1
                 bag_read += 1
                 key = tuple(names)
@@ -610,6 +633,7 @@ def load_dataset(
         except Exception as err:  # a damaged bag keeps what was read
             report.errors.append(f"{bag}: {err}")
             failure = f"reading stopped after {bag_read} message(s): {err}"
+        counts["undecodable"] += bag_counts["undecodable"]
         for segment in segments.values():
             close(segment, bag)
         for name in bag_names:
@@ -678,13 +702,17 @@ def _no_demo_reason(
     joints: Sequence[str] | None,
     names: list[str],
 ) -> str:
-    """Why a bag that opened gave no demonstration (one line)."""
-    if n_read == 0:
+    """Why a bag that opened gave no demonstration (one line).
+
+    ``n_read`` counts the decoded messages; ``counts["undecodable"]`` those that were not.
+    """
+    undecodable = counts["undecodable"]
+    if n_read == 0 and not undecodable:
         return f"no {JOINT_STATE} messages"
     if found and found == too_short:
         return (f"{found} demonstration(s), all shorter than {min_samples} samples")
     parts = [f"{reason}={n}" for reason, n in counts.items() if n]
-    text = f"all {n_read} JointState message(s) skipped ({', '.join(parts)})"
+    text = f"all {n_read + undecodable} JointState message(s) skipped ({', '.join(parts)})"
     if joints and (counts["missing_joints"] or counts["unknown_joints"]):
         missing = [j for j in joints if j not in names]
         shown = ", ".join(names[:40]) + (f" and {len(names) - 40} more"

@@ -480,6 +480,10 @@ def learn_pipeline(
     state = state_name(state)
     if not (isinstance(holdout_fraction, (int, float)) and 0.0 <= holdout_fraction <= 0.9):
         raise ValueError(f"holdout_fraction: must be in [0, 0.9], got {holdout_fraction!r}")
+    # Checked before reading the data: NumPy's own complaint about a negative seed ("expected
+    # non-negative integer") names no parameter, and came only after the whole dataset.
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
     if isinstance(inputs, (str, Path)):
         inputs = [inputs]
     inputs = [Path(p).expanduser() for p in inputs]

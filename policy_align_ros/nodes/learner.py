@@ -70,6 +70,9 @@ _GATE_PARAMETERS = {
         "duplicates and skipped", (0.0, 1.0)),
 }
 
+#: Parameter types ``sigma`` may have (a rule name, or sigma^2 as text or a number).
+_SIGMA_TYPES = (Parameter.Type.STRING, Parameter.Type.DOUBLE, Parameter.Type.INTEGER)
+
 
 class Learner(Node):
     """The ``learner`` node (see the module docstring)."""
@@ -81,8 +84,13 @@ class Learner(Node):
             "directory of rosbag2 demonstrations (one bag per demonstration)"))
         self.declare_parameter("model_path", "model.npz", descriptor(
             "where the learnt model is written (atomically)"))
-        self.declare_parameter("sigma", "medium", descriptor(
-            "kernel width: narrow, medium, wide (paper eqs. 17-19) or sigma^2 as a number"))
+        sigma = descriptor(
+            "kernel width: narrow, medium, wide (paper eqs. 17-19) or sigma^2 as a number")
+        # A number, as the description and config/learner.yaml invite (``sigma: 0.05``,
+        # ``-p sigma:=0.05``), is a DOUBLE or INTEGER parameter: a fixed STRING type refused
+        # it, and at start-up the node did not even start. _on_set_parameters checks types.
+        sigma.dynamic_typing = True
+        self.declare_parameter("sigma", "medium", sigma)
         self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, descriptor(
             "state joints and their order; unset = the joints of the first message"))
         self.declare_parameter("holdout_fraction", 0.2, descriptor(
@@ -112,6 +120,9 @@ class Learner(Node):
     def _on_set_parameters(self, params: Sequence[Parameter]):
         for param in params:
             if param.name == "sigma":
+                if param.type_ not in _SIGMA_TYPES:  # bool would pass as 1.0, None unset it
+                    return reject(f"sigma: expected narrow, medium, wide or a positive "
+                                  f"number, got {param.value!r}")
                 try:
                     parse_sigma(param.value)
                 except ValueError as err:

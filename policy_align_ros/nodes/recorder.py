@@ -23,7 +23,7 @@ Failures lose no finished demonstration:
 
 * ``dataset_dir`` is created and probed for writing at start-up; if it cannot be written
   (under a file, read-only, no permission) the node does not start: it prints
-  ``recorder: error: dataset_dir: ...`` and exits with status 2, without a traceback,
+  ``error: dataset_dir: ...`` and exits with status 1 (:func:`run_node`), without a traceback,
   because a recorder that cannot record should fail where it is launched rather than
   when a demonstration ends. A change at run time is checked the same way and refused
   with that reason.
