@@ -58,3 +58,15 @@ def test_type_mismatch_and_missing_service(services, capsys):
     assert _call("/ok", data="true") == 2
     assert _call("/missing", timeout=0.5) == 3
     assert "not available" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("timeout", [float("inf"), float("nan"), 1e300])
+def test_a_timeout_rclpy_cannot_wait_is_a_usage_error(services, timeout, capsys):
+    assert _call("/ok", timeout=timeout) == 2
+    assert "--timeout" in capsys.readouterr().err
+
+
+def test_an_unusable_ros_domain_is_a_usage_error(monkeypatch, capsys):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "abc")
+    assert _call("/ok", timeout=1.0) == 2
+    assert "ROS_DOMAIN_ID" in capsys.readouterr().err

@@ -170,3 +170,93 @@ def test_repeated_steps_find_a_command_integrated_twice():
     np.testing.assert_array_equal(repeated_steps(np.array(q)),
                                   [False, True, False, False, False])
     assert stale_ticks([Trajectory(np.array(q), dt * np.arange(len(q)))]) == (5, 1)
+
+
+# The demo with stand-in nodes that ignore SIGINT (as a learner busy in a fit does for a
+# while), stopped by signals while its stages run.
+_STUBBORN_GRAPH = """
+import argparse, subprocess, sys, time
+from policy_align_ros.client import demo
+
+def start(self, name):
+    code = "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(300)"
+    self.procs[name] = subprocess.Popen([sys.executable, "-c", code, str(self.params)],
+                                        start_new_session=True)
+
+def stages(*args):
+    print("running", flush=True)
+    time.sleep(300)
+
+demo.Graph.start, demo._stages = start, stages
+try:
+    sys.exit(demo.run_demo(argparse.Namespace(out=sys.argv[1], domain_id=221, plots=False)))
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("signals", [("SIGHUP",), ("SIGINT", "SIGTERM")])
+def test_signals_to_the_demo_leave_no_node_processes(tmp_path, signals):
+    # The nodes run in their own sessions: a closed terminal (SIGHUP) reaches the demo
+    # only, and a second signal during the clean-up must not cut it short.
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "demo"
+    demo = subprocess.Popen([sys.executable, "-c", _STUBBORN_GRAPH, str(out)],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        while (line := demo.stdout.readline()) and line.strip() != "running":
+            pass  # the demo's own progress lines
+        assert len(_processes_mentioning(str(out / "params.yaml"))) == 5
+        for name in signals:
+            demo.send_signal(getattr(signal, name))
+            time.sleep(1.0)
+        assert demo.wait(timeout=30) == 130
+        assert _processes_mentioning(str(out / "params.yaml")) == []
+    finally:
+        demo.kill()
+        demo.wait()
+        for pid in _processes_mentioning(str(out / "params.yaml")):
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_a_stalled_recording_names_its_wall_time_budget(monkeypatch):
+    from policy_align_ros.client import demo
+
+    class Clock:  # each reading 10 s after the one before, from a large monotonic origin
+        now = 1e6
+
+        @classmethod
+        def monotonic(cls):
+            cls.now += 10.0
+            return cls.now
+
+    class Proc:
+        def poll(self):
+            return None
+
+    class Graph:
+        procs = {"demonstrator": Proc()}
+
+        def check(self, allow_exit=()):
+            pass
+
+        def tail(self, name):
+            return ""
+
+    class Conductor:
+        progress = ""
+
+        def now(self):
+            return 0.0
+
+        def spin(self, seconds):
+            pass
+
+    monkeypatch.setattr(demo, "time", Clock)
+    s = DemoSettings(demos=3, demo_duration_s=2.0)  # 30 + 3 * (2 + 6) = 54 s
+    with pytest.raises(StageError, match=r"not finished after 54 s"):
+        demo._record(s, 0.0, Graph(), Conductor())

@@ -11,13 +11,16 @@ from policy_align_ros.client.param import parse_value, run_param
 
 @pytest.fixture
 def target(monkeypatch, ros_context, ros_spin):
-    """A node ``/target`` with a double (refusing negatives), a string and a bool array."""
+    """A node ``/target`` with a double (refusing negatives), a string, a bool array, an
+    integer and a double array."""
     monkeypatch.setenv("ROS_DOMAIN_ID", "191")
     context = ros_context(191)
     node = Node("target", context=context)
     node.declare_parameter("gain", 1.5)
     node.declare_parameter("spec", "[]")
     node.declare_parameter("flags", [True, False])
+    node.declare_parameter("count", 3)
+    node.declare_parameter("limits", [1.0, 2.0])
 
     def check(params):
         for p in params:
@@ -73,3 +76,36 @@ def test_parse_value_rejects_wrong_types():
                           ("[a", ParameterType.PARAMETER_STRING_ARRAY)):
         with pytest.raises(ValueError):
             parse_value(text, type_id)
+
+
+def test_numbers_yaml_reads_as_text_are_numbers():
+    # YAML 1.1 reads "1e-3" and "inf" as strings; a user means numbers.
+    assert parse_value("1e-3", ParameterType.PARAMETER_DOUBLE) == 1e-3
+    assert parse_value("inf", ParameterType.PARAMETER_DOUBLE) == float("inf")
+    assert parse_value("[2e2, 1]", ParameterType.PARAMETER_DOUBLE_ARRAY) == [200.0, 1.0]
+    with pytest.raises(ValueError, match="is not a double"):
+        parse_value("fast", ParameterType.PARAMETER_DOUBLE)
+
+
+def test_an_integer_beyond_int64_is_a_usage_error(target, capsys):
+    assert _run("set", "count", str(2**63)) == 2
+    assert "integer range" in capsys.readouterr().err
+    assert target.get_parameter("count").value == 3
+
+
+def test_an_empty_array_keeps_the_parameters_type(target, capsys):
+    # rclpy infers [] as a byte array, which a double-array parameter refuses.
+    assert _run("set", "limits", "[]") == 0, capsys.readouterr().err
+    assert list(target.get_parameter("limits").value) == []
+
+
+@pytest.mark.parametrize("timeout", [float("inf"), float("nan"), 1e300])
+def test_a_timeout_rclpy_cannot_wait_is_a_usage_error(target, timeout, capsys):
+    assert _run("get", "gain", timeout=timeout) == 2
+    assert "--timeout" in capsys.readouterr().err
+
+
+def test_an_unusable_ros_domain_is_a_usage_error(monkeypatch, capsys):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "abc")
+    assert _run("get", "gain", timeout=1.0) == 2
+    assert "ROS_DOMAIN_ID" in capsys.readouterr().err

@@ -122,6 +122,22 @@ def test_process_with_an_unknown_robot_exits_with_status_1_and_a_reason():
     assert "unknown robot name 'talso'" in done.stderr and "talos" in done.stderr
 
 
+def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason():
+    import os
+    import subprocess
+    import sys
+
+    # rcl gives ``joints:=[]`` to rclpy as an unset parameter (None), not as an empty list.
+    code = "import sys; from policy_align_ros.nodes.sim_robot import main; sys.exit(main())"
+    done = subprocess.run(
+        [sys.executable, "-c", code, "--ros-args", "-p", "joints:=[]"],
+        env=dict(os.environ, ROS_DOMAIN_ID="176"), capture_output=True, text=True,
+        timeout=60)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr
+    assert "joints: need at least one joint name" in done.stderr
+
+
 def test_command_timeout_can_be_changed_at_run_time(rig):
     sim = rig[0]
     assert sim.set_parameters([Parameter("command_timeout_s", value=0.5)])[0].successful

@@ -28,6 +28,8 @@ from std_srvs.srv import SetBool, Trigger
 __all__ = ["call_service", "run_call"]
 
 _TYPES = {"std_srvs/srv/Trigger": Trigger, "std_srvs/srv/SetBool": SetBool}
+#: Longest ``--timeout`` [s]: rclpy's waits take int64 nanoseconds.
+MAX_TIMEOUT_S = 1e6
 
 
 def _service_type(node: Node, service: str, deadline: float) -> str | None:
@@ -83,11 +85,16 @@ def run_call(args: argparse.Namespace) -> int:
     """Entry of ``policy-align call``; ``args`` has ``service``, ``data``, ``timeout``."""
     service = args.service if args.service.startswith("/") else "/" + args.service
     data = None if args.data is None else args.data == "true"
-    if not args.timeout > 0:
-        print("policy-align call: error: --timeout must be > 0", file=sys.stderr)
+    if not 0 < args.timeout <= MAX_TIMEOUT_S:  # also NaN and inf, which rclpy cannot wait
+        print(f"policy-align call: error: --timeout must be > 0 and <= {MAX_TIMEOUT_S:g} s",
+              file=sys.stderr)
         return 2
     context = rclpy.Context()
-    rclpy.init(context=context)
+    try:
+        rclpy.init(context=context)
+    except RuntimeError as err:  # rcl's RCLError, e.g. a ROS_DOMAIN_ID that is no number
+        print(f"policy-align call: error: {err}", file=sys.stderr)
+        return 2
     try:
         node = Node(f"policy_align_call_{os.getpid()}", context=context)
         status, text = call_service(node, service, data, args.timeout)

@@ -609,7 +609,12 @@ def run_demo(args: argparse.Namespace) -> int:
     graph = Graph(out, params, domain)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
-    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    # The children run in their own sessions, so a closed terminal (SIGHUP) or a SIGTERM
+    # reaches only this process: both must end in graph.stop(), like Ctrl-C.
+    previous = {sig: signal.getsignal(sig)
+                for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    _set_handlers({signal.SIGTERM: signal.default_int_handler,
+                   signal.SIGHUP: signal.default_int_handler}, previous)
     try:
         _say(t0, f"robot {s.robot}: {len(s.joints)} joints, state {s.state}, seed {s.seed}, "
                  f"ROS domain {domain}, sim time at {s.real_time_factor:g}x, output {out}")
@@ -635,9 +640,21 @@ def run_demo(args: argparse.Namespace) -> int:
         print(f"[demo] FAILED: {err}", file=sys.stderr, flush=True)
         return 1
     finally:
-        signal.signal(signal.SIGTERM, previous)
-        graph.stop()
-        rclpy.try_shutdown(context=context)
+        # A second signal must not cut the clean-up short: nothing else stops the children.
+        _set_handlers(dict.fromkeys(previous, signal.SIG_IGN), previous)
+        try:
+            graph.stop()
+            rclpy.try_shutdown(context=context)
+        finally:
+            _set_handlers(previous, previous)
+
+
+def _set_handlers(handlers: dict, previous: dict) -> None:
+    """Install ``handlers`` (signal -> handler), leaving alone the signals whose
+    ``previous`` handler was not installed from Python (None: it could not be restored)."""
+    for sig, handler in handlers.items():
+        if previous[sig] is not None:
+            signal.signal(sig, handler)
 
 
 def _wait_graph(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor) -> None:
@@ -688,7 +705,8 @@ def _record(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor) -> d
     """Wait for the demonstrator; returns its late-tick count."""
     sim_start = conductor.now()
     per_demo = s.demo_duration_s + 6.0
-    deadline = time.monotonic() + 30.0 + s.demos * per_demo
+    budget = 30.0 + s.demos * per_demo  # wall seconds
+    deadline = time.monotonic() + budget
     shown = ""
     while graph.procs["demonstrator"].poll() is None:
         graph.check(allow_exit=("demonstrator",))
@@ -696,7 +714,7 @@ def _record(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor) -> d
             shown = conductor.progress
             _say(t0, f"demonstrations recorded: {shown}")
         if time.monotonic() > deadline:
-            raise StageError(f"demonstrations not finished after {deadline:.0f} s "
+            raise StageError(f"demonstrations not finished after {budget:.0f} s "
                              f"(progress {shown or '0'}):\n{graph.tail('demonstrator')}")
         conductor.spin(0.1)
     graph.check(allow_exit=("demonstrator",))

@@ -5,7 +5,8 @@ without a value, such as the recorder's ``joints``). ``set`` parses ``VALUE`` as
 parameter's current type, or its declared type when it is unset (read from the node
 first): a string parameter takes the text as it is (so YAML such as the executor's
 ``constraints`` needs no extra quoting), numbers, booleans and arrays are read as YAML, and
-an integer is accepted for a double. The node's own validation decides;
+an integer is accepted for a double, and so is a float literal YAML 1.1 reads as text
+(``1e-3``, ``inf``). The node's own validation decides;
 its reason is printed when it refuses. The ROS domain is the environment's
 (``ROS_DOMAIN_ID``).
 
@@ -32,6 +33,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
 __all__ = ["get_parameter", "parse_value", "run_param", "set_parameter"]
+
+#: Longest ``--timeout`` [s]: rclpy's waits take int64 nanoseconds.
+MAX_TIMEOUT_S = 1e6
+#: Range of a ROS integer parameter (int64).
+_INT64 = (-(2**63), 2**63 - 1)
 
 _TYPE_NAMES = {
     ParameterType.PARAMETER_BOOL: "bool",
@@ -69,10 +75,18 @@ def parse_value(text: str, type_id: int) -> Any:
             return v
         if kind == ParameterType.PARAMETER_INTEGER and isinstance(v, int) \
                 and not isinstance(v, bool):
+            if not _INT64[0] <= v <= _INT64[1]:  # rclpy fails deep in serialisation
+                raise ValueError(f"{v} is outside the integer range [-2^63, 2^63 - 1]")
             return v
         if kind == ParameterType.PARAMETER_DOUBLE and isinstance(v, (int, float)) \
                 and not isinstance(v, bool):
             return float(v)
+        if kind == ParameterType.PARAMETER_DOUBLE and isinstance(v, str):
+            # YAML 1.1 reads "1e-3" and "inf" as text; they are numbers to a user.
+            try:
+                return float(v)
+            except ValueError:
+                pass
         if kind == ParameterType.PARAMETER_STRING:
             return str(v)
         raise ValueError(f"{text!r} is not a {name}")
@@ -142,7 +156,9 @@ def set_parameter(node: Node, target: str, name: str, text: str, deadline: float
         value = parse_value(text, type_id)
     except ValueError as err:
         raise ParamError(2, f"{name}: {err}") from None
-    request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+    # The type is given, not inferred: rclpy infers an empty list as a byte array.
+    param = Parameter(name, Parameter.Type(type_id), value)
+    request = SetParameters.Request(parameters=[param.to_parameter_msg()])
     response = _call(node, SetParameters, f"{target}/set_parameters", request, deadline)
     result = response.results[0]
     if not result.successful:
@@ -159,11 +175,16 @@ def run_param(args: argparse.Namespace) -> int:
     if args.action == "get" and args.value is not None:
         print("policy-align param: error: get takes no VALUE", file=sys.stderr)
         return 2
-    if not args.timeout > 0:
-        print("policy-align param: error: --timeout must be > 0", file=sys.stderr)
+    if not 0 < args.timeout <= MAX_TIMEOUT_S:  # also NaN and inf, which rclpy cannot wait
+        print(f"policy-align param: error: --timeout must be > 0 and <= {MAX_TIMEOUT_S:g} s",
+              file=sys.stderr)
         return 2
     context = rclpy.Context()
-    rclpy.init(context=context)
+    try:
+        rclpy.init(context=context)
+    except RuntimeError as err:  # rcl's RCLError, e.g. a ROS_DOMAIN_ID that is no number
+        print(f"policy-align param: error: {err}", file=sys.stderr)
+        return 2
     deadline = time.monotonic() + args.timeout
     try:
         node = Node(f"policy_align_param_{os.getpid()}", context=context)

@@ -121,6 +121,9 @@ class SimRobot(Node):
 
     def _on_set_parameters(self, params: Sequence[Parameter]):
         for param in params:
+            if param.name == "joints" and not param.value:
+                # ``joints:=[]`` on the command line arrives unset (None), not as a list.
+                return reject("joints: need at least one joint name")
             if param.name == "joints" and len(set(param.value)) != len(param.value):
                 return reject("joints: a joint is listed twice")
             if param.name == "initial_positions" and param.value is not None:
