@@ -245,6 +245,9 @@ def test_bad_parameters_are_refused_with_a_reason(rig):
     node = r.node
     result = node.set_parameters([Parameter("constraints", value="[{type: plane}]")])[0]
     assert not result.successful and "frame" in result.reason
+    result = node.set_parameters([Parameter("constraints",
+                                            value="[{type: joints, joints: 3}]")])[0]
+    assert not result.successful and "joints: must be a non-empty list" in result.reason
     result = node.set_parameters([Parameter("constraints", value="[]")])[0]
     assert result.successful and node.controller.step.constraints == []
     for name, bad in (("max_velocity", -1.0), ("max_acceleration", 0.0),
@@ -868,3 +871,19 @@ def test_lockstep_steps_once_per_joint_state_and_still_stops_on_stale_states(rig
                  what="the stale-state disarm")
     r.spin(0.05, publish_states=False)
     assert np.all(r.commands[-1] == 0.0)
+
+
+def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason():
+    import os
+    import subprocess
+    import sys
+
+    # rcl gives ``joints:=[]`` to rclpy as an unset parameter (None), not as an empty list.
+    code = "import sys; from policy_align_ros.nodes.executor import main; sys.exit(main())"
+    done = subprocess.run(
+        [sys.executable, "-c", code, "--ros-args", "-p", "joints:=[]"],
+        env=dict(os.environ, ROS_DOMAIN_ID="171"), capture_output=True, text=True,
+        timeout=60)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr
+    assert "joints: must be a non-empty list" in done.stderr

@@ -162,6 +162,12 @@ def test_stacking(talos: Robot) -> None:
         ({"type": "joints", "joints": ["elbow"]}, "joints: unknown joint 'elbow'"),
         ([{"type": "joints", "joints": ["elbow_joint"]}, {"type": "x"}], r"spec \[1\]"),
         ("plane", "expected a dict or a list"),
+        # Wrong types, as a YAML parameter can carry them: a ValueError, never a TypeError.
+        ({"type": "joints", "joints": 3}, "joints: must be a non-empty list"),
+        ({"type": ["plane"], "frame": "tool0", "normal": [0, 0, 1]}, "unknown constraint type"),
+        ({"type": "position", "frame": "tool0", "axes": [["x"]]}, "axes: unknown axis"),
+        ({"type": "barrier", "frame": "tool0", "point": [0, 0, 0], "normal": [1, 0, 0],
+          "distance": 0.1, "upper": [[1], 0, 0]}, "upper: must be 3 numbers"),
     ],
 )
 def test_spec_validation_names_the_field(spec, match, ur5: Robot) -> None:

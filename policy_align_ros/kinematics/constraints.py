@@ -223,8 +223,8 @@ class JointLockConstraint(Constraint):
     """Locked joints: one selection row ``e_j^T`` per joint."""
 
     def __init__(self, robot: Robot, joints: Sequence[str]) -> None:
-        if isinstance(joints, str) or not joints:
-            raise ValueError("joints: must be a non-empty list of joint names")
+        if isinstance(joints, str) or not isinstance(joints, Sequence) or not joints:
+            raise ValueError(f"joints: must be a non-empty list of joint names, got {joints!r}")
         idx = []
         for j in joints:
             if j not in robot.joint_names:
@@ -314,7 +314,7 @@ def _one_spec(spec: Mapping[str, Any], robot: Robot) -> Constraint:
     if "type" not in spec:
         raise ValueError(f"field 'type' is missing (one of {', '.join(_SPEC_FIELDS)})")
     kind = spec["type"]
-    if kind not in _SPEC_FIELDS:
+    if not isinstance(kind, str) or kind not in _SPEC_FIELDS:
         raise ValueError(
             f"field 'type': unknown constraint type {kind!r}; closest valid types: "
             f"{closest_names(str(kind), list(_SPEC_FIELDS))}"
@@ -381,7 +381,10 @@ def _bound(value: Any, name: str, default: float) -> np.ndarray | None:
         return None
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 3:
         raise ValueError(f"{name}: must be 3 numbers or nulls, got {value!r}")
-    out = np.array([default if v is None else v for v in value], dtype=float)
+    try:
+        out = np.array([default if v is None else v for v in value], dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must be 3 numbers or nulls, got {value!r}") from None
     if np.any(np.isnan(out)):
         raise ValueError(f"{name}: contains NaN")
     return out
@@ -394,7 +397,7 @@ def _axes(axes: Any) -> list[int]:
         raise ValueError(f"axes: must be a non-empty list of 'x', 'y', 'z', got {axes!r}")
     out = []
     for a in axes:
-        if a not in _AXES:
+        if not isinstance(a, str) or a not in _AXES:
             raise ValueError(f"axes: unknown axis {a!r} (use 'x', 'y', 'z')")
         if _AXES[a] in out:
             raise ValueError(f"axes: axis {a!r} is listed twice")

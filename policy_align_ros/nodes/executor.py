@@ -392,7 +392,8 @@ class Executor(Node):
         """Validate (and load a new model); :meth:`_after_set_parameters` applies."""
         for param in params:
             if param.name == "joints":
-                if len(set(param.value)) != len(param.value) or not param.value:
+                # ``joints:=[]`` on the command line arrives unset (None), not as a list.
+                if not param.value or len(set(param.value)) != len(param.value):
                     return reject("joints: must be a non-empty list without repeats")
             elif param.name in _FLOAT_PARAMETERS:
                 if not math.isfinite(param.value):
@@ -400,8 +401,12 @@ class Executor(Node):
             elif param.name == "constraints" and self.robot is not None:
                 try:
                     self._constraints(param.value)
-                except ValueError as err:
-                    return reject(str(err))
+                except Exception as err:  # noqa: BLE001 - a refusal, never a dead executor
+                    # The specs are checked to raise ValueError; anything else that slips
+                    # through must still refuse the change rather than kill the node while
+                    # the controller holds its last command.
+                    return reject(str(err) if isinstance(err, ValueError)
+                                  else f"constraints: {type(err).__name__}: {err}")
             elif param.name == "model_path":
                 result = self._stage_model(param.value)
                 if result is not None:
