@@ -1162,6 +1162,9 @@ def cases_sim_robot(lab: Lab) -> list[Result]:
                                  "joints:=[arm_left_1_joint, no_such_joint]"),
                    "no_such_joint")
     out.append(r)
+    r = Result("sim-start-joints-empty", "parameters", "`sim_robot --ros-args -p 'joints:=[]'`")
+    _start_refused(r, node_start(lab, "sim_robot", "-p", "joints:=[]"), "at least one joint")
+    out.append(r)
     return out
 
 
@@ -1555,6 +1558,11 @@ def cases_executor(lab: Lab) -> list[Result]:
              ["-p", "joints:=[arm_left_1_joint, arm_left_1_joint]"], "joints"),
             ("exe-start-bad-constraints", "`executor -p 'constraints:=[{type: plane'`",
              ["-p", "constraints:=[{type: plane"], "constraints"),
+            ("exe-start-constraint-wrong-type",
+             "`executor -p 'constraints:=[{type: joints, joints: 3}]'`",
+             ["-p", "constraints:=[{type: joints, joints: 3}]"], "non-empty list"),
+            ("exe-start-joints-empty", "`executor -p 'joints:=[]'`",
+             ["-p", "joints:=[]"], "non-empty list"),
             ("exe-start-model-missing", "`executor -p model_path:=/nonexistent/model.npz`",
              ["-p", "model_path:=/nonexistent/model.npz"], "nonexistent")):
         r = Result(case, "parameters", tried)
