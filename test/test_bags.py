@@ -514,6 +514,40 @@ def test_zero_byte_mcap_in_a_dataset_is_named(tmp_path):
         load_dataset(tmp_path / "empty.mcap")  # named explicitly: an error
 
 
+def _records(data: bytes) -> list[tuple[int, int]]:
+    """(opcode, offset) of the MCAP records of ``data`` after its magic."""
+    out, pos = [], 8
+    while pos + 9 <= len(data):
+        out.append((data[pos], pos))
+        pos += 9 + int.from_bytes(data[pos + 1:pos + 9], "little")
+    return out
+
+
+def test_an_mcap_that_a_killed_recorder_left_without_footer_is_read(tmp_path):
+    # SIGKILL or power loss: no metadata.yaml, no summary, no footer, a half-written
+    # record at the end. Every complete chunk is read; the file itself is not touched.
+    rng = np.random.default_rng(29)
+    stamps, q, _ = _demo(rng, 30, n=2)
+    killed = write_joint_state_bag(tmp_path / "killed", ["j1", "j2"], stamps, q)
+    (killed / "metadata.yaml").unlink()
+    mcap = next(killed.glob("*.mcap"))
+    data = mcap.read_bytes()
+    data_end = next(pos for op, pos in _records(data) if op == 0x0F)
+    cut = data[:data_end] + b"\x06\x40"
+    mcap.write_bytes(cut)
+    trajs, _, report = load_dataset(tmp_path)
+    assert report.skipped_bags == [] and report.errors == []
+    np.testing.assert_array_equal(trajs[0].positions, q)
+    assert mcap.read_bytes() == cut
+    # Cut inside its only chunk, nothing is complete: skipped with the reader's reason.
+    _good_dataset(tmp_path, n_bags=1)
+    chunk = next(pos for op, pos in _records(data) if op == 0x06)
+    mcap.write_bytes(data[:chunk + 100])
+    trajs, _, report = load_dataset(tmp_path)
+    assert len(trajs) == 1 and report.skipped_bags[0][0] == str(mcap)
+    assert "end magic" in report.skipped_bags[0][1]
+
+
 def test_bag_directory_without_metadata_is_read_from_its_mcap(tmp_path):
     _good_dataset(tmp_path, n_bags=2)
     rng = np.random.default_rng(23)

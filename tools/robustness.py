@@ -768,6 +768,19 @@ def cases_bags(lab: Lab) -> list[Result]:
                          "metadata.yaml (as `ros2 bag record` leaves when killed)",
                          no_metadata, alone_code=None))
 
+    def no_footer(d):
+        bag = no_metadata(d).rename(d / "bad_no_footer")
+        for f in bag.glob("*.mcap"):
+            data, pos = f.read_bytes(), 8
+            while data[pos] != 0x0F:  # walk the records to the Data End record
+                pos += 9 + int.from_bytes(data[pos + 1:pos + 9], "little")
+            f.write_bytes(data[:pos] + b"\x06\x40")  # and a record cut short
+        return bag
+
+    out.append(_bag_case(lab, "bag-killed-no-footer", "the same, its .mcap ending in a "
+                         "half-written record, with no summary and no footer (`ros2 bag "
+                         "record` killed with SIGKILL)", no_footer, alone_code=None))
+
     def unfinished(d):
         bag = d / ".tmp-demo_0100"
         shutil.copytree(d / "demo_0003", bag)

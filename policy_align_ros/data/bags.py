@@ -23,6 +23,7 @@ import errno
 import os
 import re
 import shutil
+import tempfile
 import uuid
 from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
@@ -258,7 +259,9 @@ def find_bags(path: str | os.PathLike[str]) -> list[Path]:
         Sorted by name; hidden (temporary) entries are ignored. In a dataset directory,
         bare ``.mcap``/``.db3`` files are bags too, and so are the storage files of a
         sub-directory without ``metadata.yaml`` (what a killed ``ros2 bag record``
-        leaves); empty or damaged ones are reported by :func:`load_dataset`.
+        leaves; :func:`read_joint_states` reads an ``.mcap`` left without its footer up to
+        its last complete record); empty or damaged ones are reported by
+        :func:`load_dataset`.
 
     Raises
     ------
@@ -285,8 +288,8 @@ def find_bags(path: str | os.PathLike[str]) -> list[Path]:
         elif entry.is_dir() and (entry / "metadata.yaml").is_file():
             bags.append(entry)
         elif entry.is_dir():
-            # A killed ``ros2 bag record`` leaves a complete .mcap but no metadata.yaml;
-            # rosbags reads a bare storage file on its own, so each one is a bag.
+            # A killed ``ros2 bag record`` leaves its .mcap but no metadata.yaml; rosbags
+            # reads a bare storage file on its own, so each one is a bag.
             bags.extend(
                 f for f in sorted(entry.iterdir())
                 if f.is_file() and f.suffix in (".mcap", ".db3") and not is_temporary(f)
@@ -304,7 +307,9 @@ def read_joint_states(
     Parameters
     ----------
     bag : path-like
-        Bag directory or bare storage file.
+        Bag directory or bare storage file. A bare ``.mcap`` without its footer (a
+        recorder killed before it closed the file) is read up to its last complete
+        record (:func:`finished_mcap_copy`).
     counts : Counter, optional
         Incremented under ``undecodable`` for messages that fail to deserialize.
 
@@ -319,13 +324,80 @@ def read_joint_states(
         A ``ValueError`` naming the path, if the bag cannot be opened.
     """
     path = Path(bag)
+    with contextlib.ExitStack() as stack:
+        try:
+            if path.is_file() and path.stat().st_size == 0:
+                raise BagOpenError(f"{path}: empty file")
+            reader = _open_reader(path, stack)
+        except (ReaderError, FileNotFoundError, OSError, KeyError) as err:
+            raise BagOpenError(f"{path}: cannot open as a rosbag2 bag: {err}") from None
+        yield from _joint_states(reader, counts)
+
+
+def _open_reader(path: Path, stack: contextlib.ExitStack) -> Reader:
+    """An open reader of ``path``; a bare MCAP file that a killed recorder left without
+    its footer is read up to its last complete record, from a copy (see
+    :func:`finished_mcap_copy`)."""
+    reader = Reader(path)
     try:
-        if path.is_file() and path.stat().st_size == 0:
-            raise BagOpenError(f"{path}: empty file")
-        reader = Reader(path)
         reader.open()
-    except (ReaderError, FileNotFoundError, OSError, KeyError) as err:
-        raise BagOpenError(f"{path}: cannot open as a rosbag2 bag: {err}") from None
+    except ReaderError as err:
+        if not (path.suffix == ".mcap" and "end magic" in str(err)):
+            raise
+        copy = finished_mcap_copy(path, Path(stack.enter_context(
+            tempfile.TemporaryDirectory(prefix="policy_align_mcap_"))))
+        if copy is None:
+            raise
+        reader = Reader(copy)
+        reader.open()
+    return reader
+
+
+def finished_mcap_copy(path: Path, directory: Path) -> Path | None:
+    """A copy in ``directory`` of the MCAP file ``path`` cut after its last complete
+    record and given the footer a finished file has (no summary), or None when it holds
+    no complete record after its header.
+
+    ``ros2 bag record`` writes the summary and the footer when it closes: killed (power
+    loss, SIGKILL) it leaves a file that readers refuse ("end magic invalid"), although
+    every chunk it wrote before is complete. The records are walked by their length
+    prefixes (opcode u8, length u64); the chunk it was filling when it died is lost.
+    """
+    magic = b"\x89MCAP0\r\n"
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        if f.read(8) != magic:
+            return None
+        end, complete = 8, 0
+        while True:
+            head = f.read(9)
+            if len(head) < 9:
+                break
+            op, length = head[0], int.from_bytes(head[1:], "little")
+            if op in (0x02, 0x0F) or end + 9 + length > size:  # footer, data end, cut
+                break
+            f.seek(length, os.SEEK_CUR)
+            end += 9 + length
+            complete += op != 0x01  # not the header
+        if not complete:
+            return None
+        copy = directory / path.name
+        f.seek(0)
+        with copy.open("wb") as out:
+            left = end
+            while left:
+                block = f.read(min(left, 1 << 20))
+                out.write(block)
+                left -= len(block)
+            # Data End (no CRC), then a footer without summary: readers scan the records.
+            out.write(b"\x0f" + (4).to_bytes(8, "little") + bytes(4))
+            out.write(b"\x02" + (20).to_bytes(8, "little") + bytes(20) + magic)
+    return copy
+
+
+def _joint_states(reader: Reader, counts: Counter[str] | None
+                  ) -> Iterator[tuple[str, int, list[str], np.ndarray, np.ndarray, np.ndarray]]:
+    """The decoded JointState messages of an open ``reader`` (see read_joint_states)."""
     try:
         conns = [c for c in reader.connections if c.msgtype == JOINT_STATE]
         if not conns:
