@@ -1407,6 +1407,9 @@ def cases_executor(lab: Lab) -> list[Result]:
                      "[{type: cylinder}]`", "constraints", "[{type: cylinder}]", "cylinder"))
         out.append(p(rig, "exe-constraints-not-a-list", "executor `constraints: '42'`",
                      "constraints", "42", "constraints"))
+        out.append(p(rig, "exe-constraints-wrong-type", "executor `constraints: "
+                     "[{type: joints, joints: 3}]` (a number for the joint list)",
+                     "constraints", "[{type: joints, joints: 3}]", "non-empty list"))
         out.append(p(rig, "exe-max-velocity-nan", "executor `max_velocity: nan`",
                      "max_velocity", float("nan")))
         out.append(p(rig, "exe-max-velocity-negative", "executor `max_velocity: -1.0`",
@@ -1571,9 +1574,6 @@ def cases_executor(lab: Lab) -> list[Result]:
              ["-p", "joints:=[arm_left_1_joint, arm_left_1_joint]"], "joints"),
             ("exe-start-bad-constraints", "`executor -p 'constraints:=[{type: plane'`",
              ["-p", "constraints:=[{type: plane"], "constraints"),
-            ("exe-start-constraint-wrong-type",
-             "`executor -p 'constraints:=[{type: joints, joints: 3}]'`",
-             ["-p", "constraints:=[{type: joints, joints: 3}]"], "non-empty list"),
             ("exe-start-joints-empty", "`executor -p 'joints:=[]'`",
              ["-p", "joints:=[]"], "non-empty list"),
             ("exe-start-model-missing", "`executor -p model_path:=/nonexistent/model.npz`",
