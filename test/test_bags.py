@@ -514,6 +514,19 @@ def test_zero_byte_mcap_in_a_dataset_is_named(tmp_path):
         load_dataset(tmp_path / "empty.mcap")  # named explicitly: an error
 
 
+def test_bags_of_one_name_in_two_datasets_get_different_names(tmp_path):
+    # ds1/a/demo_0000 and ds2/a/demo_0000: the bag and its parent's names are the same.
+    rng = np.random.default_rng(31)
+    for ds in ("ds1", "ds2"):
+        stamps, q, _ = _demo(rng, 20, n=2)
+        write_joint_state_bag(tmp_path / ds / "a" / "demo_0000", ["j1", "j2"], stamps, q)
+        stamps, q, _ = _demo(rng, 20, n=2)
+        write_joint_state_bag(tmp_path / ds / "a" / f"{ds}_only", ["j1", "j2"], stamps, q)
+    _, _, report = load_dataset([tmp_path / "ds1" / "a", tmp_path / "ds2" / "a"])
+    names = sorted(d.name for d in report.demos)
+    assert names == ["ds1/a/demo_0000", "ds1_only", "ds2/a/demo_0000", "ds2_only"]
+
+
 def _records(data: bytes) -> list[tuple[int, int]]:
     """(opcode, offset) of the MCAP records of ``data`` after its magic."""
     out, pos = [], 8

@@ -795,17 +795,32 @@ def _no_demo_reason(
 
 def _name_demos(demos: list[DemoInfo]) -> None:
     """Give every demonstration a unique, readable name (see :class:`DemoInfo`)."""
-    paths = {d.bag for d in demos}
-    by_base: dict[str, set[str]] = {}
-    for bag in paths:
-        by_base.setdefault(Path(bag).name, set()).add(bag)
+    paths = sorted({d.bag for d in demos})
+    # A bare storage file's own name (``demo_0002.mcap``) rarely says where it lies: a
+    # directory without metadata.yaml or a copied bag names it better.
+    depth = {bag: 1 if Path(bag).suffix not in (".mcap", ".db3") else 2 for bag in paths}
+    while True:
+        names: dict[str, list[str]] = {}
+        for bag in paths:
+            names.setdefault(_tail(bag, depth[bag]), []).append(bag)
+        clashing = [bag for group in names.values() if len(group) > 1 for bag in group
+                    if depth[bag] < len(Path(bag).parts)]
+        if not clashing:  # unique, or full paths (the same bag named twice)
+            break
+        # Bags of one name in several datasets (``ds1/a/demo_0000``, ``ds2/a/demo_0000``):
+        # one more parent each until they differ.
+        for bag in clashing:
+            depth[bag] += 1
     per_bag = Counter(d.bag for d in demos)
     index: Counter[str] = Counter()
     for d in demos:
-        path = Path(d.bag)
-        # A bare storage file's own name (``demo_0002.mcap``) rarely says where it lies:
-        # a directory without metadata.yaml or a copied bag names it better.
-        unique = len(by_base[path.name]) == 1 and path.suffix not in (".mcap", ".db3")
-        base = path.name if unique else f"{path.parent.name}/{path.name}"
+        base = _tail(d.bag, depth[d.bag])
         index[d.bag] += 1
         d.name = base if per_bag[d.bag] == 1 else f"{base}#{index[d.bag]}"
+
+
+def _tail(path: str, depth: int) -> str:
+    """The last ``depth`` components of ``path``, joined by ``/`` (all of it, as given,
+    from its root on)."""
+    parts = Path(path).parts
+    return str(Path(path)) if depth >= len(parts) else "/".join(parts[-depth:])
