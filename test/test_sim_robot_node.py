@@ -181,3 +181,38 @@ def test_publishes_its_clock_one_period_per_tick_and_stamps_states_with_it():
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_reset_on_its_own_clock_never_repeats_a_stamp():
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=172)
+    nodes = []
+    try:
+        sim = SimRobot(context=context, parameter_overrides=[
+            Parameter("joints", value=JOINTS), Parameter("initial_positions", value=START),
+            Parameter("rate_hz", value=100.0), Parameter("publish_clock", value=True),
+            Parameter("real_time_factor", value=5.0)])
+        probe = Node("probe", context=context)
+        nodes += [sim, probe]
+        states: list[JointState] = []
+        probe.create_subscription(JointState, "/joint_states", states.append, 1000)
+        reset = probe.create_client(Trigger, "/sim_robot/reset")
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(sim)
+        executor.add_node(probe)
+        while len(states) < 10:
+            executor.spin_once(timeout_sec=0.05)
+        assert reset.wait_for_service(timeout_sec=5.0)
+        future = reset.call_async(Trigger.Request())
+        executor.spin_until_future_complete(future, timeout_sec=5.0)
+        assert future.result().success
+        count = len(states)
+        while len(states) < count + 5:
+            executor.spin_once(timeout_sec=0.05)
+        stamps = [s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for s in states]
+        assert np.all(np.diff(stamps) > 0)
+        np.testing.assert_allclose(states[-1].position, START)
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

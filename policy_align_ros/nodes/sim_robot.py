@@ -150,7 +150,12 @@ class SimRobot(Node):
                 throttle_duration_sec=2.0)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response):
-        self._publish(self.sim.reset(self._initial_positions()))
+        q = self.sim.reset(self._initial_positions())
+        # On its own clock the time stands still until the next tick, which publishes the
+        # reset state: a message now would repeat the last stamp, and subscribers skip a
+        # stamp that does not increase.
+        if not self._sim_clock:
+            self._publish(q)
         source = ("initial_positions" if optional_parameter(self, "initial_positions")
                   is not None else "the reference posture")
         response.success = True
