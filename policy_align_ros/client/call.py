@@ -69,10 +69,13 @@ def call_service(
             request.data = data
         future = client.call_async(request)
         executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        executor.spin_until_future_complete(
-            future, timeout_sec=max(deadline - time.monotonic(), 0.0))
-        executor.remove_node(node)
+        try:
+            executor.add_node(node)
+            executor.spin_until_future_complete(
+                future, timeout_sec=max(deadline - time.monotonic(), 0.0))
+        finally:
+            # Its guard conditions outlive it otherwise: callers may call many times.
+            executor.shutdown()
         if not future.done() or future.result() is None:
             return 3, f"service {service} did not answer within {timeout:g} s"
         response = future.result()
@@ -95,11 +98,13 @@ def run_call(args: argparse.Namespace) -> int:
     except RuntimeError as err:  # rcl's RCLError, e.g. a ROS_DOMAIN_ID that is no number
         print(f"policy-align call: error: {err}", file=sys.stderr)
         return 2
+    node = None
     try:
         node = Node(f"policy_align_call_{os.getpid()}", context=context)
         status, text = call_service(node, service, data, args.timeout)
-        node.destroy_node()
     finally:
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown(context=context)
     stream = sys.stdout if status in (0, 1) else sys.stderr
     print(f"{'success' if status == 0 else 'failure'}: {text}", file=stream)

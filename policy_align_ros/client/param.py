@@ -119,10 +119,12 @@ def _call(node: Node, srv_type, service: str, request, deadline: float):
                                 f"{service} not available")
         future = client.call_async(request)
         executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        executor.spin_until_future_complete(
-            future, timeout_sec=max(deadline - time.monotonic(), 0.0))
-        executor.remove_node(node)
+        try:
+            executor.add_node(node)
+            executor.spin_until_future_complete(
+                future, timeout_sec=max(deadline - time.monotonic(), 0.0))
+        finally:
+            executor.shutdown()  # a set call makes two: neither outlives its call
         if not future.done() or future.result() is None:
             raise ParamError(3, f"service {service} did not answer")
         return future.result()
@@ -198,7 +200,8 @@ def run_param(args: argparse.Namespace) -> int:
             status = 0
         except ParamError as err:
             status, text = err.status, str(err)
-        node.destroy_node()
+        finally:
+            node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
     print(text, file=sys.stdout if status == 0 else sys.stderr)
