@@ -425,6 +425,11 @@ class Conductor:
         self.node.create_subscription(String, "/demonstrator/progress", self._on_progress,
                                       LATCHED_QOS)
 
+    def close(self) -> None:
+        """Stop the executor and destroy the node (before the context shuts down)."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+
     def listen(self, on: bool) -> None:
         """Subscribe to ``/joint_states`` or not (each message costs this process time)."""
         if on and self._states is None:
@@ -615,6 +620,7 @@ def run_demo(args: argparse.Namespace) -> int:
                 for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     _set_handlers({signal.SIGTERM: signal.default_int_handler,
                    signal.SIGHUP: signal.default_int_handler}, previous)
+    conductor = None
     try:
         _say(t0, f"robot {s.robot}: {len(s.joints)} joints, state {s.state}, seed {s.seed}, "
                  f"ROS domain {domain}, sim time at {s.real_time_factor:g}x, output {out}")
@@ -644,6 +650,8 @@ def run_demo(args: argparse.Namespace) -> int:
         _set_handlers(dict.fromkeys(previous, signal.SIG_IGN), previous)
         try:
             graph.stop()
+            if conductor is not None:
+                conductor.close()
             rclpy.try_shutdown(context=context)
         finally:
             _set_handlers(previous, previous)
