@@ -138,6 +138,13 @@ def test_demonstrations_that_never_move_are_refused():
         PolicyAlign().fit(still)
 
 
+def test_sigma_is_the_one_positional_argument():
+    # DESIGN: PolicyAlign(sigma) and "other constructor arguments are keyword-only".
+    assert PolicyAlign("narrow").sigma == "narrow"
+    with pytest.raises(TypeError):
+        PolicyAlign("narrow", "euler")
+
+
 def test_errors_are_clear():
     with pytest.raises(NotFittedError, match="not fitted"):
         PolicyAlign().policy(np.zeros((1, 2)))

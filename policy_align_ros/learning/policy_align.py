@@ -163,8 +163,8 @@ class PolicyAlign:
 
     def __init__(
         self,
-        *,
         sigma: str | float = "medium",
+        *,
         integration: str = "auto",
         weight_tol: float = 1e-12,
         merge_tol: float = 0.1,
