@@ -9,6 +9,8 @@ mistake that makes a test see another's nodes when test runs overlap.
 * ``ros_context(domain_id)`` -> an initialised context, shut down after the test.
 * ``spun(context, *nodes)`` -> the nodes spinning in a background executor, stopped after
   the test (a context manager, for rigs that build their own nodes).
+* ``node_process(name, domain_id, *params)`` -> a node's console script run to its end with
+  ``-p`` parameters (for start-up refusals: exit status and stderr).
 * ``wait_for(predicate, timeout)`` -> poll until true; the timeout only bounds a failure, it
   never decides a pass, so no assertion depends on the machine's speed.
 """
@@ -72,6 +74,25 @@ def spun(context, *nodes) -> Iterator[None]:
 def ros_spin():
     """The ``spun`` context manager, as a fixture."""
     return spun
+
+
+@pytest.fixture
+def node_process():
+    """``node_process(name, domain_id, *params)``: the node's console script run to its end
+    (``main()`` of ``policy_align_ros.nodes.<name>`` with ``--ros-args -p`` each of
+    ``params``); its ``subprocess.CompletedProcess``, output as text."""
+    import os
+    import subprocess
+    import sys
+
+    def run(name: str, domain_id: int, *params: str) -> subprocess.CompletedProcess:
+        code = f"import sys; from policy_align_ros.nodes.{name} import main; sys.exit(main())"
+        args = [arg for param in params for arg in ("-p", param)]
+        return subprocess.run([sys.executable, "-c", code, "--ros-args", *args],
+                              env=dict(os.environ, ROS_DOMAIN_ID=str(domain_id)),
+                              capture_output=True, text=True, timeout=60)
+
+    return run
 
 
 @pytest.fixture

@@ -873,17 +873,9 @@ def test_lockstep_steps_once_per_joint_state_and_still_stops_on_stale_states(rig
     assert np.all(r.commands[-1] == 0.0)
 
 
-def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason():
-    import os
-    import subprocess
-    import sys
-
+def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason(node_process):
     # rcl gives ``joints:=[]`` to rclpy as an unset parameter (None), not as an empty list.
-    code = "import sys; from policy_align_ros.nodes.executor import main; sys.exit(main())"
-    done = subprocess.run(
-        [sys.executable, "-c", code, "--ros-args", "-p", "joints:=[]"],
-        env=dict(os.environ, ROS_DOMAIN_ID="171"), capture_output=True, text=True,
-        timeout=60)
+    done = node_process("executor", 171, "joints:=[]")
     assert done.returncode == 1
     assert "Traceback" not in done.stderr
     assert "joints: must be a non-empty list" in done.stderr

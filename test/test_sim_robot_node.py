@@ -1,5 +1,6 @@
 """Integration tests of the ``sim_robot`` node (own rclpy.Context, domain ids 170-179)."""
 
+import contextlib
 import time
 
 import numpy as np
@@ -108,31 +109,15 @@ def test_bad_initial_positions_are_refused(rig):
     assert not result.successful and "need 3 finite values" in result.reason
 
 
-def test_process_with_an_unknown_robot_exits_with_status_1_and_a_reason():
-    import os
-    import subprocess
-    import sys
-
-    code = "import sys; from policy_align_ros.nodes.sim_robot import main; sys.exit(main())"
-    done = subprocess.run(
-        [sys.executable, "-c", code, "--ros-args", "-p", "robot:=talso"],
-        env=dict(os.environ, ROS_DOMAIN_ID="175"), capture_output=True, text=True,
-        timeout=60)
+def test_process_with_an_unknown_robot_exits_with_status_1_and_a_reason(node_process):
+    done = node_process("sim_robot", 175, "robot:=talso")
     assert done.returncode == 1
     assert "unknown robot name 'talso'" in done.stderr and "talos" in done.stderr
 
 
-def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason():
-    import os
-    import subprocess
-    import sys
-
+def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason(node_process):
     # rcl gives ``joints:=[]`` to rclpy as an unset parameter (None), not as an empty list.
-    code = "import sys; from policy_align_ros.nodes.sim_robot import main; sys.exit(main())"
-    done = subprocess.run(
-        [sys.executable, "-c", code, "--ros-args", "-p", "joints:=[]"],
-        env=dict(os.environ, ROS_DOMAIN_ID="176"), capture_output=True, text=True,
-        timeout=60)
+    done = node_process("sim_robot", 176, "joints:=[]")
     assert done.returncode == 1
     assert "Traceback" not in done.stderr
     assert "joints: need at least one joint name" in done.stderr
@@ -146,28 +131,41 @@ def test_command_timeout_can_be_changed_at_run_time(rig):
     assert sim.sim.command_timeout_s == 0.5
 
 
-def test_publishes_its_clock_one_period_per_tick_and_stamps_states_with_it():
-    from rosgraph_msgs.msg import Clock
-
-    from policy_align_ros.nodes.sim_robot import SIM_CLOCK_START_NS
-
+@contextlib.contextmanager
+def _sim_on_its_own_clock(domain_id: int, **probe_parameters):
+    """``sim_robot`` publishing ``/clock`` at 5x, and a probe node collecting its joint
+    states: yields ``(probe, executor, states)``; nothing spins until the test does."""
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=178)
+    rclpy.init(context=context, domain_id=domain_id)
     nodes = []
     try:
         sim = SimRobot(context=context, parameter_overrides=[
             Parameter("joints", value=JOINTS), Parameter("initial_positions", value=START),
             Parameter("rate_hz", value=100.0), Parameter("publish_clock", value=True),
             Parameter("real_time_factor", value=5.0)])
-        probe = Node("probe", context=context,
-                     parameter_overrides=[Parameter("use_sim_time", value=True)])
+        probe = Node("probe", context=context, parameter_overrides=[
+            Parameter(name, value=value) for name, value in probe_parameters.items()])
         nodes += [sim, probe]
-        clocks, states = [], []
-        probe.create_subscription(Clock, "/clock", clocks.append, 1000)
+        states: list[JointState] = []
         probe.create_subscription(JointState, "/joint_states", states.append, 1000)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(sim)
         executor.add_node(probe)
+        yield probe, executor, states
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_publishes_its_clock_one_period_per_tick_and_stamps_states_with_it():
+    from rosgraph_msgs.msg import Clock
+
+    from policy_align_ros.nodes.sim_robot import SIM_CLOCK_START_NS
+
+    with _sim_on_its_own_clock(178, use_sim_time=True) as (probe, executor, states):
+        clocks = []
+        probe.create_subscription(Clock, "/clock", clocks.append, 1000)
         while len(clocks) < 30:  # count ticks, not wall time
             executor.spin_once(timeout_sec=0.05)
         ns = [c.clock.sec * 10**9 + c.clock.nanosec for c in clocks]
@@ -177,29 +175,11 @@ def test_publishes_its_clock_one_period_per_tick_and_stamps_states_with_it():
         assert stamps <= set(ns)
         # A node on sim time reads the simulated clock.
         assert SIM_CLOCK_START_NS < probe.get_clock().now().nanoseconds <= ns[-1]
-    finally:
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def test_reset_on_its_own_clock_never_repeats_a_stamp():
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=172)
-    nodes = []
-    try:
-        sim = SimRobot(context=context, parameter_overrides=[
-            Parameter("joints", value=JOINTS), Parameter("initial_positions", value=START),
-            Parameter("rate_hz", value=100.0), Parameter("publish_clock", value=True),
-            Parameter("real_time_factor", value=5.0)])
-        probe = Node("probe", context=context)
-        nodes += [sim, probe]
-        states: list[JointState] = []
-        probe.create_subscription(JointState, "/joint_states", states.append, 1000)
+    with _sim_on_its_own_clock(172) as (probe, executor, states):
         reset = probe.create_client(Trigger, "/sim_robot/reset")
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(sim)
-        executor.add_node(probe)
         while len(states) < 10:
             executor.spin_once(timeout_sec=0.05)
         assert reset.wait_for_service(timeout_sec=5.0)
@@ -212,7 +192,3 @@ def test_reset_on_its_own_clock_never_repeats_a_stamp():
         stamps = [s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for s in states]
         assert np.all(np.diff(stamps) > 0)
         np.testing.assert_allclose(states[-1].position, START)
-    finally:
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)

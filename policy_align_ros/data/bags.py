@@ -805,7 +805,7 @@ def _name_demos(demos: list[DemoInfo]) -> None:
             names.setdefault(_tail(bag, depth[bag]), []).append(bag)
         clashing = [bag for group in names.values() if len(group) > 1 for bag in group
                     if depth[bag] < len(Path(bag).parts)]
-        if not clashing:  # unique, or full paths (the same bag named twice)
+        if not clashing:  # unique (distinct paths differ at the latest in full)
             break
         # Bags of one name in several datasets (``ds1/a/demo_0000``, ``ds2/a/demo_0000``):
         # one more parent each until they differ.
