@@ -40,3 +40,29 @@ def test_bad_parameter_file_exits_one(tmp_path):
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 1, done.stderr
     assert "error:" in done.stderr
+
+
+# A node whose destruction never returns (as Fast DDS 2.14 can deadlock destroying a
+# participant): after SIGTERM the process must still end, with the loop's exit code.
+_STUCK_IN_TEARDOWN = """
+import os, signal, sys, threading
+from rclpy.node import Node
+from policy_align_ros.nodes._common import run_node
+
+class Stuck(Node):
+    def __init__(self):
+        super().__init__("stuck_teardown")
+        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGTERM))
+
+    def destroy_node(self):
+        threading.Event().wait()
+
+sys.exit(run_node(Stuck, ["--ros-args"]))
+"""
+
+
+def test_a_teardown_that_never_returns_still_ends_the_process():
+    done = subprocess.run([sys.executable, "-c", _STUCK_IN_TEARDOWN], env=ENV,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "teardown did not finish" in done.stderr

@@ -6,6 +6,7 @@ Only this subpackage (and ``cli.py``) may import rclpy and ROS message types.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -189,6 +190,9 @@ async def call_with_timeout(client: Client, request: Any, timeout_s: float) -> A
 
 
 _STOP = threading.Event()
+#: Longest wait [s] for a node's destruction and the context's shutdown once the node's
+#: own clean-up is done (see :func:`run_node`).
+TEARDOWN_TIMEOUT_S = 5.0
 
 
 def _request_stop(signum: int, frame: object) -> None:
@@ -262,9 +266,25 @@ def run_node(
         # A second signal must not interrupt the clean-up (the final zero command).
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if node is not None and finish is not None:
+            finish(node)
+        # Ignoring signals, a teardown that never returns would need SIGKILL: Fast DDS
+        # 2.14 can deadlock destroying a participant while the others vanish at once (the
+        # README walkthrough's clean-up: a recorder spinning in rcl_node_fini for 12 min).
+        # Everything the node owes is done by then (data saved, zero command published
+        # first in destroy_node), so past the bound the process just ends.
+        watchdog = threading.Timer(TEARDOWN_TIMEOUT_S, _exit_stuck, (code,))
+        watchdog.daemon = True
+        watchdog.start()
         if node is not None:
-            if finish is not None:
-                finish(node)
             node.destroy_node()
         rclpy.try_shutdown()
+        watchdog.cancel()
     return code
+
+
+def _exit_stuck(code: int) -> None:
+    print(f"warning: the middleware's teardown did not finish within "
+          f"{TEARDOWN_TIMEOUT_S:g} s; exiting without it", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(code)
