@@ -13,7 +13,15 @@ are uniform in ``c +- hw`` per coordinate. Problems (``--problem``):
 2. 10-D rotated quadratic, condition number 30, 20 Hz, 60 demonstrations of 5 s;
 3. 3-D ``phi = r^2 / 2 + 0.3 r^4``, 100 Hz, 30 demonstrations of 3 s;
 4. 6-D quadratic, 12 demonstrations at 10 Hz;
-5. 4-D quadratic with position noise (std 2e-3, box size 2), 50 Hz, 40 demonstrations.
+5. 4-D quadratic with position noise (std 2e-3, box size 2), 50 Hz, 40 demonstrations;
+6. 22-D anisotropic quadratic (condition 10) off the origin, 10 Hz, 100 demonstrations of
+   6 s;
+7. 7-D rotated quadratic under joint locks: ``A`` is 1 to 3 rows of the identity (locked
+   joints), 50 Hz, 40 demonstrations of 4 s;
+8. 3-D anisotropic quadratic sampled with jittered time steps (50 Hz +- 30 %), positions
+   and times only;
+9. 12-D rotated ``sum_i w_i (z_i^2 / 2 + z_i^4 / 4)``, ``z = R (x - c)``, 20 Hz, 30
+   demonstrations of 5 s.
 
 ``PolicyAlign(random_state=0)`` with its defaults is scored by nUPE and nCPE on 10
 held-out demonstrations from new starts, and closed loop: ``xdot = pi_hat(x)`` from 10 new
@@ -73,12 +81,40 @@ def make_problem(pid: int, rng: np.random.Generator) -> dict:
             return -(1.0 + 1.2 * np.sum(d**2, axis=-1, keepdims=True)) * d
 
         return dict(n=n, c=c, hw=1.0, rate=100, demos=30, T=3.0, noise=0.0, phi=phi, pi=pi)
-    raise ValueError(f"--problem: expected 1-5, got {pid}")
+    if pid in (6, 7, 8):
+        n, cond, rate, demos, T = {6: (22, 10.0, 10, 100, 6.0), 7: (7, 8.0, 50, 40, 4.0),
+                                   8: (3, 5.0, 50, 40, 4.0)}[pid]
+        Q = np.linalg.qr(rng.normal(size=(n, n)))[0] if pid == 7 else np.eye(n)
+        W = Q @ np.diag(0.5 * rng.permutation(np.geomspace(1.0, cond, n))) @ Q.T
+        c = rng.uniform(-1.0, 1.0, n)
+        return dict(n=n, c=c, hw=1.0, rate=rate, demos=demos, T=T, noise=0.0,
+                    locks=pid == 7, jitter=0.3 if pid == 8 else 0.0,
+                    phi=lambda X: 0.5 * np.einsum("...i,ij,...j->...", X - c, W, X - c),
+                    pi=lambda X: -(X - c) @ W)
+    if pid == 9:
+        n = 12
+        R = np.linalg.qr(rng.normal(size=(n, n)))[0]
+        c, w = rng.uniform(-0.5, 0.5, n), rng.uniform(0.3, 1.5, n)
+
+        def phi(X: np.ndarray) -> np.ndarray:
+            z = (X - c) @ R.T
+            return np.sum(w * (0.5 * z**2 + 0.25 * z**4), axis=-1)
+
+        def pi(X: np.ndarray) -> np.ndarray:
+            z = (X - c) @ R.T
+            return -(w * (z + z**3)) @ R
+
+        return dict(n=n, c=c, hw=1.0, rate=20, demos=30, T=5.0, noise=0.0, phi=phi, pi=pi)
+    raise ValueError(f"--problem: expected 1-9, got {pid}")
 
 
-def random_projector(n: int, rng: np.random.Generator) -> np.ndarray:
-    """``N = I - A^+ A`` (n, n) of a Gaussian ``A`` with 1 to n/2 rows."""
-    A = rng.normal(size=(rng.integers(1, max(1, n // 2) + 1), n))
+def random_projector(n: int, rng: np.random.Generator, locks: bool = False) -> np.ndarray:
+    """``N = I - A^+ A`` (n, n) of a Gaussian ``A`` with 1 to n/2 rows, or (``locks``) of
+    1 to 3 rows of the identity."""
+    if locks:
+        A = np.eye(n)[rng.choice(n, rng.integers(1, 4), replace=False)]
+    else:
+        A = rng.normal(size=(rng.integers(1, max(1, n // 2) + 1), n))
     return np.eye(n) - np.linalg.pinv(A) @ A
 
 
@@ -98,13 +134,18 @@ def demonstration(P: dict, x0: np.ndarray, rng: np.random.Generator, sub: int = 
     n, dt = P["n"], 1.0 / P["rate"]
     samples = int(round(P["T"] * P["rate"])) + 1
     switches = np.sort(rng.uniform(0.1 * P["T"], 0.9 * P["T"], rng.integers(1, 4)))
-    projectors = [random_projector(n, rng) for _ in range(len(switches) + 1)]
+    projectors = [random_projector(n, rng, P.get("locks", False))
+                  for _ in range(len(switches) + 1)]
     times = np.arange(samples) * dt
+    if P.get("jitter", 0.0):
+        steps = dt * (1.0 + P["jitter"] * rng.uniform(-1.0, 1.0, samples - 1))
+        times = np.concatenate([[0.0], np.cumsum(steps)])
     X, V, Ns = np.empty((samples, n)), np.empty((samples, n)), np.empty((samples, n, n))
-    x, h = x0.copy(), dt / sub
+    x = x0.copy()
     for i, t in enumerate(times):
         N = projectors[int(np.searchsorted(switches, t, side="right"))]
         X[i], V[i], Ns[i] = x, N @ P["pi"](x[None])[0], N
+        h = (times[i + 1] - t) / sub if i + 1 < samples else 0.0
         for s in range(sub if i + 1 < samples else 0):
             # The constraint in force over this substep.
             N = projectors[int(np.searchsorted(switches, t + (s + 0.5) * h, side="right"))]
@@ -142,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     seed = 1000 + args.problem if args.seed is None else args.seed
     rng = np.random.default_rng(seed)
     P = make_problem(args.problem, rng)
+    no_velocities = args.no_velocities or P.get("jitter", 0.0) > 0.0
     c, hw = P["c"], P["hw"]
 
     def starts(m: int) -> np.ndarray:
@@ -151,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     for k, x0 in enumerate(starts(P["demos"])):
         X, t, V, _ = demonstration(P, x0, rng)
         recorded = X + P["noise"] * rng.normal(size=X.shape) if P["noise"] else X
-        train.append(Trajectory(recorded, t, None if args.no_velocities else V, name=f"d{k}"))
+        train.append(Trajectory(recorded, t, None if no_velocities else V, name=f"d{k}"))
         X_true.append(recorded)
         phi_true.append(P["phi"](X))
     test = [demonstration(P, x0, rng) for x0 in starts(10)]
@@ -163,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
     model = PolicyAlign(random_state=0).fit(train)
     out: dict = {"problem": args.problem, "seed": seed, "n": P["n"], "demos": P["demos"],
                  "rate_hz": P["rate"], "fit_s": time.perf_counter() - t0,
-                 "velocities": not args.no_velocities}
+                 "velocities": not no_velocities}
     pi_hat = model.policy(X_test)
     out["nUPE"] = metrics.nupe(pi_test, pi_hat)
     out["nCPE"] = metrics.ncpe(pi_test, pi_hat, N_test)
