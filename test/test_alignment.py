@@ -9,6 +9,7 @@ from policy_align_ros.learning.alignment import (
     dense_local_model_table,
     dense_offsets,
     local_model_table,
+    solve_chained_offsets,
     solve_offsets,
     thin_along_trajectories,
 )
@@ -99,6 +100,31 @@ def test_disconnected_components_are_each_zero_mean():
     b = solve_offsets(H, a)
     assert abs(b[:6].mean()) < 1e-10
     assert abs(b[6:].mean()) < 1e-10
+
+
+def test_chained_offsets_keep_the_ties_and_minimise_the_rest():
+    X, labels, phi, _ = _problem(seed=2)
+    H, a, _ = alignment_system(local_model_table(X, labels, phi, 0.3))
+    pairs = np.array([[0, 1], [1, 2], [5, 9]])
+    jumps = np.array([0.3, -0.2, 1.5])
+    b = solve_chained_offsets(H, a, pairs, jumps)
+    np.testing.assert_allclose(b[pairs[:, 1]] - b[pairs[:, 0]], jumps, atol=1e-12)
+    # Stationary along every direction the ties leave free: the gradient H b + a sums to
+    # zero over each tied set and vanishes on the untied trajectories.
+    grad = H @ b + a
+    free = np.setdiff1d(np.arange(len(b)), pairs)
+    np.testing.assert_allclose(grad[free], 0.0, atol=1e-9)
+    assert abs(grad[[0, 1, 2]].sum()) < 1e-9 and abs(grad[[5, 9]].sum()) < 1e-9
+    assert abs(b.mean()) < 1e-10
+    # Ties that agree with the free solution change nothing; no ties is solve_offsets.
+    b0 = solve_offsets(H, a)
+    np.testing.assert_allclose(
+        solve_chained_offsets(H, a, pairs, b0[pairs[:, 1]] - b0[pairs[:, 0]]), b0, atol=1e-9)
+    np.testing.assert_array_equal(solve_chained_offsets(H, a, np.zeros((0, 2)), []), b0)
+    with pytest.raises(ValueError, match="2 values for 3 pairs"):
+        solve_chained_offsets(H, a, pairs, jumps[:2])
+    with pytest.raises(ValueError, match="p < q"):
+        solve_chained_offsets(H, a, pairs[:, ::-1], jumps)
 
 
 def test_blocked_approximation_matches_the_exact_table(monkeypatch):

@@ -265,6 +265,14 @@ def test_demonstrations_are_split_where_the_constraint_switches_inside_a_period(
     assert model.fit_summary_["n_pieces"] >= 20 + 30  # most of the 40 switches found
     assert [len(p) for p in model.aligned_potentials_] == [t.n_samples for t in train]
     assert len(model.offsets_) == 20 and set(model.inliers_) == set(range(20))
+    # The pieces of a demonstration are tied across its switches by the midpoint drop:
+    # the aligned potential follows the true one along each demonstration (left to the
+    # alignment, the pieces' levels were off by 0.83 of the potential's spread).
+    true = [0.5 * np.einsum("ij,jk,ik->i", t.positions - c, W, t.positions - c)
+            for t in train]
+    spread = np.concatenate(true).std()
+    assert max(np.ptp(p - y) for p, y in zip(model.aligned_potentials_, true,
+                                             strict=True)) < 0.15 * spread
     monkeypatch.setattr(pa_module, "switch_cuts", lambda t: np.zeros(0, dtype=np.int64))
     whole = PolicyAlign(random_state=0).fit(train)
     assert whole.fit_summary_["n_pieces"] == 20

@@ -39,6 +39,7 @@ __all__ = [
     "dense_local_model_table",
     "alignment_system",
     "solve_offsets",
+    "solve_chained_offsets",
     "dense_offsets",
 ]
 
@@ -413,6 +414,52 @@ def solve_offsets(H: sp.spmatrix, a: np.ndarray) -> np.ndarray:
         b_c = np.concatenate(([0.0], np.atleast_1d(x)))
         b[idx] = b_c - b_c.mean()
     return b
+
+
+def solve_chained_offsets(H: sp.spmatrix, a: np.ndarray, pairs: np.ndarray,
+                          jumps: np.ndarray) -> np.ndarray:
+    """Minimiser of eq. 14's objective with some offset differences fixed.
+
+    Parameters
+    ----------
+    H : sparse matrix, shape (K, K)
+        Laplacian of :func:`alignment_system`.
+    a : ndarray, shape (K,)
+    pairs : ndarray of int, shape (L, 2)
+        Trajectories ``(p, q)`` whose offsets are tied, ``p < q``.
+    jumps : ndarray, shape (L,)
+        ``b_q - b_p`` for each pair (potential units).
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        ``b = T beta + c``: ``c`` chains the fixed differences from the first member of
+        each tied set, ``T`` maps one free offset per set to its members, and ``beta``
+        solves the reduced system ``T' H T beta = -T' (H c + a)`` with
+        :func:`solve_offsets`. Without pairs, :func:`solve_offsets` itself.
+    """
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    jumps = np.asarray(jumps, dtype=float).reshape(-1)
+    K = H.shape[0]
+    if len(jumps) != len(pairs):
+        raise ValueError(f"jumps: {len(jumps)} values for {len(pairs)} pairs")
+    if len(pairs) == 0:
+        return solve_offsets(H, a)
+    if not (np.all(pairs[:, 0] < pairs[:, 1]) and pairs.min() >= 0 and pairs.max() < K):
+        raise ValueError(f"pairs must be (p, q) with 0 <= p < q < {K}")
+    links = sp.csr_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(K, K))
+    n_sets, member = connected_components(links, directed=False)
+    c = np.zeros(K)
+    # Chains are walked in index order: every pair's first member already has its level.
+    for (p, q), jump in sorted(zip(pairs.tolist(), jumps.tolist(), strict=True)):
+        c[q] = c[p] + jump
+    T = sp.csr_matrix((np.ones(K), (np.arange(K), member)), shape=(K, n_sets))
+    H = sp.csr_matrix(H)
+    beta = solve_offsets((T.T @ H @ T).tocsr(), T.T @ (H @ c + a))
+    b = T @ beta + c
+    # Zero mean per connected part of the tied graph, as solve_offsets leaves its groups.
+    n_comp, comp = connected_components(abs(H) + links + links.T, directed=False)
+    return b - (np.bincount(comp, weights=b, minlength=n_comp) / np.bincount(comp))[comp]
 
 
 def dense_offsets(Q: np.ndarray, F: np.ndarray) -> np.ndarray:

@@ -12,9 +12,12 @@ times (per step otherwise).
    steps that span lost samples (:func:`~policy_align_ros.learning.potential.sampling_gaps`)
    and, where their instantaneous velocities show one, at a constraint switch inside a
    sample period (:func:`~policy_align_ros.learning.potential.switch_cuts`): no rule gets
-   such a step's drop right, and the alignment levels the pieces (those of fewer than
-   :data:`MIN_PIECE_SAMPLES` samples are left out); the learnt attributes are merged
-   back per trajectory;
+   such a step's drop right to first order, so the pieces' shapes are fitted apart (those
+   of fewer than :data:`MIN_PIECE_SAMPLES` samples are left out). Their levels are tied
+   across a switch by the midpoint drop ``-dt (|v_i|^2 + |v_{i+1}|^2) / 2``, which misses
+   the true drop 4-100 times less than the alignment levels touching pieces
+   (``docs/notes/potential.md``, "Pieces tied across a switch"), and are left to the
+   alignment across lost samples; the learnt attributes are merged back per trajectory;
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
 3. align each group (``b = -pinv(H) a`` restricted to the group); the largest group is
    the aligned set;
@@ -47,7 +50,7 @@ from policy_align_ros.learning import model_io
 from policy_align_ros.learning.alignment import (
     alignment_system,
     local_model_table,
-    solve_offsets,
+    solve_chained_offsets,
 )
 from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
@@ -309,7 +312,8 @@ class PolicyAlign:
         for rule in rules:
             rule_table = table if rule == rules[0] else table.with_potential(phi_all[rule])
             H, a, _ = alignment_system(rule_table, self.groups_)
-            offsets = solve_offsets(H, a)
+            pairs, jumps = _switch_junctions(spans, parents, phi[rule], self.groups_)
+            offsets = solve_chained_offsets(H, a, pairs, jumps)
             aligned[rule] = (offsets, [p + b for p, b in zip(phi[rule], offsets, strict=True)])
         timings["alignment"] = time.perf_counter() - t1
         unit = "pieces of trajectories" if split else "trajectories"
@@ -389,8 +393,9 @@ class PolicyAlign:
         (:func:`~policy_align_ros.learning.potential.sampling_gaps`), or, where the
         velocities are sampled at the samples (timing ``"mid"``) and trusted, a constraint
         switch inside the sample period
-        (:func:`~policy_align_ros.learning.potential.switch_cuts`). The alignment levels
-        the pieces, which touch. Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples
+        (:func:`~policy_align_ros.learning.potential.switch_cuts`). The pieces' levels
+        are tied across a switch (:func:`_switch_junctions`) and left to the alignment
+        across lost samples. Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples
         (a cut in the first or last steps, or two cuts close together) are left out of
         the fit; a trajectory that would keep no piece is kept whole. Nothing cut: the
         inputs themselves."""
@@ -710,6 +715,49 @@ def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:
     squared = [np.einsum("ij,ij->i", d, d) for d in (np.diff(p, axis=0) for p in positions)]
     mean = float(np.mean(np.concatenate(squared)))
     return 2.0 * noise / mean if mean > 0 else math.inf
+
+
+def _switch_junctions(spans: np.ndarray, parents: list[Trajectory], phi: list[np.ndarray],
+                      groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Consecutive pieces cut at a constraint switch, and the jump of their offsets there.
+
+    Parameters
+    ----------
+    spans : ndarray of int, shape (P, 3)
+        ``(trajectory, first sample, end)`` of each piece (:meth:`PolicyAlign._split`).
+    parents : list of Trajectory
+        The whole trajectories.
+    phi : list of ndarray
+        Each piece's potential estimate (starting at 0).
+    groups : ndarray of int, shape (P,)
+        The pieces' alignment groups; pieces are tied within a group only.
+
+    Returns
+    -------
+    pairs : ndarray of int, shape (L, 2)
+        Pieces ``(p, p + 1)`` that touch across a step ``i`` that lost no samples.
+    jumps : ndarray, shape (L,)
+        ``b_{p+1} - b_p`` that makes the aligned potential drop by
+        ``dt_i (|v_i|^2 + |v_{i+1}|^2) / 2`` over the step: the drop is ``dt`` times the
+        squared speed, the old constraint's before the switch and the new one's after.
+    """
+    pairs, jumps = [], []
+    gaps = {}
+    for p in range(len(spans) - 1):
+        k, _, end = spans[p]
+        t = parents[k]
+        if spans[p + 1, 0] != k or spans[p + 1, 1] != end or groups[p] != groups[p + 1]:
+            continue
+        if k not in gaps:
+            gaps[k] = set(sampling_gaps(t).tolist())
+        i = int(end) - 1
+        if t.velocities is None or i in gaps[k]:
+            continue
+        v, dt = t.velocities, float(t.dt[i])
+        drop = -0.5 * dt * (v[i] @ v[i] + v[i + 1] @ v[i + 1])
+        pairs.append((p, p + 1))
+        jumps.append(drop + phi[p][-1] - phi[p + 1][0])
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2), np.array(jumps, dtype=float)
 
 
 def _cv_score(regressor) -> float | None:
