@@ -134,6 +134,49 @@ def test_burst_1khz_for_10s_zero_loss(tmp_path):
     assert sum(recorder.recorder.skipped.values()) == 0
 
 
+def _served(executor: SingleThreadedExecutor, future, timeout: float = 20.0):
+    """Spin ``executor`` (the recorder's own) until ``future`` is done; its result."""
+    deadline = time.monotonic() + timeout
+    while not future.done():
+        assert time.monotonic() < deadline, "timed out waiting for a service response"
+        executor.spin_once(timeout_sec=0.05)
+    return future.result()
+
+
+def test_stop_records_the_backlog_queued_before_it(tmp_path):
+    # The recorder is spun by hand, so a burst queues up in its subscription as it would
+    # behind a slow write on a loaded machine. The executor takes one message per
+    # subscription between other callbacks: stop_demo must still record every message
+    # that arrived before it (before the drain it wrote 1 of the 300).
+    count = 300
+    msgs = [_msg(T0 + k * 1_000_000, ["a", "b"], [k, -k], [1.0, 2.0]) for k in range(count)]
+    with _ros(111) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path))])
+        own = SingleThreadedExecutor(context=ctx)
+        own.add_node(recorder)
+        harness = _Harness(ctx, None)
+        try:
+            assert harness.stop.wait_for_service(timeout_sec=20.0)
+            _wait(lambda: recorder.subscription.get_publisher_count() >= 1, 20.0,
+                  "the publisher")
+            time.sleep(0.3)
+            assert _served(own, harness.start.call_async(Trigger.Request())).success
+            for msg in msgs:
+                harness.pub.publish(msg)
+            time.sleep(1.0)  # delivered into the recorder's queue, not yet taken
+            assert recorder.recorder.buffered == 0
+            response = _served(own, harness.stop.call_async(Trigger.Request()))
+        finally:
+            own.shutdown(timeout_sec=2.0)
+            harness.close()
+            recorder.destroy_node()
+    assert response.success, response.message
+    read = list(read_joint_states(response.message))
+    assert [m[1] for m in read] == [T0 + k * 1_000_000 for k in range(count)]
+    assert sum(recorder.recorder.skipped.values()) == 0
+
+
 def test_writes_exactly_the_valid_messages_and_counts_the_rest(tmp_path):
     ok = [0.1, 0.2]
     t = [T0 + k * 10_000_000 for k in range(30)]

@@ -10,6 +10,7 @@ Interface (DESIGN.md section 6):
 * subscribes ``/joint_states`` (reliable, keep-last ``qos_depth``, 10 s at 1 kHz by default,
   so a burst is queued rather than lost while a bag is being written);
 * services ``~/start_demo`` and ``~/stop_demo`` (``std_srvs/srv/Trigger``); ``stop_demo``
+  first records the joint states still queued (they arrived before the request), and
   answers once the bag is complete on disk, with its path as the message;
 * parameters ``dataset_dir`` (str), ``joints`` (str[], unset = those of the first
   message), ``auto_split_gap_s`` (s, 0 = manual mode; otherwise recording starts at once
@@ -120,6 +121,7 @@ class RecorderNode(Node):
             max_stamp_ahead_s=_MAX_STAMP_AHEAD_S,
         )
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._qos_depth = depth.value
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth.value,
                          reliability=ReliabilityPolicy.RELIABLE)
         self.subscription = self.create_subscription(
@@ -194,6 +196,8 @@ class RecorderNode(Node):
     def _on_stop(
         self, request: Trigger.Request, response: Trigger.Response
     ) -> Trigger.Response:
+        if self._recorder.active:
+            self._drain()
         count = self._recorder.pending or self._recorder.buffered
         try:
             path = self._recorder.stop()
@@ -209,6 +213,26 @@ class RecorderNode(Node):
             response.success, response.message = True, str(path)
             self.get_logger().info(f"demonstration written: {path} ({count} messages)")
         return response
+
+    def _drain(self) -> None:
+        """Record the joint states already queued when ``stop_demo`` is served.
+
+        The executor takes one message per subscription between other callbacks, so a
+        backlog (a loaded machine, a burst) would still be queued when the request is
+        served and then be dropped; those messages arrived before the request and belong
+        to the demonstration. At most ``qos_depth`` are taken, the queue's own bound.
+        """
+        sub = self.subscription
+        try:
+            with sub.handle:
+                for _ in range(self._qos_depth):
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                    if taken is None:
+                        return
+                    self._on_joint_state(taken[0])
+        except Exception as err:  # never out of a callback: see the module docstring
+            self.get_logger().error(f"stop_demo: could not take the queued joint states: "
+                                    f"{type(err).__name__}: {err}")
 
     def _set_gap(self, gap: float) -> None:
         """Apply ``auto_split_gap_s``; leaving continuous mode writes the current segment."""
