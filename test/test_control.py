@@ -570,6 +570,67 @@ def test_a_policy_fault_ramps_down():
     assert run.control.zero_reason == "policy output not finite"
 
 
+def test_a_policy_that_raises_ramps_down_with_the_reason():
+    # Any exception of the policy (here an SVD that did not converge) is "no safe
+    # command": before, it left the control step, and the node's timer callback with it,
+    # with the controller armed and holding its last command.
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(40):
+        run.tick()
+
+    def broken(X):
+        raise np.linalg.LinAlgError("SVD did not converge")
+
+    step.policy = broken
+    for _ in range(60):
+        run.tick()
+    _assert_ramped(run.sent, ACC * DT, start=np.zeros(N))
+    assert not np.any(run.sent[-1]) and not run.control.armed and run.control.faulted
+    assert run.control.zero_reason == "policy failed: LinAlgError: SVD did not converge"
+
+
+def test_a_speed_limit_lowered_while_armed_is_reached_by_the_ramp():
+    # An operator lowers max_velocity from 0.5 to 0.01 rad/s while the robot cruises at
+    # 0.5: the command slows at max_acceleration (before: 0.5 -> 0.01 in one period, 49
+    # rad/s^2 against 2) and then stays within the new limit.
+    step = ControlStep(-10 * np.ones(N), 10 * np.ones(N), VMAX, DT,
+                       policy=lambda X: np.full_like(X, 0.9))
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(50):
+        run.tick()
+    cruising = run.sent[-1].copy()
+    np.testing.assert_allclose(cruising, 0.5)
+    step.max_velocity = np.full(N, 0.01)
+    for _ in range(40):
+        run.tick()
+    after = run.sent[50:]
+    _assert_ramped(after, ACC * DT, start=cruising)
+    np.testing.assert_allclose(after[-1], 0.01)
+    assert not any("forces a command change" in text for _, text in run.events)
+
+
+def test_constraints_that_cannot_be_enforced_refuse_the_enable():
+    # A plane on a frame that none of the controlled joints moves has a zero row: before,
+    # ~/enable answered "enabled" and the first step disarmed.
+    robot = Robot.load("talos", [f"arm_left_{i}_joint" for i in range(1, 8)])
+    plane = constraint_from_spec({"type": "plane", "frame": "arm_right_7_link",
+                                  "normal": [0.0, 0.0, 1.0]}, robot)
+    q0 = robot.neutral() + 0.2
+    step = ControlStep(robot.lower, robot.upper, np.full(7, 0.5), DT, constraints=[plane],
+                       policy=lambda X: -(X - q0))
+    run = _Run(step, q0)
+    run.state()
+    accepted, reason = run.arm()
+    assert not accepted and reason.startswith("constraint matrix near-singular")
+    step.constraints = []
+    assert run.arm() == (True, "enabled")
+
+
 def test_joints_brake_before_their_limits_within_the_ramp():
     # Joint 0 runs into its upper limit at full speed: the braking cap slows it in time,
     # so no step needs more than the ramp allows and the limit is never crossed.

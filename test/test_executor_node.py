@@ -1,4 +1,5 @@
-"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-211).
+"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-211,
+219).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
@@ -750,8 +751,8 @@ def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
         calls = []
         check = r.node._check_controller
 
-        async def counted():
-            calls.append(await check())
+        async def counted(client):
+            calls.append(await check(client))
             return calls[-1]
 
         r.node._check_controller = counted
@@ -847,6 +848,29 @@ def test_a_disable_while_enable_waits_for_the_controller_wins(rig):
     assert "superseded by a later ~/enable request" in enable.result().message
     r.spin(0.2)
     assert not r.node.controller.armed and r.commands == []
+
+
+def test_a_controller_changed_while_enable_waits_for_it_refuses_the_enable(rig):
+    # Setting ``controller`` destroyed the client that the pending enable was polling: the
+    # next poll raised out of the service callback and the node died. Now the old client
+    # lives until the check ends, and the enable is refused (the new controller's joint
+    # order was never compared).
+    r = rig(219, controller="/absent_controller")
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.enable_client.wait_for_service(timeout_sec=5.0)
+    enable = r.enable_client.call_async(SetBool.Request(data=True))
+    r.spin(0.2)  # the enable is waiting for /absent_controller (up to 1 s)
+    assert not enable.done()
+    assert r.node.set_parameters([Parameter("controller", value="/other_controller")]
+                                 )[0].successful
+    r.spin_until(enable.done, what="the ~/enable answer")
+    assert not enable.result().success
+    assert "the controller changed while it was checked" in enable.result().message
+    r.spin(0.2)
+    assert not r.node.controller.armed and r.commands == []
+    assert r.node._retired_clients == []  # the old client is gone once the check ended
 
 
 def test_lockstep_steps_once_per_joint_state_and_still_stops_on_stale_states(rig):

@@ -92,6 +92,13 @@ def test_joint_lock_rows(ur5: Robot) -> None:
     assert N[2, 2] == 0.0 and np.trace(N) == pytest.approx(5.0)
 
 
+def test_a_joint_locked_twice_is_refused(ur5: Robot) -> None:
+    # Two equal rows: a constraint matrix that is singular wherever the robot is.
+    with pytest.raises(ValueError, match="listed twice"):
+        constraint_from_spec({"type": "joints", "joints": ["elbow_joint", "elbow_joint"]},
+                             ur5)
+
+
 def test_barrier_switches_with_distance_and_direction(ur5: Robot) -> None:
     q = ur5.neutral() + 0.2
     p = ur5.frame_position(q, "tool0")

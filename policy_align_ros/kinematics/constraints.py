@@ -233,6 +233,9 @@ class JointLockConstraint(Constraint):
                     f"{closest_names(str(j), robot.joint_names)}"
                 )
             idx.append(robot.joint_names.index(j))
+        if len(set(idx)) != len(idx):
+            # Two rows e_j would make the constraint matrix singular: never enforceable.
+            raise ValueError(f"joints: a joint is listed twice in {list(joints)!r}")
         self.robot = robot
         self.joints = list(joints)
         self._rows = np.eye(robot.nq)[idx]

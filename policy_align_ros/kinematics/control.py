@@ -837,7 +837,10 @@ class ControlStep:
         if q.shape != (self.n_joints,) or not np.all(np.isfinite(q)):
             return self._zeros.copy(), "joint positions missing or not finite", self._eye
         p = self.permutation
-        pi_model = np.asarray(self.policy(q[p][None, :]), dtype=float).reshape(-1)
+        try:
+            pi_model = np.asarray(self.policy(q[p][None, :]), dtype=float).reshape(-1)
+        except Exception as err:  # noqa: BLE001 - any failure is "no safe command"
+            return self._zeros.copy(), f"policy failed: {type(err).__name__}: {err}", self._eye
         if pi_model.shape != (self.n_joints,) or not np.all(np.isfinite(pi_model)):
             return self._zeros.copy(), "policy output not finite", self._eye
         pi = np.empty(self.n_joints)
@@ -940,6 +943,22 @@ class ControlStep:
                 return total, P
             locked |= new
         return total, P
+
+    def constraint_problem(self, q: np.ndarray) -> str:
+        """Why the constraints at ``q`` (n,) cannot be enforced; empty when they can.
+
+        The check :meth:`evaluate` makes every step, on the rows in force with the robot
+        at rest (barriers inactive): a spec whose rows cannot be met (a frame that the
+        controlled joints do not move) is refused at enable instead of disarming the
+        first step.
+        """
+        try:
+            A = self.constraint_matrix(q, self._zeros)
+        except Exception as err:  # noqa: BLE001 - a refusal, never an escaping error
+            return f"constraints failed: {type(err).__name__}: {err}"
+        if not np.all(np.isfinite(A)):
+            return "constraint matrix not finite"
+        return self._singular(A)[0]
 
     def hold_projector(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray | None:
         """Projector (n, n) for a command ``qdot`` (n,) at ``q`` (n,) without the policy.
@@ -1207,7 +1226,7 @@ class ArmedController:
         """
         if self.step.policy is None:
             return "no model loaded"
-        return self.state_problem(now_ns)
+        return self.state_problem(now_ns) or self.step.constraint_problem(self._q)
 
     def arm(self, now_ns: int) -> tuple[bool, str, Output]:
         """Request to follow the policy.
@@ -1282,7 +1301,11 @@ class ArmedController:
         previous = self.command
         projector = None
         if self.armed:
-            target, reason, projector = step.evaluate(q, previous)
+            try:
+                target, reason, projector = step.evaluate(q, previous)
+            except Exception as err:  # noqa: BLE001 - e.g. an SVD that did not converge
+                target, projector = np.zeros(step.n_joints), None
+                reason = f"control step failed: {type(err).__name__}: {err}"
             self.extrapolation_scale = step.extrapolation_scale
             if reason:
                 # The policy cannot be trusted here, but q and the constraints still
@@ -1293,7 +1316,10 @@ class ArmedController:
                 self.faulted = True
         if not self.armed:
             target = np.zeros(step.n_joints)
-            projector = step.hold_projector(q, previous)
+            try:
+                projector = step.hold_projector(q, previous)
+            except Exception as err:  # noqa: BLE001 - the ramp down needs none of it
+                return self.fault(f"constraints failed: {type(err).__name__}: {err}")
             if projector is None:
                 return self.fault("constraint matrix not finite")
         limit = self.max_delta
@@ -1305,8 +1331,11 @@ class ArmedController:
         # read as "pushed outwards" below and stop every joint.
         command[np.abs(command) < _ROUNDOFF] = 0.0
         # Safety net, rarely active: the projection of the previous command may exceed a
-        # speed limit, or it may head for a position limit faster than the target did.
-        s = velocity_scale(q, command, step.dt, step.lower, step.upper, step.max_velocity)
+        # speed limit, or it may head for a position limit faster than the target did. A
+        # speed limit lowered at run time is reached by the ramp, not in one step: a joint
+        # that was already faster keeps its last speed as its bound while it slows down.
+        speed_bound = np.maximum(step.max_velocity, np.abs(previous))
+        s = velocity_scale(q, command, step.dt, step.lower, step.upper, speed_bound)
         if s < 1.0:
             command = s * command
         self._report_forced(command - previous, forced, s, now_ns, limit)

@@ -20,12 +20,16 @@ Safety (the logic is ROS-free, :class:`policy_align_ros.kinematics.control.Armed
 docs/executor_safety.md explains it for robot owners):
 
 * the executor is *armed* only by ``~/enable`` (std_srvs/SetBool) true, which is refused,
-  with the reason, while no model is loaded or the joint states are stale; a disable, a
-  model swap and any fault disarm it, and it stays disarmed until enabled again. Every arm
-  and disarm is logged with the model and the constraints in force;
+  with the reason, while no model is loaded, the joint states are stale or the constraints
+  cannot be enforced at the current state (a near-singular or non-finite constraint
+  matrix: a frame that the controlled joints do not move); a disable, a model swap and any
+  fault (the policy raising included) disarm it, and it stays disarmed until enabled
+  again. Every arm and disarm is logged with the model and the constraints in force;
 * each joint's command changes by at most ``max_acceleration * period`` per period, both
   when following the policy and when ramping down to zero after a disarm (published until
-  the command is zero, then the topic is left alone);
+  the command is zero, then the topic is left alone), and when ``max_velocity`` is lowered
+  while armed; only a constraint that has just become active, or a joint limit, forces a
+  larger change (logged);
 * joint states that are lost (older than ``state_timeout_s`` by arrival or stamp), broken
   (a joint twice, NaN/inf, arrays of other lengths; counted, warned about at most every
   2 s) or untrustworthy by their header stamp (zero, too old, too far ahead of the node
@@ -34,7 +38,8 @@ docs/executor_safety.md explains it for robot owners):
 * ``~/enable`` also reads the ``joints`` parameter of the ros2_control controller named by
   ``controller`` (GetParameters, waiting at most 1 s of wall time while the node keeps
   running) and refuses when its order differs from ``joints``; a controller that does not
-  answer is logged as "not checked" and arming goes ahead;
+  answer is logged as "not checked" and arming goes ahead; ``controller`` set while the
+  check waits refuses that enable (the new controller's order was never read);
 * the extrapolation guard scales down commands that lead further than
   ``max_extrapolation`` spacings of the training data away from it, to zero within a band
   at least the stopping distance at ``max_velocity``; frames held by position
@@ -350,6 +355,10 @@ class Executor(Node):
         self.create_subscription(String, "/learner/model", self._locked(self._on_model),
                                  LATCHED_QOS)
         self._controller_client = None
+        # Clients replaced while an ~/enable still waits on them: destroyed once no check
+        # is pending (a destroyed client raises in the waiting coroutine).
+        self._controller_checks = 0
+        self._retired_clients: list = []
         self._make_controller_client(self.get_parameter("controller").value)
         #: Counts ~/enable requests, so a check that finishes late knows it was superseded.
         self._enable_requests = 0
@@ -429,11 +438,18 @@ class Executor(Node):
 
     def _make_controller_client(self, controller: str) -> None:
         if self._controller_client is not None:
-            self.destroy_client(self._controller_client)
+            self._retired_clients.append(self._controller_client)
             self._controller_client = None
+            self._destroy_retired_clients()
         if controller:
             self._controller_client = self.create_client(
                 GetParameters, self._controller_service(controller))
+
+    def _destroy_retired_clients(self) -> None:
+        if self._controller_checks == 0:
+            for client in self._retired_clients:
+                self.destroy_client(client)
+            self._retired_clients.clear()
 
     def _stage_model(self, path: str):
         """Load ``path`` for a ``model_path`` set; a refusal result, or None when loaded."""
@@ -579,13 +595,23 @@ class Executor(Node):
             reason = self.controller.arm_refusal(self._now_ns())
             accepted = not reason
             check = accepted and not self.controller.armed
+            client = self._controller_client
+            if check:
+                self._controller_checks += 1
         note = ""
         if check:
-            reason, note = await self._check_controller()
+            try:
+                reason, note = await self._check_controller(client)
+            finally:
+                with self._lock:
+                    self._controller_checks -= 1
+                    self._destroy_retired_clients()
             accepted = not reason
         with self._lock:
             if check and ticket != self._enable_requests:
                 accepted, reason = False, "superseded by a later ~/enable request"
+            elif check and client is not self._controller_client:
+                accepted, reason = False, "the controller changed while it was checked"
             elif check and path != self.model_path:
                 accepted, reason = False, "the model changed while the controller was checked"
             if accepted:
@@ -602,8 +628,9 @@ class Executor(Node):
     def _model_text(self) -> str:
         return f"model {self.model_path}" if self.model_path else "no model loaded"
 
-    async def _check_controller(self) -> tuple[str, str]:
-        """Compare the controller's ``joints`` with ours.
+    async def _check_controller(self, client) -> tuple[str, str]:
+        """Compare the controller's ``joints`` with ours, asked through ``client`` (the
+        controller's get_parameters client when the check began, or None).
 
         Returns
         -------
@@ -612,7 +639,6 @@ class Executor(Node):
             answer when the order could not be checked.
         """
         controller = self.get_parameter("controller").value
-        client = self._controller_client
         if not controller or client is None:
             return "", ""
         answer = await call_with_timeout(
