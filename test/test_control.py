@@ -554,7 +554,18 @@ def test_model_swap_ramps_down_and_stays_disarmed():
     assert run.tick().command is None and not run.control.faulted
 
 
-def test_a_policy_fault_ramps_down():
+def _raises(X):
+    raise np.linalg.LinAlgError("SVD did not converge")
+
+
+@pytest.mark.parametrize(("bad_policy", "reason"), [
+    (lambda X: np.full_like(X, np.nan), "policy output not finite"),
+    # Any exception of the policy is "no safe command" too: before, it left the control
+    # step, and the node's timer callback with it, with the controller armed and holding
+    # its last command.
+    (_raises, "policy failed: LinAlgError: SVD did not converge"),
+])
+def test_a_policy_fault_ramps_down(bad_policy, reason):
     policy = _Linear(np.full(N, 0.9))
     step = ControlStep(LOWER, UPPER, VMAX, DT, policy=policy)
     run = _Run(step, np.zeros(N))
@@ -562,34 +573,12 @@ def test_a_policy_fault_ramps_down():
     run.arm()
     for _ in range(40):
         run.tick()
-    step.policy = lambda X: np.full_like(X, np.nan)
-    for _ in range(60):
-        run.tick()
-    _assert_ramped(run.sent, ACC * DT, start=np.zeros(N))
-    assert not np.any(run.sent[-1]) and run.control.faulted
-    assert run.control.zero_reason == "policy output not finite"
-
-
-def test_a_policy_that_raises_ramps_down_with_the_reason():
-    # Any exception of the policy (here an SVD that did not converge) is "no safe
-    # command": before, it left the control step, and the node's timer callback with it,
-    # with the controller armed and holding its last command.
-    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
-    run = _Run(step, np.zeros(N))
-    run.state()
-    run.arm()
-    for _ in range(40):
-        run.tick()
-
-    def broken(X):
-        raise np.linalg.LinAlgError("SVD did not converge")
-
-    step.policy = broken
+    step.policy = bad_policy
     for _ in range(60):
         run.tick()
     _assert_ramped(run.sent, ACC * DT, start=np.zeros(N))
     assert not np.any(run.sent[-1]) and not run.control.armed and run.control.faulted
-    assert run.control.zero_reason == "policy failed: LinAlgError: SVD did not converge"
+    assert run.control.zero_reason == reason
 
 
 def test_a_speed_limit_lowered_while_armed_is_reached_by_the_ramp():

@@ -832,15 +832,21 @@ def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_p
     _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
 
 
-def test_a_disable_while_enable_waits_for_the_controller_wins(rig):
-    r = rig(210, controller="/absent_controller")
+def _enable_waiting_for_an_absent_controller(r: Rig):
+    """An ~/enable request that is waiting (up to 1 s) for /absent_controller's answer."""
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
     r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
                  what="fresh joint states")
     assert r.enable_client.wait_for_service(timeout_sec=5.0)
     enable = r.enable_client.call_async(SetBool.Request(data=True))
-    r.spin(0.2)  # the enable is waiting for /absent_controller (up to 1 s)
+    r.spin(0.2)
     assert not enable.done()
+    return enable
+
+
+def test_a_disable_while_enable_waits_for_the_controller_wins(rig):
+    r = rig(210, controller="/absent_controller")
+    enable = _enable_waiting_for_an_absent_controller(r)
     disable = r.enable_client.call_async(SetBool.Request(data=False))
     r.spin_until(lambda: enable.done() and disable.done(), what="both answers")
     assert disable.result().success
@@ -856,13 +862,7 @@ def test_a_controller_changed_while_enable_waits_for_it_refuses_the_enable(rig):
     # lives until the check ends, and the enable is refused (the new controller's joint
     # order was never compared).
     r = rig(219, controller="/absent_controller")
-    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states")
-    assert r.enable_client.wait_for_service(timeout_sec=5.0)
-    enable = r.enable_client.call_async(SetBool.Request(data=True))
-    r.spin(0.2)  # the enable is waiting for /absent_controller (up to 1 s)
-    assert not enable.done()
+    enable = _enable_waiting_for_an_absent_controller(r)
     assert r.node.set_parameters([Parameter("controller", value="/other_controller")]
                                  )[0].successful
     r.spin_until(enable.done, what="the ~/enable answer")

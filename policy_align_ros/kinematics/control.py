@@ -851,9 +851,7 @@ class ControlStep:
                                                                                dtype=float)])
         A, held = self._stack(blocks)
         while True:
-            if not np.all(np.isfinite(A)):
-                return self._zeros.copy(), "constraint matrix not finite", self._eye
-            problem, P0 = self._singular(A)
+            problem, P0 = self._enforceable(A)
             if problem:
                 return self._zeros.copy(), problem, self._eye
             if held is None or self._drift_gain == 0.0:
@@ -880,6 +878,13 @@ class ControlStep:
             if g < 1.0:
                 v = g * v
         return v, "", P
+
+    def _enforceable(self, A: np.ndarray) -> tuple[str, np.ndarray | None]:
+        """Why ``A`` (k, n) cannot be enforced (not finite, or :meth:`_singular`), empty
+        when it can, and its projector when computed on the way."""
+        if not np.all(np.isfinite(A)):
+            return "constraint matrix not finite", None
+        return self._singular(A)
 
     def _singular(self, A: np.ndarray) -> tuple[str, np.ndarray | None]:
         """Why ``A`` (k, n) is too close to singular to be enforced (empty when it is
@@ -956,9 +961,7 @@ class ControlStep:
             A = self.constraint_matrix(q, self._zeros)
         except Exception as err:  # noqa: BLE001 - a refusal, never an escaping error
             return f"constraints failed: {type(err).__name__}: {err}"
-        if not np.all(np.isfinite(A)):
-            return "constraint matrix not finite"
-        return self._singular(A)[0]
+        return self._enforceable(A)[0]
 
     def hold_projector(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray | None:
         """Projector (n, n) for a command ``qdot`` (n,) at ``q`` (n,) without the policy.

@@ -275,7 +275,7 @@ class PolicyAlign:
         t1 = time.perf_counter()
         self.position_noise_ = position_noise(positions)
         parents, parent_masks = trajs, masks
-        trajs, masks, spans = self._split(trajs, masks)
+        trajs, masks, spans, switch_end = self._split(trajs, masks)
         split = trajs is not parents
         if split:
             X = np.concatenate([t.positions for t in trajs])
@@ -312,7 +312,8 @@ class PolicyAlign:
         for rule in rules:
             rule_table = table if rule == rules[0] else table.with_potential(phi_all[rule])
             H, a, _ = alignment_system(rule_table, self.groups_)
-            pairs, jumps = _switch_junctions(spans, parents, phi[rule], self.groups_)
+            pairs, jumps = _switch_junctions(spans, switch_end, parents, phi[rule],
+                                             self.groups_)
             offsets = solve_chained_offsets(H, a, pairs, jumps)
             aligned[rule] = (offsets, [p + b for p, b in zip(phi[rule], offsets, strict=True)])
         timings["alignment"] = time.perf_counter() - t1
@@ -385,9 +386,10 @@ class PolicyAlign:
         return self
 
     def _split(self, trajs: list[Trajectory], masks: list[np.ndarray]
-               ) -> tuple[list[Trajectory], list[np.ndarray], np.ndarray]:
+               ) -> tuple[list[Trajectory], list[np.ndarray], np.ndarray, np.ndarray]:
         """Pieces of the trajectories between steps that no rule gets right, their masks,
-        and the ``(trajectory, first sample, end)`` each piece spans (P, 3).
+        the ``(trajectory, first sample, end)`` each piece spans (P, 3), and whether each
+        piece ends at a switch cut, one that lost no samples (P,) bool.
 
         Such steps span lost samples
         (:func:`~policy_align_ros.learning.potential.sampling_gaps`), or, where the
@@ -402,11 +404,11 @@ class PolicyAlign:
         spans = np.array([(k, 0, t.n_samples) for k, t in enumerate(trajs)], dtype=np.int64)
         switches = (self.integration in ("auto", "trapezoid")
                     and best_timing(trajs, self.position_noise_) == "mid")
-        pieces, piece_masks, out = [], [], []
+        pieces, piece_masks, out, switch_end = [], [], [], []
         for k, (t, m) in enumerate(zip(trajs, masks, strict=True)):
-            cuts = sampling_gaps(t)
-            if switches:
-                cuts = np.union1d(cuts, switch_cuts(t))
+            gaps = sampling_gaps(t)
+            switch = np.setdiff1d(switch_cuts(t), gaps) if switches else gaps[:0]
+            cuts = np.union1d(gaps, switch)
             bounds = [0, *(int(i) + 1 for i in cuts), t.n_samples]
             kept = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)
                     if b - a >= MIN_PIECE_SAMPLES] or [(0, t.n_samples)]
@@ -417,10 +419,12 @@ class PolicyAlign:
                     name=f"{t.name}[{a}:{b}]"))
                 piece_masks.append(m[a:b])
                 out.append((k, a, b))
+                switch_end.append(b - 1 in switch)
         if len(pieces) == len(trajs) and all(
                 p is t for p, t in zip(pieces, trajs, strict=True)):
-            return trajs, masks, spans  # the caller then redoes no per-trajectory work
-        return pieces, piece_masks, np.array(out, dtype=np.int64)
+            # The caller then redoes no per-trajectory work.
+            return trajs, masks, spans, np.zeros(len(trajs), dtype=bool)
+        return pieces, piece_masks, np.array(out, dtype=np.int64), np.array(switch_end)
 
     def _merge_pieces(self, spans: np.ndarray, parents: list[Trajectory]) -> None:
         """Learnt per-piece attributes back to the trajectories: offsets of each first
@@ -717,14 +721,17 @@ def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:
     return 2.0 * noise / mean if mean > 0 else math.inf
 
 
-def _switch_junctions(spans: np.ndarray, parents: list[Trajectory], phi: list[np.ndarray],
-                      groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _switch_junctions(spans: np.ndarray, switch_end: np.ndarray, parents: list[Trajectory],
+                      phi: list[np.ndarray], groups: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """Consecutive pieces cut at a constraint switch, and the jump of their offsets there.
 
     Parameters
     ----------
     spans : ndarray of int, shape (P, 3)
         ``(trajectory, first sample, end)`` of each piece (:meth:`PolicyAlign._split`).
+    switch_end : ndarray of bool, shape (P,)
+        Whether each piece ends at a switch cut that lost no samples (the same).
     parents : list of Trajectory
         The whole trajectories.
     phi : list of ndarray
@@ -742,17 +749,13 @@ def _switch_junctions(spans: np.ndarray, parents: list[Trajectory], phi: list[np
         squared speed, the old constraint's before the switch and the new one's after.
     """
     pairs, jumps = [], []
-    gaps = {}
-    for p in range(len(spans) - 1):
+    for p in np.flatnonzero(switch_end[:-1]):
         k, _, end = spans[p]
         t = parents[k]
         if spans[p + 1, 0] != k or spans[p + 1, 1] != end or groups[p] != groups[p + 1]:
             continue
-        if k not in gaps:
-            gaps[k] = set(sampling_gaps(t).tolist())
+        # A switch cut needs trusted velocities (timing "mid"), so they are there.
         i = int(end) - 1
-        if t.velocities is None or i in gaps[k]:
-            continue
         v, dt = t.velocities, float(t.dt[i])
         drop = -0.5 * dt * (v[i] @ v[i] + v[i + 1] @ v[i + 1])
         pairs.append((p, p + 1))

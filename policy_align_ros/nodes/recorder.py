@@ -121,7 +121,6 @@ class RecorderNode(Node):
             max_stamp_ahead_s=_MAX_STAMP_AHEAD_S,
         )
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._qos_depth = depth.value
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth.value,
                          reliability=ReliabilityPolicy.RELIABLE)
         self.subscription = self.create_subscription(
@@ -225,7 +224,7 @@ class RecorderNode(Node):
         sub = self.subscription
         try:
             with sub.handle:
-                for _ in range(self._qos_depth):
+                for _ in range(self.get_parameter("qos_depth").value):
                     taken = sub.handle.take_message(sub.msg_type, sub.raw)
                     if taken is None:
                         return
