@@ -279,6 +279,44 @@ def test_demonstrations_are_split_where_the_constraint_switches_inside_a_period(
     assert nupe(model) < 1e-6 and nupe(model) < 1e-2 * nupe(whole)
 
 
+def test_rest_before_noisy_demonstrations_costs_nothing():
+    # A recorder started a second before the motion and stopped a second after it: the
+    # robot is held still, its states repeat with their noise. The motion starts inside a
+    # sample period, where every rule misses the step's drop to first order; as many
+    # samples of rest beside that step put their whole cluster at the wrong level (nUPE
+    # 12 times the same data's without the rests, before the leading rest was trimmed).
+    from test_potential import _continuous_demo
+
+    rng = np.random.default_rng(21)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    W, c = q @ np.diag([0.5, 1.5, 3.0]) @ q.T, np.array([0.1, -0.2, 0.3])
+    sd, hold = 2e-3, 50
+
+    def demo(start):
+        t = _continuous_demo(W, c, c + rng.uniform(-1, 1, 3), 50,
+                             np.sort(rng.uniform(1.5, 4.5, 2)), rng, dur=6.0,
+                             held=(1.0 + rng.uniform(0.001, 0.019), 5.0))
+        return Trajectory(t.positions + sd * rng.standard_normal(t.positions.shape),
+                          t.times, t.velocities)
+
+    held = [demo(k) for k in range(24)]
+    moving = [Trajectory(t.positions[hold:-hold], t.times[hold:-hold],
+                         t.velocities[hold:-hold]) for t in held]
+    test = [_continuous_demo(W, c, c + rng.uniform(-1, 1, 3), 50, np.array([]), rng)
+            for _ in range(5)]
+    X = np.concatenate([t.positions for t in test])
+    pi = -(X - c) @ W
+    with_rest = PolicyAlign(random_state=0).fit(held)
+    without = PolicyAlign(random_state=0).fit(moving)
+    assert with_rest.fit_summary_["n_samples_left_out"] >= 24 * (hold - 1)
+    assert [len(p) for p in with_rest.aligned_potentials_] == [t.n_samples for t in held]
+    # The rest keeps the level of the motion beside it.
+    for p in with_rest.aligned_potentials_:
+        assert np.ptp(p[:hold - 1]) < 0.01 * np.ptp(p)
+    nupe = metrics.nupe(pi, with_rest.policy(X))
+    assert nupe < 1e-3 and nupe < 2.0 * metrics.nupe(pi, without.policy(X))
+
+
 def test_demonstrations_are_split_where_samples_were_lost(monkeypatch):
     # A recorder lost the sample at each of the two constraint switches (10 Hz, 5-D, two
     # random rows): the steps over the gaps mix two constraints' motion, which no rule

@@ -11,6 +11,7 @@ from policy_align_ros.learning.potential import (
     estimate_potential,
     euler_potential,
     euler_scale,
+    leading_rest,
     position_noise,
     sampling_gaps,
     step_curvatures,
@@ -242,13 +243,17 @@ def test_euler_scale_measures_the_euler_bias_of_an_isotropic_potential():
                        [estimate_potential(resting, "trapezoid")]) == 1.0
 
 
-def _continuous_demo(W, c, x0, hz, switch_times, rng, sub=50, dur=4.0):
+def _continuous_demo(W, c, x0, hz, switch_times, rng, sub=50, dur=4.0, held=None):
     """A constrained gradient flow integrated in fine substeps; the constraint (one random
     row) changes at ``switch_times`` (s), inside sample periods; instantaneous velocities
-    are recorded at the samples (timing "mid")."""
+    are recorded at the samples (timing "mid"). ``held``: ``(start, stop)`` (s) outside
+    which the robot is held still (a recorder running before and after the motion)."""
     n = len(x0)
     projectors = [np.eye(n) - np.linalg.pinv(A) @ A
                   for A in rng.standard_normal((len(switch_times) + 1, 1, n))]
+    if held is not None:
+        switch_times = np.concatenate([[held[0]], switch_times, [held[1]]])
+        projectors = [np.zeros((n, n)), *projectors, np.zeros((n, n))]
     dt, h = 1.0 / hz, 1.0 / hz / sub
     X, V = [], []
     x, t = np.array(x0, dtype=float), 0.0
@@ -278,6 +283,32 @@ def test_switch_cuts_find_switches_inside_a_period_and_nothing_else():
         demo = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array(times), rng)
         np.testing.assert_array_equal(switch_cuts(demo), steps)
     assert best_timing([switched, smooth]) == "mid"
+
+
+def test_leading_rest_ends_where_the_motion_leaves_the_noise():
+    rng = np.random.default_rng(12)
+    W, c = np.diag([0.5, 1.0, 2.0]), np.array([0.2, -0.1, 0.3])
+    # Held for the first second, starting inside the period after sample 50.
+    demo = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array([2.5]), rng, dur=6.0,
+                            held=(1.013, 5.0))
+    assert leading_rest(demo.positions, 0.0) == 50  # exact repeats: samples 0..50
+    # A longer rest at the end does not hide the one at the start.
+    short = _continuous_demo(W, c, [1.0, -0.8, 0.6], 50, np.array([]), rng, dur=6.0,
+                             held=(1.013, 1.6))
+    assert leading_rest(short.positions, 0.0) == 50
+    sd = 2e-3
+    noisy = demo.positions + sd * rng.standard_normal(demo.positions.shape)
+    assert 49 <= leading_rest(noisy, 3 * sd**2) <= 51
+    assert leading_rest(noisy[51:], 3 * sd**2) <= 1  # moving from the start
+    # Noise the size of a step: the first samples of motion stay in the neighbourhood of
+    # the first; the median step shows them moving.
+    step = np.median(np.linalg.norm(np.diff(demo.positions[51:], axis=0), axis=1))
+    sd_big = step / np.sqrt(3)
+    blurred = demo.positions[51:] + sd_big * rng.standard_normal((len(noisy) - 51, 3))
+    assert leading_rest(blurred, 3 * sd_big**2) == 0
+    still = demo.positions[0] + sd * rng.standard_normal((40, 3))
+    assert leading_rest(still, 3 * sd**2) == 0  # nothing but rest: nothing to trim
+    assert leading_rest(noisy, 0.0) == 0  # noise taken for motion when none is known
 
 
 def test_sampling_gaps_are_lost_samples_not_jittered_stamps():

@@ -31,8 +31,12 @@ distance (median and max). For reference (an upper-bound-style fit the package n
 gets), a global quadratic fitted with a small ridge to the *true* potential values at
 the training samples.
 
-Usage: ``python tools/independent_check.py --problem 1 [--seed 1001] [--no-velocities]``;
-prints one JSON object.
+``--rest S`` holds every training demonstration still for ``S`` seconds before and after its
+motion (``N = 0``; a recorder left running), the motion starting at a random instant inside
+a sample period; the random draws of the problem are the same as without it.
+
+Usage: ``python tools/independent_check.py --problem 1 [--seed 1001] [--no-velocities]
+[--rest 1.0]``; prints one JSON object.
 """
 
 from __future__ import annotations
@@ -128,14 +132,20 @@ def rk4(f: Field, x: np.ndarray, h: float, steps: int) -> np.ndarray:
     return x
 
 
-def demonstration(P: dict, x0: np.ndarray, rng: np.random.Generator, sub: int = 20
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Positions (N, n), times (N,), velocities (N, n) and projectors (N, n, n)."""
+def demonstration(P: dict, x0: np.ndarray, rng: np.random.Generator, sub: int = 20,
+                  rest: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Positions (N, n), times (N,), velocities (N, n) and projectors (N, n, n);
+    ``rest``: seconds held still (``N = 0``) before and after the motion."""
     n, dt = P["n"], 1.0 / P["rate"]
-    samples = int(round(P["T"] * P["rate"])) + 1
+    samples = int(round((P["T"] + 2 * rest) * P["rate"])) + 1
     switches = np.sort(rng.uniform(0.1 * P["T"], 0.9 * P["T"], rng.integers(1, 4)))
     projectors = [random_projector(n, rng, P.get("locks", False))
                   for _ in range(len(switches) + 1)]
+    if rest > 0.0:
+        # The motion starts inside a sample period, from a stream of its own.
+        start = rest + np.random.default_rng(x0.view(np.uint64)).uniform(0.0, dt)
+        switches = np.concatenate([[start], start + switches, [start + P["T"]]])
+        projectors = [np.zeros((n, n)), *projectors, np.zeros((n, n))]
     times = np.arange(samples) * dt
     if P.get("jitter", 0.0):
         steps = dt * (1.0 + P["jitter"] * rng.uniform(-1.0, 1.0, samples - 1))
@@ -179,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=None, help="default 1000 + problem")
     parser.add_argument("--no-velocities", action="store_true",
                         help="record positions and times only")
+    parser.add_argument("--rest", type=float, default=0.0,
+                        help="seconds every training demonstration is held still before "
+                             "and after its motion")
     args = parser.parse_args(argv)
     seed = 1000 + args.problem if args.seed is None else args.seed
     rng = np.random.default_rng(seed)
@@ -191,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
 
     train, X_true, phi_true = [], [], []
     for k, x0 in enumerate(starts(P["demos"])):
-        X, t, V, _ = demonstration(P, x0, rng)
+        X, t, V, _ = demonstration(P, x0, rng, rest=args.rest)
         recorded = X + P["noise"] * rng.normal(size=X.shape) if P["noise"] else X
         train.append(Trajectory(recorded, t, None if no_velocities else V, name=f"d{k}"))
         X_true.append(recorded)

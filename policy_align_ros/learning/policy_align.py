@@ -17,7 +17,9 @@ times (per step otherwise).
    across a switch by the midpoint drop ``-dt (|v_i|^2 + |v_{i+1}|^2) / 2``, which misses
    the true drop 4-100 times less than the alignment levels touching pieces
    (``docs/notes/potential.md``, "Pieces tied across a switch"), and are left to the
-   alignment across lost samples; the learnt attributes are merged back per trajectory;
+   alignment across lost samples. A leading rest (the robot held still before its
+   motion, :func:`~policy_align_ros.learning.potential.leading_rest`) is left out too.
+   The learnt attributes are merged back per trajectory;
 2. build the sparse alignment system and find the weakly connected groups (``outliers``);
 3. align each group (``b = -pinv(H) a`` restricted to the group); the largest group is
    the aligned set;
@@ -65,6 +67,7 @@ from policy_align_ros.learning.potential import (
     choose_method,
     estimate_potential,
     euler_scale,
+    leading_rest,
     position_noise,
     sampling_gaps,
     switch_cuts,
@@ -397,7 +400,9 @@ class PolicyAlign:
         switch inside the sample period
         (:func:`~policy_align_ros.learning.potential.switch_cuts`). The pieces' levels
         are tied across a switch (:func:`_switch_junctions`) and left to the alignment
-        across lost samples. Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples
+        across lost samples. A demonstration's leading rest (the robot held still before
+        its motion, :func:`~policy_align_ros.learning.potential.leading_rest`) is left
+        out. Pieces of fewer than :data:`MIN_PIECE_SAMPLES` samples
         (a cut in the first or last steps, or two cuts close together) are left out of
         the fit; a trajectory that would keep no piece is kept whole. Nothing cut: the
         inputs themselves."""
@@ -409,7 +414,8 @@ class PolicyAlign:
             gaps = sampling_gaps(t)
             switch = np.setdiff1d(switch_cuts(t), gaps) if switches else gaps[:0]
             cuts = np.union1d(gaps, switch)
-            bounds = [0, *(int(i) + 1 for i in cuts), t.n_samples]
+            first = leading_rest(t.positions, self.position_noise_)
+            bounds = [first, *(int(i) + 1 for i in cuts if i >= first), t.n_samples]
             kept = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)
                     if b - a >= MIN_PIECE_SAMPLES] or [(0, t.n_samples)]
             for a, b in kept:
