@@ -5,7 +5,9 @@
 
 Starts ``recorder``, ``learner`` and ``executor`` with their parameter files from the
 package's ``config/``; ``sim:=true`` adds ``sim_robot`` (a kinematic simulator in place
-of the robot) and ``demonstrator:=true`` the scripted expert. On a real robot leave
+of the robot) and ``demonstrator:=true`` the scripted expert. ``use_sim_time:=true`` puts
+every node on ``/clock``, which ``sim_robot`` then publishes (without ``sim``, your
+simulator must). On a real robot leave
 ``sim`` false and remap ``/velocity_controller/commands`` to your forward command
 controller's topic (and see the README on what to pair the executor with).
 """
@@ -27,11 +29,15 @@ OPTIONAL_NODES = {"sim": "sim_robot", "demonstrator": "demonstrator"}
 
 def _node(executable: str, condition=None) -> Node:
     params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", f"{executable}.yaml"])
+    sim_time = {"use_sim_time": LaunchConfiguration("use_sim_time")}
+    if executable == "sim_robot":
+        # On simulated time the simulator is the source of /clock.
+        sim_time["publish_clock"] = LaunchConfiguration("use_sim_time")
     return Node(
         package=PACKAGE,
         executable=executable,
         name=executable,
-        parameters=[params, {"use_sim_time": LaunchConfiguration("use_sim_time")}],
+        parameters=[params, sim_time],
         output="screen",
         condition=condition,
     )
@@ -44,7 +50,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("demonstrator", default_value="false",
                               description="start the scripted expert"),
         DeclareLaunchArgument("use_sim_time", default_value="false",
-                              description="run every node on /clock"),
+                              description="run every node on /clock (published by "
+                                          "sim_robot with sim:=true)"),
         *[_node(name) for name in CORE_NODES],
         *[_node(name, IfCondition(LaunchConfiguration(arg)))
           for arg, name in OPTIONAL_NODES.items()],

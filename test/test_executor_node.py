@@ -29,6 +29,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.nodes import executor as executor_module
 from policy_align_ros.nodes._common import LATCHED_QOS
 from policy_align_ros.nodes.executor import Executor
 
@@ -547,6 +548,39 @@ def test_diagnostics_report_arming_model_zero_reason_and_ramp(rig, tmp_path):
     assert status.level == status.WARN and values["armed"] == "false"
     assert "stale" in values["zero_reason"] and "stale" in values["joint_states"]
     assert float(values["ramp_scale"]) == 1.0
+
+
+def test_every_arming_change_is_reported_at_once(rig, monkeypatch):
+    # The periodic status out of reach: every status seen here is an arming change's.
+    monkeypatch.setattr(executor_module, "DIAGNOSTICS_PERIOD_S", 1e6)
+    r = rig(112, state_timeout_s=0.3)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+
+    def armed_flags():
+        return [{kv.key: kv.value for kv in a.status[0].values}["armed"]
+                for a in r.diagnostics]
+
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.diagnostics == []
+    assert r.enable(True).success
+    r.spin_until(lambda: armed_flags() == ["true"], what="the arming's status")
+    # A disarm by stale states, which no service call announces.
+    r.spin_until(lambda: not r.node.controller.armed, publish_states=False,
+                 what="the stale-state disarm")
+    r.spin_until(lambda: len(r.diagnostics) == 2, publish_states=False,
+                 what="the disarm's status")
+    values = {kv.key: kv.value for kv in r.diagnostics[-1].status[0].values}
+    assert values["armed"] == "false" and "stale" in values["zero_reason"]
+    assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
+    # Armed again and disabled: one status per change, none while nothing changes.
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states again")
+    assert r.enable(True).success
+    assert r.enable(False).success
+    assert not r.enable(False).message.startswith("refused")
+    r.spin(0.2)
+    assert armed_flags() == ["true", "false", "true", "false"]
 
 
 def test_a_model_path_that_does_not_load_at_start_stops_the_node(tmp_path):

@@ -115,7 +115,8 @@ from policy_align_ros.nodes._common import (
 __all__ = ["Executor", "FrameSupportDistance", "joint_order_problem", "load_policy", "main",
            "speed_limits"]
 
-#: Period of the /diagnostics status (s of node clock); arming changes go out at once.
+#: Period of the /diagnostics status (s of node clock); every arming change, by ~/enable,
+#: a stale or broken state or a fault, also goes out at once (through ``_emit``).
 DIAGNOSTICS_PERIOD_S = 1.0
 #: How long ~/enable waits for the controller's joints parameter (s, wall time).
 CONTROLLER_TIMEOUT_S = 1.0
@@ -288,7 +289,8 @@ class Executor(Node):
             "largest change of a joint's command per second [rad/s^2], also when ramping "
             "down after a disable or a model swap", float_range=(0.01, 100.0)))
         self.declare_parameter("state_timeout_s", 0.1, descriptor(
-            "joint states older than this (by arrival or header stamp) stop and disarm [s]",
+            "joint states received longer ago than this, or stamped longer ago than this "
+            "plus max_clock_skew_s, stop and disarm [s]",
             float_range=(0.001, 10.0)))
         self.declare_parameter("max_clock_skew_s", 0.05, descriptor(
             "allowed offset between joint-state stamps and the node clock [s]",
@@ -337,6 +339,8 @@ class Executor(Node):
         #: Rejected joint-state messages by reason, over the node's lifetime.
         self.rejected_states: Counter[str] = Counter()
         self._last = Output(None, self.controller.zero_reason, 1.0)
+        #: The arming state the last /diagnostics status reported.
+        self._diag_armed = False
 
         self._pub = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -577,7 +581,6 @@ class Executor(Node):
             self._emit(self.controller.disarm("disabled by ~/enable"))
             response.success = True
             response.message = f"disabled ({self._model_text()})"
-            self.publish_diagnostics()
         return response
 
     async def _enable_at_start(self) -> None:
@@ -622,7 +625,6 @@ class Executor(Node):
                        else f"refused: {reason} ({model})")
             if not accepted:
                 self.get_logger().warning(f"~/enable {message}")
-            self.publish_diagnostics()
         return accepted, message
 
     def _model_text(self) -> str:
@@ -675,6 +677,9 @@ class Executor(Node):
             else:
                 logger.info(text)
         self._last = out
+        # A disarm by a stale state or a fault must not wait for the next periodic status.
+        if self.controller.armed != self._diag_armed:
+            self.publish_diagnostics()
 
     def publish_diagnostics(self) -> None:
         """Publish the executor's status on ``/diagnostics``."""
@@ -712,6 +717,7 @@ class Executor(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(array)
+        self._diag_armed = control.armed
 
     def _held_error_text(self) -> str:
         """Largest error of the held frames from their references (mm), or "none"."""
