@@ -1,5 +1,5 @@
-"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 150-159, 200-211,
-219).
+"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 112, 150-159,
+200-211, 219).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
@@ -578,7 +578,7 @@ def test_every_arming_change_is_reported_at_once(rig, monkeypatch):
                  what="fresh joint states again")
     assert r.enable(True).success
     assert r.enable(False).success
-    assert not r.enable(False).message.startswith("refused")
+    r.enable(False)  # already disarmed: no change, so no status
     r.spin(0.2)
     assert armed_flags() == ["true", "false", "true", "false"]
 

@@ -30,7 +30,8 @@ docs/executor_safety.md explains it for robot owners):
   the command is zero, then the topic is left alone), and when ``max_velocity`` is lowered
   while armed; only a constraint that has just become active, or a joint limit, forces a
   larger change (logged);
-* joint states that are lost (older than ``state_timeout_s`` by arrival or stamp), broken
+* joint states that are lost (none received for ``state_timeout_s``, or the last stamped
+  longer ago than ``state_timeout_s + max_clock_skew_s``), broken
   (a joint twice, NaN/inf, arrays of other lengths; counted, warned about at most every
   2 s) or untrustworthy by their header stamp (zero, too old, too far ahead of the node
   clock beyond ``max_clock_skew_s``, going backwards) send a zero command at once and
