@@ -1,10 +1,10 @@
-"""The README matches the code: parameter tables, commands, and the blocks marked runnable.
+"""The docs match the code: parameter tables, commands, and the blocks marked runnable.
 
 * The parameter tables are regenerated from the nodes' descriptors (domain id 230) and must
-  equal the README's.
-* Lines that cannot run here (``ros2 run``, ``ros2 launch``, ``colcon``, ``make``) are checked
-  statically: the executables, launch files, parameter files, make targets and
-  ``policy-align`` subcommands they name exist.
+  equal the block of ``docs/parameters.md``.
+* Lines that cannot run here (``ros2 run``, ``ros2 launch``, ``colcon``, ``make``), in the
+  README and every page under ``docs/``, are checked statically: the executables, launch
+  files, parameter files, make targets and ``policy-align`` subcommands they name exist.
 * Bash blocks preceded by ``<!-- test: run ... -->`` are run as pasted, with the environment
   variables given in the marker (small sizes), and must exit 0.
 """
@@ -22,6 +22,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
+PARAMETERS = (ROOT / "docs" / "parameters.md").read_text()
 sys.path.insert(0, str(ROOT / "tools"))
 
 
@@ -30,12 +31,18 @@ def _entry_points() -> set[str]:
     return set(re.findall(r'"([\w-]+) = policy_align_ros', text))
 
 
+def _documents() -> list[str]:
+    """README.md and every page under docs/ (benchmarks, design notes, ...)."""
+    return [README] + [path.read_text() for path in sorted((ROOT / "docs").rglob("*.md"))]
+
+
 def _code_lines() -> list[str]:
     lines = []
-    for block in re.findall(r"```[a-z]*\n(.*?)```", README, re.S):
-        lines.extend(line.strip() for line in block.splitlines())
-    # Inline code spans carry commands too (e.g. in the graph section's bullet points).
-    lines.extend(re.findall(r"`([^`\n]+)`", re.sub(r"```.*?```", "", README, flags=re.S)))
+    for text in _documents():
+        for block in re.findall(r"```[a-z]*\n(.*?)```", text, re.S):
+            lines.extend(line.strip() for line in block.splitlines())
+        # Inline code spans carry commands too (e.g. in the graph section's bullet points).
+        lines.extend(re.findall(r"`([^`\n]+)`", re.sub(r"```.*?```", "", text, flags=re.S)))
     return lines
 
 
@@ -49,11 +56,11 @@ def _words(line: str) -> list[str]:
 def test_parameter_tables_match_the_nodes_descriptors():
     from policy_align_ros.client.param_table import parameter_tables
 
-    block = re.search(r"<!-- BEGIN params -->\n(.*?)\n<!-- END params -->", README, re.S)
-    assert block, "README.md has no params block"
+    block = re.search(r"<!-- BEGIN params -->\n(.*?)\n<!-- END params -->", PARAMETERS, re.S)
+    assert block, "docs/parameters.md has no params block"
     generated = parameter_tables(domain_id=230)
     assert block.group(1) == generated, (
-        "README parameter tables are stale: run `python tools/update_readme.py --params`")
+        "docs/parameters.md is stale: run `python tools/update_readme.py --params`")
 
 
 def test_ros2_and_colcon_lines_name_what_exists():
