@@ -23,7 +23,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from policy_align_ros.data.bags import load_dataset, read_joint_states
+from policy_align_ros.data import load_dataset, read_joint_states
 from policy_align_ros.nodes.recorder import RecorderNode
 from policy_align_ros.polling import wait_for
 
@@ -461,7 +461,7 @@ def test_pending_demo_is_retried_by_the_timer_and_recording_resumes(tmp_path, mo
     # accepts writes again the timer writes it and recording resumes by itself.
     import errno
 
-    from policy_align_ros.data import bags
+    from policy_align_ros.data.bags import write as bags
     from policy_align_ros.nodes import recorder as recorder_module
 
     monkeypatch.setattr(recorder_module, "_RETRY_PERIOD_S", 0.0)  # every timer tick
@@ -620,7 +620,7 @@ def test_unexpected_write_error_keeps_the_demo_pending_and_the_node_alive(
         tmp_path, monkeypatch, domain_id, err):
     # Any exception of the writer is a failed write: stop_demo answers success=false, the
     # demonstration stays pending, the timer retries it, and shutdown() does not raise.
-    from policy_align_ros.data import bags
+    from policy_align_ros.data.bags import write as bags
     from policy_align_ros.nodes import recorder as recorder_module
 
     monkeypatch.setenv("ROS_HOME", str(tmp_path / "ros_home"))

@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 
 import robustness  # noqa: E402
 
-from policy_align_ros.data.bags import load_dataset  # noqa: E402
+from policy_align_ros.data.bags.dataset import load_dataset  # noqa: E402
 from policy_align_ros.data.recording import DemoRecorder  # noqa: E402
 
 #: Groups run here, in the tool's order.

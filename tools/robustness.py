@@ -236,7 +236,7 @@ def _cli_in_process(argv: list[str], domain: int | None) -> Run:
 def write_good_dataset(directory: Path, n_demos: int, seed: int = 0, samples: int = 40
                        ) -> list[Path]:
     """2-D demonstrations of pi = -x under a random line constraint each (dt 0.05 s)."""
-    from policy_align_ros.data.bags import write_joint_state_bag
+    from policy_align_ros.data.bags.write import write_joint_state_bag
 
     rng = np.random.default_rng(seed)
     written = []
@@ -856,7 +856,7 @@ def cases_recorder(lab: Lab) -> list[Result]:
     """The recorder: bad parameters, malformed joint states, services out of order."""
     from sensor_msgs.msg import JointState
 
-    from policy_align_ros.data.bags import load_dataset
+    from policy_align_ros.data.bags.dataset import load_dataset
     from policy_align_ros.nodes.recorder import RecorderNode
 
     out: list[Result] = []
@@ -1018,7 +1018,7 @@ def _recorder_write_failures(lab: Lab, work: Path) -> list[Result]:
     recording continuously. Nothing recorded may be lost."""
     from sensor_msgs.msg import JointState
 
-    from policy_align_ros.data.bags import find_bags, load_dataset
+    from policy_align_ros.data import find_bags, load_dataset
     from policy_align_ros.nodes.recorder import RecorderNode
 
     out = []

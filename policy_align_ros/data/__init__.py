@@ -6,16 +6,12 @@ are integer nanoseconds, trajectory times seconds, positions and velocities in t
 units.
 """
 
-from policy_align_ros.data.bags import (
-    DatasetReport,
-    DemoInfo,
-    find_bags,
-    load_dataset,
-    read_joint_states,
-    write_joint_state_bag,
-)
+from policy_align_ros.data.bags.dataset import DatasetReport, DemoInfo, load_dataset
+from policy_align_ros.data.bags.read import find_bags, read_joint_states
+from policy_align_ros.data.bags.write import write_joint_state_bag
 from policy_align_ros.data.messages import SKIP_REASONS
-from policy_align_ros.data.pipeline import Gates, PipelineResult, learn_pipeline
+from policy_align_ros.data.pipeline import PipelineResult, learn_pipeline
+from policy_align_ros.data.quality import Gates
 from policy_align_ros.data.recording import DemoRecorder
 
 __all__ = [

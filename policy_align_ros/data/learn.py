@@ -14,7 +14,8 @@ import argparse
 import sys
 from dataclasses import fields
 
-from policy_align_ros.data.pipeline import Gates, learn_pipeline, parse_sigma
+from policy_align_ros.data.pipeline import learn_pipeline, parse_sigma
+from policy_align_ros.data.quality import Gates
 
 __all__ = ["EXIT_REFUSED", "parse_joints", "parse_sigma", "run_learn"]
 

@@ -4,7 +4,7 @@
 values (``stamp_ns`` in integer nanoseconds, joint ``names``, ``positions`` in rad or m,
 ``velocities`` in rad/s or m/s, optional ``efforts``), validates them with the rules of
 :mod:`policy_align_ros.data.messages`, buffers the current demonstration and writes it as
-one rosbag2 bag (:func:`policy_align_ros.data.bags.write_joint_state_bag`) when it ends.
+one rosbag2 bag (:func:`policy_align_ros.data.bags.write.write_joint_state_bag`) when it ends.
 
 Two modes:
 
@@ -21,16 +21,17 @@ killed mid-demonstration loses only that demonstration: earlier bags are complet
 bag being written at that instant stays a hidden temporary directory.
 
 Failed writes lose nothing. The dataset directory is created and probed for writing when
-it is set (:func:`check_dataset_dir`), and a demonstration whose write fails later (full
-disk, EFBIG, the directory replaced or made read-only) is kept in memory as the *pending*
-demonstration, at most one: :meth:`DemoRecorder.start` is refused while it exists, a
-continuous recording pauses (messages counted in ``lost_while_pending``), and
-:meth:`DemoRecorder.stop` or :meth:`DemoRecorder.retry_pending` writes it once the
-directory works again. :meth:`DemoRecorder.close` writes whatever is left, into a fallback
-directory (:func:`default_fallback_dirs`) if the dataset directory still fails. Any
-exception of the bag writer counts as a failed write, not only ``OSError``: an unexpected
-one (a bug, an ``OverflowError`` on a value a bag cannot hold) must not lose the
-demonstration or escape into a node's callbacks either.
+it is set (:func:`~policy_align_ros.data.dataset_dir.check_dataset_dir`), and a
+demonstration whose write fails later (full disk, EFBIG, the directory replaced or made
+read-only) is kept in memory as the *pending* demonstration, at most one:
+:meth:`DemoRecorder.start` is refused while it exists, a continuous recording pauses
+(messages counted in ``lost_while_pending``), and :meth:`DemoRecorder.stop` or
+:meth:`DemoRecorder.retry_pending` writes it once the directory works again.
+:meth:`DemoRecorder.close` writes whatever is left, into a fallback directory
+(:func:`~policy_align_ros.data.dataset_dir.default_fallback_dirs`) if the dataset
+directory still fails. Any exception of the bag writer counts as a failed write, not only
+``OSError``: an unexpected one (a bug, an ``OverflowError`` on a value a bag cannot hold)
+must not lose the demonstration or escape into a node's callbacks either.
 
 Header stamps before the epoch (negative, e.g. ``sec = -1`` from a publisher whose clock
 was never set) are skipped as ``time_negative``: a bag stores times as unsigned integers.
@@ -39,7 +40,6 @@ was never set) are skipped as ``time_negative``: a bag stores times as unsigned 
 from __future__ import annotations
 
 import os
-import tempfile
 import threading
 import time
 from array import array
@@ -50,7 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.data.bags import DEFAULT_TOPIC, next_demo_path, write_joint_state_bag
+from policy_align_ros.data.bags.format import DEFAULT_TOPIC
+from policy_align_ros.data.bags.write import next_demo_path, write_joint_state_bag
+from policy_align_ros.data.dataset_dir import check_dataset_dir
 from policy_align_ros.data.messages import (
     NEW,
     SKIP,
@@ -64,9 +66,6 @@ __all__ = [
     "DemoRecorder",
     "PendingWriteError",
     "SaveResult",
-    "check_dataset_dir",
-    "default_fallback_dirs",
-    "validate_dataset_dir",
     "validate_gap",
 ]
 
@@ -77,62 +76,6 @@ def validate_gap(auto_split_gap_s: float) -> float:
     if not (np.isfinite(gap) and gap >= 0.0):
         raise ValueError(f"auto_split_gap_s: must be a finite number >= 0, got {gap}")
     return gap
-
-
-def validate_dataset_dir(dataset_dir: str | os.PathLike[str]) -> Path:
-    """Check a dataset directory name without touching the disk (see check_dataset_dir)."""
-    text = os.fspath(dataset_dir)
-    if not text.strip():
-        raise ValueError("dataset_dir: must not be empty")
-    path = Path(text).expanduser()
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"dataset_dir: {path} exists and is not a directory")
-    return path
-
-
-def check_dataset_dir(dataset_dir: str | os.PathLike[str]) -> Path:
-    """Check that bags can be written into a dataset directory, creating it if needed.
-
-    The directory is created (with its parents) and a hidden probe file is created and
-    removed in it, so that a path under a file, a read-only file system or a directory
-    without write permission is reported now rather than when a demonstration ends
-    (``os.access`` would not do: it answers yes to root on a read-only mount).
-
-    Returns
-    -------
-    Path
-        The directory, ``~`` expanded.
-
-    Raises
-    ------
-    ValueError
-        ``dataset_dir: <path> ...`` with the operating system's reason.
-    """
-    path = validate_dataset_dir(dataset_dir)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".probe-", dir=path)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as err:
-        raise ValueError(
-            f"dataset_dir: cannot write into {path}: {err.strerror or err}") from None
-    return path
-
-
-def default_fallback_dirs() -> list[Path]:
-    """Where :meth:`DemoRecorder.close` saves demonstrations the dataset directory refused.
-
-    ``$ROS_HOME/policy_align_recorder/unsaved`` (``~/.ros`` when ``ROS_HOME`` is unset),
-    then ``<temp dir>/policy_align_recorder-<uid>/unsaved``, in that order; the second one
-    is often another file system (tmpfs), which helps when the first disk is full.
-    """
-    ros_home = Path(os.environ.get("ROS_HOME") or "~/.ros").expanduser()
-    uid = os.getuid() if hasattr(os, "getuid") else 0
-    return [
-        ros_home / "policy_align_recorder" / "unsaved",
-        Path(tempfile.gettempdir()) / f"policy_align_recorder-{uid}" / "unsaved",
-    ]
 
 
 class PendingWriteError(OSError):
@@ -428,7 +371,8 @@ class DemoRecorder:
             where it was never stopped).
         fallback_dirs : sequence of path-like
             Directories tried, in order, when the dataset directory fails (created if
-            needed); see :func:`default_fallback_dirs`.
+            needed); see
+            :func:`~policy_align_ros.data.dataset_dir.default_fallback_dirs`.
 
         Returns
         -------
@@ -577,18 +521,22 @@ class DemoRecorder:
             self._selector.commit(names)
             self._clock.accept(stamp_ns)
             self._last_rx = time.monotonic() if now is None else now
-            pos, vel = picked
-            self._stamps.append(stamp_ns)
-            self._positions.extend(pos)
-            self._n = len(pos)
-            if vel is None:
-                self._velocities.extend(pos)  # placeholder row, flagged as absent
-                self._has_velocity.append(0)
-            else:
-                self._velocities.extend(vel)
-                self._has_velocity.append(1)
-            self.accepted += 1
+            self._append(stamp_ns, *picked)
             return written
+
+    def _append(self, stamp_ns: int, pos: Sequence[float], vel: Sequence[float] | None
+                ) -> None:
+        """Buffer one accepted message (caller holds the lock)."""
+        self._stamps.append(stamp_ns)
+        self._positions.extend(pos)
+        self._n = len(pos)
+        if vel is None:
+            self._velocities.extend(pos)  # placeholder row, flagged as absent
+            self._has_velocity.append(0)
+        else:
+            self._velocities.extend(vel)
+            self._has_velocity.append(1)
+        self.accepted += 1
 
     def _take_current(self) -> _Demo:
         """The buffered demonstration as arrays that own their data (caller holds the lock)."""

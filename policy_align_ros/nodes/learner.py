@@ -28,15 +28,9 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from policy_align_ros.data.pipeline import (
-    Gates,
-    PipelineResult,
-    holdout_split,
-    learn_pipeline,
-    observed_ncpe,
-    parse_sigma,
-    state_name,
-)
+from policy_align_ros.data.pipeline import PipelineResult, learn_pipeline, parse_sigma, state_name
+from policy_align_ros.data.quality import Gates, observed_ncpe
+from policy_align_ros.data.selection import holdout_split
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     accept,

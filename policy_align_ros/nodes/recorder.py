@@ -38,7 +38,7 @@ Failures lose no finished demonstration:
 * On shutdown (SIGINT, SIGTERM) the pending demonstration and a continuous recording's
   last segment are written; if ``dataset_dir`` still fails they go to the first working
   fallback directory (``$ROS_HOME/policy_align_recorder/unsaved``, else under the temp
-  dir; see :func:`~policy_align_ros.data.recording.default_fallback_dirs`), named in an
+  dir; see :func:`~policy_align_ros.data.dataset_dir.default_fallback_dirs`), named in an
   error log line. An unfinished manual demonstration (``stop_demo`` never called) is
   discarded with a warning.
 * On SIGKILL the demonstration in progress (and a pending one) is lost and every earlier
@@ -72,14 +72,9 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from policy_align_ros.data.dataset_dir import check_dataset_dir, default_fallback_dirs
 from policy_align_ros.data.messages import validate_joint_names
-from policy_align_ros.data.recording import (
-    DemoRecorder,
-    PendingWriteError,
-    check_dataset_dir,
-    default_fallback_dirs,
-    validate_gap,
-)
+from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, validate_gap
 from policy_align_ros.nodes._common import run_node
 
 __all__ = ["RecorderNode", "main"]

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from policy_align_ros.cli import main
-from policy_align_ros.data.bags import load_dataset, write_joint_state_bag
+from policy_align_ros.data.bags.dataset import load_dataset
+from policy_align_ros.data.bags.write import write_joint_state_bag
 from policy_align_ros.data.learn import parse_joints, parse_sigma, run_learn
 from policy_align_ros.learning.policy_align import PolicyAlign
 

@@ -10,9 +10,11 @@ import time
 import numpy as np
 import pytest
 
-from policy_align_ros.data import bags
-from policy_align_ros.data.bags import load_dataset, read_joint_states
-from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, check_dataset_dir
+from policy_align_ros.data.bags import write as bags
+from policy_align_ros.data.bags.dataset import load_dataset
+from policy_align_ros.data.bags.read import read_joint_states
+from policy_align_ros.data.dataset_dir import check_dataset_dir
+from policy_align_ros.data.recording import DemoRecorder, PendingWriteError
 
 T0 = 1_700_000_000 * 10**9
 MS = 10**6

@@ -5,7 +5,16 @@ from array import array
 import numpy as np
 import pytest
 
-from policy_align_ros.data.messages import SKIP_REASONS, UNTRUSTWORTHY, JointSelector
+from policy_align_ros.data.messages import (
+    NEW,
+    SAME,
+    SKIP,
+    SKIP_REASONS,
+    UNTRUSTWORTHY,
+    JointSelector,
+    StreamClock,
+    validate_joint_names,
+)
 
 
 def test_vector_matches_joints_by_name_and_ignores_extra_joints():
@@ -56,3 +65,27 @@ def test_vector_after_a_cached_name_list_changes_selection():
     for k in range(100):  # more name lists than the cache holds: still right
         names = ["b", f"extra_{k}"]
         np.testing.assert_array_equal(sel.vector(names, [float(k), 0.0]), [float(k)])
+
+
+def test_joint_selector_and_clock_units():
+    sel = JointSelector(["b", "a"])
+    assert sel.select(["a", "b", "c"], [1.0, 2.0, 3.0], [4.0, 5.0, 6.0]) == ([2.0, 1.0],
+                                                                             [5.0, 4.0])
+    assert sel.select(["a", "b"], [1.0, 2.0], [], [1.0]) == "length_mismatch"
+    open_sel = JointSelector(None)
+    assert open_sel.select(["x"], [float("nan")]) == "non_finite"
+    assert open_sel.select(["y"], [1.0]) == ([1.0], None)
+    open_sel.commit(["y"])
+    # The cache built while the selection was open must not leak into the fixed one.
+    assert open_sel.select(["x"], [1.0]) == "unknown_joints"
+    clock = StreamClock(gap_ns=100)
+    assert clock.step(1000) == NEW
+    clock.accept(1000)
+    assert [clock.step(s) for s in (1050, 1000, 950, 1101, 850)] == [SAME, SKIP, SKIP, NEW,
+                                                                     NEW]
+    assert StreamClock(0).step(5) == NEW
+    with pytest.raises(ValueError, match="listed twice"):
+        validate_joint_names(["a", "a"])
+    with pytest.raises(ValueError, match="invalid joint name"):
+        validate_joint_names(["a", ""])
+    assert validate_joint_names([]) is None

@@ -19,13 +19,9 @@ import pytest
 
 from policy_align_ros.data import write_joint_state_bag
 from policy_align_ros.data.learn import run_learn
-from policy_align_ros.data.pipeline import (
-    Gates,
-    find_duplicates,
-    holdout_split,
-    learn_pipeline,
-    state_name,
-)
+from policy_align_ros.data.pipeline import learn_pipeline, state_name
+from policy_align_ros.data.quality import Gates
+from policy_align_ros.data.selection import find_duplicates, holdout_split
 from policy_align_ros.learning import PolicyAlign
 
 JOINTS = ["j1", "j2"]
