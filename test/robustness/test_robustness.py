@@ -23,7 +23,7 @@ from robustness_table import COMMAND, markdown, run_groups
 from policy_align_ros.data.bags import load_dataset
 from policy_align_ros.data.recording import DemoRecorder
 
-#: Groups run here, in the tool's order.
+#: Groups run here, in the table's order.
 GROUPS = ["cli-learn", "cli-misc", "cli-ros", "bags", "recorder", "sim_robot", "executor",
           "demonstrator"]
 
