@@ -1,34 +1,29 @@
-"""Robustness cases of issue 8 as assertions (docs/robustness.md; domain ids 204-216).
+"""Robustness cases as assertions (docs/robustness.md; domain ids 204-216).
 
-The cases live in ``tools/robustness.py``, which also prints the table of the doc. Here the
-fast, deterministic groups run, with the CLI called in-process through ``cli.main`` and
-without the node start-up cases (a process each). For each bad input: no crash (an
-uncaught exception, a signal, a node callback that raised, a node that stopped answering),
-no traceback, no finished demonstration lost, and the behaviour the case expects (exit
-status, ``success=false`` with a reason, the skip counter, a refused parameter keeping its
-value, ...). Waits poll a condition; nothing depends on the machine's speed. The learner's
-cases (a 60-demonstration fit) and the start-up cases are covered by the nodes' own tests
-and left to the tool.
+The cases live in ``robustness_cases_*.py``; ``robustness_table.py`` also prints the table of
+the doc. Here the fast, deterministic groups run, with the CLI called in-process through
+``cli.main`` and without the node start-up cases (a process each). For each bad input: no
+crash (an uncaught exception, a signal, a node callback that raised, a node that stopped
+answering), no traceback, no finished demonstration lost, and the behaviour the case expects
+(exit status, ``success=false`` with a reason, the skip counter, a refused parameter keeping
+its value, ...). Waits poll a condition; nothing depends on the machine's speed. The
+learner's cases (a 60-demonstration fit) and the start-up cases are covered by the nodes' own
+tests and left to the table.
 """
 
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from robustness_harness import Lab, Result
+from robustness_table import COMMAND, markdown, run_groups
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
+from policy_align_ros.data import load_dataset
+from policy_align_ros.data.recording import DemoRecorder
 
-import robustness  # noqa: E402
-
-from policy_align_ros.data.bags.dataset import load_dataset  # noqa: E402
-from policy_align_ros.data.recording import DemoRecorder  # noqa: E402
-
-#: Groups run here, in the tool's order.
+#: Groups run here, in the table's order.
 GROUPS = ["cli-learn", "cli-misc", "cli-ros", "bags", "recorder", "sim_robot", "executor",
           "demonstrator"]
 
@@ -39,10 +34,9 @@ KNOWN: dict[str, str] = {}
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
-    # Node start-up cases (a process each) are left to the tool and the nodes' own tests.
-    return robustness.Lab(tmp_path_factory.mktemp("robustness"), domain_base=204,
-                          domain_count=12, cli_subprocess=False, start_ups=False, n_good=5,
-                          samples=25)
+    # Node start-up cases (a process each) are left to the table and the nodes' own tests.
+    return Lab(tmp_path_factory.mktemp("robustness"), domain_base=204,
+               domain_count=12, cli_subprocess=False, start_ups=False, n_good=5, samples=25)
 
 
 _SEEN: set[str] = set()
@@ -50,7 +44,7 @@ _SEEN: set[str] = set()
 
 @pytest.mark.parametrize("group", GROUPS)
 def test_bad_inputs_neither_crash_nor_lose_data(lab, group):
-    rows = robustness.run_groups(lab, [group])
+    rows = run_groups(lab, [group])
     assert rows, f"group {group} ran no case"
     assert all(r.area != "harness" for r in rows), rows[0].behaviour
     ids = [r.case for r in rows]
@@ -66,11 +60,10 @@ def test_bad_inputs_neither_crash_nor_lose_data(lab, group):
 
 
 def test_markdown_table_counts_and_escapes():
-    rows = [robustness.Result("a", "cli", "`x | y`", "exit 2: bad", lost=None),
-            robustness.Result("b", "messages", "z", "skipped", lost=0,
-                              problems=["not counted"]),
-            robustness.Result("c", "services", "w", "no answer", crash=True)]
-    text = robustness.markdown(rows, "python tools/robustness.py")
+    rows = [Result("a", "cli", "`x | y`", "exit 2: bad", lost=None),
+            Result("b", "messages", "z", "skipped", lost=0, problems=["not counted"]),
+            Result("c", "services", "w", "no answer", crash=True)]
+    text = markdown(rows, COMMAND)
     assert text.startswith("3 bad inputs (1 cli, 1 messages, 1 services): **1 crashes, "
                            "0 tracebacks, 0 finished demonstrations lost**; 1 behaviour(s)")
     assert "`x \\| y`" in text and "**PROBLEM**: not counted" in text
@@ -82,7 +75,7 @@ def _rec(tmp_path, **kw):
 
 
 def test_a_stamp_from_the_future_does_not_spoil_the_rest_of_a_manual_demo(tmp_path):
-    """Accepted, a stamp 1 h ahead made every later message 'time not increasing'."""
+    """A stamp 1 h ahead is skipped, so the later, correctly stamped messages are kept."""
     rec = _rec(tmp_path)
     now = 1_800_000_000 * 10**9
     rec.start(0.0)
