@@ -30,7 +30,6 @@ import time
 
 import numpy as np
 
-from policy_align_ros.experiments.demonstrators import rollout
 from policy_align_ros.learning import PolicyAlign, metrics
 from policy_align_ros.learning.regressors import TrendKernelRegression
 from policy_align_ros.learning.regressors.single_index import (
@@ -40,6 +39,7 @@ from policy_align_ros.learning.regressors.single_index import (
     profile_gradient,
     profile_weights,
 )
+from policy_align_ros.sim.demonstrations import rollout
 
 
 class RadialPotential:

@@ -42,19 +42,19 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.experiments.demonstrators import (
-    ConstraintFn,
-    Demonstration,
-    QuadraticPotential,
-    generate_demonstrations,
-    held_out_masks,
-    stack_ground_truth,
-)
 from policy_align_ros.kinematics import Robot, nullspace_projector
 from policy_align_ros.kinematics.constraints import barrier_rows
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.learning.outliers import largest_group
+from policy_align_ros.sim.demonstrations import (
+    ConstraintFn,
+    Demonstration,
+    generate_demonstrations,
+    held_out_masks,
+    stack_ground_truth,
+)
+from policy_align_ros.sim.experts import QuadraticPotential
 
 __all__ = [
     "Panel",

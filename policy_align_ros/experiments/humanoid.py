@@ -29,17 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.experiments.demonstrators import (
+from policy_align_ros.kinematics import Robot
+from policy_align_ros.learning.model_io import atomic_write_text
+from policy_align_ros.learning.outliers import largest_group
+from policy_align_ros.sim.demonstrations import (
     ConstraintFn,
-    QuadraticPotential,
     generate_demonstrations,
     held_out_masks,
     sample_start_states,
     stack_ground_truth,
 )
-from policy_align_ros.kinematics import Robot
-from policy_align_ros.learning.model_io import atomic_write_text
-from policy_align_ros.learning.outliers import largest_group
+from policy_align_ros.sim.experts import QuadraticPotential
 
 __all__ = ["JOINTS", "REFERENCE", "hands_plane_constraint", "make_humanoid_dataset",
            "evaluate_dataset", "main"]

@@ -44,13 +44,6 @@ from typing import Any
 
 import numpy as np
 
-from policy_align_ros.experiments.demonstrators import (
-    ConstraintFn,
-    Demonstration,
-    QuadraticPotential,
-    TaskSpacePotential,
-    rollout,
-)
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.learning.outliers import largest_group
@@ -59,6 +52,8 @@ from policy_align_ros.learning.regressors import (
     TrendKernelRegression,
     takes_free_groups,
 )
+from policy_align_ros.sim.demonstrations import ConstraintFn, Demonstration, rollout
+from policy_align_ros.sim.experts import QuadraticPotential, TaskSpacePotential
 
 __all__ = ["CASES", "Case", "run_case", "main"]
 
