@@ -88,6 +88,50 @@ class Demonstrator(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("demonstrator", **kwargs)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._declare_parameters()
+        value = self.get_parameter
+        joints = list(value("joints").value)
+        robot = Robot.load(value("robot").value, joints)
+        self.period = 1.0 / value("rate_hz").value
+        self.script = DemonstrationScript(
+            robot, optional_parameter(self, "attractor"), value("gain").value,
+            str(value("expert").value), value("constraint_frames").value,
+            value("hand_frames").value, optional_parameter(self, "hand_targets"),
+            speed_limits(robot.velocity_limit, value("max_velocity").value), self.period,
+            np.random.default_rng(value("seed").value))
+        self.robot, self.attractor = robot, self.script.attractor
+        self.hand_expert = self.script.hand_expert
+        self.num_demos = int(value("num_demos").value)
+        self.done = Future()
+        self.demos_done = 0
+        self._failures = 0
+        self._selector = JointSelector(joints)
+        self._q: np.ndarray | None = None
+        self._q_received: float | None = None  # arrival of self._q [s, node clock]
+        self._paused_at: float | None = None  # start of a pause for stale joint states
+        self._state = "wait"
+        self._since = self._now()
+        self._last_tick: float | None = None
+        self._ready_since: float | None = None
+        #: Control ticks during demonstrations, and those later than LATE_TICK_PERIODS.
+        self.demo_ticks = 0
+        self.late_ticks = 0
+        self._pending: Future | None = None
+        self._segment = 0
+        self._q0 = self.attractor
+
+        recorder = value("recorder").value.rstrip("/")
+        self._start = self.create_client(Trigger, f"{recorder}/start_demo")
+        self._stop = self.create_client(Trigger, f"{recorder}/stop_demo")
+        self._cmd = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
+        self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
+        self._lockstep = bool(value("step_on_joint_state").value)
+        self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
+        # In lockstep the joint states drive the steps; the timer still catches joint
+        # states that stop coming (no step would then replace the last command).
+        self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
+
+    def _declare_parameters(self) -> None:
         p = self.declare_parameter
         p("robot", "talos", descriptor("example-robot-data name or URDF path", read_only=True))
         p("joints", DEFAULT_JOINTS, descriptor("commanded joints, in order", read_only=True))
@@ -151,48 +195,6 @@ class Demonstrator(Node):
         p("seed", 0, descriptor("random seed", read_only=True, int_range=(0, 2**31 - 1)))
         p("exit_when_done", True, descriptor("exit after the last demonstration",
                                              read_only=True))
-
-        value = self.get_parameter
-        joints = list(value("joints").value)
-        robot = Robot.load(value("robot").value, joints)
-        self.period = 1.0 / value("rate_hz").value
-        self.script = DemonstrationScript(
-            robot, optional_parameter(self, "attractor"), value("gain").value,
-            str(value("expert").value), value("constraint_frames").value,
-            value("hand_frames").value, optional_parameter(self, "hand_targets"),
-            speed_limits(robot.velocity_limit, value("max_velocity").value), self.period,
-            np.random.default_rng(value("seed").value))
-        self.robot, self.attractor = robot, self.script.attractor
-        self.hand_expert = self.script.hand_expert
-        self.num_demos = int(value("num_demos").value)
-        self.done = Future()
-        self.demos_done = 0
-        self._failures = 0
-        self._selector = JointSelector(joints)
-        self._q: np.ndarray | None = None
-        self._q_received: float | None = None  # arrival of self._q [s, node clock]
-        self._paused_at: float | None = None  # start of a pause for stale joint states
-        self._state = "wait"
-        self._since = self._now()
-        self._last_tick: float | None = None
-        self._ready_since: float | None = None
-        #: Control ticks during demonstrations, and those later than LATE_TICK_PERIODS.
-        self.demo_ticks = 0
-        self.late_ticks = 0
-        self._pending: Future | None = None
-        self._segment = 0
-        self._q0 = self.attractor
-
-        recorder = value("recorder").value.rstrip("/")
-        self._start = self.create_client(Trigger, f"{recorder}/start_demo")
-        self._stop = self.create_client(Trigger, f"{recorder}/stop_demo")
-        self._cmd = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
-        self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
-        self._lockstep = bool(value("step_on_joint_state").value)
-        self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
-        # In lockstep the joint states drive the steps; the timer still catches joint
-        # states that stop coming (no step would then replace the last command).
-        self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
 
     def _now(self) -> float:
         """Seconds on the node clock (the simulator's /clock with use_sim_time)."""
