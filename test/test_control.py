@@ -823,13 +823,13 @@ def test_default_max_extrapolation_leaves_runs_from_the_start_distribution_unsca
     # takes too long for a unit test).
     from scipy.spatial import cKDTree
 
-    from policy_align_ros.experiments.demonstrators import (
-        QuadraticPotential,
+    from policy_align_ros.learning.support import support_spacing, support_states
+    from policy_align_ros.sim.demonstrations import (
         generate_demonstrations,
         no_constraint,
         sample_start_states,
     )
-    from policy_align_ros.learning.support import support_spacing, support_states
+    from policy_align_ros.sim.experts import QuadraticPotential
 
     joints = TALOS_JOINTS + ["head_1_joint", "head_2_joint"]
     robot = Robot.load("talos", joints)
@@ -864,11 +864,9 @@ def _held_hand_run(drift_gain, seconds=60.0):
     velocity-controlled robot. Returns the largest distance (m) of the hand from where it
     was at enable, the commands sent and the ArmedController.
     """
-    from policy_align_ros.experiments.demonstrators import (
-        QuadraticPotential,
-        sample_start_states,
-    )
-    from policy_align_ros.kinematics.sim import integrate_clamped
+    from policy_align_ros.sim.demonstrations import sample_start_states
+    from policy_align_ros.sim.experts import QuadraticPotential
+    from policy_align_ros.sim.simulator import integrate_clamped
 
     robot = Robot.load("talos", EXECUTOR_JOINTS)
     rng = np.random.default_rng(0)

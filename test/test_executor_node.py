@@ -664,13 +664,10 @@ def _frames_model():
     the arm), mapped to hand states as ``policy-align learn --state frames:...`` does.
     Returns (model, state definition dict, target (3,), robot, state map).
     """
-    from policy_align_ros.experiments.demonstrators import (
-        TaskSpaceExpert,
-        sample_start_states,
-        task_space_rollout,
-    )
     from policy_align_ros.kinematics import Robot, TaskSpaceMap
     from policy_align_ros.kinematics.task_space import LearningStateMap
+    from policy_align_ros.sim.demonstrations import sample_start_states, task_space_rollout
+    from policy_align_ros.sim.experts import TaskSpaceExpert
 
     if not _FRAMES:
         robot = Robot.load("talos", joints=JOINTS)

@@ -225,7 +225,8 @@ def test_malformed_model_files_name_the_file_and_the_problem(model, tmp_path, he
 
 
 def test_euler_scale_and_position_noise_survive_save_and_load(tmp_path):
-    from policy_align_ros.experiments.demonstrators import QuadraticPotential, rollout
+    from policy_align_ros.sim.demonstrations import rollout
+    from policy_align_ros.sim.experts import QuadraticPotential
 
     # Held-command demonstrations with velocities of an isotropic quadratic: "auto"
     # trusts the velocities and rescales the Euler potentials (euler_scale_ != 1).

@@ -491,13 +491,10 @@ def test_parse_state_spec() -> None:
 
 
 def test_policy_learnt_in_hand_space_reaches_targets_from_new_starts() -> None:
-    from policy_align_ros.experiments.demonstrators import (
-        TaskSpaceExpert,
-        sample_start_states,
-        task_space_rollout,
-    )
     from policy_align_ros.kinematics.task_space import LearningStateMap, policy_for_state
     from policy_align_ros.learning import PolicyAlign
+    from policy_align_ros.sim.demonstrations import sample_start_states, task_space_rollout
+    from policy_align_ros.sim.experts import TaskSpaceExpert
 
     hands = ["gripper_left_base_link", "gripper_right_base_link"]
     joints = ([f"arm_left_{i}_joint" for i in range(1, 8)]

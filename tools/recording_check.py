@@ -26,12 +26,13 @@ median nUPE over the data sets, and the worst.
 from __future__ import annotations
 
 import argparse
-import multiprocessing
 import sys
 
 import numpy as np
 
 from policy_align_ros.experiments import suite
+from policy_align_ros.experiments.pool import parallel_map
+from policy_align_ros.experiments.suite_cases import CASES
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 
 KINDS = ("clean", "rest", "drop", "jitter", "all")
@@ -65,7 +66,7 @@ def run(task: tuple[str, int, str]) -> tuple[str, int, str, float, float]:
     """Fit one data set of case ``name`` recorded as ``kind``; its nUPE and nCPE."""
     name, seed, kind = task
     rng = np.random.default_rng(seed)
-    problem = suite.CASES[name].make(rng)
+    problem = CASES[name].make(rng)
     train = suite._demos(problem, problem.sample_starts(rng, problem.n_train), rng)
     test = suite._demos(problem, problem.sample_starts(rng, suite.N_TEST_DEMOS), rng)
     artefacts = np.random.default_rng([seed, 99])
@@ -80,21 +81,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--datasets", type=int, default=3)
-    parser.add_argument("--cases", default=",".join(suite.CASES))
+    parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--kinds", default=",".join(KINDS))
     parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args(argv)
     cases, kinds = args.cases.split(","), args.kinds.split(",")
-    for item, known in [(c, suite.CASES) for c in cases] + [(k, KINDS) for k in kinds]:
+    for item, known in [(c, CASES) for c in cases] + [(k, KINDS) for k in kinds]:
         if item not in known:
             parser.error(f"unknown case or kind {item!r}; known: {', '.join(known)}")
     tasks = [(c, args.seed + i, k) for c in cases for i in range(args.datasets) for k in kinds]
-    with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
-        results = []
-        for r in pool.imap_unordered(run, tasks):
-            results.append(r)
-            print(f"[{len(results)}/{len(tasks)}] {r[0]} seed {r[1]} {r[2]}: "
-                  f"nUPE {r[3]:.4f} nCPE {r[4]:.4f}", file=sys.stderr, flush=True)
+    results = parallel_map(run, tasks, args.jobs, "recording_check")
     print("| case | " + " | ".join(kinds) + " |")
     print("|---|" + "---|" * len(kinds))
     for c in cases:

@@ -1,6 +1,5 @@
-"""The single-index trend on potentials far from quadratic: the measurement behind the
-session-10 lead in ``docs/notes/trend_kernel.md`` (a prototype, not part of the package),
-and since session 12 the check of the default model on the same data.
+"""The single-index trend on potentials far from quadratic (a prototype, not part of the
+package; see ``docs/notes/trend_kernel.md``), and the default model on the same data.
 
 Usage: ``python tools/single_index_check.py KIND N [SEED [FORM]]`` with ``KIND`` one of ``sat``
 (a velocity-limited attractor, ``phi = sqrt(r^2 + q) - r``) or ``quart`` (``phi = q / 2 +
@@ -12,14 +11,13 @@ random times, and 10 more from new starts to score.
 would (``FORM`` ``cv``, the default, or ``quadratic`` for the quadratic family alone). Then,
 on its aligned potentials, the
 single-index model ``f(z) = sum_j beta_j B_j(q(z))`` is fitted, with
-``q = ||L'(z - z0)||^2`` (``L`` lower triangular), the basis
-of ``single_index.profile_basis`` and ``c_j = s * KNEES`` (``s`` the median of
-``sqrt(q)`` at the start), with one free offset per demonstration. ``(L, z0)`` start from
-the trend-alone fit of ``TrendKernelRegression`` and are fitted by variable projection
-(``policy_align_ros.learning.regressors.single_index.fit_index``, which this prototype
-became): ``beta`` and the offsets come from linear least squares inside the residual,
-and the Jacobian is Kaufman's, ``-P_perp (dB/dtheta) beta``. Both models' nUPE on the new
-starts is printed.
+``q = ||L'(z - z0)||^2`` (``L`` lower triangular), the basis of
+``single_index.profile_basis`` and ``c_j = s * KNEES`` (``s`` the median of ``sqrt(q)`` at
+the start), with one free offset per demonstration. ``(L, z0)`` start from the trend-alone
+fit of ``TrendKernelRegression`` and are fitted by variable projection (as
+``policy_align_ros.learning.regressors.single_index.fit_index`` does): ``beta`` and the
+offsets come from linear least squares inside the residual, and the Jacobian is Kaufman's,
+``-P_perp (dB/dtheta) beta``. Both models' nUPE on the new starts is printed.
 """
 
 from __future__ import annotations
@@ -30,7 +28,6 @@ import time
 
 import numpy as np
 
-from policy_align_ros.experiments.demonstrators import rollout
 from policy_align_ros.learning import PolicyAlign, metrics
 from policy_align_ros.learning.regressors import TrendKernelRegression
 from policy_align_ros.learning.regressors.single_index import (
@@ -40,6 +37,7 @@ from policy_align_ros.learning.regressors.single_index import (
     profile_gradient,
     profile_weights,
 )
+from policy_align_ros.sim.demonstrations import rollout
 
 
 class RadialPotential:

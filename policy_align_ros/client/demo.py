@@ -75,26 +75,21 @@ from std_srvs.srv import SetBool, Trigger
 
 from policy_align_ros.data import load_dataset
 from policy_align_ros.data.messages import JointSelector
-from policy_align_ros.experiments.demonstrators import (
-    QuadraticPotential,
-    TaskSpaceExpert,
-    rollout,
-    sample_start_states,
-    task_space_rollout,
-)
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
 from policy_align_ros.kinematics.control import ControlStep, speed_limits, velocity_scale
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
 from policy_align_ros.learning.model_io import atomic_write_bytes, atomic_write_text
 from policy_align_ros.nodes._common import DEFAULT_JOINTS, LATCHED_QOS
-from policy_align_ros.nodes.demonstrator import (
+from policy_align_ros.nodes.learner import holdout_split
+from policy_align_ros.sim.demonstrations import rollout, sample_start_states, task_space_rollout
+from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
+from policy_align_ros.sim.script import (
     DEFAULT_FRAMES,
     drop_roundoff_at_limits,
     hand_plane_rows,
     random_plane_specs,
 )
-from policy_align_ros.nodes.learner import holdout_split
 
 __all__ = ["DemoSettings", "StageError", "report_text", "run_demo"]
 

@@ -1,1 +1,4 @@
-"""experiments subpackage of policy_align_ros."""
+"""The paper's experiments and the benchmarks of ``policy-align bench``.
+
+Data sets that run in parallel go through the one process pool of :mod:`.pool`.
+"""

@@ -8,43 +8,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from policy_align_ros.experiments.evaluation import METRIC_NAMES
+from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.learning.model_io import atomic_write_text
 
-__all__ = ["run_bench", "run_toy_bench", "parallel_map", "format_mean_std"]
-
-
-def parallel_map(func, tasks: list, jobs: int, label: str) -> list:
-    """``map`` over worker processes with a progress line on stderr."""
-    results = []
-    start = time.perf_counter()
-    step = max(1, len(tasks) // 20)
-
-    def report(done: int) -> None:
-        if done % step == 0 or done == len(tasks):
-            rate = (time.perf_counter() - start) / done
-            left = rate * (len(tasks) - done)
-            print(f"\r{label}: {done}/{len(tasks)} ({left:.0f} s left)   ",
-                  end="", file=sys.stderr, flush=True)
-
-    if jobs <= 1:
-        for i, task in enumerate(tasks, 1):
-            results.append(func(task))
-            report(i)
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for i, res in enumerate(pool.map(func, tasks), 1):
-                results.append(res)
-                report(i)
-    print(file=sys.stderr)
-    return results
+__all__ = ["run_bench", "run_toy_bench", "format_mean_std"]
 
 
 def format_mean_std(mean: float, std: float, percent: bool = False) -> str:

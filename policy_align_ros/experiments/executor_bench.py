@@ -1,11 +1,11 @@
 """Benchmark of the executor's control step: joint state in, velocity command out.
 
-Setup (issue 4): the 22 upper-body joints of example-robot-data's ``human`` model
+Setup: the 22 upper-body joints of example-robot-data's ``human`` model
 (:data:`policy_align_ros.experiments.humanoid.JOINTS`), one plane constraint per hand
 (``left_hand``, ``right_hand``, normals drawn at random), and a PolicyAlign model learnt
 from a paper-sized data set of that experiment (K = 100 demonstrations of N = 100 samples,
 narrow sigma). One timed step does what the executor node does per control period
-besides ROS transport (issue 8: with the safety layer on):
+besides ROS transport, with the safety layer on:
 
 * match the joint state's names and positions into ``q`` (22,);
 * :meth:`ArmedController.joint_state` (stamp checks) and :meth:`ArmedController.tick`:
@@ -50,7 +50,8 @@ from policy_align_ros.kinematics.control import (
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.model_io import atomic_write_text
 
-__all__ = ["armed_step", "diagnostic_values", "main", "percentiles_us", "time_steps"]
+__all__ = ["armed_step", "diagnostic_values", "format_report", "main", "percentiles_us",
+           "time_steps"]
 
 
 def percentiles_us(samples_ns: np.ndarray) -> dict[str, float]:
@@ -126,6 +127,35 @@ def armed_step(control: ArmedController, period_ns: int):
     return step
 
 
+def format_report(results: dict) -> str:
+    """The markdown table of :func:`main`'s timings and the verdict on the 1 ms target.
+
+    ``results`` holds ``steps``, ``fit_s``, ``load_average_1min`` and one
+    :func:`percentiles_us` dict per timed part.
+    """
+    steps, fit_s = results["steps"], results["fit_s"]
+    full = results["full_step"]
+    lines = [
+        "Executor control step (22 joints, one plane per hand; joint state in, command out;",
+        "full_step: stamp checks, guard, ramp and diagnostic values on; held_frame: left",
+        "hand held instead of its plane, drift correction on)",
+        "",
+        "| part | p50 [us] | p99 [us] | max [us] |",
+        "|---|---|---|---|",
+    ]
+    for key in ("full_step", "full_step_cpu", "held_frame", "control_law_only",
+                "policy_only", "constraints_only", "guard_distance_only"):
+        r = results[key]
+        lines.append(f"| {key} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['max_us']:.1f} |")
+    verdict = "met" if full["p99_us"] < 1000.0 else "missed"
+    lines += ["", f"target p99 < 1000 us: {verdict} (p99 {full['p99_us']:.1f} us over "
+              f"{steps} steps; model fitted in {fit_s:.1f} s; load average "
+              f"{results['load_average_1min']:.1f} on {os.cpu_count()} cores)",
+              f"full_step CPU time of the step (thread_time; preemption excluded): p99 "
+              f"{results['full_step_cpu']['p99_us']:.1f} us"]
+    return "\n".join(lines)
+
+
 def main(args: argparse.Namespace) -> int:
     """``policy-align bench executor``: print (and write to ``args.out``) the timings."""
     seed = int(getattr(args, "seed", 0) or 0)
@@ -182,28 +212,9 @@ def main(args: argparse.Namespace) -> int:
     distance = SupportDistance(model, perm)
     results["guard_distance_only"] = percentiles_us(time_steps(
         lambda q: (np.array([distance(q)[0]]), ""), states, list(JOINTS), steps // 4))
-    full = results["full_step"]
-    lines = [
-        "Executor control step (22 joints, one plane per hand; joint state in, command out;",
-        "full_step: stamp checks, guard, ramp and diagnostic values on; held_frame: left",
-        "hand held instead of its plane, drift correction on)",
-        "",
-        "| part | p50 [us] | p99 [us] | max [us] |",
-        "|---|---|---|---|",
-    ]
-    for key in ("full_step", "full_step_cpu", "held_frame", "control_law_only",
-                "policy_only", "constraints_only", "guard_distance_only"):
-        r = results[key]
-        lines.append(f"| {key} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['max_us']:.1f} |")
-    verdict = "met" if full["p99_us"] < 1000.0 else "missed"
     # Tails on a shared machine come from preemption: say how busy it was.
     results["load_average_1min"] = os.getloadavg()[0]
-    lines += ["", f"target p99 < 1000 us: {verdict} (p99 {full['p99_us']:.1f} us over "
-              f"{steps} steps; model fitted in {fit_s:.1f} s; load average "
-              f"{results['load_average_1min']:.1f} on {os.cpu_count()} cores)",
-              f"full_step CPU time of the step (thread_time; preemption excluded): p99 "
-              f"{results['full_step_cpu']['p99_us']:.1f} us"]
-    text = "\n".join(lines)
+    text = format_report(results)
     print(text)
     out = Path(getattr(args, "out", None) or "bench_out")
     out.mkdir(parents=True, exist_ok=True)

@@ -31,30 +31,29 @@ global regression and the naive baseline's training).
 from __future__ import annotations
 
 import json
-import multiprocessing
-import os
 import sys
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.experiments.demonstrators import (
-    ConstraintFn,
-    Demonstration,
-    QuadraticPotential,
-    generate_demonstrations,
-    held_out_masks,
-    stack_ground_truth,
-)
+from policy_align_ros.experiments.figures import save_figure
+from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.kinematics import Robot, nullspace_projector
 from policy_align_ros.kinematics.constraints import barrier_rows
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.learning.outliers import largest_group
+from policy_align_ros.sim.demonstrations import (
+    ConstraintFn,
+    Demonstration,
+    generate_demonstrations,
+    held_out_masks,
+    stack_ground_truth,
+)
+from policy_align_ros.sim.experts import QuadraticPotential
 
 __all__ = [
     "Panel",
@@ -375,14 +374,8 @@ def plot_figure(rollouts: dict, path: Path) -> None:
     axes[1].set_title("side view")
     fig.suptitle("Unconstrained reaching: expert (black), naive (green), PolicyAlign (red)")
     fig.tight_layout()
-    _save_fig(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
-
-
-def _save_fig(fig, path: Path) -> None:
-    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
-    fig.savefig(tmp, dpi=120)
-    os.replace(tmp, path)
 
 
 def run(datasets: int, jobs: int, seed: int, n_traj: int = 100, n_samples: int = 100
@@ -390,30 +383,7 @@ def run(datasets: int, jobs: int, seed: int, n_traj: int = 100, n_samples: int =
     """Evaluate ``datasets`` data sets on ``jobs`` processes (data set 0 carries figure
     data). Returns one metrics dict per data set."""
     jobs_list = [(seed + i, n_traj, n_samples, 3 if i == 0 else 0) for i in range(datasets)]
-    return run_pool(_worker, jobs_list, jobs)
-
-
-def run_pool(worker, jobs_list: list, jobs: int) -> list:
-    """``[worker(j) for j in jobs_list]`` on ``jobs`` single-threaded worker processes.
-
-    Workers are spawned with one BLAS thread each: ``jobs`` processes on as many cores
-    are faster than processes that each start a BLAS thread per core.
-    """
-    if jobs <= 1 or len(jobs_list) <= 1:
-        return [worker(j) for j in jobs_list]
-    keys = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-    saved = {k: os.environ.get(k) for k in keys}
-    try:
-        os.environ.update({k: "1" for k in keys})
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            return list(pool.map(worker, jobs_list))
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    return parallel_map(_worker, jobs_list, jobs)
 
 
 def main(args) -> int:

@@ -29,17 +29,18 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.experiments.demonstrators import (
+from policy_align_ros.experiments.pool import parallel_map
+from policy_align_ros.kinematics import Robot
+from policy_align_ros.learning.model_io import atomic_write_text
+from policy_align_ros.learning.outliers import largest_group
+from policy_align_ros.sim.demonstrations import (
     ConstraintFn,
-    QuadraticPotential,
     generate_demonstrations,
     held_out_masks,
     sample_start_states,
     stack_ground_truth,
 )
-from policy_align_ros.kinematics import Robot
-from policy_align_ros.learning.model_io import atomic_write_text
-from policy_align_ros.learning.outliers import largest_group
+from policy_align_ros.sim.experts import QuadraticPotential
 
 __all__ = ["JOINTS", "REFERENCE", "hands_plane_constraint", "make_humanoid_dataset",
            "evaluate_dataset", "main"]
@@ -203,7 +204,7 @@ def plot_figure(data: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from policy_align_ros.experiments.grasp import _save_fig
+    from policy_align_ros.experiments.figures import save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.2))
     phi = data["phi"]
@@ -224,7 +225,7 @@ def plot_figure(data: dict, path: Path) -> None:
     axes[2].set_title("unconstrained policy, all 22 joints")
     fig.suptitle("22-DOF humanoid, held-out samples of data set 0")
     fig.tight_layout()
-    _save_fig(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -248,10 +249,9 @@ def format_table(results: Sequence[dict]) -> str:
 def run(datasets: int, jobs: int, seed: int, n_traj: int = 100, n_samples: int = 100
         ) -> list[dict]:
     """Evaluate ``datasets`` data sets on ``jobs`` processes."""
-    from policy_align_ros.experiments.grasp import run_pool
 
     jobs_list = [(seed + i, n_traj, n_samples, i == 0) for i in range(datasets)]
-    return run_pool(_worker, jobs_list, jobs)
+    return parallel_map(_worker, jobs_list, jobs)
 
 
 def main(args) -> int:

@@ -1,26 +1,16 @@
 """``demonstrator``: the teacher that produces constrained demonstrations.
 
-Two experts (parameter ``expert``):
-
-* ``joints``: ``pi(q) = -gain (q - attractor)`` (rad/s), the negative gradient of the
-  quadratic potential ``phi = gain/2 ||q - attractor||^2`` in joint space (the paper's
-  eq. 20 with ``W = gain/2 I``); under constraint rows ``A(q)`` it sends ``N(q) pi(q)``;
-* ``hands``: a potential in the stacked positions ``x`` (3F,) of ``hand_frames`` (m),
-  ``phi_x = gain/2 ||x - hand_targets||^2``, ``pi_x = -grad phi_x`` (m/s). The hands move
-  with ``xdot = N_x pi_x`` (``N_x`` the projector of the hand-space plane rows), realised
-  through the frames' Jacobian with a secondary pull of the redundant joints towards
-  ``attractor`` (:class:`policy_align_ros.experiments.demonstrators.TaskSpaceExpert`).
-  A joint-space expert seen in hand space is not a gradient field there.
+The expert, its random starts and planes and its commands are
+:class:`policy_align_ros.sim.script.DemonstrationScript` (parameter ``expert``: ``joints``
+or ``hands``); this node runs it on a robot and brackets each demonstration with the
+recorder's services.
 
 For each of ``num_demos`` demonstrations it:
 
 1. drives the robot to a random start ``q0 ~ N(attractor, start_variance I)`` (clipped
    to the joint limits) with a proportional controller;
-2. draws a random constraint: every frame of ``constraint_frames`` (by default both hands)
-   restricted to a plane of uniformly random orientation through its current position,
-   re-drawn ``plane_switches`` times at regular intervals during the demonstration (the
-   paper's switching constraints: with one plane per demonstration, every demonstration
-   ends at its own point and the potentials can hardly be aligned);
+2. draws a random plane for every frame of ``constraint_frames`` (by default both hands),
+   re-drawn ``plane_switches`` times at regular intervals during the demonstration;
 3. calls the recorder's ``start_demo`` (std_srvs/Trigger), runs the constrained expert
    for ``demo_duration_s`` seconds, stops the robot and calls ``stop_demo``.
 
@@ -64,17 +54,8 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from policy_align_ros.data.messages import JointSelector
-from policy_align_ros.experiments.demonstrators import (
-    QuadraticPotential,
-    TaskSpaceExpert,
-    sample_start_states,
-)
-from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
-from policy_align_ros.kinematics.control import (
-    constrained_command,
-    speed_limits,
-    velocity_scale,
-)
+from policy_align_ros.kinematics import Robot
+from policy_align_ros.kinematics.control import speed_limits
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     LATCHED_QOS,
@@ -85,90 +66,20 @@ from policy_align_ros.nodes._common import (
     reject,
     run_node,
 )
+from policy_align_ros.sim.script import (
+    DEFAULT_FRAMES,
+    EXPERTS,
+    DemonstrationScript,
+    plane_segment,
+    stale_joint_state,
+)
 
-__all__ = ["Demonstrator", "drop_roundoff_at_limits", "hand_plane_rows", "main",
-           "random_plane_specs", "stale_joint_state"]
+__all__ = ["Demonstrator", "main"]
 
-DEFAULT_FRAMES = ["arm_left_7_link", "arm_right_7_link"]
-EXPERTS = ("joints", "hands")
 #: A control tick later than this many periods after the previous one counts as late.
 LATE_TICK_PERIODS = 1.5
 #: States that command motion computed from the joint states (paused while they are stale).
 MOVING_STATES = ("reach", "demo")
-
-
-def stale_joint_state(received: float | None, now: float, timeout: float) -> str:
-    """Why the last joint state is too old to command from, or ``""`` when it is fresh.
-
-    Parameters
-    ----------
-    received : float or None
-        Arrival time of the last accepted joint state [s, node clock]; None: none yet.
-    now : float
-        Current time [s, node clock].
-    timeout : float
-        Largest age that counts as fresh [s].
-
-    A clock that went back since the arrival (a restarted simulator's ``/clock``) makes
-    the state stale too: its age is unknown.
-    """
-    if received is None:
-        return "no joint state received"
-    age = now - received
-    if age < 0.0:
-        return f"the clock went back {-age:.3f} s since the last joint state"
-    if age > timeout:
-        return f"last joint state received {age:.3f} s ago (> state_timeout_s)"
-    return ""
-
-
-def random_plane_specs(frames: Sequence[str], rng: np.random.Generator) -> list[dict]:
-    """One plane constraint spec per frame, normals uniform on the unit sphere."""
-    specs = []
-    for frame in frames:
-        normal = rng.standard_normal(3)
-        normal /= np.linalg.norm(normal)
-        specs.append({"type": "plane", "frame": frame, "normal": normal.tolist()})
-    return specs
-
-
-#: Outward joint speeds at a limit below this (rad/s) are round-off of a locked joint.
-LIMIT_ROUNDOFF = 1e-9
-
-
-def drop_roundoff_at_limits(q: np.ndarray, qdot: np.ndarray, lower: np.ndarray,
-                            upper: np.ndarray) -> np.ndarray:
-    """``qdot`` (n,) with round-off pushes out of a limit set to zero.
-
-    The hands expert locks joints at their limits as constraint rows, which leaves
-    outward speeds of order 1e-17 rad/s on them; a whole-vector limit scale would read
-    those as pushing out and stop the robot. Larger outward speeds are kept (and stop it).
-    """
-    out = np.array(qdot, dtype=float)
-    outward = ((q <= lower) & (out < 0.0)) | ((q >= upper) & (out > 0.0))
-    out[outward & (np.abs(out) < LIMIT_ROUNDOFF)] = 0.0
-    return out
-
-
-def hand_plane_rows(specs: Sequence[dict], hand_frames: Sequence[str]
-                    ) -> tuple[np.ndarray, list[dict]]:
-    """Hand-space rows ``A_x`` (k, 3F) of the plane specs on frames of ``hand_frames``.
-
-    A plane with unit normal ``n`` on frame ``F_j`` is the row with ``n`` in the columns
-    ``3j:3j+3`` of the stacked hand state; specs on other frames are returned as they are
-    (the caller applies them as joint-space rows).
-    """
-    index = {frame: j for j, frame in enumerate(hand_frames)}
-    rows, other = [], []
-    for spec in specs:
-        j = index.get(spec.get("frame"))
-        if spec.get("type") != "plane" or j is None:
-            other.append(spec)
-            continue
-        row = np.zeros(3 * len(hand_frames))
-        row[3 * j:3 * j + 3] = np.asarray(spec["normal"], dtype=float)
-        rows.append(row)
-    return np.array(rows).reshape(-1, 3 * len(hand_frames)), other
 
 
 class Demonstrator(Node):
@@ -177,6 +88,50 @@ class Demonstrator(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("demonstrator", **kwargs)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._declare_parameters()
+        value = self.get_parameter
+        joints = list(value("joints").value)
+        robot = Robot.load(value("robot").value, joints)
+        self.period = 1.0 / value("rate_hz").value
+        self.script = DemonstrationScript(
+            robot, optional_parameter(self, "attractor"), value("gain").value,
+            str(value("expert").value), value("constraint_frames").value,
+            value("hand_frames").value, optional_parameter(self, "hand_targets"),
+            speed_limits(robot.velocity_limit, value("max_velocity").value), self.period,
+            np.random.default_rng(value("seed").value))
+        self.robot, self.attractor = robot, self.script.attractor
+        self.hand_expert = self.script.hand_expert
+        self.num_demos = int(value("num_demos").value)
+        self.done = Future()
+        self.demos_done = 0
+        self._failures = 0
+        self._selector = JointSelector(joints)
+        self._q: np.ndarray | None = None
+        self._q_received: float | None = None  # arrival of self._q [s, node clock]
+        self._paused_at: float | None = None  # start of a pause for stale joint states
+        self._state = "wait"
+        self._since = self._now()
+        self._last_tick: float | None = None
+        self._ready_since: float | None = None
+        #: Control ticks during demonstrations, and those later than LATE_TICK_PERIODS.
+        self.demo_ticks = 0
+        self.late_ticks = 0
+        self._pending: Future | None = None
+        self._segment = 0
+        self._q0 = self.attractor
+
+        recorder = value("recorder").value.rstrip("/")
+        self._start = self.create_client(Trigger, f"{recorder}/start_demo")
+        self._stop = self.create_client(Trigger, f"{recorder}/stop_demo")
+        self._cmd = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
+        self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
+        self._lockstep = bool(value("step_on_joint_state").value)
+        self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
+        # In lockstep the joint states drive the steps; the timer still catches joint
+        # states that stop coming (no step would then replace the last command).
+        self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
+
+    def _declare_parameters(self) -> None:
         p = self.declare_parameter
         p("robot", "talos", descriptor("example-robot-data name or URDF path", read_only=True))
         p("joints", DEFAULT_JOINTS, descriptor("commanded joints, in order", read_only=True))
@@ -240,74 +195,6 @@ class Demonstrator(Node):
         p("seed", 0, descriptor("random seed", read_only=True, int_range=(0, 2**31 - 1)))
         p("exit_when_done", True, descriptor("exit after the last demonstration",
                                              read_only=True))
-
-        value = self.get_parameter
-        joints = list(value("joints").value)
-        self.robot = Robot.load(value("robot").value, joints)
-        attractor = optional_parameter(self, "attractor")
-        self.attractor = self.robot.neutral() if attractor is None else np.asarray(attractor)
-        if self.attractor.shape != (len(joints),):
-            raise ValueError(f"attractor: need {len(joints)} values, got "
-                             f"{self.attractor.size}")
-        self.expert = QuadraticPotential(self.attractor, weight=value("gain").value / 2.0)
-        self.frames = [f for f in value("constraint_frames").value if f]
-        for frame in self.frames:
-            self.robot.frame_id(frame)  # fail at start on a wrong frame name
-        self.mode = str(value("expert").value)
-        if self.mode not in EXPERTS:
-            raise ValueError(f"expert: must be one of {', '.join(EXPERTS)}, got {self.mode!r}")
-        self.hand_frames = [f for f in value("hand_frames").value if f]
-        self.hand_expert: TaskSpaceExpert | None = None
-        if self.mode == "hands":
-            self.hand_expert = self._make_hand_expert(optional_parameter(self, "hand_targets"),
-                                                      value("gain").value)
-        self.rng = np.random.default_rng(value("seed").value)
-        self.num_demos = int(value("num_demos").value)
-        self.period = 1.0 / value("rate_hz").value
-        self.vmax = speed_limits(self.robot.velocity_limit, value("max_velocity").value)
-        self.done = Future()
-        self.demos_done = 0
-        self._failures = 0
-        self._selector = JointSelector(joints)
-        self._q: np.ndarray | None = None
-        self._q_received: float | None = None  # arrival of self._q [s, node clock]
-        self._paused_at: float | None = None  # start of a pause for stale joint states
-        self._state = "wait"
-        self._since = self._now()
-        self._last_tick: float | None = None
-        self._ready_since: float | None = None
-        #: Control ticks during demonstrations, and those later than LATE_TICK_PERIODS.
-        self.demo_ticks = 0
-        self.late_ticks = 0
-        self._A_x = np.zeros((0, 0))
-        self._pending: Future | None = None
-        self._constraints: list = []
-        self._segment = 0
-        self._q0 = self.attractor
-
-        recorder = value("recorder").value.rstrip("/")
-        self._start = self.create_client(Trigger, f"{recorder}/start_demo")
-        self._stop = self.create_client(Trigger, f"{recorder}/stop_demo")
-        self._cmd = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
-        self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
-        self._lockstep = bool(value("step_on_joint_state").value)
-        self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
-        # In lockstep the joint states drive the steps; the timer still catches joint
-        # states that stop coming (no step would then replace the last command).
-        self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
-
-    def _make_hand_expert(self, targets, gain: float) -> TaskSpaceExpert:
-        if not self.hand_frames:
-            raise ValueError("hand_frames: the hands expert needs at least one frame")
-        state_map = TaskSpaceMap(self.robot, self.hand_frames)
-        if targets is None:
-            targets = state_map.states(self.attractor)
-        targets = np.asarray(targets, dtype=float)
-        if targets.shape != (state_map.dim,) or not np.all(np.isfinite(targets)):
-            raise ValueError(f"hand_targets: need {state_map.dim} finite values (3 per hand "
-                             f"frame), got {targets.size}")
-        # phi_x = gain/2 ||x - x_c||^2, so pi_x = -gain (x - x_c).
-        return TaskSpaceExpert(state_map, targets, gain / 2.0, rest=self.attractor)
 
     def _now(self) -> float:
         """Seconds on the node clock (the simulator's /clock with use_sim_time)."""
@@ -400,35 +287,10 @@ class Demonstrator(Node):
             if now - self._last_tick > LATE_TICK_PERIODS * self.period:
                 self.late_ticks += 1
         self._last_tick = now
-        lower, upper = self.robot.lower, self.robot.upper
-        if self._state == "done":
-            return
         if self._state == "wait":
-            if self._q is not None and self._start.service_is_ready() and \
-                    self._stop.service_is_ready() and self._recorder_listens():
-                # The recorder's subscription shows in the graph before the transport has
-                # matched it with the robot's publisher: give discovery time to finish,
-                # or the first demonstration is recorded from its middle.
-                if self._ready_since is None:
-                    self._ready_since = now
-                if now - self._ready_since >= self.get_parameter("startup_delay_s").value:
-                    self._new_start()
-            elif elapsed > self.get_parameter("service_timeout_s").value:
-                self._finish(1, "no joint states or no recorder services: gave up")
-            return
-        q = self._q
-        if self._state == "reach":
-            error = q - self._q0
-            if np.max(np.abs(error)) < self.get_parameter("reach_tolerance").value or \
-                    elapsed > self.get_parameter("reach_timeout_s").value:
-                self._send(np.zeros_like(q))
-                self._draw_planes()
-                self._segment = 0
-                self._call(self._start, "start_demo")
-                return
-            pi = -self.get_parameter("reach_gain").value * error
-            self._send(constrained_command(q, pi, np.zeros((0, q.size)), lower, upper,
-                                           self.vmax, self.period))
+            self._wait(now, elapsed)
+        elif self._state == "reach":
+            self._reach(self._q, elapsed)
         elif self._state == "start_demo":
             response = self._answer()
             if response is not None and not response.success:
@@ -436,40 +298,74 @@ class Demonstrator(Node):
             elif response is not None:
                 self._enter("demo")
         elif self._state == "demo":
-            if elapsed >= self.get_parameter("demo_duration_s").value:
-                self._send(np.zeros_like(q))
-                self._call(self._stop, "stop_demo")
-                return
-            duration = self.get_parameter("demo_duration_s").value
-            segment = int(elapsed / duration * (self.get_parameter("plane_switches").value + 1))
-            if segment > self._segment:
-                self._segment = segment
-                self._draw_planes()
-            self._send(self._expert_command(q))
+            self._demo(self._q, elapsed)
         elif self._state == "stop_demo":
             response = self._answer()
-            if response is not None and not response.success:
-                # The recorder kept nothing (e.g. its subscription was not matched yet):
-                # redo this demonstration from a new start, a few times at most.
-                self._failures += 1
-                if self._failures > self.get_parameter("max_retries").value:
-                    self._finish(1, f"recorder refused stop_demo: {response.message}")
-                else:
-                    self.get_logger().warning(
-                        f"recorder refused stop_demo ({response.message}); redoing "
-                        f"demonstration {self.demos_done + 1}")
-                    self._new_start()
-            elif response is not None:
-                self.demos_done += 1
-                self._progress.publish(String(
-                    data=f"{self.demos_done}/{self.num_demos} "
-                         f"late_ticks={self.late_ticks}/{self.demo_ticks}"))
-                self.get_logger().info(
-                    f"demonstration {self.demos_done}/{self.num_demos} recorded")
-                if self.demos_done >= self.num_demos:
-                    self._finish(0, f"all {self.num_demos} demonstrations recorded")
-                else:
-                    self._new_start()
+            if response is not None:
+                self._stopped(response)
+
+    def _wait(self, now: float, elapsed: float) -> None:
+        """Start the first demonstration once the robot and the recorder are there."""
+        if self._q is not None and self._start.service_is_ready() and \
+                self._stop.service_is_ready() and self._recorder_listens():
+            # The recorder's subscription shows in the graph before the transport has
+            # matched it with the robot's publisher: give discovery time to finish,
+            # or the first demonstration is recorded from its middle.
+            if self._ready_since is None:
+                self._ready_since = now
+            if now - self._ready_since >= self.get_parameter("startup_delay_s").value:
+                self._new_start()
+        elif elapsed > self.get_parameter("service_timeout_s").value:
+            self._finish(1, "no joint states or no recorder services: gave up")
+
+    def _reach(self, q: np.ndarray, elapsed: float) -> None:
+        """Move to the start; once there (or out of time), draw planes and start_demo."""
+        if np.max(np.abs(q - self._q0)) < self.get_parameter("reach_tolerance").value or \
+                elapsed > self.get_parameter("reach_timeout_s").value:
+            self._send(np.zeros_like(q))
+            self.script.draw_planes()
+            self._segment = 0
+            self._call(self._start, "start_demo")
+            return
+        self._send(self.script.reach_command(q, self._q0,
+                                             self.get_parameter("reach_gain").value))
+
+    def _demo(self, q: np.ndarray, elapsed: float) -> None:
+        """One expert command; new planes at each switch; stop_demo at the end."""
+        duration = self.get_parameter("demo_duration_s").value
+        if elapsed >= duration:
+            self._send(np.zeros_like(q))
+            self._call(self._stop, "stop_demo")
+            return
+        segment = plane_segment(elapsed, duration, self.get_parameter("plane_switches").value)
+        if segment > self._segment:
+            self._segment = segment
+            self.script.draw_planes()
+        self._send(self.script.command(q))
+
+    def _stopped(self, response: Trigger.Response) -> None:
+        """Count a written demonstration, or redo a refused one (``max_retries``)."""
+        if not response.success:
+            # The recorder kept nothing (e.g. its subscription was not matched yet):
+            # redo this demonstration from a new start, a few times at most.
+            self._failures += 1
+            if self._failures > self.get_parameter("max_retries").value:
+                self._finish(1, f"recorder refused stop_demo: {response.message}")
+            else:
+                self.get_logger().warning(
+                    f"recorder refused stop_demo ({response.message}); redoing "
+                    f"demonstration {self.demos_done + 1}")
+                self._new_start()
+            return
+        self.demos_done += 1
+        self._progress.publish(String(
+            data=f"{self.demos_done}/{self.num_demos} "
+                 f"late_ticks={self.late_ticks}/{self.demo_ticks}"))
+        self.get_logger().info(f"demonstration {self.demos_done}/{self.num_demos} recorded")
+        if self.demos_done >= self.num_demos:
+            self._finish(0, f"all {self.num_demos} demonstrations recorded")
+        else:
+            self._new_start()
 
     def _fresh(self, now: float) -> bool:
         """Whether a moving state may command from the last joint state; pauses if not.
@@ -503,35 +399,8 @@ class Demonstrator(Node):
         if now > 0.0:  # use_sim_time and no /clock yet: nothing to measure against
             self._fresh(now)
 
-    def _expert_command(self, q: np.ndarray) -> np.ndarray:
-        """The expert's joint velocity (n,) at ``q`` under the current planes, rad/s."""
-        lower, upper = self.robot.lower, self.robot.upper
-        if self.hand_expert is None:
-            pi = self.expert.policy(q[None, :])[0]
-            A = (np.vstack([c.matrix(q, pi) for c in self._constraints])
-                 if self._constraints else np.zeros((0, q.size)))
-            return constrained_command(q, pi, A, lower, upper, self.vmax, self.period)
-        A_q = (np.vstack([c.matrix(q) for c in self._constraints]) if self._constraints
-               else None)
-        qdot, _ = self.hand_expert.command(q, self._A_x, A_q, max_velocity=self.vmax,
-                                           dt=self.period)
-        qdot = drop_roundoff_at_limits(q, qdot, lower, upper)
-        # Only where no joint can make up for a bound; one scale for the whole vector
-        # keeps the hands on their planes.
-        return velocity_scale(q, qdot, self.period, lower, upper, self.vmax) * qdot
-
-    def _draw_planes(self) -> None:
-        specs = random_plane_specs(self.frames, self.rng)
-        if self.hand_expert is not None:
-            # Planes on hands are rows of the hand-space constraint A_x (so the hands move
-            # with N_x pi_x); planes on other frames stay joint-space rows.
-            self._A_x, specs = hand_plane_rows(specs, self.hand_frames)
-        self._constraints = [constraint_from_spec(s, self.robot) for s in specs]
-
     def _new_start(self) -> None:
-        self._q0 = sample_start_states(
-            self.rng, self.attractor, 1, self.get_parameter("start_variance").value,
-            self.robot.lower, self.robot.upper)[0]
+        self._q0 = self.script.new_start(self.get_parameter("start_variance").value)
         self._enter("reach")
 
 

@@ -4,7 +4,7 @@ Subscribes ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s,
 ``joints``), publishes ``/joint_states`` (sensor_msgs/JointState: rad, rad/s, stamped) at
 ``rate_hz``, and offers ``~/reset`` (std_srvs/Trigger) back to ``initial_positions``.
 Commands older than ``command_timeout_s`` are dropped and the robot holds still. The
-integration itself is :class:`policy_align_ros.kinematics.sim.KinematicSim`.
+integration itself is :class:`policy_align_ros.sim.simulator.KinematicSim`.
 
 Simulated time: with ``publish_clock`` the node owns the graph's time. Every tick advances
 it by exactly one period (``1 / rate_hz``), publishes it on ``/clock``
@@ -32,7 +32,6 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from policy_align_ros.kinematics import Robot
-from policy_align_ros.kinematics.sim import KinematicSim
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     accept,
@@ -41,6 +40,7 @@ from policy_align_ros.nodes._common import (
     reject,
     run_node,
 )
+from policy_align_ros.sim.simulator import KinematicSim
 
 __all__ = ["SIM_CLOCK_START_NS", "SimRobot", "main"]
 

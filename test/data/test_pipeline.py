@@ -255,12 +255,9 @@ def test_bad_arguments_name_the_parameter(dataset, tmp_path):
 
 def test_frames_state_round_trip(tmp_path):
     """Learn from talos joint-state bags in hand positions; the model keeps the state."""
-    from policy_align_ros.experiments.demonstrators import (
-        TaskSpaceExpert,
-        sample_start_states,
-        task_space_rollout,
-    )
     from policy_align_ros.kinematics import Robot, TaskSpaceMap
+    from policy_align_ros.sim.demonstrations import sample_start_states, task_space_rollout
+    from policy_align_ros.sim.experts import TaskSpaceExpert
 
     hand = "gripper_left_base_link"
     joints = [f"arm_left_{i}_joint" for i in range(1, 8)]

@@ -19,13 +19,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from policy_align_ros.kinematics import TaskSpaceMap
-from policy_align_ros.nodes.demonstrator import (
-    Demonstrator,
-    drop_roundoff_at_limits,
-    hand_plane_rows,
-    random_plane_specs,
-    stale_joint_state,
-)
+from policy_align_ros.nodes.demonstrator import Demonstrator
 from policy_align_ros.nodes.sim_robot import SimRobot
 
 JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
@@ -117,15 +111,6 @@ def test_refused_start_ends_with_status_1():
     assert demo.done.result() == 1 and events == ["start"]
 
 
-def test_random_plane_specs_are_unit_normals_per_frame():
-    specs = random_plane_specs(["a", "b"], np.random.default_rng(0))
-    assert [s["frame"] for s in specs] == ["a", "b"]
-    for s in specs:
-        assert s["type"] == "plane"
-        assert np.linalg.norm(s["normal"]) == pytest.approx(1.0)
-    assert specs[0]["normal"] != specs[1]["normal"]
-
-
 def test_hands_expert_in_lockstep_moves_the_hand_to_its_target_within_planes():
     # Hand-space expert, one step per joint state: the hand heads for its target along
     # pi_x = -gain (x - x_c) projected on the current plane, exactly per simulator tick.
@@ -149,15 +134,6 @@ def test_hands_expert_in_lockstep_moves_the_hand_to_its_target_within_planes():
     assert 0 <= demo.late_ticks <= demo.demo_ticks
 
 
-def test_hand_plane_rows_put_each_normal_in_its_hand_block():
-    specs = [{"type": "plane", "frame": "r", "normal": [0.0, 0.0, 1.0]},
-             {"type": "plane", "frame": "other", "normal": [1.0, 0.0, 0.0]}]
-    rows, rest = hand_plane_rows(specs, ["l", "r"])
-    np.testing.assert_array_equal(rows, [[0, 0, 0, 0, 0, 1]])
-    assert rest == [specs[1]]
-    assert hand_plane_rows([], ["l"])[0].shape == (0, 3)
-
-
 def test_bad_expert_is_refused_at_start():
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=184)
@@ -169,23 +145,6 @@ def test_bad_expert_is_refused_at_start():
                 Parameter("expert", value="elbows")])
     finally:
         rclpy.try_shutdown(context=context)
-
-
-def test_roundoff_out_of_a_limit_is_dropped_but_a_real_push_is_kept():
-    lower, upper = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
-    q = np.array([1.0, -1.0, 0.0])
-    qdot = drop_roundoff_at_limits(q, np.array([1e-17, -1e-12, 0.5]), lower, upper)
-    np.testing.assert_array_equal(qdot, [0.0, 0.0, 0.5])
-    kept = drop_roundoff_at_limits(q, np.array([0.2, 0.3, 0.0]), lower, upper)
-    np.testing.assert_array_equal(kept, [0.2, 0.3, 0.0])  # outward 0.2 stays; inward 0.3
-
-
-def test_stale_joint_state_says_why_or_nothing():
-    assert stale_joint_state(None, 5.0, 0.1) == "no joint state received"
-    assert stale_joint_state(4.95, 5.0, 0.1) == ""
-    assert stale_joint_state(5.0, 5.0, 0.1) == ""
-    assert "0.300 s ago" in stale_joint_state(4.7, 5.0, 0.1)
-    assert "clock went back" in stale_joint_state(6.0, 5.0, 0.1)
 
 
 def _spin_until(executor, predicate, timeout: float) -> bool:

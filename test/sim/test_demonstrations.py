@@ -1,11 +1,10 @@
-"""Tests of policy_align_ros.experiments.demonstrators (ROS-free expert rollouts)."""
+"""Tests of policy_align_ros.sim.demonstrations (ROS-free expert rollouts)."""
 
 import numpy as np
 import pytest
 
-from policy_align_ros.experiments.demonstrators import (
-    QuadraticPotential,
-    TaskSpacePotential,
+from policy_align_ros.kinematics import Robot, constraint_from_spec
+from policy_align_ros.sim.demonstrations import (
     demo_step,
     from_constraint,
     generate_demonstrations,
@@ -15,22 +14,7 @@ from policy_align_ros.experiments.demonstrators import (
     sample_start_states,
     stack_ground_truth,
 )
-from policy_align_ros.kinematics import Robot, constraint_from_spec
-
-
-def test_quadratic_potential_gradient_matches_finite_differences() -> None:
-    rng = np.random.default_rng(0)
-    W = np.diag([0.1, 0.2, 0.3])
-    pot = QuadraticPotential([1.0, -1.0, 0.5], W)
-    x = rng.standard_normal(3)
-    eps = 1e-6
-    fd = [(pot.value(x + eps * e) - pot.value(x - eps * e))[0] / (2 * eps) for e in np.eye(3)]
-    np.testing.assert_allclose(pot.gradient(x)[0], fd, atol=1e-8)
-    np.testing.assert_allclose(pot.policy(pot.center[None]), 0.0)
-    with pytest.raises(ValueError, match="weight: must be positive definite"):
-        QuadraticPotential([0.0, 0.0], -1.0)
-    with pytest.raises(ValueError, match=r"X: must have shape \(m, 3\)"):
-        pot.value(np.zeros((2, 2)))
+from policy_align_ros.sim.experts import QuadraticPotential, TaskSpacePotential
 
 
 def test_unconstrained_rollout_is_euler_of_the_policy() -> None:
@@ -103,22 +87,9 @@ def test_start_states_and_masks_are_seeded() -> None:
     np.testing.assert_array_equal(gt["demo"], [0] * 4 + [2] * 4)
 
 
-HANDS = ["gripper_left_base_link", "gripper_right_base_link"]
-ARMS = ([f"arm_left_{i}_joint" for i in range(1, 8)]
-        + [f"arm_right_{i}_joint" for i in range(1, 8)] + ["torso_1_joint", "torso_2_joint"])
-
-
-@pytest.fixture(scope="module")
-def hands():
-    from policy_align_ros.kinematics import TaskSpaceMap
-
-    robot = Robot.load("talos", joints=ARMS)
-    smap = TaskSpaceMap(robot, HANDS)
-    return robot, smap
-
-
 def test_task_space_expert_hand_trajectories_follow_projected_policy(hands) -> None:
-    from policy_align_ros.experiments.demonstrators import TaskSpaceExpert, task_space_rollout
+    from policy_align_ros.sim.demonstrations import task_space_rollout
+    from policy_align_ros.sim.experts import TaskSpaceExpert
 
     robot, smap = hands
     q0 = robot.neutral()
@@ -156,7 +127,8 @@ def test_task_space_expert_hand_trajectories_follow_projected_policy(hands) -> N
 
 
 def test_task_space_expert_reaches_the_targets_and_refuses_bad_shapes(hands) -> None:
-    from policy_align_ros.experiments.demonstrators import TaskSpaceExpert, task_space_rollout
+    from policy_align_ros.sim.demonstrations import task_space_rollout
+    from policy_align_ros.sim.experts import TaskSpaceExpert
 
     robot, smap = hands
     q0 = robot.neutral()
@@ -178,7 +150,7 @@ def test_task_space_expert_keeps_the_hand_motion_at_joint_speed_limits(hands) ->
     Scaling the whole command instead would record ``s N_x pi_x`` with ``s < 1``, which
     is no projection of ``pi_x`` and biases the potential estimated from the recording.
     """
-    from policy_align_ros.experiments.demonstrators import TaskSpaceExpert
+    from policy_align_ros.sim.experts import TaskSpaceExpert
 
     robot, smap = hands
     q0 = robot.neutral()
@@ -194,15 +166,3 @@ def test_task_space_expert_keeps_the_hand_motion_at_joint_speed_limits(hands) ->
     assert np.abs(qdot - free).max() > 0.1  # not the free command: joints were held
 
 
-def test_joint_space_expert_seen_in_hand_space_is_not_the_hand_gradient(hands) -> None:
-    # Why the task-space expert exists: a joint-space expert on the same hand potential
-    # moves the hands with -J J^T grad phi_x, which is not -grad phi_x (nor parallel).
-    robot, smap = hands
-    q = robot.neutral()
-    x, J = smap.kinematics(q)
-    target = x + np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.1])
-    joint_expert = TaskSpacePotential(robot, HANDS, target, weight=0.5)
-    seen = J @ joint_expert.policy(q[None])[0]
-    wanted = -(x - target)
-    cos = seen @ wanted / (np.linalg.norm(seen) * np.linalg.norm(wanted))
-    assert cos < 0.99

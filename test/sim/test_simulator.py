@@ -1,9 +1,9 @@
-"""Tests of policy_align_ros.kinematics.sim (ROS-free kinematic simulation)."""
+"""Tests of policy_align_ros.sim.simulator (ROS-free kinematic simulation)."""
 
 import numpy as np
 import pytest
 
-from policy_align_ros.kinematics.sim import KinematicSim, integrate_clamped
+from policy_align_ros.sim.simulator import KinematicSim, integrate_clamped
 
 LOWER = np.array([-1.0, -0.5, -2.0])
 UPPER = np.array([1.0, 0.5, 2.0])
