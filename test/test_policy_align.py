@@ -8,7 +8,7 @@ from policy_align_ros.experiments.demonstrators import QuadraticPotential, rollo
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory, metrics
-from policy_align_ros.learning.regressors.local_linear import LocalLinearRegression
+from policy_align_ros.learning.regressors import LocalLinearRegression
 
 
 @pytest.fixture(scope="module")
