@@ -11,9 +11,9 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_chained_offsets,
     solve_offsets,
-    thin_along_trajectories,
 )
 from policy_align_ros.learning.potential import euler_potential
+from policy_align_ros.learning.thinning import thin_trajectories
 
 
 def _problem(seed=0, K=12, N=15):
@@ -82,7 +82,7 @@ def test_merging_keeps_counts_and_resting_robot_is_cheap():
     move = np.column_stack([np.linspace(-1, 0, 50), np.zeros(50)])
     X = np.concatenate([np.concatenate([move, rest]), move[::-1] + [0.0, 0.01]])
     labels = np.repeat([0, 1], [5050, 50])
-    keep = thin_along_trajectories(X, labels, 0.01)
+    keep = thin_trajectories(X, labels, spacing=0.01)
     assert len(keep) < 200
     phi = np.concatenate([euler_potential(X[:5050]), euler_potential(X[5050:])])
     table = local_model_table(X, labels, phi, 0.01, merge_tol=0.1)

@@ -7,7 +7,7 @@ import policy_align_ros.learning.policy_align as pa_module
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory, metrics
-from policy_align_ros.learning.regressors.local_linear import LocalLinearRegression
+from policy_align_ros.learning.regressors import LocalLinearRegression
 from policy_align_ros.sim.demonstrations import rollout
 from policy_align_ros.sim.experts import QuadraticPotential
 

@@ -222,7 +222,7 @@ def evaluate_dataset(seed: int, n_traj: int = 100, n_samples: int = 100,
         Metric name -> float, plus ``"rollouts"`` (figure data) when ``figure_starts``.
     """
     from policy_align_ros.learning import PolicyAlign, metrics
-    from policy_align_ros.learning.baseline import NaivePolicy
+    from policy_align_ros.learning.baselines import NaivePolicy
 
     t0 = time.perf_counter()
     scene = make_grasp_dataset(seed, n_traj, n_samples)

@@ -33,6 +33,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
+from policy_align_ros.learning.thinning import thin_each, thin_trajectories
+
 __all__ = [
     "LocalModelTable",
     "local_model_table",
@@ -87,26 +89,6 @@ class LocalModelTable:
         return replace(self, f=np.asarray(phi, dtype=float)[self.source])
 
 
-def thin_along_trajectories(
-    X: np.ndarray, labels: np.ndarray, spacing: float
-) -> np.ndarray:
-    """Indices of the first sample in each ``spacing``-long piece of arc length.
-
-    Every sample lies within ``spacing`` (along its trajectory) of the kept sample before
-    it, so merging changes distances by at most ``spacing``; but a robot resting at its goal
-    produces thousands of such samples, and dense sampling multiplies the work.
-    """
-    if spacing <= 0:
-        return np.arange(len(X))
-    steps = np.linalg.norm(np.diff(X, axis=0), axis=1)
-    steps[labels[1:] != labels[:-1]] = 0.0
-    arc = np.concatenate(([0.0], np.cumsum(steps)))
-    bins = np.floor(arc / spacing).astype(np.int64)
-    first = np.ones(len(X), dtype=bool)
-    first[1:] = (bins[1:] != bins[:-1]) | (labels[1:] != labels[:-1])
-    return np.flatnonzero(first)
-
-
 def local_model_table(
     X: np.ndarray,
     labels: np.ndarray,
@@ -152,7 +134,7 @@ def local_model_table(
     """
     K = int(labels[-1]) + 1
     radius = float(np.sqrt(-2.0 * sigma2 * np.log(weight_tol)))
-    ref = thin_along_trajectories(X, labels, merge_tol * np.sqrt(sigma2))
+    ref = thin_trajectories(X, labels, spacing=merge_tol * np.sqrt(sigma2))
     tree = cKDTree(X[ref])
     # A few hundred probes estimate the neighbour count well enough to choose a search
     # (counting is itself a search: in many dimensions, thousands of probes cost seconds).
@@ -225,22 +207,21 @@ def _blocked_table(X, labels, phi, sigma2, radius, merge_tol, max_neighbours, cl
     from policy_align_ros.learning.bandwidth import (
         HEURISTIC_POINTS,
         closest_approach_matrix,
-        thin_trajectories,
     )
 
     K = int(labels[-1]) + 1
     starts = np.searchsorted(labels, np.arange(K + 1))
     if closest is None:
         trajs = [X[starts[k]:starts[k + 1]] for k in range(K)]
-        closest = closest_approach_matrix(thin_trajectories(trajs, HEURISTIC_POINTS))
+        closest = closest_approach_matrix(thin_each(trajs, HEURISTIC_POINTS))
     steps = np.linalg.norm(np.diff(X, axis=0), axis=1)
     steps[labels[1:] != labels[:-1]] = 0.0
     total_arc = float(steps.sum())
     fine = merge_tol * np.sqrt(sigma2)
     ref_spacing = max(fine, total_arc / _BLOCK_REFERENCES)
     query_spacing = max(ref_spacing, total_arc / _BLOCK_QUERIES)
-    ref = thin_along_trajectories(X, labels, ref_spacing)
-    qry = thin_along_trajectories(X, labels, query_spacing)
+    ref = thin_trajectories(X, labels, spacing=ref_spacing)
+    qry = thin_trajectories(X, labels, spacing=query_spacing)
     weights = np.diff(np.append(qry, len(X))).astype(float)
     ref_starts = np.searchsorted(labels[ref], np.arange(K + 1))
     qry_starts = np.searchsorted(labels[qry], np.arange(K + 1))

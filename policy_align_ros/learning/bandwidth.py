@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from policy_align_ros.learning.thinning import thin_each
+
 __all__ = [
     "RULES",
-    "thin_trajectories",
     "closest_approach_matrix",
     "sampling_resolution",
     "sigma2_from_closest",
@@ -35,19 +36,6 @@ __all__ = [
 RULES = ("narrow", "medium", "wide")
 #: Points the closest-approach matrix is computed on (trajectories thinned beyond).
 HEURISTIC_POINTS = 20_000
-
-
-def thin_trajectories(trajectories: list[np.ndarray], max_points: int) -> list[np.ndarray]:
-    """Keep at most ``max_points`` in total, evenly spaced in arc length per trajectory."""
-    per_traj = max(2, max_points // max(len(trajectories), 1))
-    out = []
-    for x in trajectories:
-        if len(x) > per_traj:
-            arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=1))))
-            idx = np.searchsorted(arc, np.linspace(0.0, arc[-1], per_traj))
-            x = x[np.unique(np.minimum(idx, len(x) - 1))]
-        out.append(x)
-    return out
 
 
 def closest_approach_matrix(trajectories: list[np.ndarray]) -> np.ndarray:
@@ -117,7 +105,7 @@ def sigma2_heuristics(
     """
     if len(trajectories) < 2:
         raise ValueError("the sigma heuristics need at least 2 trajectories")
-    thin = thin_trajectories(trajectories, max_points)
+    thin = thin_each(trajectories, max_points)
     return sigma2_from_closest(closest_approach_matrix(thin), sampling_resolution(thin))
 
 
@@ -160,7 +148,7 @@ def resolve_sigma2(
             raise ValueError(f"sigma must be one of {RULES} or a positive float, got {sigma!r}")
         if closest is None:
             return sigma2_heuristics(trajectories)[sigma]
-        resolution = sampling_resolution(thin_trajectories(trajectories, HEURISTIC_POINTS))
+        resolution = sampling_resolution(thin_each(trajectories, HEURISTIC_POINTS))
         return sigma2_from_closest(closest, resolution)[sigma]
     value = float(sigma)
     if not np.isfinite(value) or value <= 0:

@@ -58,8 +58,8 @@ from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
     closest_approach_matrix,
     resolve_sigma2,
-    thin_trajectories,
 )
+from policy_align_ros.learning.fitting import check_query
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.potential import (
     METHODS,
@@ -78,12 +78,12 @@ from policy_align_ros.learning.regressors import (
     regressor_class,
     takes_free_groups,
 )
-from policy_align_ros.learning.regressors._common import check_query
 from policy_align_ros.learning.support import (
     query_support,
     support_spacing,
     support_states,
 )
+from policy_align_ros.learning.thinning import thin_each
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["PolicyAlign", "MIN_PIECE_SAMPLES"]
@@ -270,7 +270,7 @@ class PolicyAlign:
         X = np.concatenate([t.positions for t in trajs])
         labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
         positions = [t.positions for t in trajs]
-        closest = closest_approach_matrix(thin_trajectories(positions, HEURISTIC_POINTS))
+        closest = closest_approach_matrix(thin_each(positions, HEURISTIC_POINTS))
         self.sigma2_ = resolve_sigma2(self.sigma, positions, closest)
         timings["sigma"] = time.perf_counter() - t0
         self._log(f"{len(trajs)} trajectories, {len(X)} samples, sigma^2 = {self.sigma2_:.4g}")
@@ -284,7 +284,7 @@ class PolicyAlign:
             X = np.concatenate([t.positions for t in trajs])
             labels = np.repeat(np.arange(len(trajs)), [t.n_samples for t in trajs])
             closest = closest_approach_matrix(
-                thin_trajectories([t.positions for t in trajs], HEURISTIC_POINTS))
+                thin_each([t.positions for t in trajs], HEURISTIC_POINTS))
         rules = [self.integration]
         if self.integration == "auto":
             rules = list(dict.fromkeys(["euler", choose_method(trajs, self.position_noise_)]))

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from policy_align_ros.learning.bandwidth import thin_trajectories
+from policy_align_ros.learning.thinning import thin_each
 
 __all__ = ["SUPPORT_POINTS", "SPACING_QUANTILE", "support_states", "support_spacing",
            "query_support"]
@@ -44,8 +44,7 @@ def support_states(trajectories: Sequence[np.ndarray], max_points: int = SUPPORT
     groups : ndarray of int (m,)
         Index (into ``trajectories``) of the demonstration of each support state.
     """
-    thinned = thin_trajectories([np.asarray(t, dtype=float) for t in trajectories],
-                                max_points)
+    thinned = thin_each([np.asarray(t, dtype=float) for t in trajectories], max_points)
     groups = np.repeat(np.arange(len(thinned)), [len(t) for t in thinned])
     return np.concatenate(thinned), groups
 

@@ -53,7 +53,7 @@ def test_start_states_are_reachable_hand_positions() -> None:
 
 
 def test_main_writes_table_and_figure(tmp_path) -> None:
-    pytest.importorskip("policy_align_ros.learning.baseline")
+    pytest.importorskip("policy_align_ros.learning.baselines")
     args = argparse.Namespace(datasets=1, jobs=1, out=str(tmp_path), seed=0,
                               n_traj=12, n_samples=30)
     assert grasp.main(args) == 0

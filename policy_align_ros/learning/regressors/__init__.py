@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import inspect
 
-from policy_align_ros.learning.regressors._common import NotFittedError
-from policy_align_ros.learning.regressors.local_linear import LocalLinearRegression
+from policy_align_ros.learning.baselines.local_linear import LocalLinearRegression
+from policy_align_ros.learning.fitting import NotFittedError
 from policy_align_ros.learning.regressors.trend_kernel import TrendKernelRegression
 
 __all__ = [

@@ -82,16 +82,16 @@ import scipy.linalg.blas
 import scipy.optimize
 import scipy.sparse
 
-from policy_align_ros.learning.model_io import to_json
-from policy_align_ros.learning.regressors import single_index
-from policy_align_ros.learning.regressors._common import (
+from policy_align_ros.learning.fitting import (
     NotFittedError,
     assign_folds,
     check_query,
     check_Xy,
     single_blas_thread,
-    thin_by_arc_length,
 )
+from policy_align_ros.learning.model_io import to_json
+from policy_align_ros.learning.regressors import single_index
+from policy_align_ros.learning.thinning import thin_trajectories
 
 __all__ = ["TrendKernelRegression", "effective_dof", "quadratic_features"]
 
@@ -680,7 +680,7 @@ class TrendKernelRegression:
     def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray
              ) -> TrendKernelRegression:
         rng = np.random.default_rng(self.random_state)
-        idx = thin_by_arc_length(X, groups, self.max_fit_points)
+        idx = thin_trajectories(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
         m, n = X.shape
         self.n_features_in_ = n

@@ -2,8 +2,8 @@
 
 Notation and units: a state ``x`` in ``R^n`` (state units); its velocity ``xdot`` in state
 units per second, or per step when trajectories have no times (the paper's ``dt = 1``).
-The naive policy ``pi_hat(x)`` is a multi-output regression of ``xdot`` on ``x`` with the
-same regressor family as PolicyAlign (:class:`LocalLinearRegression`), trained on the
+The naive policy ``pi_hat(x)`` is a multi-output regression of ``xdot`` on ``x`` (by
+default :class:`LocalLinearRegression`, the LWPR family the paper uses), trained on the
 tuples ``(x_i, xdot_i)``. It therefore learns the *constrained* motion ``N pi`` averaged
 over the constraints seen, not the unconstrained policy ``pi``; the comparison in the
 paper's Table II shows the difference.
@@ -19,12 +19,15 @@ from typing import Any
 
 import numpy as np
 
-from policy_align_ros.learning.regressors import LocalLinearRegression, NotFittedError
+from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
+from policy_align_ros.learning.baselines.local_linear import LocalLinearRegression
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["NaivePolicy", "velocity_samples"]
 
-_STATE_VERSION = 1
+#: 2: the parameters are the regressor and ``random_state`` (1: the regressor's own seven),
+#: and the header names the regressor's class.
+_STATE_VERSION = 2
 
 
 def velocity_samples(
@@ -59,63 +62,38 @@ def velocity_samples(
     return np.vstack(xs), np.vstack(vs), np.concatenate(gs)
 
 
-class NaivePolicy:
+class NaivePolicy(BaseEstimator):
     """Naive policy: ``xdot`` regressed directly on ``x`` (paper section IV-C).
 
     Parameters
     ----------
-    bandwidth, bandwidth_grid, n_folds, ridge, max_centers, smoothing, random_state
-        Passed to :class:`LocalLinearRegression` (multi-output); the width is chosen by
-        cross-validation over whole held-out trajectories by default.
+    regressor : estimator or None
+        Multi-output regressor of the velocities on the states (``fit(X, V, groups=...)``,
+        ``predict``, ``get_state``/``from_state``, registered under its class name); it
+        is fitted on a copy. None: ``LocalLinearRegression(cv_criterion="mse",
+        random_state=random_state)``, its width chosen by cross-validation over whole
+        held-out trajectories; velocities are values, not a potential known up to an
+        offset, so CV scores plain squared errors.
+    random_state : int, numpy.random.Generator or None
+        Seed of the default regressor.
 
     Attributes
     ----------
-    regressor_ : LocalLinearRegression
+    regressor_ : estimator
         The fitted multi-output regressor.
     n_features_in_ : int
         State dimension ``n``.
     """
 
-    def __init__(
-        self,
-        *,
-        bandwidth: str | float = "cv",
-        bandwidth_grid: Sequence[float] | None = None,
-        n_folds: int = 5,
-        ridge: float | None = None,
-        max_centers: int | None = None,
-        smoothing: float | None = None,
-        random_state: int | np.random.Generator | None = None,
-    ) -> None:
-        self.bandwidth = bandwidth
-        self.bandwidth_grid = bandwidth_grid
-        self.n_folds = n_folds
-        self.ridge = ridge
-        self.max_centers = max_centers
-        self.smoothing = smoothing
+    def __init__(self, *, regressor: Any = None,
+                 random_state: int | np.random.Generator | None = 0) -> None:
+        self.regressor = regressor
         self.random_state = random_state
 
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """Constructor parameters, as given."""
-        return {
-            "bandwidth": self.bandwidth,
-            "bandwidth_grid": self.bandwidth_grid,
-            "n_folds": self.n_folds,
-            "ridge": self.ridge,
-            "max_centers": self.max_centers,
-            "smoothing": self.smoothing,
-            "random_state": self.random_state,
-        }
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
-        return f"NaivePolicy({args})"
-
-    def _regressor(self) -> LocalLinearRegression:
-        # None keeps the regressor's own default, so the two stay in step. Velocities are
-        # values, not a potential up to an offset: CV scores plain squared errors.
-        params = {k: v for k, v in self.get_params().items() if v is not None}
-        return LocalLinearRegression(cv_criterion="mse", **params)
+    def _regressor(self) -> Any:
+        if self.regressor is None:
+            return LocalLinearRegression(cv_criterion="mse", random_state=self.random_state)
+        return type(self.regressor)(**self.regressor.get_params(deep=False))
 
     def fit(self, trajectories: Sequence[Trajectory | np.ndarray]) -> NaivePolicy:
         """Fit on demonstrations.
@@ -142,10 +120,6 @@ class NaivePolicy:
         self.n_features_in_ = X.shape[1]
         return self
 
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "regressor_"):
-            raise NotFittedError("this NaivePolicy is not fitted yet: call fit() or from_state()")
-
     def policy(self, X: np.ndarray) -> np.ndarray:
         """Predicted velocity ``pi_hat(x)``.
 
@@ -159,7 +133,7 @@ class NaivePolicy:
         ndarray, shape (m, n)
             State units per second (per step without times).
         """
-        self._check_fitted()
+        check_is_fitted(self, "regressor_")
         return self.regressor_.predict(X)
 
     def get_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -170,21 +144,23 @@ class NaivePolicy:
         arrays : dict of str to ndarray
             The regressor's arrays.
         meta : dict
-            Format version, kind and the regressor's header.
+            Format version, kind, parameters, the regressor's class and header. A given
+            regressor's parameters are those in its header.
         """
-        self._check_fitted()
+        check_is_fitted(self, "regressor_")
         arrays, reg_meta = self.regressor_.get_state()
-        params = self.get_params()
-        if isinstance(params["random_state"], np.random.Generator):
-            params["random_state"] = None
-        if params["bandwidth_grid"] is not None:
-            params["bandwidth_grid"] = [float(v) for v in params["bandwidth_grid"]]
-        meta = {"version": _STATE_VERSION, "kind": "naive", "params": params}
+        random_state = self.random_state
+        if isinstance(random_state, np.random.Generator):
+            random_state = None  # a file cannot hold its state
+        params = {"regressor": None if self.regressor is None else "given",
+                  "random_state": random_state}
+        meta = {"version": _STATE_VERSION, "kind": "naive", "params": params,
+                "regressor_class": type(self.regressor_).__name__}
         return arrays, {**meta, "regressor": reg_meta}
 
     @classmethod
     def from_state(cls, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> NaivePolicy:
-        """Rebuild a fitted model from :meth:`get_state` output.
+        """Rebuild a fitted model from :meth:`get_state` output (also of format version 1).
 
         Raises
         ------
@@ -201,13 +177,33 @@ class NaivePolicy:
             )
         if not isinstance(meta.get("regressor"), dict):
             raise ValueError("naive policy state: missing regressor header")
-        reg = LocalLinearRegression.from_state(arrays, meta["regressor"])
-        if reg.y_ndim_ != 2 or reg.n_outputs_ != reg.n_features_in_:
+        # Imported here: the registry imports this package to register its regressor.
+        from policy_align_ros.learning.regressors import regressor_class
+
+        reg_cls = regressor_class(meta.get("regressor_class", "LocalLinearRegression"))
+        reg = reg_cls.from_state(arrays, meta["regressor"])
+        if getattr(reg, "y_ndim_", 2) != 2 or reg.n_outputs_ != reg.n_features_in_:
             raise ValueError("naive policy state: regressor does not map R^n to R^n")
         try:
-            model = cls(**meta["params"])
-        except (KeyError, TypeError) as err:
+            params = dict(meta["params"])
+            random_state = params.get("random_state")
+            model = cls(random_state=random_state)
+        except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"naive policy state: bad parameters ({err})") from None
+        if not _is_default(reg, params, version, random_state):
+            model.regressor = type(reg)(**reg.get_params(deep=False))
         model.regressor_ = reg
         model.n_features_in_ = reg.n_features_in_
         return model
+
+
+def _is_default(reg: Any, params: dict[str, Any], version: int, random_state: Any) -> bool:
+    """Whether a loaded model's regressor is the default one (``regressor=None``).
+
+    Version 1 headers hold the regressor's parameters instead: the regressor is the
+    default when they match the default's.
+    """
+    if version >= 2:
+        return params.get("regressor") is None
+    default = LocalLinearRegression(cv_criterion="mse", random_state=random_state)
+    return type(reg) is LocalLinearRegression and reg.get_params() == default.get_params()

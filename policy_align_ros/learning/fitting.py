@@ -1,4 +1,4 @@
-"""Validation, thinning and cross-validation folds shared by the regressors.
+"""Validation, BLAS threads and cross-validation folds shared by the estimators.
 
 Notation: ``X`` (m, n) states in state units, ``y`` (m,) outputs, ``groups`` (m,) the
 demonstration of every sample; samples of one demonstration are consecutive and in time
@@ -11,14 +11,15 @@ import contextlib
 
 import numpy as np
 
+from policy_align_ros.learning.base import NotFittedError
+
 try:  # Optional: OpenBLAS threads slow the many small products of the fits down a lot.
     from threadpoolctl import ThreadpoolController
 except ImportError:  # pragma: no cover - depends on the environment
     ThreadpoolController = None
 _CONTROLLER = None  # built once: inspecting the loaded BLAS libraries takes ~10 ms
 
-__all__ = ["NotFittedError", "assign_folds", "check_Xy", "check_query", "single_blas_thread",
-           "thin_by_arc_length"]
+__all__ = ["NotFittedError", "assign_folds", "check_Xy", "check_query", "single_blas_thread"]
 
 
 def single_blas_thread() -> contextlib.AbstractContextManager:
@@ -33,10 +34,6 @@ def single_blas_thread() -> contextlib.AbstractContextManager:
     if _CONTROLLER is None:
         _CONTROLLER = ThreadpoolController()
     return _CONTROLLER.limit(limits=1, user_api="blas")
-
-
-class NotFittedError(ValueError):
-    """A model was used before ``fit`` (or ``load``)."""
 
 
 def check_Xy(X: np.ndarray, y: np.ndarray, groups: np.ndarray | None
@@ -80,44 +77,6 @@ def check_query(X: np.ndarray, n: int) -> np.ndarray:
         bad = int(np.argwhere(~np.isfinite(X))[0, 0])
         raise ValueError(f"X contains NaN or inf (first at row {bad})")
     return X
-
-
-def thin_by_arc_length(X: np.ndarray, groups: np.ndarray, max_points: int) -> np.ndarray:
-    """Indices of at most about ``max_points`` samples, evenly spaced in arc length.
-
-    Every demonstration keeps the same share of the budget (at least 2 samples), placed
-    evenly along its path, so a robot at rest or a high sampling rate adds no weight.
-
-    Parameters
-    ----------
-    X : ndarray (m, n)
-    groups : ndarray of int (m,)
-    max_points : int
-
-    Returns
-    -------
-    ndarray of intp
-        Sorted indices (all of them when ``m <= max_points``).
-    """
-    m = len(X)
-    if m <= max_points:
-        return np.arange(m)
-    change = np.flatnonzero(np.diff(groups) != 0) + 1
-    starts = np.concatenate(([0], change))
-    stops = np.concatenate((change, [m]))
-    per = max(2, max_points // len(starts))
-    out = []
-    for a, b in zip(starts, stops, strict=True):
-        if b - a <= per:
-            out.append(np.arange(a, b))
-            continue
-        arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(X[a:b], axis=0), axis=1))))
-        if arc[-1] <= 0:
-            out.append(np.array([a, b - 1]))
-            continue
-        pick = np.searchsorted(arc, np.linspace(0.0, arc[-1], per))
-        out.append(a + np.unique(np.minimum(pick, b - a - 1)))
-    return np.concatenate(out)
 
 
 def assign_folds(groups: np.ndarray, n_folds: int, rng: np.random.Generator) -> np.ndarray:
