@@ -63,6 +63,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from policy_align_ros.control import (
+    constrained_command,
+    speed_limits,
+    velocity_scale,
+)
 from policy_align_ros.data.messages import JointSelector
 from policy_align_ros.experiments.demonstrators import (
     QuadraticPotential,
@@ -70,11 +75,6 @@ from policy_align_ros.experiments.demonstrators import (
     sample_start_states,
 )
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
-from policy_align_ros.kinematics.control import (
-    constrained_command,
-    speed_limits,
-    velocity_scale,
-)
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     LATCHED_QOS,

@@ -3,7 +3,7 @@
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
-itself is tested without a graph in test_control.py.
+itself is tested without a graph in test/control/.
 """
 
 import os
@@ -669,8 +669,7 @@ def _frames_model():
         sample_start_states,
         task_space_rollout,
     )
-    from policy_align_ros.kinematics import Robot, TaskSpaceMap
-    from policy_align_ros.kinematics.task_space import LearningStateMap
+    from policy_align_ros.kinematics import LearningStateMap, Robot, TaskSpaceMap
 
     if not _FRAMES:
         robot = Robot.load("talos", joints=JOINTS)
@@ -702,8 +701,8 @@ def _save_frames_model(path: Path, state: dict) -> Path:
 
 def test_frames_model_moves_the_hand_along_the_projected_policy(rig, tmp_path):
     """Issue 9: a model learnt on hand positions drives the arm through J under A(q)."""
+    from policy_align_ros.control import policy_for_state
     from policy_align_ros.kinematics import constraint_from_spec
-    from policy_align_ros.kinematics.task_space import policy_for_state
 
     model, state, target, robot, smap = _frames_model()
     path = _save_frames_model(tmp_path / "hand.npz", state)
@@ -801,7 +800,7 @@ def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
 
 def test_frame_support_distance_measures_the_hand_state_and_its_gradient():
     """The guard's distance for a frames model: in hand space, gradient through J."""
-    from policy_align_ros.nodes.executor import FrameSupportDistance
+    from policy_align_ros.control import FrameSupportDistance
 
     model, _, _, robot, smap = _frames_model()
     distance = FrameSupportDistance(model, smap)
@@ -818,7 +817,7 @@ def test_frame_support_distance_measures_the_hand_state_and_its_gradient():
 
 def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_path):
     """The guard scales hand motion leading away from the demonstrated hand states."""
-    from policy_align_ros.nodes.executor import FrameSupportDistance
+    from policy_align_ros.control import FrameSupportDistance
 
     model, state, _, robot, smap = _frames_model()
     path = _save_frames_model(tmp_path / "hand.npz", state)
