@@ -13,7 +13,8 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.joint_order`: model and controller joint orders;
 - :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
   velocities;
-- :mod:`.loading`: a model file as the executor's joint-space policy.
+- :mod:`.loading`: a model file as the executor's joint-space policy;
+- :mod:`.status`: the executor's status in words (its ``/diagnostics``).
 """
 
 from policy_align_ros.control.armed import STAMP_REJECTIONS, ArmedController, Output
@@ -39,6 +40,7 @@ from policy_align_ros.control.resolved_rate import (
     secondary_velocity,
     task_to_joint_velocity,
 )
+from policy_align_ros.control.status import arming_status
 from policy_align_ros.control.step import (
     DEFAULT_DRIFT_CLAMP_M,
     DEFAULT_DRIFT_GAIN,
@@ -63,6 +65,7 @@ __all__ = [
     "Output",
     "SupportDistance",
     "TaskSpacePolicy",
+    "arming_status",
     "constrained_command",
     "damped_pinv",
     "joint_order_problem",

@@ -169,13 +169,14 @@ class ControlStep:
         ``policy(X)`` with X of shape (1, n) in model joint order, returning (1, n) in rad/s
         (for example ``PolicyAlign.policy``). None means no model: commands are zeros.
     permutation : array_like of int, shape (n,), optional
-        From :func:`model_permutation`; identity when omitted.
+        From :func:`~policy_align_ros.control.joint_order.model_permutation`; identity
+        when omitted.
     max_acceleration : float, optional
         rad/s^2; when given, joints heading for a position limit are slowed in time to
         brake at that rate (see :func:`velocity_scale`), and the extrapolation guard's band
         covers the stopping distance at that rate. The step itself has no memory beyond
         the held references: limiting the change between steps is
-        :class:`ArmedController`'s job.
+        :class:`~policy_align_ros.control.armed.ArmedController`'s job.
     guard : ExtrapolationGuard, optional
         Scales down commands leading away from the demonstrated data; None: off.
     drift_gain : float
@@ -407,7 +408,8 @@ class ControlStep:
 
         ``N'`` projects onto the null space of the constraints and the locked joints at
         ``q`` (the identity when the command is zero for a reason), so a ramp can project
-        the previous command onto the same space (:func:`ramp_toward`). The command is
+        the previous command onto the same space
+        (:func:`~policy_align_ros.control.limits.ramp_toward`). The command is
         ``g s (N' pi + qdot_c)``: the projected policy plus the drift correction, scaled
         by ``s`` for speed and position limits and by the guard's ``g``; only
         ``qdot_c`` leaves ``N'``.

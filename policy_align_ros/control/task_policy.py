@@ -50,10 +50,12 @@ class TaskSpacePolicy:
         Secondary term, see :func:`secondary_velocity` (``max_secondary`` is its
         ``max_speed``).
     threshold, damping : float
-        Damping of ``(J N_A)^+``, m/rad, see :func:`damped_pinv`.
+        Damping of ``(J N_A)^+``, m/rad, see
+        :func:`~policy_align_ros.control.resolved_rate.damped_pinv`.
     bounds : callable ``q (n,) -> (lo, hi)``, optional
         Per-joint velocity bounds (rad/s) the command must respect, for example the
-        executor's speed, position and braking limits (:func:`joint_velocity_bounds`).
+        executor's speed, position and braking limits
+        (:func:`~policy_align_ros.control.limits.joint_velocity_bounds`).
         A joint reaching one is held there and the task redistributed over the others
         (:func:`joint_velocity_within_limits`), so the executor does not have to slow the
         whole command down for one joint. Default: only joints at a limit are held.
@@ -109,7 +111,7 @@ class TaskSpacePolicy:
     def command(self, q: np.ndarray) -> np.ndarray:
         """Joint velocity (n,) in rad/s at ``q`` (n,); NaN if the task-space policy or the
         constraint matrix is not finite, so that a controller stops and reports a fault
-        (:class:`~policy_align_ros.kinematics.control.ControlStep` does) rather than take
+        (:class:`~policy_align_ros.control.step.ControlStep` does) rather than take
         a silent zero for a valid command and carry on once the output is finite again.
 
         Joints at a limit that the command would push further out (or beyond

@@ -94,6 +94,7 @@ from policy_align_ros.control import (
     FrameSupportDistance,
     Output,
     SupportDistance,
+    arming_status,
     joint_order_problem,
     joint_velocity_bounds,
     load_policy,
@@ -145,14 +146,31 @@ class Executor(Node):
         self.model_state = ""
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
         self.add_post_set_parameters_callback(self._locked(self._after_set_parameters))
+        self._declare_robot_parameters()
+        joints = list(self.get_parameter("joints").value)
+        self.robot = Robot.load(self.get_parameter("robot").value, joints)
+        self._declare_control_parameters()
+        self.controller = self._make_controller(joints)
+        self._selector = JointSelector(joints)
+        #: Rejected joint-state messages by reason, over the node's lifetime.
+        self.rejected_states: Counter[str] = Counter()
+        self._last = Output(None, self.controller.zero_reason, 1.0)
+        #: The arming state the last /diagnostics status reported.
+        self._diag_armed = False
+        self._create_interfaces()
+
+    def _declare_robot_parameters(self) -> None:
+        """The read-only parameters the robot and the control period are built from."""
         self.declare_parameter("robot", "talos", descriptor(
             "example-robot-data name or URDF path of the controlled robot", read_only=True))
         self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
             "controlled joints, in command order", read_only=True))
         self.declare_parameter("rate_hz", 100.0, descriptor(
             "control rate [Hz]", read_only=True, float_range=(1.0, 1000.0)))
-        joints = list(self.get_parameter("joints").value)
-        self.robot = Robot.load(self.get_parameter("robot").value, joints)
+
+    def _declare_control_parameters(self) -> None:
+        """The run-time parameters (declared once the robot is loaded: their set callback
+        loads models and checks constraint specs on it)."""
         self.declare_parameter("model_path", "", descriptor(
             "model file (.npz); setting it loads the model or is refused with the reason; "
             "empty at start = wait for /learner/model"))
@@ -198,6 +216,8 @@ class Executor(Node):
             "with a simulator publishing at rate_hz); the timer then only stops the robot "
             "when joint states go stale", read_only=True))
 
+    def _make_controller(self, joints: list[str]) -> ArmedController:
+        """The armed controller from the declared parameters."""
         self._period = 1.0 / self.get_parameter("rate_hz").value
         step = ControlStep(
             self.robot.lower, self.robot.upper, self._speed_limits(), self._period,
@@ -205,17 +225,13 @@ class Executor(Node):
             drift_gain=self.get_parameter("drift_gain").value,
             drift_clamp_m=self.get_parameter("drift_clamp_m").value,
             min_singular_value=self.get_parameter("min_singular_value").value)
-        self.controller = ArmedController(
+        return ArmedController(
             step, self.get_parameter("max_acceleration").value,
             self.get_parameter("state_timeout_s").value,
             self.get_parameter("max_clock_skew_s").value, joint_names=joints)
-        self._selector = JointSelector(joints)
-        #: Rejected joint-state messages by reason, over the node's lifetime.
-        self.rejected_states: Counter[str] = Counter()
-        self._last = Output(None, self.controller.zero_reason, 1.0)
-        #: The arming state the last /diagnostics status reported.
-        self._diag_armed = False
 
+    def _create_interfaces(self) -> None:
+        """Publishers, subscriptions, the ~/enable service and the timers."""
         self._pub = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if self._staged is not None:
@@ -558,48 +574,19 @@ class Executor(Node):
     def publish_diagnostics(self) -> None:
         """Publish the executor's status on ``/diagnostics``."""
         control = self.controller
-        problem = control.state_problem(self._now_ns())
-        if control.armed:
-            level, message = DiagnosticStatus.OK, "armed: following the policy"
-        elif control.publishing:
-            level = DiagnosticStatus.WARN if control.faulted else DiagnosticStatus.OK
-            message = f"disarmed, ramping down: {control.zero_reason}"
-        else:
-            level = DiagnosticStatus.WARN if control.faulted else DiagnosticStatus.OK
-            message = f"disarmed, command zero: {control.zero_reason}"
-        values = {
-            "armed": str(control.armed).lower(),
-            "model": self.model_path or "(none)",
-            "model_state": self.model_state or "(none)",
-            "zero_reason": control.zero_reason,
-            "ramp_scale": f"{control.ramp_scale:.3f}",
-            "extrapolation_scale": (f"{control.extrapolation_scale:.3f}"
-                                    if control.step.guard is not None else "off"),
-            "extrapolation_distance": f"{control.step.extrapolation_distance:.2f}",
-            "held_frame_error_mm": self._held_error_text(),
-            "max_abs_command_rad_s": f"{float(np.max(np.abs(control.command))):.4f}",
-            "max_acceleration_rad_s2": f"{control.max_acceleration:g}",
-            "constraints": self.get_parameter("constraints").value,
-            "joint_states": problem or "fresh",
-            "rejected_joint_states": ", ".join(
-                f"{k}={v}" for k, v in sorted(self.rejected_states.items())) or "0",
-        }
+        warn, message, values = arming_status(
+            control, self._now_ns(), model=self.model_path, model_state=self.model_state,
+            constraints=self.get_parameter("constraints").value,
+            rejected=self.rejected_states)
         status = DiagnosticStatus(
-            level=level, name=f"{self.get_name()}: arming", message=message,
+            level=DiagnosticStatus.WARN if warn else DiagnosticStatus.OK,
+            name=f"{self.get_name()}: arming", message=message,
             hardware_id=str(self.get_parameter("robot").value),
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(array)
         self._diag_armed = control.armed
-
-    def _held_error_text(self) -> str:
-        """Largest error of the held frames from their references (mm), or "none"."""
-        step = self.controller.step
-        q = self.controller.last_q
-        if not step.holding or q is None:
-            return "none"
-        return f"{1e3 * float(np.max(np.abs(step.hold_errors(q)), initial=0.0)):.3f}"
 
     def publish_zeros(self, why: str) -> None:
         """Publish one zero command and wait briefly for subscribers to acknowledge it."""

@@ -267,9 +267,8 @@ def test_model_swap_ramps_down_and_stays_disarmed():
 
 @pytest.mark.parametrize(("bad_policy", "reason"), [
     (lambda X: np.full_like(X, np.nan), "policy output not finite"),
-    # Any exception of the policy is "no safe command" too: before, it left the control
-    # step, and the node's timer callback with it, with the controller armed and holding
-    # its last command.
+    # Any exception of the policy is "no safe command" too: it must not leave the control
+    # step with the controller armed and holding its last command.
     (_raises, "policy failed: LinAlgError: SVD did not converge"),
 ])
 def test_a_policy_fault_ramps_down(bad_policy, reason):
@@ -311,8 +310,8 @@ def test_a_speed_limit_lowered_while_armed_is_reached_by_the_ramp():
 
 
 def test_constraints_that_cannot_be_enforced_refuse_the_enable():
-    # A plane on a frame that none of the controlled joints moves has a zero row: before,
-    # ~/enable answered "enabled" and the first step disarmed.
+    # A plane on a frame that none of the controlled joints moves has a zero row: refused
+    # at enable rather than disarmed by the first step.
     robot = Robot.load("talos", [f"arm_left_{i}_joint" for i in range(1, 8)])
     plane = constraint_from_spec({"type": "plane", "frame": "arm_right_7_link",
                                   "normal": [0.0, 0.0, 1.0]}, robot)

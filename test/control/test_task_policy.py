@@ -346,7 +346,7 @@ def test_policy_learnt_in_hand_space_reaches_targets_from_new_starts() -> None:
             q = robot.clip(q + 0.02 * policy.command(q))
         final = np.linalg.norm((smap.states(q) - target).reshape(2, 3), axis=1)
         assert np.all(start > 0.1)
-        assert np.all(final < 0.03), final  # measured 1.9 and 4.1 mm
+        assert np.all(final < 0.03), final
 
 
 def test_policy_for_state_accepts_reordered_joints_and_refuses_other_robots(
