@@ -268,8 +268,14 @@ class Robot:
         return self.frame_positions(q, [frame])[0]
 
     def frame_jacobian(self, q: np.ndarray, frame: str) -> np.ndarray:
-        """Translational Jacobian of ``frame`` (3, n), LOCAL_WORLD_ALIGNED, in m/rad."""
-        return self.frames_kinematics(q, [frame])[1][0]
+        """Translational Jacobian of ``frame`` (3, n), LOCAL_WORLD_ALIGNED, in m/rad.
+
+        One frame's Jacobian through the joints supporting it only (the constraints' hot
+        path); :meth:`frames_kinematics` gives several frames in one pass.
+        """
+        jac = pin.computeFrameJacobian(self.model, self.data, self._pin_q(q),
+                                       self.frame_id(frame), pin.LOCAL_WORLD_ALIGNED)
+        return self._user_cols(jac[:3])
 
     def frame_positions(self, q: np.ndarray, frames: Sequence[str]) -> np.ndarray:
         """World positions (f, 3) in m of ``frames`` at ``q`` (n,), without Jacobians."""
