@@ -99,3 +99,24 @@ def node_process():
 def wait():
     """The ``wait_for`` poller, as a fixture."""
     return wait_for
+
+
+# -- Talos left arm and torso, for the task-space tests (kinematics/ and control/) --------
+@pytest.fixture(scope="module")
+def robot():
+    """``Robot`` of Talos's left arm and torso (``task_space_rigs.ARM``)."""
+    from task_space_rigs import ARM
+
+    from policy_align_ros.kinematics import Robot
+
+    return Robot.load("talos", joints=ARM)
+
+
+@pytest.fixture(scope="module")
+def hand_map(robot):
+    """``TaskSpaceMap`` of ``robot``'s left gripper (``task_space_rigs.HAND``)."""
+    from task_space_rigs import HAND
+
+    from policy_align_ros.kinematics import TaskSpaceMap
+
+    return TaskSpaceMap(robot, [HAND])

@@ -73,10 +73,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
+from policy_align_ros.control import ControlStep, speed_limits, velocity_scale
 from policy_align_ros.data import load_dataset
 from policy_align_ros.data.messages import JointSelector
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
-from policy_align_ros.kinematics.control import ControlStep, speed_limits, velocity_scale
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
 from policy_align_ros.learning.model_io import atomic_write_bytes, atomic_write_text

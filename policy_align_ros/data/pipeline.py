@@ -197,8 +197,7 @@ def _load_frames_map(robot: str | None, frames: list[str], joints: list[str]):
     if not robot:
         raise ValueError("robot: a frames: state needs the robot (example-robot-data name "
                          "or URDF path) whose kinematics give the frame positions")
-    from policy_align_ros.kinematics import Robot
-    from policy_align_ros.kinematics.task_space import LearningStateMap
+    from policy_align_ros.kinematics import LearningStateMap, Robot
 
     return LearningStateMap(Robot.load(robot, joints), frames)
 

@@ -38,15 +38,15 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.experiments.humanoid import HANDS, JOINTS, make_humanoid_dataset
-from policy_align_ros.kinematics import Robot, constraint_from_spec
-from policy_align_ros.kinematics.control import (
+from policy_align_ros.control import (
     ArmedController,
     ControlStep,
     ExtrapolationGuard,
     SupportDistance,
     model_permutation,
 )
+from policy_align_ros.experiments.humanoid import HANDS, JOINTS, make_humanoid_dataset
+from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.model_io import atomic_write_text
 

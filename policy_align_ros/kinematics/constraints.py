@@ -26,7 +26,7 @@ which the state is the frame position itself and ``J = I``.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from policy_align_ros.kinematics.robot import Robot, closest_names
 
 __all__ = [
     "Constraint",
+    "ConstraintModel",
     "PlaneConstraint",
     "PositionConstraint",
     "BarrierConstraint",
@@ -43,6 +44,13 @@ __all__ = [
     "barrier_rows",
     "barrier_active",
 ]
+
+
+class ConstraintModel(Protocol):
+    """Anything giving ``A(q)`` of shape (k, n), k >= 0, given an intended ``qdot``."""
+
+    def matrix(self, q: np.ndarray, qdot: np.ndarray | None = None) -> np.ndarray: ...
+
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 

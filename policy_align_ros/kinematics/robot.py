@@ -265,34 +265,58 @@ class Robot:
 
     def frame_position(self, q: np.ndarray, frame: str) -> np.ndarray:
         """World position of ``frame`` at joint positions ``q`` (n,); returns (3,) in m."""
-        fid = self.frame_id(frame)
-        pin.forwardKinematics(self.model, self.data, self._pin_q(q))
-        return np.array(pin.updateFramePlacement(self.model, self.data, fid).translation)
+        return self.frame_positions(q, [frame])[0]
 
     def frame_jacobian(self, q: np.ndarray, frame: str) -> np.ndarray:
-        """Translational Jacobian of ``frame`` (3, n), LOCAL_WORLD_ALIGNED, in m/rad."""
-        fid = self.frame_id(frame)
-        jac = pin.computeFrameJacobian(self.model, self.data, self._pin_q(q), fid,
-                                       pin.LOCAL_WORLD_ALIGNED)[:3]
-        return self._user_cols(jac)
+        """Translational Jacobian of ``frame`` (3, n), LOCAL_WORLD_ALIGNED, in m/rad.
+
+        One frame's Jacobian through the joints supporting it only (the constraints' hot
+        path); :meth:`frames_kinematics` gives several frames in one pass.
+        """
+        jac = pin.computeFrameJacobian(self.model, self.data, self._pin_q(q),
+                                       self.frame_id(frame), pin.LOCAL_WORLD_ALIGNED)
+        return self._user_cols(jac[:3])
+
+    def frame_positions(self, q: np.ndarray, frames: Sequence[str]) -> np.ndarray:
+        """World positions (f, 3) in m of ``frames`` at ``q`` (n,), without Jacobians."""
+        fids = [self.frame_id(f) for f in frames]
+        pin.forwardKinematics(self.model, self.data, self._pin_q(q))
+        pos = np.empty((len(fids), 3))
+        for i, fid in enumerate(fids):
+            pos[i] = pin.updateFramePlacement(self.model, self.data, fid).translation
+        return pos
 
     def frames_kinematics(self, q: np.ndarray, frames: Sequence[str]
                           ) -> tuple[np.ndarray, np.ndarray]:
-        """Positions (f, 3) and translational Jacobians (f, 3, n) of several frames.
+        """Positions (f, 3) in m and translational Jacobians (f, 3, n) in m/rad of frames.
 
-        One kinematics pass for all frames (LOCAL_WORLD_ALIGNED), for hot loops.
+        The one frame-kinematics path: one pass over the joints for all frames, on the
+        model and data built once, Jacobians LOCAL_WORLD_ALIGNED (origin at the frame,
+        axes of the world), columns in :attr:`joint_names` order.
         """
         fids = [self.frame_id(f) for f in frames]
-        qq = self._pin_q(q)
-        pin.computeJointJacobians(self.model, self.data, qq)
-        pin.updateFramePlacements(self.model, self.data)
+        pin.computeJointJacobians(self.model, self.data, self._pin_q(q))
         pos = np.empty((len(fids), 3))
         jac = np.empty((len(fids), 3, self.nq))
         for i, fid in enumerate(fids):
-            pos[i] = self.data.oMf[fid].translation
+            pos[i] = pin.updateFramePlacement(self.model, self.data, fid).translation
             full = pin.getFrameJacobian(self.model, self.data, fid, pin.LOCAL_WORLD_ALIGNED)
             jac[i] = self._user_cols(full[:3])
         return pos, jac
+
+    def fixed_frame_placement(self, frame: str) -> pin.SE3:
+        """World placement of a frame fixed to the world (``parentJoint`` 0).
+
+        Raises
+        ------
+        ValueError
+            If the frame is unknown or moves with the selected joints.
+        """
+        fid = self.frame_id(frame)
+        placement = self.model.frames[fid]
+        if placement.parentJoint != 0:
+            raise ValueError(f"frame {frame!r} moves with the selected joints")
+        return pin.SE3(placement.placement)
 
     def _user_cols(self, jac: np.ndarray) -> np.ndarray:
         if self._order is None:

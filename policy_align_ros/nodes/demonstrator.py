@@ -53,9 +53,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from policy_align_ros.control import speed_limits
 from policy_align_ros.data.messages import JointSelector
 from policy_align_ros.kinematics import Robot
-from policy_align_ros.kinematics.control import speed_limits
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
     LATCHED_QOS,

@@ -5,7 +5,7 @@ At ``rate_hz`` it publishes ``qdot = s N(q) pi_hat(q)`` (rad/s, order = ``joints
 ``/joint_states`` (sensor_msgs/JointState, matched by name). ``N(q)`` comes from the
 ``constraints`` parameter (a YAML list of constraint specs, see
 ``policy_align_ros.kinematics.constraint_from_spec``) and ``s`` keeps every joint under
-``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.kinematics.control`).
+``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.control`).
 
 A model learnt on frame positions (its header's state definition is ``{"type": "frames",
 ...}``) gives a task-space policy ``pi_x(x)`` (m/s) over the stacked positions ``x`` (3F,)
@@ -14,9 +14,9 @@ joints, frames, locked posture) and refuses the model otherwise, then commands
 ``qdot = (J N_A)^+ pi_x + (N_A - (J N_A)^+ J N_A) z``, the joint velocity closest to moving
 the frames along ``pi_x`` with ``A(q) qdot = 0`` for the constraints in force (``J`` the
 frames' Jacobian, ``z`` a pull towards the demonstrations' rest posture,
-:mod:`policy_align_ros.kinematics.task_space`). Limits and ramps apply as in joint space.
+:mod:`policy_align_ros.control.task_policy`). Limits and ramps apply as in joint space.
 
-Safety (the logic is ROS-free, :class:`policy_align_ros.kinematics.control.ArmedController`;
+Safety (the logic is ROS-free, :class:`policy_align_ros.control.armed.ArmedController`;
 docs/executor_safety.md explains it for robot owners):
 
 * the executor is *armed* only by ``~/enable`` (std_srvs/SetBool) true, which is refused,
@@ -67,7 +67,7 @@ import functools
 import math
 import threading
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -83,9 +83,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
 
-from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
-from policy_align_ros.kinematics import Robot, constraint_from_spec
-from policy_align_ros.kinematics.control import (
+from policy_align_ros.control import (
     DEFAULT_DRIFT_CLAMP_M,
     DEFAULT_DRIFT_GAIN,
     DEFAULT_MAX_EXTRAPOLATION,
@@ -93,13 +91,17 @@ from policy_align_ros.kinematics.control import (
     ArmedController,
     ControlStep,
     ExtrapolationGuard,
+    FrameSupportDistance,
     Output,
     SupportDistance,
+    arming_status,
+    joint_order_problem,
     joint_velocity_bounds,
-    model_permutation,
+    load_policy,
     speed_limits,
 )
-from policy_align_ros.kinematics.task_space import policy_for_state
+from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
+from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
@@ -113,8 +115,7 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Executor", "FrameSupportDistance", "joint_order_problem", "load_policy", "main",
-           "speed_limits"]
+__all__ = ["Executor", "main"]
 
 #: Period of the /diagnostics status (s of node clock); every arming change, by ~/enable,
 #: a stale or broken state or a fault, also goes out at once (through ``_emit``).
@@ -125,133 +126,6 @@ CONTROLLER_TIMEOUT_S = 1.0
 _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
                      "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
                      "min_singular_value")
-
-
-def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
-                bounds: Callable | None = None
-                ) -> tuple[PolicyAlign, Callable[[np.ndarray], np.ndarray], np.ndarray, str]:
-    """Load a PolicyAlign model file and make its joint-space policy for ``robot``.
-
-    A model learnt on joint positions must have been trained on ``robot``'s joints (in
-    any order). A model learnt on frame positions (its ``state_definition_`` is
-    ``{"type": "frames", ...}``) must have been learnt on the same robot (URDF, joints,
-    locked posture) and frames; its task-space policy ``pi_x`` is mapped to joint
-    velocities satisfying ``constraint`` by
-    :func:`policy_align_ros.kinematics.task_space.policy_for_state`.
-
-    Parameters
-    ----------
-    path : str
-        Model file (.npz).
-    robot : Robot
-        The executor's robot, joints in command order.
-    constraint : callable ``(q (n,), qdot (n,) or None) -> A (k, n)``, optional
-        The joint-space constraints in force (the executor passes its
-        ``ControlStep.constraint_matrix``, so parameter changes apply at once).
-    bounds : callable ``q (n,) -> (lo, hi)``, optional
-        Joint velocity bounds (rad/s) a task-space policy keeps to by redistributing its
-        task (the executor passes its speed, position and braking limits).
-
-    Returns
-    -------
-    (model, policy, permutation, state)
-        The model; ``policy(Q (m, n)) -> (m, n)`` in rad/s on rows in model joint order;
-        the index array mapping command order to model order; a description of the
-        model's state ("joints" or "frames F1, F2").
-
-    Raises
-    ------
-    ValueError, FileNotFoundError, OSError
-        For a missing or unreadable file, or a model that does not fit ``robot``.
-    """
-    model = PolicyAlign.load(path)
-    joints = list(robot.joint_names)
-    state = getattr(model, "state_definition_", None)
-    if state is None:
-        if model.joint_names_ is None and model.n_features_in_ != len(joints):
-            raise ValueError(f"model {path}: has {model.n_features_in_} state dimensions, "
-                             f"the executor {len(joints)} joints")
-        return model, model.policy, model_permutation(model.joint_names_, joints), "joints"
-    kind = state.get("type") if isinstance(state, Mapping) else None
-    if kind != "frames":
-        raise ValueError(f"model {path}: state definition of type {kind!r} is not supported "
-                         "(expected 'frames' or none for joint positions)")
-    try:
-        policy = policy_for_state(model, state, robot, constraint, bounds=bounds)
-    except ValueError as err:
-        raise ValueError(f"model {path}: {err}") from None
-    # TaskSpacePolicy takes and returns rows in the robot's (command) joint order.
-    frames = ", ".join(policy.state_map.frames)
-    return model, policy, np.arange(len(joints)), f"frames {frames}"
-
-
-class FrameSupportDistance:
-    """The extrapolation guard's ``distance(q) -> (d, grad)`` for a frames model.
-
-    The model's support states live in its state space, the stacked frame positions
-    ``x = phi(q)`` (3F,), m. With ``s`` the support state nearest to ``x`` and ``h`` the
-    spacing of the training data (``model.support_spacing_``, m), ``d = |x - s| / h``
-    (spacings) and, to first order in ``q``, ``grad d = J^T (x - s) / (|x - s| h)``
-    (spacings per rad) with ``J`` (3F, n) the frames' Jacobian: the contract of
-    :class:`policy_align_ros.kinematics.control.ExtrapolationGuard`.
-
-    Parameters
-    ----------
-    model : PolicyAlign
-        Learnt on the frame states of ``state_map`` (has ``support_query``).
-    state_map : TaskSpaceMap
-        The map from ``q`` (n,) in command order to ``x`` (3F,), of the executor's robot.
-    """
-
-    def __init__(self, model: PolicyAlign, state_map) -> None:
-        spacing = float(getattr(model, "support_spacing_", float("nan")))
-        if not (math.isfinite(spacing) and spacing > 0.0):
-            raise ValueError("model: has no support states (support_spacing_ missing)")
-        self.model = model
-        self.state_map = state_map
-        self.spacing = spacing
-
-    def __call__(self, q: np.ndarray) -> tuple[float, np.ndarray | None]:
-        """``(d, grad)`` at ``q`` (n,): spacings and spacings per rad (None on the data)."""
-        x, J = self.state_map.kinematics(np.asarray(q, dtype=float))
-        d, nearest = self.model.support_query(x[None, :])
-        diff = x - nearest[0]
-        r = float(np.linalg.norm(diff))
-        if r == 0.0:
-            return 0.0, None
-        return float(d[0]), J.T @ diff / (r * self.spacing)
-
-
-def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
-                        controller: str) -> str:
-    """What differs between a controller's ``joints`` and the executor's command order.
-
-    Parameters
-    ----------
-    controller_joints : sequence of str
-        The controller's ``joints`` parameter (the order it reads the command array in).
-    joints : sequence of str
-        The executor's ``joints`` (the order it writes the command array in).
-    controller : str
-        Controller node name, for the message.
-
-    Returns
-    -------
-    str
-        Empty when both lists are equal, else a sentence naming the difference.
-    """
-    theirs, mine = list(controller_joints), list(joints)
-    if theirs == mine:
-        return ""
-    missing = [j for j in mine if j not in theirs]
-    extra = [j for j in theirs if j not in mine]
-    if missing or extra or len(theirs) != len(mine):
-        return (f"controller {controller} has other joints than the executor: not in the "
-                f"controller {missing}, only in the controller {extra}")
-    slot = next(i for i, (a, b) in enumerate(zip(theirs, mine, strict=True)) if a != b)
-    return (f"controller {controller} orders the joints differently: command slot {slot} "
-            f"is {theirs[slot]!r} there and {mine[slot]!r} here (controller order "
-            f"{theirs})")
 
 
 class Executor(Node):
@@ -272,14 +146,31 @@ class Executor(Node):
         self.model_state = ""
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
         self.add_post_set_parameters_callback(self._locked(self._after_set_parameters))
+        self._declare_robot_parameters()
+        joints = list(self.get_parameter("joints").value)
+        self.robot = Robot.load(self.get_parameter("robot").value, joints)
+        self._declare_control_parameters()
+        self.controller = self._make_controller(joints)
+        self._selector = JointSelector(joints)
+        #: Rejected joint-state messages by reason, over the node's lifetime.
+        self.rejected_states: Counter[str] = Counter()
+        self._last = Output(None, self.controller.zero_reason, 1.0)
+        #: The arming state the last /diagnostics status reported.
+        self._diag_armed = False
+        self._create_interfaces()
+
+    def _declare_robot_parameters(self) -> None:
+        """The read-only parameters the robot and the control period are built from."""
         self.declare_parameter("robot", "talos", descriptor(
             "example-robot-data name or URDF path of the controlled robot", read_only=True))
         self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
             "controlled joints, in command order", read_only=True))
         self.declare_parameter("rate_hz", 100.0, descriptor(
             "control rate [Hz]", read_only=True, float_range=(1.0, 1000.0)))
-        joints = list(self.get_parameter("joints").value)
-        self.robot = Robot.load(self.get_parameter("robot").value, joints)
+
+    def _declare_control_parameters(self) -> None:
+        """The run-time parameters (declared once the robot is loaded: their set callback
+        loads models and checks constraint specs on it)."""
         self.declare_parameter("model_path", "", descriptor(
             "model file (.npz); setting it loads the model or is refused with the reason; "
             "empty at start = wait for /learner/model"))
@@ -325,6 +216,8 @@ class Executor(Node):
             "with a simulator publishing at rate_hz); the timer then only stops the robot "
             "when joint states go stale", read_only=True))
 
+    def _make_controller(self, joints: list[str]) -> ArmedController:
+        """The armed controller from the declared parameters."""
         self._period = 1.0 / self.get_parameter("rate_hz").value
         step = ControlStep(
             self.robot.lower, self.robot.upper, self._speed_limits(), self._period,
@@ -332,17 +225,13 @@ class Executor(Node):
             drift_gain=self.get_parameter("drift_gain").value,
             drift_clamp_m=self.get_parameter("drift_clamp_m").value,
             min_singular_value=self.get_parameter("min_singular_value").value)
-        self.controller = ArmedController(
+        return ArmedController(
             step, self.get_parameter("max_acceleration").value,
             self.get_parameter("state_timeout_s").value,
             self.get_parameter("max_clock_skew_s").value, joint_names=joints)
-        self._selector = JointSelector(joints)
-        #: Rejected joint-state messages by reason, over the node's lifetime.
-        self.rejected_states: Counter[str] = Counter()
-        self._last = Output(None, self.controller.zero_reason, 1.0)
-        #: The arming state the last /diagnostics status reported.
-        self._diag_armed = False
 
+    def _create_interfaces(self) -> None:
+        """Publishers, subscriptions, the ~/enable service and the timers."""
         self._pub = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if self._staged is not None:
@@ -685,48 +574,19 @@ class Executor(Node):
     def publish_diagnostics(self) -> None:
         """Publish the executor's status on ``/diagnostics``."""
         control = self.controller
-        problem = control.state_problem(self._now_ns())
-        if control.armed:
-            level, message = DiagnosticStatus.OK, "armed: following the policy"
-        elif control.publishing:
-            level = DiagnosticStatus.WARN if control.faulted else DiagnosticStatus.OK
-            message = f"disarmed, ramping down: {control.zero_reason}"
-        else:
-            level = DiagnosticStatus.WARN if control.faulted else DiagnosticStatus.OK
-            message = f"disarmed, command zero: {control.zero_reason}"
-        values = {
-            "armed": str(control.armed).lower(),
-            "model": self.model_path or "(none)",
-            "model_state": self.model_state or "(none)",
-            "zero_reason": control.zero_reason,
-            "ramp_scale": f"{control.ramp_scale:.3f}",
-            "extrapolation_scale": (f"{control.extrapolation_scale:.3f}"
-                                    if control.step.guard is not None else "off"),
-            "extrapolation_distance": f"{control.step.extrapolation_distance:.2f}",
-            "held_frame_error_mm": self._held_error_text(),
-            "max_abs_command_rad_s": f"{float(np.max(np.abs(control.command))):.4f}",
-            "max_acceleration_rad_s2": f"{control.max_acceleration:g}",
-            "constraints": self.get_parameter("constraints").value,
-            "joint_states": problem or "fresh",
-            "rejected_joint_states": ", ".join(
-                f"{k}={v}" for k, v in sorted(self.rejected_states.items())) or "0",
-        }
+        warn, message, values = arming_status(
+            control, self._now_ns(), model=self.model_path, model_state=self.model_state,
+            constraints=self.get_parameter("constraints").value,
+            rejected=self.rejected_states)
         status = DiagnosticStatus(
-            level=level, name=f"{self.get_name()}: arming", message=message,
+            level=DiagnosticStatus.WARN if warn else DiagnosticStatus.OK,
+            name=f"{self.get_name()}: arming", message=message,
             hardware_id=str(self.get_parameter("robot").value),
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(array)
         self._diag_armed = control.armed
-
-    def _held_error_text(self) -> str:
-        """Largest error of the held frames from their references (mm), or "none"."""
-        step = self.controller.step
-        q = self.controller.last_q
-        if not step.holding or q is None:
-            return "none"
-        return f"{1e3 * float(np.max(np.abs(step.hold_errors(q)), initial=0.0)):.3f}"
 
     def publish_zeros(self, why: str) -> None:
         """Publish one zero command and wait briefly for subscribers to acknowledge it."""

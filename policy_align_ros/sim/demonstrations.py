@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from policy_align_ros.control import velocity_scale
 from policy_align_ros.kinematics import Constraint, nullspace_projector
-from policy_align_ros.kinematics.control import velocity_scale
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.sim.experts import StepResult, TaskSpaceExpert
 

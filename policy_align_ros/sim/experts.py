@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from policy_align_ros.kinematics import Robot, TaskSpaceMap, nullspace_projector
-from policy_align_ros.kinematics.task_space import (
+from policy_align_ros.control.resolved_rate import (
     joint_velocity_within_limits,
     secondary_velocity,
 )
+from policy_align_ros.kinematics import Robot, TaskSpaceMap, nullspace_projector
 
 __all__ = [
     "QuadraticPotential",

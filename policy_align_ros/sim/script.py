@@ -27,8 +27,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from policy_align_ros.control import constrained_command, velocity_scale
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
-from policy_align_ros.kinematics.control import constrained_command, velocity_scale
 from policy_align_ros.sim.demonstrations import sample_start_states
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
 

@@ -3,7 +3,7 @@
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
-itself is tested without a graph in test_control.py.
+itself is tested without a graph in test/control/.
 """
 
 import os
@@ -664,8 +664,7 @@ def _frames_model():
     the arm), mapped to hand states as ``policy-align learn --state frames:...`` does.
     Returns (model, state definition dict, target (3,), robot, state map).
     """
-    from policy_align_ros.kinematics import Robot, TaskSpaceMap
-    from policy_align_ros.kinematics.task_space import LearningStateMap
+    from policy_align_ros.kinematics import LearningStateMap, Robot, TaskSpaceMap
     from policy_align_ros.sim.demonstrations import sample_start_states, task_space_rollout
     from policy_align_ros.sim.experts import TaskSpaceExpert
 
@@ -698,9 +697,9 @@ def _save_frames_model(path: Path, state: dict) -> Path:
 
 
 def test_frames_model_moves_the_hand_along_the_projected_policy(rig, tmp_path):
-    """Issue 9: a model learnt on hand positions drives the arm through J under A(q)."""
+    """A model learnt on hand positions drives the arm through J under A(q)."""
+    from policy_align_ros.control import policy_for_state
     from policy_align_ros.kinematics import constraint_from_spec
-    from policy_align_ros.kinematics.task_space import policy_for_state
 
     model, state, target, robot, smap = _frames_model()
     path = _save_frames_model(tmp_path / "hand.npz", state)
@@ -739,10 +738,9 @@ def test_frames_model_moves_the_hand_along_the_projected_policy(rig, tmp_path):
         r.q = robot.clip(r.q + PERIOD * r.commands[-1])
     end = smap.states(r.q)
     # Held in its plane: exact to first order per step; 300 Euler steps of the arm
-    # drift at second order (measured 0.5 mm).
+    # drift at second order.
     assert abs(end[2] - start[2]) < 2e-3
     before = np.linalg.norm((start - target)[:2])
-    # Measured 225 -> 19 mm.
     assert np.linalg.norm((end - target)[:2]) < 0.3 * before, (before, end - target)
 
 
@@ -798,7 +796,7 @@ def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
 
 def test_frame_support_distance_measures_the_hand_state_and_its_gradient():
     """The guard's distance for a frames model: in hand space, gradient through J."""
-    from policy_align_ros.nodes.executor import FrameSupportDistance
+    from policy_align_ros.control import FrameSupportDistance
 
     model, _, _, robot, smap = _frames_model()
     distance = FrameSupportDistance(model, smap)
@@ -815,7 +813,7 @@ def test_frame_support_distance_measures_the_hand_state_and_its_gradient():
 
 def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_path):
     """The guard scales hand motion leading away from the demonstrated hand states."""
-    from policy_align_ros.nodes.executor import FrameSupportDistance
+    from policy_align_ros.control import FrameSupportDistance
 
     model, state, _, robot, smap = _frames_model()
     path = _save_frames_model(tmp_path / "hand.npz", state)
@@ -858,7 +856,7 @@ def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_p
     r.spin_until(lambda: len(r.commands) > count + 2, what="commands after the change")
     scaled = steady()
     g = r.node.controller.extrapolation_scale
-    assert 0.0 < g < 1.0  # measured 0.23 (band 1.3 spacings)
+    assert 0.0 < g < 1.0
     np.testing.assert_allclose(scaled, g * free, atol=1e-9)
     _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
 
@@ -888,10 +886,9 @@ def test_a_disable_while_enable_waits_for_the_controller_wins(rig):
 
 
 def test_a_controller_changed_while_enable_waits_for_it_refuses_the_enable(rig):
-    # Setting ``controller`` destroyed the client that the pending enable was polling: the
-    # next poll raised out of the service callback and the node died. Now the old client
-    # lives until the check ends, and the enable is refused (the new controller's joint
-    # order was never compared).
+    # Setting ``controller`` must not destroy the client that the pending enable polls:
+    # the old client lives until the check ends, and the enable is refused (the new
+    # controller's joint order was never compared).
     r = rig(219, controller="/absent_controller")
     enable = _enable_waiting_for_an_absent_controller(r)
     assert r.node.set_parameters([Parameter("controller", value="/other_controller")]

@@ -1,49 +1,26 @@
-"""Tests of policy_align_ros.kinematics.task_space (frame states, Jacobian, joint map)."""
+"""Tests of policy_align_ros.control.task_policy (task-space policies on joints)."""
 
 import json
 
 import numpy as np
-import pinocchio as pin
 import pytest
+from task_space_rigs import ARM, ELBOW, HAND, _joint_trajectory
 
+from policy_align_ros.control import (
+    ArmedController,
+    ControlStep,
+    TaskSpacePolicy,
+    joint_velocity_bounds,
+    joint_velocity_within_limits,
+    task_to_joint_velocity,
+)
 from policy_align_ros.kinematics import (
     FrameStateDefinition,
     Robot,
     TaskSpaceMap,
-    TaskSpacePolicy,
     constraint_from_spec,
     nullspace_projector,
-    parse_state_spec,
 )
-from policy_align_ros.kinematics.control import ArmedController, ControlStep
-from policy_align_ros.kinematics.robot import robots_dir
-from policy_align_ros.kinematics.task_space import (
-    damped_pinv,
-    joint_velocity_bounds,
-    joint_velocity_within_limits,
-    secondary_velocity,
-    task_to_joint_velocity,
-)
-
-ARM = [f"arm_left_{i}_joint" for i in range(1, 8)] + ["torso_1_joint", "torso_2_joint"]
-HAND = "gripper_left_base_link"
-ELBOW = "arm_left_4_link"
-
-
-@pytest.fixture(scope="module")
-def robot() -> Robot:
-    return Robot.load("talos", joints=ARM)
-
-
-@pytest.fixture(scope="module")
-def hand_map(robot: Robot) -> TaskSpaceMap:
-    return TaskSpaceMap(robot, [HAND])
-
-
-def _joint_trajectory(robot: Robot, m: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    steps = 0.05 * rng.standard_normal((m, robot.nq))
-    return robot.clip(robot.neutral() + np.cumsum(steps, axis=0))
 
 
 class Attractor:
@@ -56,77 +33,36 @@ class Attractor:
         return -2.0 * self.w * (np.asarray(X) - self.center)
 
 
-def test_states_of_recorded_joint_trajectories_match_forward_kinematics(robot: Robot
-                                                                        ) -> None:
-    smap = TaskSpaceMap(robot, [HAND, ELBOW])
-    Q = _joint_trajectory(robot, 40, seed=1)
-    X = smap.states(Q)
-    assert X.shape == (40, 6)
-    expect = np.array([np.r_[robot.frame_position(q, HAND), robot.frame_position(q, ELBOW)]
-                       for q in Q])
-    np.testing.assert_allclose(X, expect, atol=1e-12)
-    np.testing.assert_allclose(smap(Q[3]), expect[3], atol=1e-12)
-    # The positions really change along the trajectory (the check is not vacuous).
-    assert np.ptp(X, axis=0).max() > 0.05
-
-
-def test_states_refuse_bad_joint_rows(hand_map: TaskSpaceMap) -> None:
-    Q = np.tile(hand_map.robot.neutral(), (3, 1))
-    Q[2, 4] = np.nan
-    with pytest.raises(ValueError, match="Q: row 2 contains NaN"):
-        hand_map.states(Q)
-    with pytest.raises(ValueError, match=r"Q: must have shape \(m, 9\)"):
-        hand_map.states(np.zeros((3, 8)))
-    with pytest.raises(ValueError, match=r"q: must have shape \(9,\)"):
-        hand_map.kinematics(np.zeros(4))
-
-
-def test_jacobian_matches_finite_differences_with_pin_integrate(robot: Robot) -> None:
-    smap = TaskSpaceMap(robot, [HAND, ELBOW])
-    model, data = robot.model, robot.model.createData()
-    fids = [robot.frame_id(HAND), robot.frame_id(ELBOW)]
-    iq = [model.joints[model.getJointId(j)].idx_q for j in robot.joint_names]
-    iv = [model.joints[model.getJointId(j)].idx_v for j in robot.joint_names]
-
-    def positions(q_pin: np.ndarray) -> np.ndarray:
-        pin.forwardKinematics(model, data, q_pin)
-        pin.updateFramePlacements(model, data)
-        return np.concatenate([data.oMf[f].translation for f in fids])
-
-    h = 1e-6
-    for q in _joint_trajectory(robot, 3, seed=2):
-        x, J = smap.kinematics(q)
-        q_pin = pin.neutral(model)
-        q_pin[iq] = q
-        np.testing.assert_allclose(x, positions(q_pin), atol=1e-12)
-        fd = np.empty_like(J)
-        for col, v in enumerate(iv):
-            dv = np.zeros(model.nv)
-            dv[v] = h
-            plus = positions(pin.integrate(model, q_pin, dv))
-            minus = positions(pin.integrate(model, q_pin, -dv))
-            fd[:, col] = (plus - minus) / (2 * h)
-        np.testing.assert_allclose(J, fd, atol=1e-7)
-        assert np.abs(J).max() > 0.1
-
-
-def test_root_frame_must_be_fixed_to_the_world(robot: Robot) -> None:
-    base = TaskSpaceMap(robot, [HAND], root_frame="base_link")
-    q = robot.neutral()
-    np.testing.assert_allclose(base.states(q), robot.frame_position(q, HAND), atol=1e-12)
-    with pytest.raises(ValueError, match="root_frame: 'arm_left_2_link' moves with"):
-        TaskSpaceMap(robot, [HAND], root_frame="arm_left_2_link")
-    with pytest.raises(ValueError, match="root_frame: unknown frame 'nowhere'"):
-        TaskSpaceMap(robot, [HAND], root_frame="nowhere")
-    with pytest.raises(ValueError, match="frame: unknown frame 'hand'"):
-        TaskSpaceMap(robot, ["hand"])
-    with pytest.raises(ValueError, match="listed twice"):
-        TaskSpaceMap(robot, [HAND, HAND])
-
-
 def _step_velocity(smap: TaskSpaceMap, q: np.ndarray, qdot: np.ndarray, h: float = 1e-6
                    ) -> np.ndarray:
     return (smap.states(q + h * qdot) - smap.states(q - h * qdot)) / (2 * h)
+
+
+def _circle_rollout(robot: Robot, smap: TaskSpaceMap, steps: int, **gains: float
+                    ) -> tuple[np.ndarray, float, float]:
+    """Hand tracks a 6 cm circle (period 2 s) for ``steps`` Euler steps of 10 ms."""
+    q0 = robot.neutral()
+    x0 = smap.states(q0)
+    clock = {"t": 0.0}
+    w = 2 * np.pi / 2.0
+
+    def circle(X: np.ndarray) -> np.ndarray:
+        t = clock["t"]
+        target = x0 + 0.06 * np.array([np.cos(w * t) - 1.0, 0.0, np.sin(w * t)])
+        feed = 0.06 * w * np.array([-np.sin(w * t), 0.0, np.cos(w * t)])
+        return (feed + 5.0 * (target - X[0]))[None]
+
+    tsp = TaskSpacePolicy(circle, smap, **gains)
+    q, dt, span = q0.copy(), 0.01, robot.upper - robot.lower
+    dist, margin, err = [], 1.0, 0.0
+    for k in range(steps):
+        clock["t"] = k * dt
+        q = q + dt * tsp.command(q)
+        margin = min(margin, float(np.min(np.minimum(q - robot.lower, robot.upper - q) / span)))
+        if k % 200 == 199:  # once per period, at the same point of the circle
+            dist.append(np.linalg.norm(q - q0))
+            err = max(err, float(np.linalg.norm(smap.states(q) - x0)))
+    return np.array(dist), margin, err
 
 
 def test_command_moves_frames_along_policy_unconstrained(robot: Robot,
@@ -248,7 +184,7 @@ def test_speed_limits_keep_the_task_where_other_joints_can_take_over(
 
 def test_policy_keeps_the_task_when_one_joint_brakes_toward_a_limit(
         robot: Robot, hand_map: TaskSpaceMap) -> None:
-    from policy_align_ros.kinematics.control import velocity_scale
+    from policy_align_ros.control import velocity_scale
 
     q = robot.neutral()
     x = hand_map.states(q)
@@ -274,27 +210,6 @@ def test_policy_keeps_the_task_when_one_joint_brakes_toward_a_limit(
                                pol.policy(x[None])[0], atol=1e-6)
 
 
-def test_damping_bounds_qdot_at_a_constraint_induced_singularity() -> None:
-    # J and A are each well conditioned (singular values 1), but J N_A loses rank as
-    # eps -> 0: the constraint row nearly kills the task's second direction.
-    J = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-    xdot = np.array([0.1, 0.1])
-    norms, undamped = [], []
-    for eps in np.logspace(-1, -8, 8):
-        A = np.array([[0.0, 1.0, eps]])
-        assert np.linalg.svd(A, compute_uv=False).min() > 0.99
-        qdot = task_to_joint_velocity(J, xdot, A, threshold=0.05, damping=0.05)
-        assert abs((A @ qdot).item()) < 1e-12
-        norms.append(np.linalg.norm(qdot))
-        raw = task_to_joint_velocity(J, xdot, A, threshold=0.0, damping=0.0)
-        undamped.append(np.linalg.norm(raw))
-    # Bounded by |xdot| / damping; the undamped inverse grows like 1 / eps.
-    assert max(norms) <= np.linalg.norm(xdot) / 0.05 + 1e-9
-    assert undamped[-2] > 1e4
-    # Far from the singularity (eps = 0.1 gives s_min ~ 0.1 > threshold) it is exact.
-    np.testing.assert_allclose(norms[0], undamped[0])
-
-
 def test_damping_bounds_qdot_with_the_elbow_held_on_talos(robot: Robot,
                                                          hand_map: TaskSpaceMap) -> None:
     # Holding the elbow leaves the hand about 1.6 mm/rad of motion along one direction:
@@ -311,57 +226,6 @@ def test_damping_bounds_qdot_with_the_elbow_held_on_talos(robot: Robot,
         qdot = TaskSpacePolicy(pol, hand_map, hold, rest_gain=0.0, limit_gain=0.0).command(q)
         assert np.abs(A @ qdot).max() < 1e-10
         assert np.linalg.norm(qdot) <= np.linalg.norm(pol.policy(x[None])) / 0.05 + 1e-9
-
-
-def test_damped_pinv_is_exact_above_threshold_and_continuous() -> None:
-    rng = np.random.default_rng(5)
-    B = rng.standard_normal((3, 5))
-    pinv, basis = damped_pinv(B, threshold=1e-3, damping=1e-3)
-    np.testing.assert_allclose(pinv, np.linalg.pinv(B), atol=1e-12)
-    np.testing.assert_allclose(basis @ basis.T, np.linalg.pinv(B) @ B, atol=1e-12)
-    gains = [damped_pinv(np.array([[s]]), 0.05, 0.05)[0][0, 0]
-             for s in (0.05 - 1e-9, 0.05 + 1e-9)]
-    assert abs(gains[0] - gains[1]) < 1e-5
-    assert damped_pinv(np.zeros((0, 4)))[0].shape == (4, 0)
-
-
-def test_secondary_velocity_pulls_to_rest_away_from_limits_and_is_clamped() -> None:
-    lower, upper = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
-    z = secondary_velocity(np.array([0.1, 0.0]), np.zeros(2), lower, upper, rest_gain=1.0)
-    np.testing.assert_allclose(z, [-0.1, 0.0])
-    near = secondary_velocity(np.array([0.95, -0.99]), np.array([0.95, -0.99]), lower,
-                              upper, limit_gain=1.0, limit_margin=0.1, max_speed=10.0)
-    np.testing.assert_allclose(near, [-0.75, 0.95])  # margins 0.2 rad wide
-    big = secondary_velocity(np.array([0.0, 0.0]), np.array([5.0, 5.0]), lower, upper,
-                             rest_gain=1.0, max_speed=0.5)
-    assert np.linalg.norm(big) == pytest.approx(0.5)
-
-
-def _circle_rollout(robot: Robot, smap: TaskSpaceMap, steps: int, **gains: float
-                    ) -> tuple[np.ndarray, float, float]:
-    """Hand tracks a 6 cm circle (period 2 s) for ``steps`` Euler steps of 10 ms."""
-    q0 = robot.neutral()
-    x0 = smap.states(q0)
-    clock = {"t": 0.0}
-    w = 2 * np.pi / 2.0
-
-    def circle(X: np.ndarray) -> np.ndarray:
-        t = clock["t"]
-        target = x0 + 0.06 * np.array([np.cos(w * t) - 1.0, 0.0, np.sin(w * t)])
-        feed = 0.06 * w * np.array([-np.sin(w * t), 0.0, np.cos(w * t)])
-        return (feed + 5.0 * (target - X[0]))[None]
-
-    tsp = TaskSpacePolicy(circle, smap, **gains)
-    q, dt, span = q0.copy(), 0.01, robot.upper - robot.lower
-    dist, margin, err = [], 1.0, 0.0
-    for k in range(steps):
-        clock["t"] = k * dt
-        q = q + dt * tsp.command(q)
-        margin = min(margin, float(np.min(np.minimum(q - robot.lower, robot.upper - q) / span)))
-        if k % 200 == 199:  # once per period, at the same point of the circle
-            dist.append(np.linalg.norm(q - q0))
-            err = max(err, float(np.linalg.norm(smap.states(q) - x0)))
-    return np.array(dist), margin, err
 
 
 def test_self_motion_does_not_drift_to_joint_limits(robot: Robot,
@@ -435,63 +299,9 @@ def test_non_finite_task_policy_faults_the_controller_until_enabled_again(
     np.testing.assert_array_equal(controller.command, 0.0)
 
 
-def test_definition_round_trips_and_matches_same_robot(robot: Robot) -> None:
-    defn = FrameStateDefinition.from_robot(robot, [HAND, ELBOW])
-    assert defn.dim == 6
-    text = json.dumps(defn.to_dict())
-    back = FrameStateDefinition.from_dict(json.loads(text))
-    assert back == defn
-    back.check(robot)
-    urdf = robots_dir() / "talos_data" / "robots" / "talos_reduced.urdf"
-    same = Robot.load(str(urdf), joints=ARM, reference={
-        j: v[0] for j, v in robot.locked_posture.items() if len(v) == 1})
-    defn.check(same)
-    loaded = defn.load_robot()
-    assert loaded.joint_names == ARM
-
-
-def test_definition_check_names_what_differs(robot: Robot) -> None:
-    defn = FrameStateDefinition.from_robot(robot, [HAND])
-    with pytest.raises(ValueError, match=r"joints differ \(missing \['torso_2_joint'\]"):
-        defn.check(Robot.load("talos", joints=ARM[:-1]))
-    with pytest.raises(ValueError, match="same joints in another order"):
-        defn.check(Robot.load("talos", joints=ARM[::-1]))
-    with pytest.raises(ValueError, match=r"locked posture differs at \['arm_right_4_joint'\]"):
-        defn.check(Robot.load("talos", joints=ARM, reference={"arm_right_4_joint": -1.0}))
-    with pytest.raises(ValueError, match="URDF differs"):
-        defn.check(Robot.load("panda"))
-
-
-@pytest.mark.parametrize(("change", "message"), [
-    ({"type": "joints"}, "field 'type' must be 'frames'"),
-    ({"frames": "gripper"}, "field 'frames' must be a non-empty list"),
-    ({"frames": []}, "field 'frames' must be a non-empty list"),
-    ({"urdf_sha256": 5}, "field 'urdf_sha256' must be a non-empty string"),
-    ({"locked_posture": {"a": ["x"]}}, r"locked_posture\['a'\] must be a list of numbers"),
-    ({"locked_posture": {"a": [float("nan")]}}, r"locked_posture\['a'\] is not finite"),
-    ({"locked_posture": None}, "field 'locked_posture' must be a dict"),
-    (None, "field 'root_frame' is missing"),
-])
-def test_definition_from_dict_refuses_bad_fields(robot: Robot, change, message) -> None:
-    data = FrameStateDefinition.from_robot(robot, [HAND]).to_dict()
-    if change is None:
-        del data["root_frame"]
-    else:
-        data.update(change)
-    with pytest.raises(ValueError, match=message):
-        FrameStateDefinition.from_dict(data)
-
-
-def test_parse_state_spec() -> None:
-    assert parse_state_spec("joints") is None
-    assert parse_state_spec("frames:a,b") == ["a", "b"]
-    for bad in ("hands", "frames:", "frames:a,,b", "frames:a,a"):
-        with pytest.raises(ValueError, match="state:"):
-            parse_state_spec(bad)
-
-
 def test_policy_learnt_in_hand_space_reaches_targets_from_new_starts() -> None:
-    from policy_align_ros.kinematics.task_space import LearningStateMap, policy_for_state
+    from policy_align_ros.control import policy_for_state
+    from policy_align_ros.kinematics import LearningStateMap
     from policy_align_ros.learning import PolicyAlign
     from policy_align_ros.sim.demonstrations import sample_start_states, task_space_rollout
     from policy_align_ros.sim.experts import TaskSpaceExpert
@@ -533,12 +343,12 @@ def test_policy_learnt_in_hand_space_reaches_targets_from_new_starts() -> None:
             q = robot.clip(q + 0.02 * policy.command(q))
         final = np.linalg.norm((smap.states(q) - target).reshape(2, 3), axis=1)
         assert np.all(start > 0.1)
-        assert np.all(final < 0.03), final  # measured 1.9 and 4.1 mm
+        assert np.all(final < 0.03), final
 
 
 def test_policy_for_state_accepts_reordered_joints_and_refuses_other_robots(
         robot: Robot, hand_map: TaskSpaceMap) -> None:
-    from policy_align_ros.kinematics.task_space import policy_for_state
+    from policy_align_ros.control import policy_for_state
 
     q = robot.neutral()
     x = hand_map.states(q)
@@ -570,7 +380,7 @@ def test_policy_for_state_accepts_reordered_joints_and_refuses_other_robots(
 
 def test_constraint_may_be_a_callable_such_as_the_executors(robot: Robot,
                                                             hand_map: TaskSpaceMap) -> None:
-    from policy_align_ros.kinematics.control import ControlStep
+    from policy_align_ros.control import ControlStep
 
     plane = constraint_from_spec({"type": "plane", "frame": HAND, "normal": [0, 0, 1]}, robot)
     step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 10.0), 0.01, [plane])
@@ -598,24 +408,3 @@ def test_non_finite_constraint_rows_give_a_non_finite_command(hand_map: TaskSpac
     pol = Attractor(hand_map.states(q) + 0.05)
     tsp = TaskSpacePolicy(pol, hand_map, lambda q, qdot: np.full((1, q.size), np.inf))
     assert np.all(np.isnan(tsp.command(q)))
-
-
-def test_learning_state_map_maps_positions_and_velocities(robot: Robot) -> None:
-    from policy_align_ros.kinematics.task_space import LearningStateMap
-    from policy_align_ros.learning import Trajectory
-
-    lmap = LearningStateMap(robot, [HAND])
-    assert lmap.definition().get("rest") is None
-    Q = _joint_trajectory(robot, 30, seed=7)
-    times = 0.01 * np.arange(30)
-    V = np.gradient(Q, times, axis=0)
-    out = lmap(Trajectory(Q, times, V, name="d0"))
-    assert out.name == "d0"
-    np.testing.assert_array_equal(out.times, times)
-    np.testing.assert_allclose(out.positions, lmap.map.states(Q), atol=1e-12)
-    np.testing.assert_allclose(out.velocities[5], lmap.map.jacobian(Q[5]) @ V[5])
-    np.testing.assert_allclose(lmap(Q[:10]), out.positions[:10])
-    rest = lmap.definition()["rest"]
-    np.testing.assert_allclose([rest[j] for j in ARM], (Q[-1] + Q[9]) / 2)
-    with pytest.raises(ValueError, match="trajectory d1: has 3 joints, the state map expects 9"):
-        lmap(Trajectory(np.zeros((4, 3)), name="d1"))

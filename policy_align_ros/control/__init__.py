@@ -1,0 +1,84 @@
+"""The executor's control law and safety logic, ROS-free.
+
+``qdot = s N(q) pi_hat(q)``: the learnt policy projected onto the null space of the
+constraints in force, scaled for speed and position limits. Modules:
+
+- :mod:`.limits`: speed limits, joint velocity bounds, the limit scale and the
+  acceleration ramp;
+- :mod:`.guard`: the extrapolation guard and its distance to the demonstrated data;
+- :mod:`.step`: one control step (:class:`ControlStep`: projection, limit locks, drift
+  correction of held frames, near-singular constraints);
+- :mod:`.armed`: :class:`ArmedController`, arming, joint-state stamps and ramps on the
+  caller's clock;
+- :mod:`.joint_order`: model and controller joint orders;
+- :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
+  velocities;
+- :mod:`.loading`: a model file as the executor's joint-space policy;
+- :mod:`.status`: the executor's status in words (its ``/diagnostics``).
+"""
+
+from policy_align_ros.control.armed import STAMP_REJECTIONS, ArmedController, Output
+from policy_align_ros.control.guard import (
+    DEFAULT_MAX_EXTRAPOLATION,
+    DistanceFn,
+    ExtrapolationGuard,
+    FrameSupportDistance,
+    SupportDistance,
+)
+from policy_align_ros.control.joint_order import joint_order_problem, model_permutation
+from policy_align_ros.control.limits import (
+    joint_velocity_bounds,
+    limit_locks,
+    ramp_toward,
+    speed_limits,
+    velocity_scale,
+)
+from policy_align_ros.control.loading import load_policy
+from policy_align_ros.control.resolved_rate import (
+    damped_pinv,
+    joint_velocity_within_limits,
+    secondary_velocity,
+    task_to_joint_velocity,
+)
+from policy_align_ros.control.status import arming_status
+from policy_align_ros.control.step import (
+    DEFAULT_DRIFT_CLAMP_M,
+    DEFAULT_DRIFT_GAIN,
+    DEFAULT_MIN_SINGULAR_VALUE,
+    ControlStep,
+    constrained_command,
+    project_with_locks,
+)
+from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_state
+
+__all__ = [
+    "DEFAULT_DRIFT_CLAMP_M",
+    "DEFAULT_DRIFT_GAIN",
+    "DEFAULT_MAX_EXTRAPOLATION",
+    "DEFAULT_MIN_SINGULAR_VALUE",
+    "STAMP_REJECTIONS",
+    "ArmedController",
+    "ControlStep",
+    "DistanceFn",
+    "ExtrapolationGuard",
+    "FrameSupportDistance",
+    "Output",
+    "SupportDistance",
+    "TaskSpacePolicy",
+    "arming_status",
+    "constrained_command",
+    "damped_pinv",
+    "joint_order_problem",
+    "joint_velocity_bounds",
+    "joint_velocity_within_limits",
+    "limit_locks",
+    "load_policy",
+    "model_permutation",
+    "policy_for_state",
+    "project_with_locks",
+    "ramp_toward",
+    "secondary_velocity",
+    "speed_limits",
+    "task_to_joint_velocity",
+    "velocity_scale",
+]

@@ -1,0 +1,434 @@
+"""The armed controller: arming, stamps, staleness and ramps around a control step.
+
+Everything runs on time stamps passed in (integer nanoseconds of the caller's clock, a ROS
+node clock in the executor), so it runs and is tested without a graph and honours
+simulated time:
+
+* *arming*: commands follow the policy only between :meth:`ArmedController.arm` (refused
+  without a model or with stale joint states) and the next disarm, which a disable, a
+  model swap or any fault causes; nothing re-arms on its own;
+* *acceleration ramp*: each joint's command changes by at most ``max_acceleration * dt``
+  per step (:func:`~policy_align_ros.control.limits.ramp_toward`: ramp first, then
+  project onto the constraints' null space). A disarm ramps the command down to zero the
+  same way; only untrustworthy or lost joint states (and a clock jumping backwards) stop
+  it at once, because without a trusted ``q`` there is no safe command to ramp through;
+* *staleness*: joint states count as fresh by their arrival time and by their header
+  stamp; zero stamps, stamps too old or too far in the future, and stamps going backwards
+  are untrustworthy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from policy_align_ros.control.limits import ROUNDOFF, ramp_toward, velocity_scale
+from policy_align_ros.control.step import ControlStep, PolicyFn
+
+__all__ = ["STAMP_REJECTIONS", "ArmedController", "Output"]
+
+
+@dataclass
+class Output:
+    """What one call of :class:`ArmedController` asks its caller to do.
+
+    Attributes
+    ----------
+    command : ndarray, shape (n,), or None
+        Command to publish now (rad/s, controller order); None: publish nothing.
+    zero_reason : str
+        Why the command is zero or going to zero; empty while following the policy.
+    ramp_scale : float
+        Fraction of the wanted change made in the last step (1: on target).
+    events : list of (str, str)
+        ``(level, text)`` lines to log, level ``"info"`` or ``"warning"``.
+    rejected : str
+        Set by :meth:`ArmedController.joint_state` when it refused the state for its
+        stamp: one of :data:`STAMP_REJECTIONS` (the log line has the details).
+    extrapolation_scale : float
+        The extrapolation guard's scale at the last evaluated step (1: not scaling).
+    """
+
+    command: np.ndarray | None
+    zero_reason: str
+    ramp_scale: float
+    events: list[tuple[str, str]] = field(default_factory=list)
+    rejected: str = ""
+    extrapolation_scale: float = 1.0
+
+
+#: Keys of :attr:`Output.rejected`: stamp zero, earlier than the last one, older than
+#: ``state_timeout_s + max_clock_skew_s``, later than the clock by ``max_clock_skew_s``.
+STAMP_REJECTIONS: tuple[str, ...] = ("zero_stamp", "stamp_backwards", "stamp_too_old",
+                                     "stamp_in_future")
+
+#: Minimum time between two reports of a constraint forcing a larger change (ns).
+_FORCED_REPORT_NS = 1_000_000_000
+
+
+class ArmedController:
+    """Arming, staleness and acceleration ramps around a :class:`ControlStep`.
+
+    Times are integer nanoseconds of the caller's clock (the executor node's clock, so
+    simulated time works); nothing here reads a clock. Per control period the caller
+    passes the latest valid joint state (:meth:`joint_state`), reports broken ones
+    (:meth:`reject_state`) and calls :meth:`tick`; every call returns an :class:`Output`
+    whose ``command``, when not None, must be published at once. A tick sooner than one
+    period after the last published command may change it by the acceleration bound
+    times the time in between only, so calling :meth:`tick` more often (one step per
+    joint state of a driver faster than the period) cannot exceed ``max_acceleration``.
+
+    Parameters
+    ----------
+    step : ControlStep
+        The control law (policy, constraints, limits, period ``dt`` in s).
+    max_acceleration : float
+        Per-joint acceleration bound of the command (rad/s^2), > 0.
+    state_timeout_s : float
+        Joint states older than this (by arrival, or by stamp beyond the allowed skew)
+        are stale (s), > 0.
+    max_clock_skew_s : float
+        Allowed offset between the joint states' stamps and this clock (s), >= 0.
+    joint_names : sequence of str, optional
+        Names used in log lines (controller order).
+
+    Attributes
+    ----------
+    armed : bool
+        Whether commands follow the policy.
+    command : ndarray, shape (n,)
+        The last command published (rad/s).
+    faulted : bool
+        Whether the last disarm was caused by a fault (joint states, clock, policy output)
+        rather than requested; cleared when armed again.
+    context : str
+        Appended to arm and disarm log lines (the caller puts the model and the
+        constraint specs there).
+    ramp_scale : float
+        ``alpha`` of the last step (:func:`ramp_toward`; 1 = on target).
+    extrapolation_scale : float
+        The extrapolation guard's scale at the last step that followed the policy.
+    """
+
+    def __init__(
+        self,
+        step: ControlStep,
+        max_acceleration: float,
+        state_timeout_s: float,
+        max_clock_skew_s: float = 0.0,
+        joint_names: Sequence[str] | None = None,
+    ) -> None:
+        self.step = step
+        self.max_acceleration = max_acceleration
+        self.state_timeout_s = state_timeout_s
+        self.max_clock_skew_s = max_clock_skew_s
+        n = step.n_joints
+        self.joint_names = (list(joint_names) if joint_names is not None
+                            else [f"joint {i}" for i in range(n)])
+        self.armed = False
+        self.faulted = False
+        self.command = np.zeros(n)
+        self.context = ""
+        self.zero_reason = "not enabled yet"
+        self.ramp_scale = 1.0
+        self.extrapolation_scale = 1.0
+        # Nothing left to publish: disarmed and the zero command has gone out.
+        self._silent = True
+        self._q: np.ndarray | None = None
+        self._stamp_ns: int | None = None
+        self._arrival_ns: int | None = None
+        self._last_now_ns: int | None = None
+        self._forced_reported_ns: int | None = None
+        self._published_ns: int | None = None  # when the last ramped command went out
+        self._forced_suppressed = 0
+        self._events: list[tuple[str, str]] = []
+
+    # -- settings -------------------------------------------------------------------
+    @property
+    def max_acceleration(self) -> float:
+        """Acceleration bound (rad/s^2); also the step's braking limit near joint limits."""
+        return self.step.max_acceleration
+
+    @max_acceleration.setter
+    def max_acceleration(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"max_acceleration: must be finite and > 0, got {value}")
+        self.step.max_acceleration = value
+
+    @property
+    def state_timeout_s(self) -> float:
+        """Joint-state timeout (s)."""
+        return self._timeout_ns / 1e9
+
+    @state_timeout_s.setter
+    def state_timeout_s(self, value: float) -> None:
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"state_timeout_s: must be finite and > 0, got {value}")
+        self._timeout_ns = round(value * 1e9)
+
+    @property
+    def max_clock_skew_s(self) -> float:
+        """Allowed stamp-to-clock offset (s)."""
+        return self._skew_ns / 1e9
+
+    @max_clock_skew_s.setter
+    def max_clock_skew_s(self, value: float) -> None:
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"max_clock_skew_s: must be finite and >= 0, got {value}")
+        self._skew_ns = round(value * 1e9)
+
+    @property
+    def max_delta(self) -> float:
+        """Largest change of a joint's command in one step (rad/s)."""
+        return self.max_acceleration * self.step.dt
+
+    @property
+    def last_q(self) -> np.ndarray | None:
+        """The last accepted joint positions (n,), or None since a fault or at start."""
+        return self._q
+
+    @property
+    def publishing(self) -> bool:
+        """Whether :meth:`tick` still publishes (armed, or ramping down to zero)."""
+        return not self._silent
+
+    # -- joint states ---------------------------------------------------------------
+    def joint_state(self, q: np.ndarray, stamp_ns: int, now_ns: int) -> Output:
+        """Take a validated joint state ``q`` (n,) stamped ``stamp_ns``, received ``now_ns``.
+
+        A stamp that is zero, older than ``state_timeout_s + max_clock_skew_s``, more than
+        ``max_clock_skew_s`` in the future or earlier than the last one makes the state
+        untrustworthy: the command goes to zero at once and the controller disarms. A
+        stamp equal to the last one is ignored (a repeat is no news).
+        """
+        jumped = self._clock(now_ns)
+        if jumped is not None:
+            return jumped
+        stamp_ns = int(stamp_ns)
+        last = self._stamp_ns
+        if last is not None and stamp_ns == last:
+            return self._output(None)
+        key, problem = "", ""
+        if stamp_ns <= 0:
+            key, problem = "zero_stamp", "joint state without a header stamp"
+        elif now_ns - stamp_ns > self._timeout_ns + self._skew_ns:
+            key = "stamp_too_old"
+            problem = (f"joint state stamp {(now_ns - stamp_ns) / 1e9:.3f} s old "
+                       f"(> state_timeout_s + max_clock_skew_s)")
+        elif stamp_ns - now_ns > self._skew_ns:
+            key = "stamp_in_future"
+            problem = (f"joint state stamp {(stamp_ns - now_ns) / 1e9:.3f} s in the future "
+                       f"(> max_clock_skew_s)")
+        elif last is not None and stamp_ns < last:
+            key = "stamp_backwards"
+            problem = f"joint state stamp went backwards by {(last - stamp_ns) / 1e9:.3f} s"
+        if problem:
+            out = self.reject_state(problem)
+            out.rejected = key
+            return out
+        self._q = np.asarray(q, dtype=float)
+        self._stamp_ns = stamp_ns
+        self._arrival_ns = int(now_ns)
+        return self._output(None)
+
+    def reject_state(self, reason: str) -> Output:
+        """A broken joint state (NaN, duplicate names, bad lengths, bad stamp) arrived.
+
+        The last good state is forgotten, so arming needs a fresh valid one, and the
+        command goes to zero at once.
+        """
+        self._forget_state()
+        return self.fault(reason)
+
+    def state_problem(self, now_ns: int) -> str:
+        """Why the joint states are not fresh at ``now_ns``; empty when they are."""
+        if self._q is None:
+            return "no valid joint state received"
+        age = now_ns - self._arrival_ns
+        if age > self._timeout_ns:
+            return f"joint states stale: last received {age / 1e9:.3f} s ago"
+        age = now_ns - self._stamp_ns
+        if age > self._timeout_ns + self._skew_ns:
+            return f"joint states stale: last stamp {age / 1e9:.3f} s old"
+        return ""
+
+    def _forget_state(self) -> None:
+        self._q = None
+        self._stamp_ns = None
+        self._arrival_ns = None
+
+    def _clock(self, now_ns: int) -> Output | None:
+        """Check that the clock runs forwards; a jump back (restarted sim) disarms."""
+        last = self._last_now_ns
+        self._last_now_ns = int(now_ns)
+        if last is None or now_ns >= last:
+            return None
+        self._forget_state()
+        self._forced_reported_ns = None
+        return self.fault(f"clock jumped back by {(last - now_ns) / 1e9:.3f} s "
+                          f"(restarted simulation?)")
+
+    # -- arming ---------------------------------------------------------------------
+    def arm_refusal(self, now_ns: int) -> str:
+        """Why :meth:`arm` at ``now_ns`` would be refused; empty when it would arm.
+
+        No side effects, so a caller can check before a slower step (the executor node
+        asks the controller for its joint order only when arming would go ahead).
+        """
+        if self.step.policy is None:
+            return "no model loaded"
+        return self.state_problem(now_ns) or self.step.constraint_problem(self._q)
+
+    def arm(self, now_ns: int) -> tuple[bool, str, Output]:
+        """Request to follow the policy.
+
+        Returns
+        -------
+        (accepted, reason, output)
+            Refused, with the reason, without a model or with stale joint states.
+        """
+        jumped = self._clock(now_ns)
+        refusal = self.arm_refusal(now_ns)
+        if refusal:
+            return False, refusal, jumped or self._output(None)
+        if self.armed:
+            return True, "already enabled", self._output(None)
+        self.armed = True
+        self.faulted = False
+        self._silent = False
+        self.zero_reason = ""
+        # Held frames stay where they are at enable; drift is measured from here.
+        self.step.latch(self._q)
+        # The ramp starts from the last command sent (zero, or partway down a ramp).
+        self._log("info", "armed: following the policy")
+        return True, "enabled", self._output(None)
+
+    def disarm(self, reason: str) -> Output:
+        """Stop following the policy and ramp the command down to zero (``reason`` logged)."""
+        if self.armed:
+            self.armed = False
+            self.zero_reason = reason
+            self._log("info", f"disarmed: {reason}; ramping down at "
+                              f"{self.max_acceleration:g} rad/s^2")
+        return self._output(None)
+
+    def fault(self, reason: str) -> Output:
+        """Zero command at once and disarm (nothing to publish when already silent)."""
+        if self._silent:
+            return self._output(None)
+        was_armed = self.armed
+        self.armed = False
+        self.faulted = True
+        self._silent = True
+        self.zero_reason = reason
+        self.ramp_scale = 1.0
+        self.command = np.zeros(self.step.n_joints)
+        self._log("warning", f"{'disarmed' if was_armed else 'ramp-down cut short'}: "
+                             f"{reason}; zero command at once")
+        return self._output(self.command.copy())
+
+    def set_policy(self, policy: PolicyFn | None, permutation: np.ndarray | None = None,
+                   reason: str = "model swap") -> Output:
+        """Swap the model; an armed controller disarms and ramps down (``reason``)."""
+        out = self.disarm(reason)
+        self.step.policy = policy
+        self.step.permutation = (np.arange(self.step.n_joints) if permutation is None
+                                 else np.asarray(permutation, dtype=int))
+        return out
+
+    # -- the control period ---------------------------------------------------------
+    def tick(self, now_ns: int) -> Output:
+        """One control period at ``now_ns``: the command to publish, if any."""
+        jumped = self._clock(now_ns)
+        if jumped is not None:
+            return jumped
+        if self._silent:
+            return self._output(None)
+        problem = self.state_problem(now_ns)
+        if problem:
+            return self.fault(problem)
+        q = self._q
+        step = self.step
+        previous = self.command
+        projector = None
+        if self.armed:
+            try:
+                target, reason, projector = step.evaluate(q, previous)
+            except Exception as err:  # noqa: BLE001 - e.g. an SVD that did not converge
+                target, projector = np.zeros(step.n_joints), None
+                reason = f"control step failed: {type(err).__name__}: {err}"
+            self.extrapolation_scale = step.extrapolation_scale
+            if reason:
+                # The policy cannot be trusted here, but q and the constraints still
+                # can: ramp down like a disable. (disarm() hands its log line back in
+                # an Output; keep it for this tick's.)
+                logged = self.disarm(reason).events
+                self._events.extend(logged)
+                self.faulted = True
+        if not self.armed:
+            target = np.zeros(step.n_joints)
+            try:
+                projector = step.hold_projector(q, previous)
+            except Exception as err:  # noqa: BLE001 - the ramp down needs none of it
+                return self.fault(f"constraints failed: {type(err).__name__}: {err}")
+            if projector is None:
+                return self.fault("constraint matrix not finite")
+        limit = self.max_delta
+        if self._published_ns is not None:
+            since = max(0, now_ns - self._published_ns) / 1e9
+            limit = self.max_acceleration * min(step.dt, since)
+        command, alpha, forced = ramp_toward(previous, target, projector, limit)
+        # Round-off of the projection (1e-17 rad/s on a joint locked at its limit) would
+        # read as "pushed outwards" below and stop every joint.
+        command[np.abs(command) < ROUNDOFF] = 0.0
+        # Safety net, rarely active: the projection of the previous command may exceed a
+        # speed limit, or it may head for a position limit faster than the target did. A
+        # speed limit lowered at run time is reached by the ramp, not in one step: a joint
+        # that was already faster keeps its last speed as its bound while it slows down.
+        speed_bound = np.maximum(step.max_velocity, np.abs(previous))
+        s = velocity_scale(q, command, step.dt, step.lower, step.upper, speed_bound)
+        if s < 1.0:
+            command = s * command
+        self._report_forced(command - previous, forced, s, now_ns, limit)
+        self.command = command
+        self._published_ns = now_ns
+        self.ramp_scale = alpha
+        if not self.armed and not np.any(command):
+            self._silent = True
+            self._log("info", f"command at zero ({self.zero_reason})")
+        return self._output(command.copy())
+
+    def _report_forced(self, change: np.ndarray, forced: np.ndarray, s: float,
+                       now_ns: int, limit: float) -> None:
+        size_all = np.abs(change)
+        size = float(size_all.max(initial=0.0))
+        if size <= limit * (1.0 + 1e-9) + 1e-12:
+            return
+        worst = int(np.argmax(size_all))
+        # Throttled on the caller's clock: a barrier can stay in contact for many steps.
+        last = self._forced_reported_ns
+        if last is not None and now_ns - last < _FORCED_REPORT_NS:
+            self._forced_suppressed += 1
+            return
+        cause = ("speed or position limit" if s < 1.0 else
+                 "newly active or changed constraint")
+        more = (f" ({self._forced_suppressed} more since the last report)"
+                if self._forced_suppressed else "")
+        self._forced_reported_ns = int(now_ns)
+        self._forced_suppressed = 0
+        self._events.append(("warning", (
+            f"{cause} forces a command change of {size:.4g} rad/s on "
+            f"{self.joint_names[worst]} in one step (ramp allows {limit:.4g}; largest "
+            f"forced part {float(np.max(np.abs(forced))):.4g}){more}")))
+
+    def _log(self, level: str, text: str) -> None:
+        self._events.append((level, f"{text}{'; ' + self.context if self.context else ''}"))
+
+    def _output(self, command: np.ndarray | None) -> Output:
+        events, self._events = self._events, []
+        return Output(command, self.zero_reason, self.ramp_scale, events,
+                      extrapolation_scale=self.extrapolation_scale)

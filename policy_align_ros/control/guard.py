@@ -1,0 +1,215 @@
+"""The extrapolation guard: scale down commands that lead away from the demonstrated data.
+
+With ``d(q)`` the distance of the model's state at ``q`` to the demonstrated data in
+spacings of the training data, ``d_max`` the parameter ``max_extrapolation`` and ``b`` the
+band, a command leading further out (``grad d . qdot > 0``) is scaled by
+``g = clip(1 - (d - d_max) / b, 0, 1)``; motion back in is never scaled. ``b`` is at
+least the stopping distance at ``max_velocity`` and ``max_acceleration`` (in spacings),
+so a joint ramping down from full speed at ``d_max`` stops inside the band.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+__all__ = [
+    "DEFAULT_MAX_EXTRAPOLATION",
+    "MIN_BAND",
+    "DistanceFn",
+    "ExtrapolationGuard",
+    "FrameSupportDistance",
+    "SupportDistance",
+]
+
+#: ``distance(q (n,)) -> (d, grad)``: see :class:`ExtrapolationGuard`.
+DistanceFn = Callable[[np.ndarray], tuple[float, "np.ndarray | None"]]
+
+#: Default ``max_extrapolation`` (spacings): beyond the farthest distance that runs from
+#: new starts of the demonstrations' own distribution reach, so those stay unscaled.
+DEFAULT_MAX_EXTRAPOLATION = 6.0
+#: Smallest band of the guard (spacings), whatever the stopping distance.
+MIN_BAND = 1.0
+
+
+def _support_spacing(model) -> float:
+    """``model.support_spacing_`` (> 0, finite); ValueError when the model has none."""
+    spacing = float(getattr(model, "support_spacing_", float("nan")))
+    if not (math.isfinite(spacing) and spacing > 0.0):
+        raise ValueError("model: has no support states (support_spacing_ missing)")
+    return spacing
+
+
+def _nearest_support(model, x: np.ndarray, spacing: float
+                     ) -> tuple[float, np.ndarray | None]:
+    """``d`` (spacings) of the state ``x`` to ``model``'s support, and ``(x - s) / (|x - s|
+    h)`` with ``s`` the nearest support state and ``h = spacing`` (None on the data)."""
+    d, nearest = model.support_query(x[None, :])
+    diff = x - nearest[0]
+    r = float(np.linalg.norm(diff))
+    if r == 0.0:
+        return 0.0, None
+    return float(d[0]), diff / (r * spacing)
+
+
+class SupportDistance:
+    """``d(q)`` and its gradient for a model learnt on joint positions (the guard's input).
+
+    Parameters
+    ----------
+    model : PolicyAlign
+        Fitted or loaded, with support states (its ``support_query``).
+    permutation : array_like of int, shape (n,), optional
+        From :func:`~policy_align_ros.control.joint_order.model_permutation`:
+        ``q[permutation]`` is ``q`` in model order.
+
+    Notes
+    -----
+    With ``x = q[permutation]``, ``s`` the nearest support state and ``h`` the spacing
+    (``model.support_spacing_``), ``d = |x - s| / h`` and ``grad d = (x - s) / (|x - s|
+    h)`` mapped back to controller order; ``|grad d| = 1 / h``.
+    """
+
+    def __init__(self, model, permutation: np.ndarray | None = None) -> None:
+        self.spacing = _support_spacing(model)
+        self.model = model
+        n = int(model.n_features_in_)
+        self.permutation = (np.arange(n) if permutation is None
+                            else np.asarray(permutation, dtype=int))
+
+    def __call__(self, q: np.ndarray) -> tuple[float, np.ndarray | None]:
+        """``(d, grad)`` at ``q`` (n,) in controller order (spacings, spacings per rad)."""
+        p = self.permutation
+        x = np.asarray(q, dtype=float)[p]
+        d, unit = _nearest_support(self.model, x, self.spacing)
+        if unit is None:
+            return d, None
+        grad = np.empty_like(x)
+        grad[p] = unit
+        return d, grad
+
+
+class FrameSupportDistance:
+    """The extrapolation guard's ``distance(q) -> (d, grad)`` for a frames model.
+
+    The model's support states live in its state space, the stacked frame positions
+    ``x = phi(q)`` (3F,), m. With ``s`` the support state nearest to ``x`` and ``h`` the
+    spacing of the training data (``model.support_spacing_``, m), ``d = |x - s| / h``
+    (spacings) and, to first order in ``q``, ``grad d = J^T (x - s) / (|x - s| h)``
+    (spacings per rad) with ``J`` (3F, n) the frames' Jacobian: the contract of
+    :class:`ExtrapolationGuard`.
+
+    Parameters
+    ----------
+    model : PolicyAlign
+        Learnt on the frame states of ``state_map`` (has ``support_query``).
+    state_map : TaskSpaceMap
+        The map from ``q`` (n,) in command order to ``x`` (3F,), of the executor's robot.
+    """
+
+    def __init__(self, model, state_map) -> None:
+        self.spacing = _support_spacing(model)
+        self.model = model
+        self.state_map = state_map
+
+    def __call__(self, q: np.ndarray) -> tuple[float, np.ndarray | None]:
+        """``(d, grad)`` at ``q`` (n,): spacings and spacings per rad (None on the data)."""
+        x, J = self.state_map.kinematics(np.asarray(q, dtype=float))
+        d, unit = _nearest_support(self.model, x, self.spacing)
+        if unit is None:
+            return d, None
+        return d, J.T @ unit
+
+class ExtrapolationGuard:
+    """Scales down commands that lead away from the demonstrated data.
+
+    Parameters
+    ----------
+    distance : callable ``distance(q) -> (d, grad)``
+        The contract: ``q`` (n,) joint positions in controller order (rad); ``d`` (float,
+        >= 0) the distance of the model's state at ``q`` to the demonstrated data in
+        spacings of the training data (``PolicyAlign.support_query``, which measures in
+        ``support_spacing_``); ``grad`` (n,) the gradient of ``d`` with respect to ``q``
+        in controller order (spacings per rad), or None where ``d`` has no direction
+        (on a support state). For a joint-space model use :class:`SupportDistance`; for
+        a task-space state ``x = phi(q)`` with Jacobian ``J`` (m, n) and nearest support
+        state ``s``, ``grad = J^T (x - s) / (|x - s| h)``. It may raise ValueError (the
+        step then gives zero with the reason).
+    max_extrapolation : float
+        ``d_max`` (spacings, > 0): the scale is 1 up to it.
+    min_band : float
+        Smallest band (spacings, > 0).
+
+    Notes
+    -----
+    The scale is ``g = clip(1 - (d - d_max) / b, 0, 1)`` for a command ``v`` with
+    ``grad . v > 0``, else 1, and ``g v`` is sent: one factor for the whole command
+    keeps its direction, so ``A v = 0`` still holds. The band is
+    ``b = max(min_band, |grad| |v_max| max(v_max) / (2 a))``: a command of at most
+    ``v_max`` per joint (2-norm ``|v_max|``) braked by a ramp at ``a`` per joint stops
+    within ``max(v_max) / a`` s, over at most ``|v_max| max(v_max) / (2 a)`` rad, which
+    moves ``d`` by at most ``|grad|`` times that: the stopping distance at
+    ``max_velocity`` in spacings. With no acceleration limit ``b = min_band``.
+    """
+
+    def __init__(self, distance: DistanceFn, max_extrapolation: float = DEFAULT_MAX_EXTRAPOLATION,
+                 min_band: float = MIN_BAND) -> None:
+        self.distance = distance
+        self.max_extrapolation = max_extrapolation
+        if not (math.isfinite(min_band) and min_band > 0.0):
+            raise ValueError(f"min_band: must be finite and > 0, got {min_band}")
+        self.min_band = float(min_band)
+
+    @property
+    def max_extrapolation(self) -> float:
+        """``d_max`` in spacings."""
+        return self._max
+
+    @max_extrapolation.setter
+    def max_extrapolation(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"max_extrapolation: must be finite and > 0, got {value}")
+        self._max = value
+
+    def band(self, grad_norm: float, max_velocity: np.ndarray,
+             max_acceleration: float | None) -> float:
+        """Band ``b`` (spacings) for ``|grad d| = grad_norm`` (spacings per rad).
+
+        Raises ValueError when the stopping distance is not finite (an infinite
+        ``max_velocity``).
+        """
+        if max_acceleration is None or not grad_norm > 0.0:
+            return self.min_band
+        vmax = np.asarray(max_velocity, dtype=float)
+        stop = grad_norm * float(np.linalg.norm(vmax)) * float(vmax.max()) / (
+            2.0 * max_acceleration)
+        if not math.isfinite(stop):
+            # No finite stopping distance (a joint without speed limit): no safe band.
+            raise ValueError("band needs finite max_velocity and gradient")
+        return max(self.min_band, stop)
+
+    def scale(self, q: np.ndarray, v: np.ndarray, max_velocity: np.ndarray,
+              max_acceleration: float | None) -> tuple[float, float]:
+        """Scale ``g`` in [0, 1] for command ``v`` (n,) at ``q`` (n,), and ``d``.
+
+        Raises
+        ------
+        ValueError
+            When the distance is not finite or its gradient has the wrong shape.
+        """
+        d, grad = self.distance(q)
+        d = float(d)
+        if not (math.isfinite(d) and d >= 0.0):
+            raise ValueError(f"extrapolation distance not finite ({d})")
+        if d <= self._max or grad is None:
+            return 1.0, d
+        grad = np.asarray(grad, dtype=float)
+        if grad.shape != np.shape(v) or not np.all(np.isfinite(grad)):
+            raise ValueError("extrapolation distance gradient not finite or of wrong shape")
+        if float(grad @ v) <= 0.0:
+            return 1.0, d  # back towards the data, or along it: never scaled
+        b = self.band(float(np.linalg.norm(grad)), max_velocity, max_acceleration)
+        return float(np.clip(1.0 - (d - self._max) / b, 0.0, 1.0)), d

@@ -1,0 +1,76 @@
+"""Joint orders: the model's against the controller's, the controller's against the executor's."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["joint_order_problem", "model_permutation"]
+
+
+def model_permutation(model_joints: Sequence[str] | None, joints: Sequence[str]) -> np.ndarray:
+    """Indices ``p`` such that ``q[p]`` is ``q`` (ordered as ``joints``) in model order.
+
+    Parameters
+    ----------
+    model_joints : sequence of str or None
+        The joint names the model was trained on (None: trust the order of ``joints``).
+    joints : sequence of str
+        The controller's joint order.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+
+    Raises
+    ------
+    ValueError
+        If the two sets of names differ; the message lists the missing and extra names.
+    """
+    joints = list(joints)
+    if model_joints is None:
+        return np.arange(len(joints))
+    model_joints = list(model_joints)
+    missing = [j for j in model_joints if j not in joints]
+    extra = [j for j in joints if j not in model_joints]
+    if missing or extra or len(model_joints) != len(joints):
+        raise ValueError(
+            "model joints do not match the configured joints: "
+            f"model needs {missing or 'nothing more'}, configured but not in the model "
+            f"{extra or 'none'}"
+        )
+    index = {name: i for i, name in enumerate(joints)}
+    return np.array([index[name] for name in model_joints], dtype=int)
+
+
+def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
+                        controller: str) -> str:
+    """What differs between a controller's ``joints`` and the executor's command order.
+
+    Parameters
+    ----------
+    controller_joints : sequence of str
+        The controller's ``joints`` parameter (the order it reads the command array in).
+    joints : sequence of str
+        The executor's ``joints`` (the order it writes the command array in).
+    controller : str
+        Controller node name, for the message.
+
+    Returns
+    -------
+    str
+        Empty when both lists are equal, else a sentence naming the difference.
+    """
+    theirs, mine = list(controller_joints), list(joints)
+    if theirs == mine:
+        return ""
+    missing = [j for j in mine if j not in theirs]
+    extra = [j for j in theirs if j not in mine]
+    if missing or extra or len(theirs) != len(mine):
+        return (f"controller {controller} has other joints than the executor: not in the "
+                f"controller {missing}, only in the controller {extra}")
+    slot = next(i for i, (a, b) in enumerate(zip(theirs, mine, strict=True)) if a != b)
+    return (f"controller {controller} orders the joints differently: command slot {slot} "
+            f"is {theirs[slot]!r} there and {mine[slot]!r} here (controller order "
+            f"{theirs})")

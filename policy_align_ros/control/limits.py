@@ -1,0 +1,220 @@
+"""Joint-limit rules of the control law: speed limits, velocity bounds, scale and ramp.
+
+Units: joint positions ``q`` in rad (or m for prismatic joints), velocities in rad/s,
+accelerations in rad/s^2, periods ``dt`` in s. One scale factor for a whole command keeps
+its direction, hence ``A(q) qdot = 0``; clipping joints one by one would not.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "ROUNDOFF",
+    "joint_velocity_bounds",
+    "limit_locks",
+    "ramp_toward",
+    "speed_limits",
+    "velocity_scale",
+]
+
+#: Commands smaller than this (rad/s) are round-off: they are sent as exact zeros.
+ROUNDOFF = 1e-12
+
+
+def limit_locks(
+    q: np.ndarray,
+    v: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    tol: float = 1e-9,
+) -> np.ndarray:
+    """Joints at (or beyond) a position limit whose velocity points outwards.
+
+    Parameters
+    ----------
+    q, v : ndarray, shape (n,)
+        Positions and candidate velocities.
+    lower, upper : ndarray, shape (n,)
+        Joint limits.
+    tol : float
+        Distance to a limit (units of ``q``) counted as touching it.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    return ((q >= upper - tol) & (v > 0.0)) | ((q <= lower + tol) & (v < 0.0))
+
+
+def _pick(values: np.ndarray | float, index: np.ndarray) -> np.ndarray | float:
+    """``values[index]`` for an array, ``values`` itself for a scalar (broadcasts)."""
+    return values[index] if getattr(values, "ndim", 0) else values
+
+
+def speed_limits(urdf_limits: np.ndarray, max_velocity: float) -> np.ndarray:
+    """Per-joint speed limits (n,) in rad/s: ``max_velocity`` or the URDF's when lower.
+
+    URDFs often give 0 for "no limit", so non-positive URDF entries are ignored.
+    """
+    urdf = np.where(urdf_limits > 0.0, urdf_limits, np.inf)
+    return np.minimum(urdf, float(max_velocity))
+
+
+def joint_velocity_bounds(q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                          max_velocity: np.ndarray | float | None = None,
+                          dt: float | None = None, max_acceleration: float | None = None,
+                          tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint bounds ``lo <= qdot <= hi`` (rad/s) from position and speed limits.
+
+    A joint at (or beyond) a limit may not move further out (bound 0 on that side).
+    With ``dt``, a joint may also not cross a limit within one period
+    (``(upper - q) / dt``); with ``max_velocity``, ``|qdot_j| <= max_velocity_j``; with
+    ``max_acceleration``, a joint heading for a limit at distance ``r`` is held to
+    ``sqrt(max_acceleration r)`` (the rules of :func:`velocity_scale`, below, for every
+    joint and both directions, so a command within these bounds is not scaled there).
+
+    Parameters
+    ----------
+    q, lower, upper : numpy.ndarray, shape (n,)
+        Joint positions and limits (rad or m; infinite limits allowed).
+    max_velocity : float or numpy.ndarray (n,), optional
+        Speed limits (> 0, may be inf), rad/s.
+    dt : float, optional
+        Period, s.
+    max_acceleration : float, optional
+        rad/s^2.
+    tol : float
+        Distance to a limit (units of ``q``) counted as touching it.
+
+    Returns
+    -------
+    lo, hi : numpy.ndarray, shape (n,)
+        ``lo <= 0 <= hi``, rad/s.
+    """
+    n = q.shape[0]
+    hi = np.where(q >= upper - tol, 0.0, np.inf)
+    lo = np.where(q <= lower + tol, 0.0, -np.inf)
+    if dt is not None:
+        with np.errstate(invalid="ignore"):
+            hi = np.minimum(hi, np.maximum(upper - q, 0.0) / dt)
+            lo = np.maximum(lo, -np.maximum(q - lower, 0.0) / dt)
+    if max_acceleration is not None:
+        with np.errstate(invalid="ignore"):
+            hi = np.minimum(hi, np.sqrt(max_acceleration * np.maximum(upper - q, 0.0)))
+            lo = np.maximum(lo, -np.sqrt(max_acceleration * np.maximum(q - lower, 0.0)))
+    if max_velocity is not None:
+        vmax = np.broadcast_to(np.asarray(max_velocity, dtype=float), (n,))
+        hi = np.minimum(hi, vmax)
+        lo = np.maximum(lo, -vmax)
+    return lo, hi
+
+
+def velocity_scale(
+    q: np.ndarray,
+    v: np.ndarray,
+    dt: float,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    max_velocity: np.ndarray,
+    max_acceleration: float | None = None,
+) -> float:
+    """Largest ``s in [0, 1]`` such that ``s v`` respects speed and position limits.
+
+    Parameters
+    ----------
+    q, v : ndarray, shape (n,)
+        Positions and the velocity direction (units of ``q`` per second).
+    dt : float
+        Period (s) over which ``q + s v dt`` must stay within ``[lower, upper]``.
+    lower, upper : ndarray, shape (n,)
+        Joint limits.
+    max_velocity : ndarray, shape (n,)
+        Per-joint speed limits (> 0, may be inf).
+    max_acceleration : float, optional
+        Units of ``q`` per s^2. When given, a joint heading for a limit at distance ``r``
+        is also held to ``sqrt(max_acceleration * r)``, the speed from which braking at
+        half that deceleration stops it at the limit: the other half is left to the
+        acceleration ramp, which lags a falling target.
+
+    Returns
+    -------
+    float
+        The scale; 0 when a joint at a limit is pushed outwards.
+    """
+    # Only moving joints bound the scale; indexing them first keeps this cheap (it runs
+    # twice per control step).
+    moving = np.flatnonzero(v)
+    if moving.size == 0:
+        return 1.0
+    vm = v[moving]
+    speed = np.abs(vm)
+    qm = q[moving]
+    room = np.where(vm > 0.0, _pick(upper, moving) - qm, qm - _pick(lower, moving))
+    np.maximum(room, 0.0, out=room)
+    bound = np.minimum(_pick(max_velocity, moving), room / dt)
+    if max_acceleration is not None:
+        np.minimum(bound, np.sqrt(max_acceleration * room), out=bound)
+    s = float((bound / speed).min())
+    return 1.0 if s >= 1.0 else max(s, 0.0)
+
+
+def ramp_toward(
+    previous: np.ndarray,
+    target: np.ndarray,
+    projector: np.ndarray,
+    max_delta: float,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """One acceleration-limited step from ``previous`` towards ``target``.
+
+    Ramp first, then project: ``c = P (previous + alpha (target - previous)) + (I - P)
+    target`` with the largest ``alpha in [0, 1]`` that keeps every ``|c_i - previous_i|
+    <= max_delta``. One ``alpha`` for all joints keeps the step's direction, so ``c``
+    satisfies the constraints whenever ``P`` projects onto their null space and ``P
+    target = target`` (``target`` from
+    :func:`~policy_align_ros.control.step.project_with_locks` with the same ``P``, or
+    zero). A target with a part outside that null space (a drift correction, which moves
+    a held frame on purpose) gets that part at once: ``A c = A target`` at every
+    ``alpha``, so the held frame moves as the correction says while the rest ramps.
+
+    The projection itself may force a change: ``P previous - previous`` is the part of
+    the previous command that the current constraints forbid (a constraint that has just
+    become active, or changed). On a joint where that forced change alone exceeds
+    ``max_delta`` the bound becomes the forced change, since the constraint wins; the
+    caller can report it from the returned ``forced``.
+
+    Parameters
+    ----------
+    previous, target : ndarray, shape (n,)
+        Last command sent and the wanted command (rad/s).
+    projector : ndarray, shape (n, n)
+        ``P``, the null-space projector of the constraints in force now.
+    max_delta : float
+        Largest change per joint in this step (rad/s): ``max_acceleration * dt``.
+
+    Returns
+    -------
+    command : ndarray, shape (n,)
+        ``c`` (rad/s); exactly ``target`` when ``alpha`` is 1.
+    alpha : float
+        The ramp scale: the fraction of the wanted change made in this step (1 = on
+        target, < 1 = acceleration-limited).
+    forced : ndarray, shape (n,)
+        ``P previous + (I - P) target - previous`` (rad/s).
+    """
+    base = projector @ previous
+    outside = target - projector @ target
+    if np.any(np.abs(outside) > ROUNDOFF):
+        base = base + outside
+    forced = base - previous
+    d = target - base
+    # Per joint, the largest alpha with |forced_i + alpha d_i| <= bound_i; bound_i >=
+    # |forced_i|, so alpha = 0 is always allowed and the minimum is >= 0.
+    bound = np.maximum(max_delta, np.abs(forced))
+    size = np.abs(d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.where(size > 0.0, (bound - np.sign(d) * forced) / size, np.inf)
+    alpha = float(np.clip(np.min(room, initial=np.inf), 0.0, 1.0))
+    if alpha == 1.0:
+        return target.copy(), 1.0, forced
+    return base + alpha * d, alpha, forced

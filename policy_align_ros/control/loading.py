@@ -1,0 +1,80 @@
+"""Loading a model file as the executor's joint-space policy for its robot."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from policy_align_ros.control.joint_order import model_permutation
+from policy_align_ros.control.task_policy import policy_for_state
+from policy_align_ros.kinematics.robot import Robot
+from policy_align_ros.learning import PolicyAlign
+
+__all__ = ["load_policy"]
+
+
+CONTROLLER_TIMEOUT_S = 1.0
+#: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
+_FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
+                     "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
+                     "min_singular_value")
+
+
+def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
+                bounds: Callable | None = None
+                ) -> tuple[PolicyAlign, Callable[[np.ndarray], np.ndarray], np.ndarray, str]:
+    """Load a PolicyAlign model file and make its joint-space policy for ``robot``.
+
+    A model learnt on joint positions must have been trained on ``robot``'s joints (in
+    any order). A model learnt on frame positions (its ``state_definition_`` is
+    ``{"type": "frames", ...}``) must have been learnt on the same robot (URDF, joints,
+    locked posture) and frames; its task-space policy ``pi_x`` is mapped to joint
+    velocities satisfying ``constraint`` by
+    :func:`policy_align_ros.kinematics.task_space.policy_for_state`.
+
+    Parameters
+    ----------
+    path : str
+        Model file (.npz).
+    robot : Robot
+        The executor's robot, joints in command order.
+    constraint : callable ``(q (n,), qdot (n,) or None) -> A (k, n)``, optional
+        The joint-space constraints in force (the executor passes its
+        ``ControlStep.constraint_matrix``, so parameter changes apply at once).
+    bounds : callable ``q (n,) -> (lo, hi)``, optional
+        Joint velocity bounds (rad/s) a task-space policy keeps to by redistributing its
+        task (the executor passes its speed, position and braking limits).
+
+    Returns
+    -------
+    (model, policy, permutation, state)
+        The model; ``policy(Q (m, n)) -> (m, n)`` in rad/s on rows in model joint order;
+        the index array mapping command order to model order; a description of the
+        model's state ("joints" or "frames F1, F2").
+
+    Raises
+    ------
+    ValueError, FileNotFoundError, OSError
+        For a missing or unreadable file, or a model that does not fit ``robot``.
+    """
+    model = PolicyAlign.load(path)
+    joints = list(robot.joint_names)
+    state = getattr(model, "state_definition_", None)
+    if state is None:
+        if model.joint_names_ is None and model.n_features_in_ != len(joints):
+            raise ValueError(f"model {path}: has {model.n_features_in_} state dimensions, "
+                             f"the executor {len(joints)} joints")
+        return model, model.policy, model_permutation(model.joint_names_, joints), "joints"
+    kind = state.get("type") if isinstance(state, Mapping) else None
+    if kind != "frames":
+        raise ValueError(f"model {path}: state definition of type {kind!r} is not supported "
+                         "(expected 'frames' or none for joint positions)")
+    try:
+        policy = policy_for_state(model, state, robot, constraint, bounds=bounds)
+    except ValueError as err:
+        raise ValueError(f"model {path}: {err}") from None
+    # TaskSpacePolicy takes and returns rows in the robot's (command) joint order.
+    frames = ", ".join(policy.state_map.frames)
+    return model, policy, np.arange(len(joints)), f"frames {frames}"
+

@@ -1,0 +1,74 @@
+"""The executor's status in words, ROS-free: what its ``/diagnostics`` message says."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from policy_align_ros.control.armed import ArmedController
+
+__all__ = ["arming_status", "held_error_text"]
+
+
+def held_error_text(controller: ArmedController) -> str:
+    """Largest error of the held frames from their references (mm), or "none"."""
+    step = controller.step
+    q = controller.last_q
+    if not step.holding or q is None:
+        return "none"
+    return f"{1e3 * float(np.max(np.abs(step.hold_errors(q)), initial=0.0)):.3f}"
+
+
+def arming_status(controller: ArmedController, now_ns: int, *, model: str, model_state: str,
+                  constraints: str, rejected: Mapping[str, int]
+                  ) -> tuple[bool, str, dict[str, str]]:
+    """``(warn, message, values)`` describing ``controller`` at ``now_ns`` (ns).
+
+    Parameters
+    ----------
+    controller : ArmedController
+    now_ns : int
+        The caller's clock, ns (for the joint states' freshness).
+    model, model_state, constraints : str
+        The model file, its state ("joints" or "frames F1, F2") and the constraint specs
+        in force, empty when none.
+    rejected : mapping str -> int
+        Rejected joint-state messages by reason.
+
+    Returns
+    -------
+    warn : bool
+        True when disarmed by a fault (not by a request).
+    message : str
+        Armed, ramping down or at zero, with the reason.
+    values : dict str -> str
+        Key-value pairs, in display order.
+    """
+    problem = controller.state_problem(now_ns)
+    warn = not controller.armed and controller.faulted
+    if controller.armed:
+        message = "armed: following the policy"
+    elif controller.publishing:
+        message = f"disarmed, ramping down: {controller.zero_reason}"
+    else:
+        message = f"disarmed, command zero: {controller.zero_reason}"
+    step = controller.step
+    values = {
+        "armed": str(controller.armed).lower(),
+        "model": model or "(none)",
+        "model_state": model_state or "(none)",
+        "zero_reason": controller.zero_reason,
+        "ramp_scale": f"{controller.ramp_scale:.3f}",
+        "extrapolation_scale": (f"{controller.extrapolation_scale:.3f}"
+                                if step.guard is not None else "off"),
+        "extrapolation_distance": f"{step.extrapolation_distance:.2f}",
+        "held_frame_error_mm": held_error_text(controller),
+        "max_abs_command_rad_s": f"{float(np.max(np.abs(controller.command))):.4f}",
+        "max_acceleration_rad_s2": f"{controller.max_acceleration:g}",
+        "constraints": constraints,
+        "joint_states": problem or "fresh",
+        "rejected_joint_states": ", ".join(
+            f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
+    }
+    return warn, message, values

@@ -1,0 +1,88 @@
+"""Tests of policy_align_ros.control.limits (speed and position limits, the ramp)."""
+
+import numpy as np
+import pytest
+from control_rigs import DT, LOWER, STEP_TOL, UPPER, VMAX, N
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from policy_align_ros.control import joint_velocity_bounds, ramp_toward, velocity_scale
+
+
+def constrained_projector(A):
+    from policy_align_ros.kinematics import nullspace_projector
+
+    return nullspace_projector(A, N)
+
+
+def test_velocity_scale_respects_speed_and_position_limits():
+    q = np.zeros(N)
+    v = np.array([2.0, 0.1, 0, 0, 0, 0])
+    assert velocity_scale(q, v, DT, LOWER, UPPER, VMAX) == pytest.approx(0.25)
+    q_near = np.array([0.999, 0, 0, 0, 0, 0])
+    s = velocity_scale(q_near, np.array([0.2, 0, 0, 0, 0, 0]), DT, LOWER, UPPER, VMAX)
+    assert s == pytest.approx(0.5)  # 0.001 of room, 0.002 of travel in one period
+    assert velocity_scale(q, np.zeros(N), DT, LOWER, UPPER, VMAX) == 1.0
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(0, 3),
+       max_delta=st.floats(1e-4, 1.0))
+def test_ramp_toward_bounds_every_joint_and_keeps_the_constraints(seed, k, max_delta):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(k, N))
+    P = constrained_projector(A)
+    previous = P @ rng.normal(size=N)
+    target = P @ rng.normal(scale=3.0, size=N)
+    command, alpha, forced = ramp_toward(previous, target, P, max_delta)
+    assert 0.0 <= alpha <= 1.0
+    assert np.max(np.abs(command - previous)) <= max_delta + STEP_TOL
+    np.testing.assert_allclose(A @ command, 0.0, atol=1e-10)
+    np.testing.assert_allclose(forced, 0.0, atol=1e-12)
+    if alpha == 1.0:
+        np.testing.assert_array_equal(command, target)
+    else:  # as far as allowed: some joint uses its whole budget
+        assert np.max(np.abs(command - previous)) == pytest.approx(max_delta)
+
+
+def test_ramp_toward_lets_a_new_constraint_force_its_change_but_no_more():
+    previous = np.array([0.4, 0.4, 0.0, 0.1, 0.0, 0.0])
+    A = np.array([[1.0, 0, 0, 0, 0, 0]])  # joint 0 newly locked
+    P = constrained_projector(A)
+    target = np.array([0.0, 0.5, 0.3, 0.1, 0.0, 0.0])
+    command, alpha, forced = ramp_toward(previous, target, P, 0.02)
+    np.testing.assert_allclose(forced, [-0.4, 0, 0, 0, 0, 0], atol=1e-15)
+    assert command[0] == pytest.approx(0.0, abs=1e-15)  # the constraint wins at once
+    change = np.abs(command - previous)
+    assert np.all(change[1:] <= 0.02 + STEP_TOL) and 0.0 < alpha < 1.0
+
+
+def test_velocity_scale_brakes_for_limits_when_given_an_acceleration():
+    q = np.array([0.9, 0, 0, 0, 0, 0])  # 0.1 rad from the upper limit
+    v = np.array([0.5, 0, 0, 0, 0, 0])
+    assert velocity_scale(q, v, DT, LOWER, UPPER, VMAX) == 1.0
+    s = velocity_scale(q, v, DT, LOWER, UPPER, VMAX, max_acceleration=2.0)
+    assert s * 0.5 == pytest.approx(np.sqrt(2.0 * 0.1))
+
+
+def test_ramp_toward_applies_a_correction_outside_the_null_space_at_once():
+    rng = np.random.default_rng(11)
+    A = rng.normal(size=(2, N))
+    P = constrained_projector(A)
+    correction = A.T @ rng.normal(size=2)  # in the row space of A
+    target = P @ rng.normal(size=N) + correction
+    previous = P @ rng.normal(size=N)
+    command, alpha, _ = ramp_toward(previous, target, P, 0.01)
+    assert alpha < 1.0
+    np.testing.assert_allclose(A @ command, A @ target, atol=1e-12)
+
+
+def test_joint_velocity_bounds_from_position_and_speed_limits() -> None:
+    lower, upper = np.array([-1.0, -1.0, -np.inf]), np.array([1.0, 1.0, np.inf])
+    q = np.array([1.0, 0.99, 5.0])
+    lo, hi = joint_velocity_bounds(q, lower, upper)
+    np.testing.assert_array_equal(hi, [0.0, np.inf, np.inf])
+    np.testing.assert_array_equal(lo, [-np.inf] * 3)
+    lo, hi = joint_velocity_bounds(q, lower, upper, max_velocity=2.0, dt=0.01)
+    np.testing.assert_allclose(hi, [0.0, 1.0, 2.0])  # 0.01 rad of room over 10 ms
+    np.testing.assert_allclose(lo, [-2.0, -2.0, -2.0])
