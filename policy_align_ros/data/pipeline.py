@@ -48,6 +48,7 @@ from scipy.spatial import cKDTree
 
 from policy_align_ros.data.bags import load_dataset
 from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.state_spec import parse_state_spec
 
 #: Share of the mean squared step explained by position noise from which the summary
@@ -327,10 +328,6 @@ def fingerprint(traj: Trajectory) -> str:
     return digest.hexdigest()[:16]
 
 
-def _jsonable(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
-
-
 def _check_writable(path: Path) -> None:
     """Fail before a long fit when the model file could not be written."""
     if path.is_dir():
@@ -391,8 +388,8 @@ def _current_model_check(path: Path, model: PolicyAlign, held: list[Trajectory],
         return out
     subset = [held[k] for k in keep]
     out["compared_on"] = [held_names[k] for k in keep]
-    out["heldout_ncpe_observed"] = _jsonable(observed_ncpe(current.policy, subset))
-    out["new_ncpe_observed"] = _jsonable(observed_ncpe(model.policy, subset))
+    out["heldout_ncpe_observed"] = json_float(observed_ncpe(current.policy, subset), "null")
+    out["new_ncpe_observed"] = json_float(observed_ncpe(model.policy, subset), "null")
     return out
 
 
@@ -554,7 +551,7 @@ def learn_pipeline(
         raise ValueError(f"fit failed on {len(train)} demonstrations: {err}") from None
     fit_s = time.perf_counter() - start
     model.state_definition_ = definition
-    ncpe = _jsonable(observed_ncpe(model.policy, held)) if held else None
+    ncpe = json_float(observed_ncpe(model.policy, held), "null") if held else None
 
     # 6. summary and gates
     train_names = [demo_names[k] for k in train_k]
@@ -598,7 +595,7 @@ def learn_pipeline(
         "skipped_bags": skipped_bags,
         "cut_short_bags": cut_short,
         "sigma2": float(model.sigma2_),
-        "noise_to_step": _jsonable(model.fit_summary_["noise_to_step"]),
+        "noise_to_step": json_float(model.fit_summary_["noise_to_step"], "null"),
         "fit_time_s": float(fit_s),
         "heldout_ncpe_observed": ncpe,
         "state": state,

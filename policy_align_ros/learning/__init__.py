@@ -1,6 +1,6 @@
 """ROS-free learning core of policy_align_ros (PolicyAlign, paper Algorithm 1).
 
-Public API (DESIGN.md section 3)::
+Public API (``docs/design.md`` section 3)::
 
     from policy_align_ros.learning import PolicyAlign, Trajectory
     model = PolicyAlign(sigma="medium").fit([Trajectory(Q, times=t), ...])

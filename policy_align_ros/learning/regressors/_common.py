@@ -17,15 +17,15 @@ except ImportError:  # pragma: no cover - depends on the environment
     ThreadpoolController = None
 _CONTROLLER = None  # built once: inspecting the loaded BLAS libraries takes ~10 ms
 
-__all__ = ["NotFittedError", "assign_folds", "check_Xy", "check_query", "single_blas_thread",
+__all__ = ["assign_folds", "check_Xy", "check_query", "single_blas_thread",
            "thin_by_arc_length"]
 
 
 def single_blas_thread() -> contextlib.AbstractContextManager:
     """Context limiting BLAS to one thread (when threadpoolctl is installed).
 
-    The fit and the prediction run many small matrix products; on a shared machine
-    OpenBLAS's thread pool made them up to 8 times slower than one thread.
+    The fit and the prediction run many small matrix products, which OpenBLAS's thread
+    pool slows down on a shared machine.
     """
     global _CONTROLLER
     if ThreadpoolController is None:
@@ -33,10 +33,6 @@ def single_blas_thread() -> contextlib.AbstractContextManager:
     if _CONTROLLER is None:
         _CONTROLLER = ThreadpoolController()
     return _CONTROLLER.limit(limits=1, user_api="blas")
-
-
-class NotFittedError(ValueError):
-    """A model was used before ``fit`` (or ``load``)."""
 
 
 def check_Xy(X: np.ndarray, y: np.ndarray, groups: np.ndarray | None

@@ -77,12 +77,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from policy_align_ros.learning.base import NotFittedError
 from policy_align_ros.learning.regressors._common import (
-    NotFittedError,
     assign_folds,
     check_query,
     single_blas_thread,
 )
+from policy_align_ros.learning.regressors.registry import register
 
 #: Below this many query points a prediction is too small for BLAS threads to matter,
 #: and the executor's 1 kHz control step cannot afford even a cheap thread-limit switch.
@@ -1076,6 +1077,7 @@ def select_bandwidth(grid: np.ndarray, fold_errors: np.ndarray) -> float:
 # --------------------------------------------------------------------------- estimator
 
 
+@register
 class LocalLinearRegression:
     """Receptive fields with local linear models (LWPR prediction), batch fit, exact gradient.
 

@@ -13,17 +13,18 @@ from policy_align_ros.learning.regressors import (
     NotFittedError,
     TrendKernelRegression,
 )
-from policy_align_ros.learning.regressors.single_index import KNEES
-from policy_align_ros.learning.regressors.trend_kernel import (
-    CURVATURE_FLOOR,
+from policy_align_ros.learning.regressors.trend_kernel import effective_dof, quadratic_features
+from policy_align_ros.learning.regressors.trend_kernel.cv import (
     DOF_RESOLUTION,
     OFFSET_RIDGE_GRID,
     TREND_RIDGE_GRID,
-    _median_distance,
+)
+from policy_align_ros.learning.regressors.trend_kernel.features import _median_distance
+from policy_align_ros.learning.regressors.trend_kernel.single_index import KNEES
+from policy_align_ros.learning.regressors.trend_kernel.solvers import (
+    CURVATURE_FLOOR,
     _nonneg_solve,
     _solve_shared,
-    effective_dof,
-    quadratic_features,
 )
 
 
