@@ -83,10 +83,8 @@ def position_noise(positions: list[np.ndarray]) -> float:
     with every order. So each order's median (robust to the few differences that
     straddle a constraint switch), corrected from the median to the mean of a chi-square
     with ``n`` degrees of freedom, estimates ``sum_d s_d^2`` plus what is left of the
-    motion, and the smaller of the third- and fourth-order estimates is kept. On the
-    noise-free suite data it is at most 3e-8 of the mean squared step; with white noise
-    of 1e-3 it came within 7 % of the true variance at 10-100 Hz, and 21 % above it at
-    the sinusoid's dt = 1 (``docs/notes/potential.md``).
+    motion, and the smaller of the third- and fourth-order estimates is kept (its
+    accuracy: ``docs/notes/potential.md``).
 
     Parameters
     ----------

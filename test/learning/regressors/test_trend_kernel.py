@@ -297,10 +297,8 @@ def test_cv_picks_the_single_index_trend_for_a_velocity_limited_attractor():
 
 
 def test_cv_picks_a_steepening_single_index_trend_for_a_quartic_attractor():
-    # phi = q / 2 + q^2 / 4 with q = x'Wx: steeper than any bowl away from the goal. With
-    # signed profile weights (before session 12) every profile fell near the goal and the
-    # CV kept the quadratic family (nUPE 0.37 on these data); the steepening columns rise
-    # by construction (0.08).
+    # phi = q / 2 + q^2 / 4 with q = x'Wx: steeper than any bowl away from the goal. The
+    # steepening columns rise by construction, so the CV can keep such a profile.
     rng = np.random.default_rng(1)
     q, _ = np.linalg.qr(rng.standard_normal((7, 7)))
     W = q @ np.diag(np.geomspace(0.3, 1.5, 7)) @ q.T
