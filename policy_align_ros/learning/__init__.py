@@ -8,9 +8,10 @@ Public API (``docs/design.md`` section 3)::
 """
 
 from policy_align_ros.learning import metrics
+from policy_align_ros.learning.base import NotFittedError
 from policy_align_ros.learning.baseline import NaivePolicy
 from policy_align_ros.learning.policy_align import PolicyAlign
-from policy_align_ros.learning.regressors import LocalLinearRegression, NotFittedError
+from policy_align_ros.learning.regressors import LocalLinearRegression
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = [
