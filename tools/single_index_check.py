@@ -11,13 +11,14 @@ random times, and 10 more from new starts to score.
 would (``FORM`` ``cv``, the default, or ``quadratic`` for the quadratic family alone). Then,
 on its aligned potentials, the
 single-index model ``f(z) = sum_j beta_j B_j(q(z))`` is fitted, with
-``q = ||L'(z - z0)||^2`` (``L`` lower triangular), the basis of
-``single_index.profile_basis`` and ``c_j = s * KNEES`` (``s`` the median of ``sqrt(q)`` at
-the start), with one free offset per demonstration. ``(L, z0)`` start from the trend-alone
-fit of ``TrendKernelRegression`` and are fitted by variable projection (as
-``policy_align_ros.learning.regressors.single_index.fit_index`` does): ``beta`` and the
-offsets come from linear least squares inside the residual, and the Jacobian is Kaufman's,
-``-P_perp (dB/dtheta) beta``. Both models' nUPE on the new starts is printed.
+``q = ||L'(z - z0)||^2`` (``L`` lower triangular), the basis
+of ``single_index.profile_basis`` and ``c_j = s * KNEES`` (``s`` the median of
+``sqrt(q)`` at the start), with one free offset per demonstration. ``(L, z0)`` start from
+the trend-alone fit of ``TrendKernelRegression`` and are fitted by variable projection
+(``policy_align_ros.learning.regressors.trend_kernel.single_index.fit_index``, which this prototype
+became): ``beta`` and the offsets come from linear least squares inside the residual,
+and the Jacobian is Kaufman's, ``-P_perp (dB/dtheta) beta``. Both models' nUPE on the new
+starts is printed.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import numpy as np
 
 from policy_align_ros.learning import PolicyAlign, metrics
 from policy_align_ros.learning.regressors import TrendKernelRegression
-from policy_align_ros.learning.regressors.single_index import (
+from policy_align_ros.learning.regressors.trend_kernel.single_index import (
     fit_index,
     index_form,
     profile_basis,

@@ -52,6 +52,7 @@ from policy_align_ros.data.bags.dataset import DatasetReport, load_dataset
 from policy_align_ros.data.quality import Gates, observed_ncpe, refusals
 from policy_align_ros.data.selection import find_duplicates, fingerprint, holdout_split
 from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.state_spec import parse_state_spec
 
 #: Share of the mean squared step explained by position noise from which the summary
@@ -175,8 +176,6 @@ class PipelineResult:
         return f"{prefix}{text}; model {self.model_path}"
 
 
-def _jsonable(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
 
 
 def _check_writable(path: Path) -> None:
@@ -238,8 +237,8 @@ def _current_model_check(path: Path, model: PolicyAlign, held: list[Trajectory],
         return out
     subset = [held[k] for k in keep]
     out["compared_on"] = [held_names[k] for k in keep]
-    out["heldout_ncpe_observed"] = _jsonable(observed_ncpe(current.policy, subset))
-    out["new_ncpe_observed"] = _jsonable(observed_ncpe(model.policy, subset))
+    out["heldout_ncpe_observed"] = json_float(observed_ncpe(current.policy, subset), "null")
+    out["new_ncpe_observed"] = json_float(observed_ncpe(model.policy, subset), "null")
     return out
 
 
@@ -470,7 +469,7 @@ def _fit(train: list[Trajectory], held: list[Trajectory], run: _Run, states: _St
         raise ValueError(f"fit failed on {len(train)} demonstrations: {err}") from None
     fit_s = time.perf_counter() - start
     model.state_definition_ = states.definition
-    ncpe = _jsonable(observed_ncpe(model.policy, held)) if held else None
+    ncpe = json_float(observed_ncpe(model.policy, held), "null") if held else None
     return _Fit(model, fit_s, ncpe)
 
 
@@ -503,7 +502,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "skipped_bags": [{"bag": bag, "reason": why} for bag, why in report.skipped_bags],
         "cut_short_bags": [{"bag": bag, "reason": why} for bag, why in report.cut_short_bags],
         "sigma2": float(model.sigma2_),
-        "noise_to_step": _jsonable(model.fit_summary_["noise_to_step"]),
+        "noise_to_step": json_float(model.fit_summary_["noise_to_step"], "null"),
         "fit_time_s": float(fit.seconds),
         "heldout_ncpe_observed": fit.ncpe,
         "state": states.state,

@@ -47,7 +47,7 @@ import numpy as np
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.experiments.suite_cases import CASES, Problem
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
-from policy_align_ros.learning.model_io import atomic_write_text
+from policy_align_ros.learning.model_io import atomic_write_text, json_float
 from policy_align_ros.learning.outliers import largest_group
 from policy_align_ros.learning.regressors import (
     LocalLinearRegression,
@@ -364,7 +364,7 @@ def main(args: argparse.Namespace) -> int:
     print(text)
     out = Path(args.out)
     atomic_write_text(out / "suite.md", text)
-    atomic_write_text(out / "suite.json", json.dumps(results, indent=1, default=_json))
+    atomic_write_text(out / "suite.json", json.dumps(results, indent=1, default=json_float))
     plot_figure(results, out / "suite.png")
     return 0
 
@@ -414,9 +414,3 @@ def plot_figure(results: list[dict], path: Path) -> None:
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
-
-
-def _json(value):
-    if isinstance(value, (np.floating, np.integer, np.bool_)):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value)}")

@@ -279,7 +279,7 @@ def _nearest_per_trajectory_dense(X, labels, R, ref_labels, radius):
     """Same as the tree search, from distance blocks of whole reference trajectories.
 
     The nearest reference point of every query is found in single precision (half the
-    work of the matrix product, which dominates: 22-D, 10^4 points, 0.69 s -> 0.39 s),
+    work of the matrix product, which dominates),
     on data centred first so that the expanded distances do not cancel; its squared
     distance is then computed again exactly. Two references within single-precision
     round-off of each other may swap, which changes a weight by as little.

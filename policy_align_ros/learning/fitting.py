@@ -11,22 +11,20 @@ import contextlib
 
 import numpy as np
 
-from policy_align_ros.learning.base import NotFittedError
-
 try:  # Optional: OpenBLAS threads slow the many small products of the fits down a lot.
     from threadpoolctl import ThreadpoolController
 except ImportError:  # pragma: no cover - depends on the environment
     ThreadpoolController = None
 _CONTROLLER = None  # built once: inspecting the loaded BLAS libraries takes ~10 ms
 
-__all__ = ["NotFittedError", "assign_folds", "check_Xy", "check_query", "single_blas_thread"]
+__all__ = ["assign_folds", "check_Xy", "check_query", "single_blas_thread"]
 
 
 def single_blas_thread() -> contextlib.AbstractContextManager:
     """Context limiting BLAS to one thread (when threadpoolctl is installed).
 
-    The fit and the prediction run many small matrix products; on a shared machine
-    OpenBLAS's thread pool made them up to 8 times slower than one thread.
+    The fit and the prediction run many small matrix products, which OpenBLAS's thread
+    pool slows down on a shared machine.
     """
     global _CONTROLLER
     if ThreadpoolController is None:

@@ -1,4 +1,4 @@
-"""Error measures of the paper's experiments (section IV-B), as fixed in DESIGN.md.
+"""Error measures of the paper's experiments (section IV-B), as fixed in docs/design.md.
 
 Notation: ``phi`` true and ``phi_hat`` predicted potentials, shape (m,); ``pi`` and
 ``pi_hat`` true and predicted policies, shape (m, n); ``N`` the nullspace projectors of the

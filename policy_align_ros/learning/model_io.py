@@ -1,4 +1,4 @@
-"""Model files: one ``.npz`` of numeric arrays plus a JSON header (DESIGN.md section 4).
+"""Model files: one ``.npz`` of numeric arrays plus a JSON header (``docs/design.md`` section 4).
 
 The header is stored as a 0-d unicode array named ``__header__`` so that the file loads
 with ``allow_pickle=False``. Files are written to a temporary file in the target directory,
@@ -8,6 +8,7 @@ flushed to disk and renamed over the target, so a reader never sees half a model
 from __future__ import annotations
 
 import json
+import math
 import os
 import uuid
 import zipfile
@@ -22,6 +23,7 @@ __all__ = [
     "load_npz",
     "atomic_write_bytes",
     "atomic_write_text",
+    "json_float",
     "to_json",
 ]
 
@@ -103,6 +105,43 @@ def to_json(value: Any, field: str) -> Any:
         return [to_json(item, f"{field}[{i}]") for i, item in enumerate(value)]
     raise ValueError(f"header field {field!r}: a {type(value).__name__} cannot be written "
                      "as JSON (give a number, string, bool, None, list or dict)")
+
+
+def json_float(value: Any, nonfinite: str = "keep") -> Any:
+    """A float or NumPy scalar as the plain Python value a JSON document holds.
+
+    Parameters
+    ----------
+    value : float, int, bool, NumPy scalar or None
+        ``None`` is returned as is.
+    nonfinite : {"keep", "string", "null"}
+        What a NaN or infinite float becomes: kept as a float (``json`` writes ``NaN`` and
+        ``Infinity``), the string ``"nan"``, ``"inf"`` or ``"-inf"`` (model headers, which
+        ``float()`` reads back), or ``None``.
+
+    Returns
+    -------
+    float, int, bool, str or None
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a number (so that it serves as ``json.dumps(default=...)``).
+    """
+    if value is None:
+        return None
+    if isinstance(value, np.generic) and isinstance(value.item(), (bool, int, float)):
+        value = value.item()
+    if not isinstance(value, (bool, int, float)):
+        raise TypeError(f"not JSON-serialisable: {type(value)}")
+    if isinstance(value, float) and not math.isfinite(value):
+        if nonfinite == "string":
+            return "nan" if math.isnan(value) else "inf" if value > 0 else "-inf"
+        if nonfinite == "null":
+            return None
+        if nonfinite != "keep":
+            raise ValueError(f"nonfinite must be 'keep', 'string' or 'null', got {nonfinite!r}")
+    return value
 
 
 def _plain(value: Any, field: str) -> bool | int | float | str:

@@ -14,9 +14,8 @@ or, with measured velocities ``v_i = N_i pi_i``, the trapezoid rule
 
 with ``F_i`` its estimate of the step's curvature term ``dx_i^T H dx_i`` (``H`` the
 Hessian of ``phi``). ``F_i`` is exact only while ``dx_i`` lies in the range of ``N_{i+1}``;
-across a constraint switch it is wrong by a first-order amount, and one such step cost
-the suite's quadratics more than all their other steps together
-(:func:`step_curvatures` replaces it there).
+across a constraint switch it is wrong by a first-order amount (:func:`step_curvatures`
+replaces it there).
 
 Both return potentials with ``phi_1 = 0``; the unknown offset is found by alignment. With
 times in seconds, the learnt policy ``-grad phi`` is in state units per second.
@@ -84,10 +83,8 @@ def position_noise(positions: list[np.ndarray]) -> float:
     with every order. So each order's median (robust to the few differences that
     straddle a constraint switch), corrected from the median to the mean of a chi-square
     with ``n`` degrees of freedom, estimates ``sum_d s_d^2`` plus what is left of the
-    motion, and the smaller of the third- and fourth-order estimates is kept. On the
-    noise-free suite data it is at most 3e-8 of the mean squared step; with white noise
-    of 1e-3 it came within 7 % of the true variance at 10-100 Hz, and 21 % above it at
-    the sinusoid's dt = 1 (``docs/notes/potential.md``).
+    motion, and the smaller of the third- and fourth-order estimates is kept (its
+    accuracy: ``docs/notes/potential.md``).
 
     Parameters
     ----------
@@ -124,8 +121,7 @@ def euler_potential(positions: np.ndarray, dt: np.ndarray | float = 1.0, noise: 
     noise : float
         Variance of white noise on the states, summed over the coordinates
         (:func:`position_noise`; squared state units). Noise adds ``2 noise`` to every
-        squared step on average, a drift of the potential with time that is subtracted;
-        uncorrected, noise as large as the median step sent nUPE from 1e-4 to 0.4.
+        squared step on average, a drift of the potential with time that is subtracted.
 
     Returns
     -------
@@ -372,21 +368,18 @@ def leading_rest(positions: np.ndarray, noise: float) -> int:
     repeated with its measurement noise. They tell nothing of the policy, yet the step
     where the motion starts inside a sample period is wrong to first order under every
     rule, as at a constraint switch, and there the motion is usually at its fastest. A
-    rest of noisy samples then weighs that error as much as the motion beside it: 24
-    demonstrations of a 3-D quadratic with noise 2e-3 gave nUPE 2.3e-4, and 2.7e-3 held
-    a second before and after the motion; 2.4e-4 with the leading rest trimmed
+    rest of noisy samples then weighs that error as much as the motion beside it
     (``docs/notes/potential.md``, "Rest before the motion").
     The rest is the samples that stay as close to the first one as noise alone keeps
     two samples, with probability ``1 -`` :data:`REST_FALSE_ALARM` (a chi-square with
     ``n`` degrees of freedom scaled by ``2 noise / n``; without noise, the first state
     repeated exactly). Under noise as large as the steps, motion itself stays a few
     samples in that neighbourhood, so a prefix no longer than motion at the median step
-    takes to leave it is kept (trimming the first samples of the suite's sinusoid, with
-    noise the size of a step, made one data set's nUPE eight times worse). Recorded
+    takes to leave it is kept (trimming motion costs more than keeping rest). Recorded
     velocities do not tell the two apart there: motion moves less than the noise in a
     step, too. A rest at the end is kept: a robot settling at its goal moves
     less than the noise, per step and over many steps, and those samples still inform
-    the fit (trimmed the same way, they cost a converging data set half its accuracy).
+    the fit.
 
     Parameters
     ----------
@@ -429,7 +422,7 @@ def switch_cuts(traj: Trajectory) -> np.ndarray:
     geometric mean of its neighbours' (the first and the last step: its one
     neighbour's), and above round-off (``sqrt(eps)``). The geometric mean, unlike the
     larger neighbour, still finds a switch right after a fast first step or next to
-    another switch (``docs/notes/potential.md``, session 10).
+    another switch (``docs/notes/potential.md``).
 
     Returns
     -------

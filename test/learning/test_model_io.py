@@ -2,6 +2,7 @@
 
 import errno
 import json
+import math
 import os
 import stat
 import zipfile
@@ -15,6 +16,7 @@ from policy_align_ros.learning.model_io import (
     FORMAT_VERSION,
     atomic_write_bytes,
     atomic_write_text,
+    json_float,
     load_npz,
     save_npz,
 )
@@ -252,3 +254,22 @@ def test_euler_scale_and_position_noise_survive_save_and_load(tmp_path):
     del header["training"]["euler_scale"], header["training"]["position_noise_rms"]
     oldest = PolicyAlign.load(save_npz(tmp_path / "oldest.npz", header, arrays))
     assert (oldest.euler_scale_, oldest.position_noise_) == (1.0, 0.0)
+
+
+def test_json_float_writes_non_finite_values_as_each_format_holds_them():
+    assert json_float(np.float64(0.5)) == 0.5 and type(json_float(np.float64(0.5))) is float
+    assert type(json_float(np.int64(3))) is int and json_float(np.bool_(True)) is True
+    assert json_float(None) is None
+    # Model headers: strings that float() reads back.
+    assert [json_float(v, "string") for v in (math.inf, -math.inf, math.nan, 2.0)] == [
+        "inf", "-inf", "nan", 2.0]
+    # Reports: null.
+    assert json_float(np.float64(math.inf), "null") is None
+    assert json_float(math.nan, "null") is None
+    # As json.dumps(default=...): NumPy scalars only, anything else is a TypeError.
+    assert json.dumps({"a": np.float32(0.5), "b": np.int64(2)}, default=json_float) == (
+        '{"a": 0.5, "b": 2}')
+    with pytest.raises(TypeError, match="not JSON-serialisable"):
+        json.dumps({"a": object()}, default=json_float)
+    with pytest.raises(ValueError, match="nonfinite"):
+        json_float(math.inf, "zero")

@@ -13,17 +13,18 @@ from policy_align_ros.learning.regressors import (
     NotFittedError,
     TrendKernelRegression,
 )
-from policy_align_ros.learning.regressors.single_index import KNEES
-from policy_align_ros.learning.regressors.trend_kernel import (
-    CURVATURE_FLOOR,
+from policy_align_ros.learning.regressors.trend_kernel import effective_dof, quadratic_features
+from policy_align_ros.learning.regressors.trend_kernel.cv import (
     DOF_RESOLUTION,
     OFFSET_RIDGE_GRID,
     TREND_RIDGE_GRID,
-    _median_distance,
+)
+from policy_align_ros.learning.regressors.trend_kernel.features import _median_distance
+from policy_align_ros.learning.regressors.trend_kernel.single_index import KNEES
+from policy_align_ros.learning.regressors.trend_kernel.solvers import (
+    CURVATURE_FLOOR,
     _nonneg_solve,
     _solve_shared,
-    effective_dof,
-    quadratic_features,
 )
 
 
@@ -296,10 +297,8 @@ def test_cv_picks_the_single_index_trend_for_a_velocity_limited_attractor():
 
 
 def test_cv_picks_a_steepening_single_index_trend_for_a_quartic_attractor():
-    # phi = q / 2 + q^2 / 4 with q = x'Wx: steeper than any bowl away from the goal. With
-    # signed profile weights (before session 12) every profile fell near the goal and the
-    # CV kept the quadratic family (nUPE 0.37 on these data); the steepening columns rise
-    # by construction (0.08).
+    # phi = q / 2 + q^2 / 4 with q = x'Wx: steeper than any bowl away from the goal. The
+    # steepening columns rise by construction, so the CV can keep such a profile.
     rng = np.random.default_rng(1)
     q, _ = np.linalg.qr(rng.standard_normal((7, 7)))
     W = q @ np.diag(np.geomspace(0.3, 1.5, 7)) @ q.T

@@ -2,7 +2,7 @@
 
 Notation
 --------
-States ``z`` (n,) are standardised (see :mod:`.trend_kernel`). The trend is::
+States ``z`` (n,) are standardised (see :mod:`.model`). The trend is::
 
     u(z) = beta_0 + sum_j beta_j B_j(q(z)),    q(z) = ||L' (z - z0)||^2
 
@@ -221,8 +221,8 @@ def levenberg_marquardt(residual, jacobian, theta: np.ndarray, max_nfev: int,
     Notes
     -----
     ``J' J`` costs ``m p^2`` and a Cholesky factor ``p^3 / 3`` per step, where
-    ``scipy.optimize.least_squares`` does an SVD of ``J`` (22-D index: 2000 x 275, four
-    times the work; ``docs/notes/trend_kernel.md``).
+    ``scipy.optimize.least_squares`` does an SVD of ``J``, several times the work for
+    the index's tall Jacobians (``docs/notes/trend_kernel.md``).
     """
     r = residual(theta)
     cost = float(r @ r)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+import policy_align_ros.learning.pieces as pieces_module
 import policy_align_ros.learning.policy_align as pa_module
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
@@ -274,7 +275,7 @@ def test_demonstrations_are_split_where_the_constraint_switches_inside_a_period(
     spread = np.concatenate(true).std()
     assert max(np.ptp(p - y) for p, y in zip(model.aligned_potentials_, true,
                                              strict=True)) < 0.15 * spread
-    monkeypatch.setattr(pa_module, "switch_cuts", lambda t: np.zeros(0, dtype=np.int64))
+    monkeypatch.setattr(pieces_module, "switch_cuts", lambda t: np.zeros(0, dtype=np.int64))
     whole = PolicyAlign(random_state=0).fit(train)
     assert whole.fit_summary_["n_pieces"] == 20
     assert nupe(model) < 1e-6 and nupe(model) < 1e-2 * nupe(whole)
@@ -341,7 +342,7 @@ def test_demonstrations_are_split_where_samples_were_lost(monkeypatch):
     model = PolicyAlign(random_state=0).fit(demos)
     assert model.fit_summary_["n_pieces"] == 90
     assert [len(p) for p in model.aligned_potentials_] == [t.n_samples for t in demos]
-    monkeypatch.setattr(pa_module, "sampling_gaps", lambda t: np.zeros(0, dtype=np.int64))
+    monkeypatch.setattr(pieces_module, "sampling_gaps", lambda t: np.zeros(0, dtype=np.int64))
     whole = PolicyAlign(random_state=0).fit(demos)
     split_error = metrics.nupe(pot.policy(X), model.policy(X))
     assert split_error < 1e-8

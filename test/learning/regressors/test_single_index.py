@@ -1,9 +1,9 @@
-"""The single-index trend's maths (policy_align_ros.learning.regressors.single_index)."""
+"""The single-index trend's maths (learning.regressors.trend_kernel.single_index)."""
 
 import numpy as np
 import scipy.optimize
 
-from policy_align_ros.learning.regressors.single_index import (
+from policy_align_ros.learning.regressors.trend_kernel.single_index import (
     KNEES,
     fit_index,
     increasing,

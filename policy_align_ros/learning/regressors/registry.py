@@ -1,0 +1,41 @@
+"""The regressors a model file may name, by class name.
+
+A model file names its regressor's class; :func:`regressor_class` finds it here, so a
+PolicyAlign fitted with any registered regressor saves and loads, wherever the class is
+defined.
+"""
+
+from __future__ import annotations
+
+import inspect
+
+__all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups"]
+
+REGISTRY: dict[str, type] = {}
+
+
+def register(cls: type) -> type:
+    """Register a regressor class under its name (usable as a decorator)."""
+    for method in ("fit", "predict", "gradient", "get_state", "from_state"):
+        if not callable(getattr(cls, method, None)):
+            raise ValueError(f"register: {cls.__name__} has no method {method!r}")
+    REGISTRY[cls.__name__] = cls
+    return cls
+
+
+def regressor_class(name: str) -> type:
+    """The registered regressor class called ``name`` (ValueError listing the known ones)."""
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown regressor {name!r}; registered: {sorted(REGISTRY)}"
+        ) from None
+
+
+def takes_free_groups(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``free_groups`` (offsets it re-fits freely)."""
+    try:
+        return "free_groups" in inspect.signature(regressor.fit).parameters
+    except (TypeError, ValueError):
+        return False

@@ -1,0 +1,99 @@
+"""Features of the trend-kernel model: the quadratic trend's, the Gaussian kernel's and the
+single-index trend's design, in standardised units (see :mod:`.model`)."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from policy_align_ros.learning.regressors.trend_kernel import single_index
+
+__all__ = ["quadratic_features"]
+
+
+def quadratic_features(Z: np.ndarray) -> np.ndarray:
+    """Trend features ``[1, z, ||z||^2 / 2, z_i z_j (i <= j, off-diagonal * sqrt 2)]``.
+
+    Parameters
+    ----------
+    Z : ndarray (m, n)
+        Standardised states.
+
+    Returns
+    -------
+    ndarray (m, 2 + n + n (n + 1) / 2)
+        The ``sqrt 2`` makes the squared coefficients of the last block equal
+        ``||S||_F^2`` for ``z' S z``.
+    """
+    m, n = Z.shape
+    iu, ju = np.triu_indices(n)
+    scale = np.where(iu == ju, 1.0, math.sqrt(2.0))
+    quad = Z[:, iu] * Z[:, ju] * scale
+    return np.hstack([np.ones((m, 1)), Z, 0.5 * np.einsum("ij,ij->i", Z, Z)[:, None], quad])
+
+
+def _n_trend(n: int) -> int:
+    return 2 + n + n * (n + 1) // 2
+
+
+def _gaussian(Z: np.ndarray, C: np.ndarray, ell: float) -> np.ndarray:
+    sq = (np.einsum("ij,ij->i", Z, Z)[:, None] - 2.0 * Z @ C.T
+          + np.einsum("ij,ij->i", C, C)[None, :])
+    return np.exp(-0.5 * np.maximum(sq, 0.0) / ell**2)
+
+
+@functools.lru_cache(maxsize=8)
+def _upper(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Indices of the upper triangle of an (n, n) matrix, and the feature scale of each
+    entry (1 on the diagonal, sqrt 2 off it; see :func:`quadratic_features`)."""
+    iu, ju = np.triu_indices(n)
+    out = (iu, ju, np.where(iu == ju, 1.0, math.sqrt(2.0)))
+    for a in out:
+        a.flags.writeable = False  # shared between calls
+    return out
+
+
+def _symmetric(coef: np.ndarray, n: int) -> np.ndarray:
+    """The symmetric ``S`` whose scaled upper triangle is ``coef`` (see quadratic_features)."""
+    iu, ju, scale = _upper(n)
+    S = np.zeros((n, n))
+    S[iu, ju] = coef / scale
+    S[ju, iu] = coef / scale
+    return S
+
+
+def _trend_hessian(w: np.ndarray, n: int) -> np.ndarray:
+    """Hessian ``p I + 2 S`` (n, n) of the quadratic trend whose coefficients lead ``w``."""
+    return w[1 + n] * np.eye(n) + 2.0 * _symmetric(w[2 + n:_n_trend(n)], n)
+
+
+def _profile_scale(Z: np.ndarray, L: np.ndarray, z0: np.ndarray) -> float:
+    """The profile basis' scale ``s``: the median ``sqrt(q)`` of ``Z`` (m, n) under the
+    index ``(L, z0)``, or 1."""
+    return math.sqrt(float(np.median(single_index.index_form(Z, L, z0)[1]))) or 1.0
+
+
+def _n_index_weights() -> int:
+    """Coefficients of the single-index trend: the constant and the profile's weights."""
+    return 2 + 2 * len(single_index.KNEES)
+
+
+def _index_design(Z: np.ndarray, L: np.ndarray, z0: np.ndarray, s: float
+                  ) -> tuple[np.ndarray, float]:
+    """The single-index trend's design ``[1, B(q(z))]`` (m, :func:`_n_index_weights`) and
+    the largest ``q`` of the samples."""
+    _, q = single_index.index_form(Z, L, z0)
+    B, _ = single_index.profile_basis(q, s)
+    return np.hstack([np.ones((len(Z), 1)), B]), float(q.max(initial=0.0))
+
+
+def _median_distance(C: np.ndarray) -> float:
+    """Median distance between distinct centres (standardised units), > 0."""
+    sq = np.einsum("ij,ij->i", C, C)
+    d2 = sq[:, None] - 2.0 * C @ C.T + sq[None, :]
+    iu = np.triu_indices(len(C), 1)
+    d = np.sqrt(np.maximum(d2[iu], 0.0))
+    d = d[d > 0]
+    return float(np.median(d)) if len(d) else 1.0

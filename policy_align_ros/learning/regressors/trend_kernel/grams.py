@@ -1,0 +1,205 @@
+"""Per-fold sums of a design for cross-validation over whole demonstrations, with the
+demonstrations' offsets eliminated in closed form (see :mod:`.model`, "Offsets")."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import scipy.sparse
+
+from policy_align_ros.learning.regressors.trend_kernel.features import _gaussian
+from policy_align_ros.learning.regressors.trend_kernel.solvers import (
+    _convex_solve,
+    _gram,
+    _nonneg_solve,
+    _solve_shared,
+)
+
+
+class _FoldGrams:
+    """Per-fold and per-demonstration sums of a design, for CV with per-demo offsets.
+
+    ``A`` (m, p) is the design at the samples, ``u`` (m,) the targets, ``demo`` (m,) the
+    demonstration of every sample as ``0..K-1`` and ``demo_fold`` (K,) the fold of every
+    demonstration. The offsets ``b_k`` are eliminated in closed form: with
+    ``c_k = 1 / (n_k + m lambda)``, the objective profiled over ``b`` has the Gram
+    ``sum_i a_i a_i' - sum_k c_k A_k A_k'`` (``A_k`` the sum of ``a_i`` over demonstration
+    ``k``), so every score below costs one (p, p) solve per fold.
+    """
+
+    def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
+                 n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None,
+                 nonneg: bool = False):
+        """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
+        shared by every length scale), so only the blocks of the new columns are summed.
+        ``free`` (K,) bool: demonstrations whose offsets are free at every
+        ``offset_ridge`` (default: none). The folds' solves: by default the first columns
+        of ``A`` are :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps
+        positive definite; with ``nonneg``, ``A`` is the single-index design ``[1, B]``,
+        whose profile weights :func:`_nonneg_solve` keeps >= 0."""
+        self.n = n
+        self.nonneg = nonneg
+        self.free = (np.zeros(len(demo_fold), dtype=bool) if free is None
+                     else np.asarray(free, dtype=bool))
+        n_demos = len(demo_fold)
+        onehot = scipy.sparse.csr_matrix(
+            (np.ones(len(u)), (demo, np.arange(len(u)))), shape=(n_demos, len(u)))
+        self.sk = onehot @ u                          # (K,)
+        self.nk = np.bincount(demo, minlength=n_demos).astype(float)
+        self.demo_fold = demo_fold
+        n_folds = int(demo_fold.max()) + 1
+        fold = demo_fold[demo]
+        if np.any(np.diff(fold) < 0):
+            raise ValueError("_FoldGrams: samples must be sorted by fold")
+        bounds = np.searchsorted(fold, np.arange(n_folds + 1))
+        rows = [slice(bounds[f], bounds[f + 1]) for f in range(n_folds)]
+        q = 0 if base is None else base.G.shape[1]
+        new = A[:, q:]
+        Ak = np.asarray(onehot @ new)
+        self.Ak = Ak if base is None else np.hstack([base.Ak, Ak])  # (K, p) per-demo sums
+        p = A.shape[1]
+        self.G = np.empty((n_folds, p, p))
+        for f, r in enumerate(rows):
+            self.G[f, q:, q:] = _gram(new[r])
+            if base is not None:
+                self.G[f, :q, :q] = base.G[f]
+                self.G[f, :q, q:] = A[r, :q].T @ new[r]
+                self.G[f, q:, :q] = self.G[f, :q, q:].T
+        # The design itself is kept to score held-out folds from their residuals: at a
+        # near-perfect fit the expanded sums (u'u - 2 w'r + w'Gw) cancel to round-off.
+        self.A, self.u, self.demo, self.rows = A, u, demo, rows
+        self.r = np.stack([A[r].T @ u[r] for r in rows])
+        self.uu = np.array([u[r] @ u[r] for r in rows])
+        self.G_all, self.r_all = self.G.sum(axis=0), self.r.sum(axis=0)
+        self._free: tuple[np.ndarray, ...] | None = None
+        # Held-out error is scored against the within-demonstration spread of u.
+        self.shape_ss = max(float(self.uu.sum() - np.sum(self.sk**2 / self.nk)), 1e-300)
+
+    def free_offset_sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per fold, the Gram and right-hand side terms that free offsets remove
+        (``offset_ridge = 0``: ``c_k = 1 / n_k``), and their sums over all folds; they do
+        not depend on the other folds, and are summed on first use (the final fit never
+        needs them)."""
+        if self._free is None:
+            per_demo = self.Ak / self.nk[:, None]
+            folds = [self.demo_fold == f for f in range(len(self.G))]
+            G0 = np.stack([per_demo[k].T @ self.Ak[k] for k in folds])
+            r0 = np.stack([per_demo[k].T @ self.sk[k] for k in folds])
+            self._free = (G0, r0, G0.sum(axis=0), r0.sum(axis=0))
+        return self._free
+
+    def scores(self, penalties: list[np.ndarray], offset_ridge: float, shared: int = 0
+               ) -> list[tuple[float, float]]:
+        """Held-out shape error per penalty, and its standard error over the folds.
+
+        The shape error sums the squared residuals of the held-out demonstrations about
+        their own mean (every held-out demonstration gets its best offset), over their
+        spread. ``shared``: the penalties are block diagonal and equal in their first
+        ``shared`` rows and columns (negative: in their last ``-shared``; see
+        :func:`_solve_shared`).
+        """
+        n_folds = len(self.G)
+        err = np.array([self.fold_errors(f, penalties, offset_ridge, shared)
+                        for f in range(n_folds)]).T
+        return _fold_summary(err, self.shape_ss)
+
+    def fold_errors(self, f: int, penalties: list[np.ndarray], offset_ridge: float,
+                    shared: int = 0, accept=None) -> list[float]:
+        """Held-out squared shape residuals of fold ``f`` per penalty, fitted on the other
+        folds (``inf`` where the solve fails or ``accept(w)`` is false)."""
+        G, r, m = self.without(f, offset_ridge)
+        M = G / m
+        if self.nonneg:
+            solved = [_nonneg_solve(M + penalty, r / m, 1) for penalty in penalties]
+        else:
+            first = _solve_shared(M, r / m, penalties, shared)
+            solved = [_convex_solve(M + penalty, r / m, self.n, w)
+                      for penalty, w in zip(penalties, first, strict=True)]
+        out = []
+        for w in solved:
+            ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
+            out.append(self.shape_error(f, w) if ok else math.inf)
+        return out
+
+    def without(self, f: int, offset_ridge: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """:meth:`profiled` over every demonstration outside fold ``f``."""
+        held = self.demo_fold == f
+        if offset_ridge == 0.0:
+            G0, r0, G0_all, r0_all = self.free_offset_sums()
+            G = self.G_all - self.G[f] - (G0_all - G0[f])
+            r = self.r_all - self.r[f] - (r0_all - r0[f])
+            return G, r, float(self.nk[~held].sum())
+        return self.profiled(~held, self.G_all - self.G[f], self.r_all - self.r[f],
+                             offset_ridge)
+
+    def shape_error(self, fold: int, w: np.ndarray) -> float:
+        """Squared residuals of fold ``fold``'s demonstrations about their own means."""
+        r = self.rows[fold]
+        e = self.u[r] - self.A[r] @ w
+        demo = self.demo[r]
+        mean = np.bincount(demo, weights=e, minlength=len(self.nk)) / np.maximum(self.nk, 1)
+        return float(np.sum((e - mean[demo]) ** 2))
+
+    def profiled_all(self, offset_ridge: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """:meth:`profiled` over every demonstration: the system of a fit on all data."""
+        return self.profiled(np.ones(len(self.nk), bool), self.G_all, self.r_all, offset_ridge)
+
+    def profiled(self, train: np.ndarray, G: np.ndarray, r: np.ndarray, offset_ridge: float
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Gram and right-hand side of demonstrations ``train`` (bool, K) whose sums are
+        ``G, r``, with their offsets eliminated; and their number of samples."""
+        m = float(self.nk[train].sum())
+        free = self.free[train]
+        if math.isfinite(offset_ridge) or free.any():
+            nk = self.nk[train]
+            c = (np.zeros_like(nk) if math.isinf(offset_ridge)
+                 else 1.0 / (nk + m * offset_ridge))
+            c[free] = 1.0 / nk[free]
+            Ak = self.Ak[train]
+            G = G - (Ak * c[:, None]).T @ Ak
+            r = r - Ak.T @ (c * self.sk[train])
+        return G, r, m
+
+
+@dataclasses.dataclass(frozen=True)
+class _CVData:
+    """The standardised data of one CV search, samples sorted by fold.
+
+    ``F`` (m, p_t) trend features, ``Z`` (m, n) states, ``u`` (m,) targets, ``C`` (m_c, n)
+    kernel centres, ``demo`` (m,) and ``demo_fold`` (K,) as in :class:`_FoldGrams`;
+    ``trend`` the fold sums of ``F``, shared by every length scale.
+    """
+
+    F: np.ndarray
+    Z: np.ndarray
+    u: np.ndarray
+    C: np.ndarray
+    demo: np.ndarray
+    demo_fold: np.ndarray
+    trend: _FoldGrams
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.Z.shape[1]
+
+    def kernel_sums(self, ell: float) -> tuple[_FoldGrams, np.ndarray]:
+        """Fold sums of the trend and kernel features at length scale ``ell``, and the
+        centres' Gram (m_c, m_c)."""
+        A = np.hstack([self.F, _gaussian(self.Z, self.C, ell)])
+        return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
+                           free=self.trend.free),
+                _gaussian(self.C, self.C, ell))
+
+
+def _fold_summary(err: np.ndarray, shape_ss: float) -> list[tuple[float, float]]:
+    """CV score and its standard error per candidate from the held-out squared shape
+    residuals ``err`` (candidates, folds) and the spread ``shape_ss`` of all samples."""
+    n_folds = err.shape[1]
+    # Per fold scaled so that the mean over folds is the total error over the spread.
+    err = err * (n_folds / shape_ss)
+    with np.errstate(invalid="ignore"):
+        se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
+    return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]

@@ -1,0 +1,515 @@
+"""A global quadratic trend plus a kernel residual, chosen by CV over whole demonstrations.
+
+Notation
+--------
+States ``x`` (n,) in state units are standardised as ``z = (x - mu) / s`` with the data's
+mean ``mu`` and one scalar scale ``s`` (the RMS spread over all coordinates, so that the
+geometry of the state space is kept); outputs (the aligned potential) as
+``u = (y - y_mean) / y_std``. The model is::
+
+    u(z) = c + b.z + p ||z||^2 / 2 + z' S z + sum_j alpha_j exp(-||z - c_j||^2 / (2 l^2))
+
+- the *trend* ``c + b.z + p ||z||^2 / 2 + z' S z`` is a quadratic (``S`` symmetric,
+  ``n (n + 1) / 2`` free entries) whose anisotropic part ``S`` is penalised with
+  ``trend_ridge ||S||_F^2``: the trend shrinks toward an isotropic bowl rather than toward
+  a flat plane, so directions the demonstrations barely explore keep a sensible
+  curvature and the policy points back to the data far from them;
+- the *residual* is a Gaussian kernel expansion on ``m`` centres ``c_j`` (a subset of the
+  data) with the RKHS penalty ``kernel_ridge alpha' K_cc alpha`` (subset of regressors),
+  which captures what a quadratic cannot (several minima, a task-space potential seen
+  in joint space).
+
+Both parts are fitted jointly by penalised least squares on the mean squared error;
+``grad_x f`` is analytic (:meth:`TrendKernelRegression.gradient`).
+
+Offsets
+-------
+The outputs are potentials estimated along each demonstration and shifted by the offsets
+the alignment found; the offsets are its least certain part, in many dimensions most of
+all (trajectories pass far from each other). So the fit may correct them: it minimises
+``sum_i (u_i - f(z_i) - b_k(i))^2 / m + offset_ridge sum_k b_k^2`` over ``f`` and per
+demonstration corrections ``b_k`` together (``offset_ridge = 0``: free offsets, the
+demonstrations then tie together through the shape of ``f`` alone; ``inf``: the
+alignment's offsets). The ``b_k`` are eliminated in closed form, so this costs no more
+than the fit without them. Demonstrations named in ``fit(..., free_groups=...)`` always
+have free offsets, whatever ``offset_ridge``: the alignment could not level them (weakly
+connected trajectories), so only their shape is data (``docs/notes/outliers.md``,
+``docs/notes/trend_kernel.md``).
+
+Choosing the hyperparameters
+----------------------------
+``trend_ridge``, ``length_scale``, ``kernel_ridge`` and ``offset_ridge`` (an infinite
+``kernel_ridge`` drops the residual, an infinite ``trend_ridge`` keeps the isotropic bowl
+only) are chosen by 10-fold cross-validation in which every fold holds out *whole
+demonstrations*. A held-out demonstration is scored by its *shape*: the squared error of
+the model's values along it after the best constant shift, over the spread of its values.
+That is the error of every potential difference between its samples (start to end as
+well as step to step), which is what a policy must get right along a path from a new
+start, and it does not charge the model for the alignment's error in the held-out
+demonstration's offset. The trend's penalty and the offsets' are scored first with the
+trend alone; the residual's length scale and penalty are searched at the best of those
+and at the best trend penalty with free offsets (the trend alone can rank the offset
+penalties wrongly where a quadratic does not fit). The better of the two paths is kept,
+and on it the candidate with the fewest effective degrees of freedom
+(:func:`effective_dof`) among those scored within one standard error of its best (the
+trend alone among them). When a residual is kept, the trend's and the offsets' penalties
+are scored again with it. Scores closer than :data:`CV_RESOLUTION` are ties, settled
+toward the simpler model; a trend alone that fits to that resolution skips the residual's
+search. All fold errors come from per-fold sums (one pass over the data per length
+scale), so the search costs a few small Cholesky solves per candidate;
+``docs/notes/trend_kernel.md`` has the measurements. The data are thinned evenly in arc
+length along each demonstration first (a robot at rest adds samples but no information),
+to at most ``max_fit_points`` samples.
+
+By default (``trend_form="cv"``) the CV also scores the single-index trend of
+:mod:`.single_index` (a rising profile of one fitted quadratic form, for potentials that
+flatten or steepen away from the goal), with its index re-fitted without each fold, and
+keeps it if it scores lower.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
+from policy_align_ros.learning.fitting import (
+    assign_folds,
+    check_query,
+    check_Xy,
+    single_blas_thread,
+)
+from policy_align_ros.learning.model_io import json_float, to_json
+from policy_align_ros.learning.regressors.registry import register
+from policy_align_ros.learning.regressors.trend_kernel import single_index
+from policy_align_ros.learning.regressors.trend_kernel.cv import (
+    KERNEL_RIDGE_GRID,
+    LENGTH_FACTORS,
+    OFFSET_RIDGE_GRID,
+    TREND_RIDGE_GRID,
+    CVSearch,
+    _grid,
+)
+from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _gaussian,
+    _index_design,
+    _median_distance,
+    _n_index_weights,
+    _n_trend,
+    _symmetric,
+    quadratic_features,
+)
+from policy_align_ros.learning.regressors.trend_kernel.grams import _CVData, _FoldGrams
+from policy_align_ros.learning.regressors.trend_kernel.solvers import (
+    JITTER,
+    _convex_solve,
+    _nonneg_solve,
+    _penalty,
+    _trend_penalty,
+)
+from policy_align_ros.learning.thinning import thin_trajectories
+
+__all__ = ["TREND_FORMS", "TrendKernelRegression"]
+
+#: Rows per block when evaluating kernels (bounds memory on large queries).
+CHUNK = 8192
+#: Trend forms the CV chooses from: the quadratic, and the single-index trend of
+#: :mod:`.single_index` (a profile of one quadratic form; no residual on top).
+TREND_FORMS = ("quadratic", "single_index")
+_STATE_VERSION = 3
+_HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
+
+
+@register
+class TrendKernelRegression(BaseEstimator):
+    """Quadratic trend plus Gaussian-kernel residual with an analytic gradient.
+
+    Parameters
+    ----------
+    trend_form : "cv", "quadratic" or "single_index"
+        The trend: the quadratic (with the residual), or the single-index trend of
+        :mod:`.single_index` (a profile of one fitted quadratic form, no residual), or
+        ``"cv"`` (default) to choose between them. The single-index trend is only tried
+        when the quadratic does not already fit the held-out shapes to
+        :data:`~.cv.CV_RESOLUTION`: it suits potentials that flatten or steepen away from
+        the goal (velocity-limited or quartic attractors; ``docs/notes/trend_kernel.md``).
+    trend_ridge : "cv" or float
+        Penalty on the anisotropic part ``S`` of the quadratic trend (standardised units;
+        ``inf``: an isotropic bowl only), or ``"cv"`` to choose from ``TREND_RIDGE_GRID``.
+    length_scale : "cv" or float
+        Kernel length scale in standardised units, or ``"cv"`` (``LENGTH_FACTORS`` times
+        the median distance between centres).
+    kernel_ridge : "cv" or float
+        RKHS penalty of the residual (``inf``: no residual; a finite value always keeps
+        the residual), or ``"cv"`` (``KERNEL_RIDGE_GRID``, ``inf`` included).
+    offset_ridge : "cv" or float
+        Penalty on corrections of every demonstration's offset (0: free; ``inf``: none),
+        or ``"cv"`` (``OFFSET_RIDGE_GRID``).
+    n_centres : int
+        Kernel centres (a random subset of the thinned data).
+    max_fit_points : int
+        Samples kept after thinning in arc length along each demonstration.
+    n_folds : int
+        Cross-validation folds, each of whole demonstrations (``groups``); at most one
+        per demonstration. Ten: with fewer, which demonstrations share a fold can decide
+        the fit.
+    random_state : int, numpy.random.Generator or None
+        Seeds the choice of centres and folds.
+
+    Attributes
+    ----------
+    trend_form_ : str
+        The trend used.
+    trend_ridge_, length_scale_, kernel_ridge_, offset_ridge_ : float
+        Hyperparameters used (``trend_ridge_`` is NaN for the single-index trend).
+    cv_scores_ : dict
+        Held-out shape error (over the within-demonstration spread) per evaluated
+        ``(trend_form, trend_ridge, length_scale, kernel_ridge, offset_ridge)``;
+        ``length_scale`` is NaN for the trend alone, ``trend_ridge`` for the single-index
+        trend. The single-index trend's folds stop once it cannot beat the quadratic
+        family's pick; its scores are then lower bounds.
+    cv_standard_errors_ : dict
+        Standard error over the folds of every entry of ``cv_scores_`` (NaN for a lower
+        bound).
+    cv_dof_ : dict
+        Effective degrees of freedom (:func:`effective_dof`) of the candidates the
+        residual's choice compared: those within one standard error of the best score.
+    cv_best_ : tuple or None
+        The key of ``cv_scores_`` chosen (None without cross-validation).
+    mean_, scale_ : ndarray (n,), float
+        Standardisation of the states (state units).
+    y_mean_, y_scale_ : float
+        Standardisation of the outputs.
+    trend_ : ndarray (2 + n + n (n + 1) / 2,) or (2 + 2 len(KNEES),)
+        Trend coefficients (standardised units): of :func:`quadratic_features`, or the
+        constant and the profile weights of the single-index trend.
+    index_matrix_, index_goal_, index_scale_ : ndarray (n, n), ndarray (n,), float
+        The single-index trend's ``L``, ``z0`` and ``s`` (standardised units; ``L`` empty
+        (0, n) for the quadratic).
+    centres_ : ndarray (m, n)
+        Kernel centres, standardised; ``alpha_`` (m,) their weights.
+    n_features_in_ : int
+    """
+
+    def __init__(
+        self,
+        *,
+        trend_form: str = "cv",
+        trend_ridge: str | float = "cv",
+        length_scale: str | float = "cv",
+        kernel_ridge: str | float = "cv",
+        offset_ridge: str | float = "cv",
+        n_centres: int = 300,
+        max_fit_points: int = 6000,
+        n_folds: int = 10,
+        random_state: int | np.random.Generator | None = 0,
+    ) -> None:
+        self.trend_form = trend_form
+        self.trend_ridge = trend_ridge
+        self.length_scale = length_scale
+        self.kernel_ridge = kernel_ridge
+        self.offset_ridge = offset_ridge
+        self.n_centres = n_centres
+        self.max_fit_points = max_fit_points
+        self.n_folds = n_folds
+        self.random_state = random_state
+
+    def _check_params(self) -> None:
+        if self.trend_form not in ("cv", *TREND_FORMS):
+            raise ValueError(f"trend_form must be 'cv' or one of {TREND_FORMS}, got "
+                             f"{self.trend_form!r}")
+        for name in ("trend_ridge", "length_scale", "kernel_ridge"):
+            value = getattr(self, name)
+            if value == "cv":
+                continue
+            if not isinstance(value, (int, float)) or not value > 0 or math.isnan(value):
+                raise ValueError(f"{name} must be 'cv' or a positive float, got {value!r}")
+        if self.length_scale != "cv" and math.isinf(self.length_scale):
+            raise ValueError("length_scale must be finite")
+        o = self.offset_ridge
+        if o != "cv" and (not isinstance(o, (int, float)) or not o >= 0):
+            raise ValueError(f"offset_ridge must be 'cv' or a float >= 0, got {o!r}")
+        for name, low in (("n_centres", 1), ("max_fit_points", 10), ("n_folds", 2)):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or value < low:
+                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+
+    # -- fit --------------------------------------------------------------------------
+    def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
+            free_groups: np.ndarray | None = None) -> TrendKernelRegression:
+        """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
+
+        Samples of one demonstration must be consecutive and in time order (they are
+        thinned in arc length). Without ``groups`` all samples form one demonstration and
+        the hyperparameters that are ``"cv"`` fall back to mid-grid values.
+        ``free_groups`` (ids in ``groups``) are demonstrations whose offsets are always
+        re-fitted freely: ``y`` carries their shape only.
+
+        Returns
+        -------
+        self
+        """
+        self._check_params()
+        X, y, groups = check_Xy(X, y, groups)
+        free = np.zeros(0, dtype=groups.dtype) if free_groups is None else np.asarray(
+            free_groups)
+        if free.ndim != 1 or (free.size and not np.issubdtype(free.dtype, np.integer)):
+            raise ValueError(f"free_groups must be a 1-D int array, got {free.dtype} "
+                             f"{free.shape}")
+        unknown = np.setdiff1d(free, groups)
+        if unknown.size:
+            raise ValueError(f"free_groups names ids not in groups: {unknown[:5].tolist()}")
+        # Hundreds of factorisations of a few hundred unknowns: OpenBLAS's threads cost
+        # more than they bring there.
+        with single_blas_thread():
+            return self._fit(X, y, groups, free)
+
+    def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray
+             ) -> TrendKernelRegression:
+        rng = np.random.default_rng(self.random_state)
+        idx = thin_trajectories(X, groups, self.max_fit_points)
+        X, y, groups = X[idx], y[idx], groups[idx]
+        m, n = X.shape
+        self.n_features_in_ = n
+        self.mean_ = X.mean(axis=0)
+        self.scale_ = float(np.sqrt(np.mean(np.var(X, axis=0)))) or 1.0
+        # Demonstrations with free offsets carry no level: the outputs' scale (the unit of
+        # every penalty) comes from the others.
+        levelled = ~np.isin(groups, free_groups)
+        if not levelled.any():
+            levelled[:] = True
+        self.y_mean_ = float(y[levelled].mean())
+        self.y_scale_ = float(y[levelled].std()) or 1.0
+        Z = (X - self.mean_) / self.scale_
+        u = (y - self.y_mean_) / self.y_scale_
+
+        centre_idx = np.sort(rng.choice(m, size=min(self.n_centres, m), replace=False))
+        C = Z[centre_idx]
+        demo_ids, demo = np.unique(groups, return_inverse=True)
+        free = np.isin(demo_ids, free_groups)
+        n_folds = min(self.n_folds, len(demo_ids))
+        demo_fold = np.zeros(len(demo_ids), dtype=np.int64)
+        if n_folds >= 2:
+            demo_fold[demo] = assign_folds(groups, n_folds, rng)
+            # Samples grouped by fold: every fold's sums come from a slice, not a copy.
+            order = np.argsort(demo_fold[demo], kind="stable")
+            Z, u, demo = Z[order], u[order], demo[order]
+        F = quadratic_features(Z)
+
+        d_med = _median_distance(C)
+        lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
+        t_grid = _grid(self.trend_ridge, TREND_RIDGE_GRID)
+        k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
+        o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
+        forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
+        mid = (lengths[len(lengths) // 2], k_grid[len(k_grid) // 2])
+        # Without CV, and as the fallback of a single-index trend whose profile fails to rise.
+        search = CVSearch(("quadratic", t_grid[len(t_grid) // 2], *mid, o_grid[-1]))
+        self.cv_scores_ = search.scores
+        self.cv_standard_errors_ = search.standard_errors
+        self.cv_dof_ = search.dof
+        self.cv_best_ = None
+        if n_folds < 2:
+            best = search.quadratic_pick
+            if forms == ["single_index"]:
+                best = ("single_index", math.nan, mid[0], math.inf, o_grid[-1])
+                search.fit_index(_FoldGrams(F, u, demo, demo_fold, n, free=free), Z, u, demo,
+                                 t_grid[len(t_grid) // 2], rng)
+        else:
+            cv = _CVData(F, Z, u, C, demo, demo_fold,
+                         _FoldGrams(F, u, demo, demo_fold, n, free=free))
+            best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
+            if math.isnan(best[2]):
+                best = (*best[:2], mid[0], *best[3:])
+        self._quadratic_pick, self._index = search.quadratic_pick, search.index
+        self._final_fit(best, F, Z, u, C, n, demo, free)
+        return self
+
+    def _final_fit(self, best: tuple, F: np.ndarray, Z: np.ndarray, u: np.ndarray,
+                   C: np.ndarray, n: int, demo: np.ndarray, free: np.ndarray) -> None:
+        """Fit the hyperparameters ``best`` on all samples and set the learnt attributes."""
+        (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
+         self.offset_ridge_) = best
+        self.index_matrix_, self.index_goal_, self.index_scale_ = (
+            np.zeros((0, n)), np.zeros(0), 0.0)
+        if self.trend_form_ == "single_index":
+            if self._fit_single_index(Z, u, n, demo, free):
+                return
+            # A profile that falls somewhere has no single minimum: the quadratic instead,
+            # and the CV's pick is then the candidate fitted (its score is the model's).
+            best = self._quadratic_pick
+            (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
+             self.offset_ridge_) = best
+            if self.cv_best_ is not None:
+                self.cv_best_ = best
+        p_t = _n_trend(n)
+        if math.isinf(self.kernel_ridge_):
+            A, P = F, _trend_penalty(n, self.trend_ridge_)
+            self.centres_ = np.zeros((0, n))
+        else:
+            A = np.hstack([F, _gaussian(Z, C, self.length_scale_)])
+            P = _penalty(n, self.trend_ridge_, self.kernel_ridge_,
+                              _gaussian(C, C, self.length_scale_))
+            self.centres_ = C
+        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
+                           free=free)
+        G, r, m = grams.profiled_all(self.offset_ridge_)
+        w = _convex_solve(G / m + P, r / m, n)
+        if w is None or not np.all(np.isfinite(w)):
+            raise ValueError("TrendKernelRegression: the penalised least squares failed")
+        self.trend_ = w[:p_t]
+        self.alpha_ = w[p_t:]
+        self._unpack()
+
+    def _fit_single_index(self, Z: np.ndarray, u: np.ndarray, n: int, demo: np.ndarray,
+                          free: np.ndarray) -> bool:
+        """The single-index trend on ``_index``; False if its profile does not rise."""
+        L, z0, s = self._index
+        A, q_max = _index_design(Z, L, z0, s)
+        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
+                           free=free)
+        G, r, m = grams.profiled_all(self.offset_ridge_)
+        w = _nonneg_solve(G / m + JITTER * np.eye(len(G)), r / m, 1)
+        if w is None or not np.all(np.isfinite(w)) or not single_index.increasing(
+                w[1:], s, q_max):
+            return False
+        self.trend_, self.alpha_, self.centres_ = w, np.zeros(0), np.zeros((0, n))
+        self.index_matrix_, self.index_goal_, self.index_scale_ = L, z0, s
+        self._unpack()
+        return True
+
+    def _unpack(self) -> None:
+        n = self.n_features_in_
+        t = self.trend_
+        if self.trend_form_ == "single_index":
+            self._S, self._b, self._p = np.zeros((n, n)), np.zeros(n), 0.0
+            self._c = float(t[0])
+            return
+        self._S = _symmetric(t[2 + n:], n)
+        self._c, self._b, self._p = float(t[0]), t[1:1 + n], float(t[1 + n])
+
+    # -- prediction -------------------------------------------------------------------
+    def _standardise(self, X: np.ndarray) -> np.ndarray:
+        check_is_fitted(self, "trend_")
+        X = check_query(X, self.n_features_in_)
+        return (X - self.mean_) / self.scale_
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """Model output ``f(x)``, shape (m,), for states ``X`` (m, n)."""
+        Z = self._standardise(X)
+        if self.trend_form_ == "single_index":
+            u = _index_design(Z, self.index_matrix_, self.index_goal_,
+                              self.index_scale_)[0] @ self.trend_
+            return self.y_mean_ + self.y_scale_ * u
+        u = (self._c + Z @ self._b + 0.5 * self._p * np.einsum("ij,ij->i", Z, Z)
+             + np.einsum("ij,jk,ik->i", Z, self._S, Z))
+        if len(self.alpha_):
+            for s in range(0, len(Z), CHUNK):
+                u[s:s + CHUNK] += _gaussian(Z[s:s + CHUNK], self.centres_,
+                                            self.length_scale_) @ self.alpha_
+        return self.y_mean_ + self.y_scale_ * u
+
+    def gradient(self, X: np.ndarray) -> np.ndarray:
+        """Exact ``grad_x f(x)``, shape (m, n), in output units per state unit."""
+        Z = self._standardise(X)
+        if self.trend_form_ == "single_index":
+            g = single_index.profile_gradient(Z, self.index_matrix_, self.index_goal_,
+                                              self.index_scale_, self.trend_[1:])
+            return g * (self.y_scale_ / self.scale_)
+        g = self._b + self._p * Z + 2.0 * Z @ self._S
+        if len(self.alpha_):
+            ell2 = self.length_scale_**2
+            for s in range(0, len(Z), CHUNK):
+                Zc = Z[s:s + CHUNK]
+                Kw = _gaussian(Zc, self.centres_, self.length_scale_) * self.alpha_
+                g[s:s + CHUNK] += (Kw @ self.centres_ - Kw.sum(axis=1)[:, None] * Zc) / ell2
+        return g * (self.y_scale_ / self.scale_)
+
+    # -- persistence ------------------------------------------------------------------
+    def get_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Numeric arrays and a JSON-able header that rebuild this model exactly.
+
+        The header's ``params`` are the constructor arguments in plain Python types: NumPy
+        scalars (``n_centres=np.int64(300)``) as ints and floats, a Generator
+        ``random_state`` as ``None`` (``get_params`` keeps the values as given). Anything
+        else JSON cannot hold raises a ValueError naming the parameter.
+        """
+        check_is_fitted(self, "trend_")
+        params = self.get_params(deep=False)
+        if isinstance(params["random_state"], np.random.Generator):
+            params["random_state"] = None
+        for name in _HYPER:
+            if params[name] != "cv":
+                params[name] = json_float(float(params[name]), "string")
+        params = to_json(params, "TrendKernelRegression params")
+        meta = {
+            "version": _STATE_VERSION,
+            "params": params,
+            "trend_form": self.trend_form_,
+            "index_scale": self.index_scale_,
+            "trend_ridge": json_float(self.trend_ridge_, "string"),
+            "length_scale": float(self.length_scale_),
+            "kernel_ridge": json_float(self.kernel_ridge_, "string"),
+            "offset_ridge": json_float(self.offset_ridge_, "string"),
+            "scale": self.scale_,
+            "y_mean": self.y_mean_,
+            "y_scale": self.y_scale_,
+            "n_features_in": int(self.n_features_in_),
+        }
+        arrays = {"mean": self.mean_, "trend": self.trend_, "centres": self.centres_,
+                  "alpha": self.alpha_, "index_matrix": self.index_matrix_,
+                  "index_goal": self.index_goal_}
+        return arrays, meta
+
+    @classmethod
+    def from_state(cls, arrays: dict[str, np.ndarray], meta: dict[str, Any]
+                   ) -> TrendKernelRegression:
+        """Rebuild a fitted model from :meth:`get_state` output (ValueError if malformed)."""
+        try:
+            if int(meta["version"]) > _STATE_VERSION:
+                raise ValueError(f"format version {meta['version']} is newer than supported")
+            params = dict(meta["params"])
+            for name in _HYPER:
+                if params.get(name, "cv") != "cv":
+                    params[name] = float(params[name])
+            model = cls(**params)
+            n = int(meta["n_features_in"])
+            model.n_features_in_ = n
+            # Version 1 knew the quadratic trend only.
+            model.trend_form_ = str(meta.get("trend_form", "quadratic"))
+            if model.trend_form_ not in TREND_FORMS:
+                raise ValueError(f"unknown trend_form {model.trend_form_!r}")
+            single = model.trend_form_ == "single_index"
+            model.trend_ridge_ = float(meta["trend_ridge"])
+            model.length_scale_ = float(meta["length_scale"])
+            model.kernel_ridge_ = float(meta["kernel_ridge"])
+            model.offset_ridge_ = float(meta["offset_ridge"])
+            model.scale_ = float(meta["scale"])
+            model.y_mean_ = float(meta["y_mean"])
+            model.y_scale_ = float(meta["y_scale"])
+            model.mean_ = np.asarray(arrays["mean"], dtype=float).reshape(n)
+            trend = np.asarray(arrays["trend"], dtype=float).ravel()
+            if single and int(meta["version"]) < 3:
+                # Version 2's profile had no steepening columns: their weights are zero.
+                trend = np.concatenate([trend, np.zeros(len(single_index.KNEES))])
+            model.trend_ = trend.reshape(_n_index_weights() if single else _n_trend(n))
+            model.index_matrix_ = np.asarray(arrays["index_matrix"] if single else
+                                             np.zeros((0, n)), dtype=float).reshape(-1, n)
+            model.index_goal_ = np.asarray(arrays["index_goal"] if single else np.zeros(0),
+                                           dtype=float).reshape(n if single else 0)
+            model.index_scale_ = float(meta["index_scale"]) if single else 0.0
+            if single and (model.index_matrix_.shape != (n, n) or not model.index_scale_ > 0):
+                raise ValueError("single-index trend needs an (n, n) index_matrix and "
+                                 "index_scale > 0")
+            model.centres_ = np.asarray(arrays["centres"], dtype=float).reshape(-1, n)
+            model.alpha_ = np.asarray(arrays["alpha"], dtype=float).reshape(len(model.centres_))
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"regressor state: bad or missing field ({err})") from None
+        model.cv_scores_ = {}
+        model.cv_standard_errors_ = {}
+        model.cv_dof_ = {}
+        model.cv_best_ = None
+        model._unpack()
+        return model

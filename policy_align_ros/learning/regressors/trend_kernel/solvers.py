@@ -1,0 +1,181 @@
+"""Penalised least-squares solves of the trend-kernel model: the convex (positive-definite
+trend) solve, the solves sharing a factored block, the non-negative solve of the
+single-index profile, the penalties and the effective degrees of freedom."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+import scipy.linalg.blas
+import scipy.optimize
+
+from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _n_trend,
+    _trend_hessian,
+    _upper,
+)
+
+__all__ = ["CURVATURE_FLOOR", "JITTER", "effective_dof"]
+
+#: Smallest eigenvalue of the trend's Hessian, relative to its largest (keeps a minimum).
+CURVATURE_FLOOR = 0.01
+#: Added to the penalty of every coefficient: keeps the solves well posed.
+JITTER = 1e-9
+
+
+def _gram(A: np.ndarray) -> np.ndarray:
+    """``A' A`` (p, p) through the symmetric rank-k update (half the work of ``A.T @ A``)."""
+    if A.shape[0] == 0:
+        return np.zeros((A.shape[1], A.shape[1]))
+    upper = scipy.linalg.blas.dsyrk(1.0, np.asarray(A, dtype=float), trans=1)
+    return upper + np.triu(upper, 1).T  # dsyrk leaves the strict lower triangle at zero
+
+
+def effective_dof(M: np.ndarray, P: np.ndarray) -> float:
+    """Effective degrees of freedom ``tr((M + P)^-1 M)`` of a penalised least-squares fit.
+
+    Parameters
+    ----------
+    M : ndarray (p, p)
+        Normal matrix ``A' A / m`` of the design ``A`` (m, p).
+    P : ndarray (p, p)
+        Penalty on the coefficients (positive semi-definite).
+
+    Returns
+    -------
+    float
+        The trace of the hat matrix ``A (A' A + m P)^-1 A'``: the number of coefficients
+        without a penalty (``M`` of full rank), fewer the more the penalty shrinks them;
+        ``inf`` if ``M + P`` is singular.
+    """
+    try:
+        factor = scipy.linalg.cho_factor(M + P, check_finite=False)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return float(np.trace(scipy.linalg.cho_solve(factor, M, check_finite=False)))
+
+
+def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = None
+                  ) -> np.ndarray | None:
+    """Solve ``M w = b`` for the coefficients, keeping the trend's Hessian positive definite.
+
+    The trend decides the policy far from the data: a saddle sends rollouts away along
+    its negative-curvature directions. So when the solved trend's Hessian
+    ``H = p I + 2 S`` has an eigenvalue below ``CURVATURE_FLOOR`` times its largest, those
+    eigenvalues are raised to that bound, the quadratic part is fixed there, and the other
+    coefficients (constant, linear part, kernel weights) are solved again given it.
+    ``w``: the solution of ``M w = b`` if already known.
+    """
+    if w is None:
+        w = _solve(M, b)
+    if w is None:
+        return None
+    p_t = _n_trend(n)
+    lam, V = np.linalg.eigh(_trend_hessian(w, n))
+    floor = CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0)
+    if lam[0] >= floor:
+        return w
+    S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
+    iu, ju, scale = _upper(n)
+    quad = np.arange(1 + n, p_t)
+    w[2 + n:p_t] = scale * S[iu, ju]
+    rest = np.setdiff1d(np.arange(len(w)), quad)
+    w_rest = _solve(M[np.ix_(rest, rest)], b[rest] - M[np.ix_(rest, quad)] @ w[quad])
+    if w_rest is None:
+        return None
+    w[rest] = w_rest
+    return w
+
+
+def _solve_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: int
+                  ) -> list[np.ndarray | None]:
+    """Solve ``(M + P) w = b`` for every ``P`` in ``penalties``.
+
+    When the penalties are block diagonal with the same leading ``q x q`` block (the
+    trend's, while the kernel's penalty varies; ``q < 0``: the same trailing ``-q x -q``
+    block, the kernel's, while the trend's varies), that block is factored once and every
+    penalty costs one factorisation of the other block's Schur complement, a fraction of
+    the work of factoring each full system.
+    """
+    p = M.shape[0]
+    if q == 0 or abs(q) >= p or len(penalties) < 2:
+        return [_solve(M + P, b) for P in penalties]
+    # Slices, not a permuted copy: copying the large blocks costs more than the solves.
+    s, o = (slice(0, q), slice(q, p)) if q > 0 else (slice(p + q, p), slice(0, p + q))
+    try:
+        L = scipy.linalg.cholesky(M[s, s] + penalties[0][s, s], lower=True,
+                                  check_finite=False)
+    except np.linalg.LinAlgError:
+        return [_solve(M + P, b) for P in penalties]
+    W = scipy.linalg.solve_triangular(L, M[s, o], lower=True, check_finite=False)
+    z = scipy.linalg.solve_triangular(L, b[s], lower=True, check_finite=False)
+    schur = M[o, o] - _gram(W)
+    rhs = b[o] - W.T @ z
+    out: list[np.ndarray | None] = []
+    for P in penalties:
+        w_other = _solve(schur + P[o, o], rhs)
+        if w_other is None:
+            out.append(_solve(M + P, b))
+            continue
+        w = np.empty(p)
+        w[o] = w_other
+        w[s] = scipy.linalg.solve_triangular(L, z - W @ w_other, lower=True, trans="T",
+                                             check_finite=False)
+        out.append(w)
+    return out
+
+
+def _nonneg_solve(M: np.ndarray, b: np.ndarray, free: int) -> np.ndarray | None:
+    """Minimise ``w' M w - 2 b' w`` over ``w`` (p,) with ``w[free:] >= 0`` (the
+    single-index profile's weights after its constant); None if ``M`` is not positive
+    definite.
+
+    The first ``free`` entries are eliminated in closed form; the rest is the NNLS problem
+    ``min ||R w - R^-T c||`` on the Cholesky factor ``R`` of their Schur complement.
+    """
+    try:
+        F = scipy.linalg.cho_factor(M[:free, :free], check_finite=False)
+        X = scipy.linalg.cho_solve(F, np.column_stack([M[:free, free:], b[:free]]),
+                                   check_finite=False)
+        R = scipy.linalg.cholesky(M[free:, free:] - M[free:, :free] @ X[:, :-1],
+                                  check_finite=False)
+        c = b[free:] - M[free:, :free] @ X[:, -1]
+        t = scipy.linalg.solve_triangular(R, c, trans="T", check_finite=False)
+        beta = scipy.optimize.nnls(R, t, maxiter=50 * len(t))[0]
+    except (np.linalg.LinAlgError, ValueError, RuntimeError):
+        return None
+    return np.concatenate([X[:, -1] - X[:, :-1] @ beta, beta])
+
+
+def _solve(M: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    try:
+        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(M, check_finite=False), b,
+                                      check_finite=False)
+    except np.linalg.LinAlgError:
+        try:
+            return scipy.linalg.solve(M, b, assume_a="sym", check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+
+
+def _trend_penalty(n: int, trend_ridge: float) -> np.ndarray:
+    """Diagonal penalty (p_t, p_t) of the quadratic trend's coefficients: ``trend_ridge`` on
+    the anisotropic part ``S`` (``inf``: 1e12, the isotropic bowl), :data:`JITTER` on the
+    rest."""
+    p = _n_trend(n)
+    diag = np.full(p, JITTER)
+    diag[2 + n:] = 1e12 if math.isinf(trend_ridge) else trend_ridge + JITTER
+    return np.diag(diag)
+
+
+def _penalty(n: int, trend_ridge: float, kernel_ridge: float, Kcc: np.ndarray
+             ) -> np.ndarray:
+    """Block-diagonal penalty (p_t + m_c, p_t + m_c) of the trend and of the kernel
+    residual on the centres whose Gram is ``Kcc`` (m_c, m_c)."""
+    p_t, m = _n_trend(n), len(Kcc)
+    P = np.zeros((p_t + m, p_t + m))
+    P[:p_t, :p_t] = _trend_penalty(n, trend_ridge)
+    P[p_t:, p_t:] = kernel_ridge * (Kcc + JITTER * np.eye(m)) + JITTER * np.eye(m)
+    return P
