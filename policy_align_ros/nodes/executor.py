@@ -85,6 +85,7 @@ from std_srvs.srv import SetBool
 
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
 from policy_align_ros.kinematics import Robot, constraint_from_spec
+from policy_align_ros.kinematics.constraints import parse_constraint_specs
 from policy_align_ros.kinematics.control import (
     DEFAULT_DRIFT_CLAMP_M,
     DEFAULT_DRIFT_GAIN,
@@ -107,7 +108,6 @@ from policy_align_ros.nodes._common import (
     accept,
     call_with_timeout,
     descriptor,
-    parse_constraint_specs,
     publish_zero_command,
     reject,
     run_node,

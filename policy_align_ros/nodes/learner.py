@@ -31,9 +31,7 @@ from std_srvs.srv import Trigger
 from policy_align_ros.data.pipeline import (
     Gates,
     PipelineResult,
-    holdout_split,
     learn_pipeline,
-    observed_ncpe,
     parse_sigma,
     state_name,
 )
@@ -46,13 +44,7 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = [
-    "Learner",
-    "holdout_split",
-    "main",
-    "observed_ncpe",
-    "parse_sigma",
-]
+__all__ = ["Learner", "main"]
 
 #: Gate parameters: name -> (description, range); defaults are those of :class:`Gates`.
 _GATE_PARAMETERS = {
@@ -86,9 +78,8 @@ class Learner(Node):
             "where the learnt model is written (atomically)"))
         sigma = descriptor(
             "kernel width: narrow, medium, wide (paper eqs. 17-19) or sigma^2 as a number")
-        # A number, as the description and config/learner.yaml invite (``sigma: 0.05``,
-        # ``-p sigma:=0.05``), is a DOUBLE or INTEGER parameter: a fixed STRING type refused
-        # it, and at start-up the node did not even start. _on_set_parameters checks types.
+        # A number (``-p sigma:=0.05``) is a DOUBLE or INTEGER parameter, a rule name a
+        # STRING: the type is dynamic and _on_set_parameters checks it.
         sigma.dynamic_typing = True
         self.declare_parameter("sigma", "medium", sigma)
         self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, descriptor(
