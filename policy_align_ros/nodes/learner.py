@@ -137,25 +137,7 @@ class Learner(Node):
             return response
         try:
             self.get_logger().info("learning started")
-            value = self.get_parameter
-            dataset = Path(value("dataset_dir").value).expanduser()
-            if not dataset.exists():
-                raise ValueError(
-                    f"dataset_dir: {dataset} does not exist (record demonstrations first)")
-            result = learn_pipeline(
-                [dataset],
-                value("model_path").value,
-                sigma=parse_sigma(value("sigma").value),
-                joints=optional_parameter(self, "joints"),
-                holdout_fraction=value("holdout_fraction").value,
-                gap_s=value("gap_s").value,
-                seed=value("seed").value,
-                state=value("state").value,
-                robot=value("robot").value or None,
-                gates=Gates(**{f.name: value(f.name).value for f in fields(Gates)}),
-                force=value("force").value,
-                log=self.get_logger().info,
-            )
+            result = self._learn()
         except (ValueError, OSError) as err:
             response.success = False
             response.message = f"learning failed: {err}"
@@ -177,6 +159,29 @@ class Learner(Node):
         else:
             self.get_logger().error(response.message)
         return response
+
+
+    def _learn(self) -> PipelineResult:
+        """The learning pipeline on ``dataset_dir`` with the node's parameters."""
+        value = self.get_parameter
+        dataset = Path(value("dataset_dir").value).expanduser()
+        if not dataset.exists():
+            raise ValueError(
+                f"dataset_dir: {dataset} does not exist (record demonstrations first)")
+        return learn_pipeline(
+            [dataset],
+            value("model_path").value,
+            sigma=parse_sigma(value("sigma").value),
+            joints=optional_parameter(self, "joints"),
+            holdout_fraction=value("holdout_fraction").value,
+            gap_s=value("gap_s").value,
+            seed=value("seed").value,
+            state=value("state").value,
+            robot=value("robot").value or None,
+            gates=Gates(**{f.name: value(f.name).value for f in fields(Gates)}),
+            force=value("force").value,
+            log=self.get_logger().info,
+        )
 
 
 def main(args: Sequence[str] | None = None) -> int:

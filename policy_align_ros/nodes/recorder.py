@@ -247,6 +247,12 @@ class RecorderNode(Node):
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
+        self._flush_if_idle(now)
+        self._retry_if_due(now)
+        self._warn_skips(now)
+
+    def _flush_if_idle(self, now: int) -> None:
+        """Write a continuous recording's segment once the stream went idle."""
         try:
             path = self._recorder.flush_if_idle(now * 1e-9)
         except Exception as err:  # never out of a callback: see the module docstring
@@ -255,6 +261,9 @@ class RecorderNode(Node):
             path = None
         if path is not None:
             self.get_logger().info(f"demonstration written (stream idle): {path}")
+
+    def _retry_if_due(self, now: int) -> None:
+        """Retry writing a pending demonstration every ``_RETRY_PERIOD_S``."""
         # A clock that jumped back (a restarted sim publishing /clock) also allows a retry.
         if self._recorder.pending and (
                 self._last_retry is None or not 0 <= now - self._last_retry
@@ -269,7 +278,6 @@ class RecorderNode(Node):
                 self.get_logger().info(
                     f"pending demonstration written: {path} ({count} messages)"
                     + ("; recording resumed" if self._recorder.active else ""))
-        self._warn_skips(now)
 
     def _warn_skips(self, now: int) -> None:
         skipped = self._recorder.skipped
