@@ -1,7 +1,7 @@
 """Helpers shared by the policy_align_ros nodes: parameters, message conversion, main().
 
 Units: joint positions in rad (m for prismatic joints), velocities in rad/s, times in s.
-Only this subpackage (and ``cli.py``) may import rclpy and ROS message types.
+Only this subpackage, ``client/`` and ``cli.py`` may import rclpy and ROS message types.
 """
 
 from __future__ import annotations
