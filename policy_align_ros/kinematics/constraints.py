@@ -29,6 +29,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
+import yaml
 
 from policy_align_ros.kinematics.robot import Robot, closest_names
 
@@ -41,6 +42,7 @@ __all__ = [
     "JointLockConstraint",
     "StackedConstraint",
     "constraint_from_spec",
+    "parse_constraint_specs",
     "barrier_rows",
     "barrier_active",
 ]
@@ -319,6 +321,39 @@ def constraint_from_spec(spec: Mapping[str, Any] | Sequence[Mapping[str, Any]],
         except ValueError as err:
             raise ValueError(f"constraint spec [{i}]: {err}") from None
     return parts[0] if len(parts) == 1 else StackedConstraint(parts)
+
+
+def parse_constraint_specs(text: str) -> list[dict]:
+    """Parse the ``constraints`` parameter: a YAML/JSON list of constraint specs.
+
+    Parameters
+    ----------
+    text : str
+        For example ``"[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"``; an
+        empty string or ``[]`` means no constraint.
+
+    Returns
+    -------
+    list of dict
+
+    Raises
+    ------
+    ValueError
+        If the text is not YAML or not a list of mappings.
+    """
+    if not text.strip():
+        return []
+    try:
+        specs = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ValueError(f"constraints: not valid YAML: {err}") from None
+    if specs is None:
+        return []
+    if isinstance(specs, dict):
+        specs = [specs]
+    if not isinstance(specs, list) or not all(isinstance(s, dict) for s in specs):
+        raise ValueError("constraints: must be a list of mappings like {type: plane, ...}")
+    return specs
 
 
 def _one_spec(spec: Mapping[str, Any], robot: Robot) -> Constraint:

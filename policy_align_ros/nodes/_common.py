@@ -1,7 +1,7 @@
 """Helpers shared by the policy_align_ros nodes: parameters, message conversion, main().
 
 Units: joint positions in rad (m for prismatic joints), velocities in rad/s, times in s.
-Only this subpackage (and ``cli.py``) may import rclpy and ROS message types.
+Only this subpackage, ``client/`` and ``cli.py`` may import rclpy and ROS message types.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
-import yaml
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -42,7 +41,6 @@ __all__ = [
     "call_with_timeout",
     "descriptor",
     "optional_parameter",
-    "parse_constraint_specs",
     "reject",
     "run_node",
 ]
@@ -114,39 +112,6 @@ def optional_parameter(node: Node, name: str) -> Any:
         return None
 
 
-def parse_constraint_specs(text: str) -> list[dict]:
-    """Parse the ``constraints`` parameter: a YAML/JSON list of constraint specs.
-
-    Parameters
-    ----------
-    text : str
-        For example ``"[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"``; an
-        empty string or ``[]`` means no constraint.
-
-    Returns
-    -------
-    list of dict
-
-    Raises
-    ------
-    ValueError
-        If the text is not YAML or not a list of mappings.
-    """
-    if not text.strip():
-        return []
-    try:
-        specs = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ValueError(f"constraints: not valid YAML: {err}") from None
-    if specs is None:
-        return []
-    if isinstance(specs, dict):
-        specs = [specs]
-    if not isinstance(specs, list) or not all(isinstance(s, dict) for s in specs):
-        raise ValueError("constraints: must be a list of mappings like {type: plane, ...}")
-    return specs
-
-
 class _NextCycle:
     """Awaitable that suspends a coroutine callback until the executor's next cycle."""
 
@@ -212,11 +177,10 @@ def run_node(
 
     SIGINT and SIGTERM only set a flag that the spin loop checks every 0.1 s; the handlers
     are installed before ``rclpy.init``, so a signal at any point of the start-up is kept
-    until the loop sees it. With rclpy's own handlers (which shut the context down) a
-    learner sent SIGTERM 4 s into a cold start of the graph once ran on and had to be
-    killed, and a CI run hung in the README walkthrough's clean-up. The context also stays
-    valid for ``destroy_node``, so a node can still publish on the way out (the
-    executor's final zero command).
+    until the loop sees it (rclpy's own handlers shut the context down, which can leave a
+    node running or its clean-up hanging). The context also stays valid for
+    ``destroy_node``, so a node can still publish on the way out (the executor's final
+    zero command).
 
     Parameters
     ----------
@@ -269,8 +233,7 @@ def run_node(
         if node is not None and finish is not None:
             finish(node)
         # Ignoring signals, a teardown that never returns would need SIGKILL: Fast DDS
-        # 2.14 can deadlock destroying a participant while the others vanish at once (the
-        # README walkthrough's clean-up: a recorder spinning in rcl_node_fini for 12 min).
+        # can deadlock destroying a participant while the others vanish at once.
         # Everything the node owes is done by then (data saved, zero command published
         # first in destroy_node), so past the bound the process just ends.
         watchdog = threading.Timer(TEARDOWN_TIMEOUT_S, _exit_stuck, (code,))

@@ -102,6 +102,7 @@ from policy_align_ros.control import (
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
 from policy_align_ros.kinematics import Robot, constraint_from_spec
+from policy_align_ros.kinematics.constraints import parse_constraint_specs
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     DEFAULT_JOINTS,
@@ -109,7 +110,6 @@ from policy_align_ros.nodes._common import (
     accept,
     call_with_timeout,
     descriptor,
-    parse_constraint_specs,
     publish_zero_command,
     reject,
     run_node,

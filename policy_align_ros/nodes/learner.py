@@ -29,8 +29,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from policy_align_ros.data.pipeline import PipelineResult, learn_pipeline, parse_sigma, state_name
-from policy_align_ros.data.quality import Gates, observed_ncpe
-from policy_align_ros.data.selection import holdout_split
+from policy_align_ros.data.quality import Gates
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     accept,
@@ -40,13 +39,7 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = [
-    "Learner",
-    "holdout_split",
-    "main",
-    "observed_ncpe",
-    "parse_sigma",
-]
+__all__ = ["Learner", "main"]
 
 #: Gate parameters: name -> (description, range); defaults are those of :class:`Gates`.
 _GATE_PARAMETERS = {
@@ -80,9 +73,8 @@ class Learner(Node):
             "where the learnt model is written (atomically)"))
         sigma = descriptor(
             "kernel width: narrow, medium, wide (paper eqs. 17-19) or sigma^2 as a number")
-        # A number, as the description and config/learner.yaml invite (``sigma: 0.05``,
-        # ``-p sigma:=0.05``), is a DOUBLE or INTEGER parameter: a fixed STRING type refused
-        # it, and at start-up the node did not even start. _on_set_parameters checks types.
+        # A number (``-p sigma:=0.05``) is a DOUBLE or INTEGER parameter, a rule name a
+        # STRING: the type is dynamic and _on_set_parameters checks it.
         sigma.dynamic_typing = True
         self.declare_parameter("sigma", "medium", sigma)
         self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, descriptor(
@@ -140,25 +132,7 @@ class Learner(Node):
             return response
         try:
             self.get_logger().info("learning started")
-            value = self.get_parameter
-            dataset = Path(value("dataset_dir").value).expanduser()
-            if not dataset.exists():
-                raise ValueError(
-                    f"dataset_dir: {dataset} does not exist (record demonstrations first)")
-            result = learn_pipeline(
-                [dataset],
-                value("model_path").value,
-                sigma=parse_sigma(value("sigma").value),
-                joints=optional_parameter(self, "joints"),
-                holdout_fraction=value("holdout_fraction").value,
-                gap_s=value("gap_s").value,
-                seed=value("seed").value,
-                state=value("state").value,
-                robot=value("robot").value or None,
-                gates=Gates(**{f.name: value(f.name).value for f in fields(Gates)}),
-                force=value("force").value,
-                log=self.get_logger().info,
-            )
+            result = self._learn()
         except (ValueError, OSError) as err:
             response.success = False
             response.message = f"learning failed: {err}"
@@ -180,6 +154,29 @@ class Learner(Node):
         else:
             self.get_logger().error(response.message)
         return response
+
+
+    def _learn(self) -> PipelineResult:
+        """The learning pipeline on ``dataset_dir`` with the node's parameters."""
+        value = self.get_parameter
+        dataset = Path(value("dataset_dir").value).expanduser()
+        if not dataset.exists():
+            raise ValueError(
+                f"dataset_dir: {dataset} does not exist (record demonstrations first)")
+        return learn_pipeline(
+            [dataset],
+            value("model_path").value,
+            sigma=parse_sigma(value("sigma").value),
+            joints=optional_parameter(self, "joints"),
+            holdout_fraction=value("holdout_fraction").value,
+            gap_s=value("gap_s").value,
+            seed=value("seed").value,
+            state=value("state").value,
+            robot=value("robot").value or None,
+            gates=Gates(**{f.name: value(f.name).value for f in fields(Gates)}),
+            force=value("force").value,
+            log=self.get_logger().info,
+        )
 
 
 def main(args: Sequence[str] | None = None) -> int:

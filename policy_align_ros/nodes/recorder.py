@@ -5,7 +5,7 @@ Thin adapter around :class:`policy_align_ros.data.recording.DemoRecorder`: conve
 zero; positions in rad or m, velocities in rad/s or m/s) to plain values, declares and
 validates the parameters, and offers the services.
 
-Interface (DESIGN.md section 6):
+Interface (docs/design.md section 6):
 
 * subscribes ``/joint_states`` (reliable, keep-last ``qos_depth``, 10 s at 1 kHz by default,
   so a burst is queued rather than lost while a bag is being written);
@@ -74,7 +74,12 @@ from std_srvs.srv import Trigger
 
 from policy_align_ros.data.dataset_dir import check_dataset_dir, default_fallback_dirs
 from policy_align_ros.data.messages import validate_joint_names
-from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, validate_gap
+from policy_align_ros.data.recording import (
+    DemoRecorder,
+    PendingWriteError,
+    describe_skips,
+    validate_gap,
+)
 from policy_align_ros.nodes._common import run_node
 
 __all__ = ["RecorderNode", "main"]
@@ -241,6 +246,12 @@ class RecorderNode(Node):
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
+        self._flush_if_idle(now)
+        self._retry_if_due(now)
+        self._warn_skips(now)
+
+    def _flush_if_idle(self, now: int) -> None:
+        """Write a continuous recording's segment once the stream went idle."""
         try:
             path = self._recorder.flush_if_idle(now * 1e-9)
         except Exception as err:  # never out of a callback: see the module docstring
@@ -249,6 +260,9 @@ class RecorderNode(Node):
             path = None
         if path is not None:
             self.get_logger().info(f"demonstration written (stream idle): {path}")
+
+    def _retry_if_due(self, now: int) -> None:
+        """Retry writing a pending demonstration every ``_RETRY_PERIOD_S``."""
         # A clock that jumped back (a restarted sim publishing /clock) also allows a retry.
         if self._recorder.pending and (
                 self._last_retry is None or not 0 <= now - self._last_retry
@@ -263,7 +277,6 @@ class RecorderNode(Node):
                 self.get_logger().info(
                     f"pending demonstration written: {path} ({count} messages)"
                     + ("; recording resumed" if self._recorder.active else ""))
-        self._warn_skips(now)
 
     def _warn_skips(self, now: int) -> None:
         skipped = self._recorder.skipped
@@ -273,15 +286,7 @@ class RecorderNode(Node):
         if total == self._reported_skips or (
                 self._last_warning is not None and 0 <= now - self._last_warning < period_ns):
             return
-        detail = ", ".join(f"{k}={v}" for k, v in skipped.items() if v)
-        if skipped.get("time_in_future"):
-            detail += (" (time_in_future: header stamps ahead of this node's clock; are the "
-                       "clocks synchronised, and use_sim_time the same on every node?)")
-        if skipped.get("time_negative"):
-            detail += (" (time_negative: header stamps before 1970; does the publisher "
-                       "stamp with a clock that was never set?)")
-        if lost:
-            detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
+        detail = describe_skips(skipped, lost)
         self.get_logger().warning(
             f"skipped {total - self._reported_skips} joint_states message(s) "
             f"since the last report ({total} in total: {detail})"
@@ -351,12 +356,7 @@ class RecorderNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``recorder``: :func:`run_node`'s stop flag, then :meth:`shutdown`
-    saves what is left before the node is destroyed.
-
-    With rclpy's own signal handlers, SIGTERM shut the context down under ``rclpy.spin``
-    and ``destroy_node`` then spun forever (a recorder left behind at 60 % CPU by the
-    README walkthrough's clean-up).
-    """
+    saves what is left before the node is destroyed (while the context is still valid)."""
     return run_node(RecorderNode, args, finish=RecorderNode.shutdown)
 
 

@@ -1,0 +1,136 @@
+"""The demo's settings, its random streams and its progress lines.
+
+Durations are seconds of simulated time unless called wall time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from policy_align_ros.nodes._common import DEFAULT_JOINTS
+from policy_align_ros.sim.script import DEFAULT_FRAMES
+
+__all__ = [
+    "DEFAULT_DEMOS",
+    "MIN_START_SEPARATION",
+    "NODES",
+    "STATES",
+    "DemoSettings",
+    "StageError",
+    "pick_domain_id",
+    "random_streams",
+    "say",
+    "settings_from_args",
+]
+
+#: The node processes of the graph, in start order.
+NODES = ("sim_robot", "recorder", "learner", "executor", "demonstrator")
+STATES = ("joints", "hands")
+#: Demonstrations recorded by default (a fifth is held out): fewer put the learnt minimum
+#: measurably away from the attractor (hand space needs fewer: three coordinates a hand).
+DEFAULT_DEMOS = {"joints": 30, "hands": 24}
+#: A new start must be at least this far (state-space norm, rad) from every recorded start.
+MIN_START_SEPARATION = 0.1
+
+
+class StageError(RuntimeError):
+    """A demo stage failed; the message says which and why."""
+
+
+@dataclass
+class DemoSettings:
+    """Knobs of the demo (the CLI exposes robot, state, seed and out; tests shrink the rest).
+
+    Durations are simulated seconds; ``real_time_factor`` is simulated seconds per wall
+    second (chosen so the graph keeps its control periods on 2 cores, see the report's
+    ``sim`` block).
+    """
+
+    robot: str = "talos"
+    out: Path = Path("demo_out")
+    state: str = "joints"
+    seed: int = 0
+    demos: int | None = None
+    demo_duration_s: float = 3.0
+    run_duration_s: float = 8.0
+    rate_hz: float = 25.0
+    real_time_factor: float = 1.5
+    gain: float = 1.0
+    start_variance: float = 0.1
+    max_velocity: float = 1.0
+    max_acceleration: float = 2.0
+    sigma: str = "medium"
+    holdout_fraction: float = 0.2
+    free_runs: int = 2
+    held_runs: int = 1
+    fresh_demos: int = 10
+    hand_offset: tuple[float, ...] = (0.10, 0.05, 0.10, 0.10, -0.05, 0.10)
+    domain_id: int | None = None
+    executor_params: dict = field(default_factory=dict)
+    joints: list[str] = field(default_factory=list)
+    frames: list[str] = field(default_factory=list)
+    plots: bool = True
+    require_progress: bool = True
+
+
+def settings_from_args(args: argparse.Namespace) -> DemoSettings:
+    """The settings named in ``args`` (the others at their defaults), checked.
+
+    Raises
+    ------
+    ValueError
+        On an unknown state, fewer than 3 demonstrations, a seed outside [0, 2^31), no
+        unconstrained run, or a hands state without two hand frames.
+    """
+    s = DemoSettings()
+    for name in s.__dataclass_fields__:
+        if getattr(args, name, None) is not None:
+            setattr(s, name, getattr(args, name))
+    s.out = Path(s.out)
+    if s.state not in STATES:
+        raise ValueError(f"state: must be one of {', '.join(STATES)}, got {s.state!r}")
+    if s.demos is None:
+        s.demos = DEFAULT_DEMOS[s.state]
+    if s.demos < 3:
+        raise ValueError(f"demos: need at least 3 demonstrations, got {s.demos}")
+    if not 0 <= int(s.seed) < 2**31:
+        raise ValueError(f"seed: must be in [0, 2^31), got {s.seed}")
+    if s.free_runs < 1:
+        raise ValueError(f"free_runs: need at least one unconstrained run, got {s.free_runs}")
+    if not s.joints:
+        s.joints = list(DEFAULT_JOINTS) if s.robot == "talos" else []
+    if not s.frames:
+        s.frames = list(DEFAULT_FRAMES) if s.robot == "talos" else []
+    if s.state == "hands" and len(s.frames) != 2:
+        raise ValueError("state hands: needs two hand frames (known for robot talos only)")
+    return s
+
+
+def pick_domain_id(requested: int | None) -> int:
+    """``requested``, or a private ROS domain per process so two demos never mix."""
+    if requested is not None:
+        return int(requested)
+    return 1 + os.getpid() % 100
+
+
+def random_streams(seed: int) -> dict[str, np.random.Generator | int]:
+    """Independent random streams, all from ``seed``.
+
+    ``demonstrator`` is the node's integer seed (its starts and planes); ``fresh`` draws the
+    offline scoring demonstrations and ``starts`` the executor's new start states.
+    """
+    demo_ss, fresh_ss, start_ss = np.random.SeedSequence(int(seed)).spawn(3)
+    return {"demonstrator": int(demo_ss.generate_state(1)[0] & 0x7FFFFFFF),
+            "fresh": np.random.default_rng(fresh_ss),
+            "starts": np.random.default_rng(start_ss)}
+
+
+def say(t0: float, text: str) -> None:
+    """Print a progress line stamped with the wall time since ``t0`` (monotonic s)."""
+    print(f"[demo {time.monotonic() - t0:6.1f} s] {text}", flush=True)
