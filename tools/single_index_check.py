@@ -1,5 +1,5 @@
 """The single-index trend on potentials far from quadratic (a prototype, not part of the
-package; see ``docs/notes/trend_kernel.md``), and the default model on the same data.
+package; see ``docs/design/single_index.md``), and the default model on the same data.
 
 Usage: ``python tools/single_index_check.py KIND N [SEED [FORM]]`` with ``KIND`` one of ``sat``
 (a velocity-limited attractor, ``phi = sqrt(r^2 + q) - r``) or ``quart`` (``phi = q / 2 +

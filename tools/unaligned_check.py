@@ -1,5 +1,5 @@
 """Keep or drop the trajectories the alignment cannot level: the measurement behind
-``docs/notes/outliers.md``.
+``docs/design/alignment_and_outliers.md``.
 
 Usage: ``python tools/unaligned_check.py POTENTIAL K N SIGMA FIRST_SEED LAST_SEED`` (the toy
 data of ``policy-align bench toy``; for example ``sinusoid 40 40 narrow 0 20``). Each data

@@ -20,16 +20,15 @@ import time
 
 import rclpy
 from rclpy.exceptions import NameValidationException
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from std_srvs.srv import SetBool, Trigger
 
+from policy_align_ros.client.oneshot import open_context, spin_until
+
 __all__ = ["call_service", "run_call"]
 
 _TYPES = {"std_srvs/srv/Trigger": Trigger, "std_srvs/srv/SetBool": SetBool}
-#: Longest ``--timeout`` [s]: rclpy's waits take int64 nanoseconds.
-MAX_TIMEOUT_S = 1e6
 
 
 def _service_type(node: Node, service: str, deadline: float) -> str | None:
@@ -68,15 +67,7 @@ def call_service(
         if data is not None:
             request.data = data
         future = client.call_async(request)
-        executor = SingleThreadedExecutor(context=node.context)
-        try:
-            executor.add_node(node)
-            executor.spin_until_future_complete(
-                future, timeout_sec=max(deadline - time.monotonic(), 0.0))
-        finally:
-            # Its guard conditions outlive it otherwise: callers may call many times.
-            executor.shutdown()
-        if not future.done() or future.result() is None:
+        if not spin_until(node, future, deadline):
             return 3, f"service {service} did not answer within {timeout:g} s"
         response = future.result()
         return (0 if response.success else 1), response.message
@@ -88,15 +79,8 @@ def run_call(args: argparse.Namespace) -> int:
     """Entry of ``policy-align call``; ``args`` has ``service``, ``data``, ``timeout``."""
     service = args.service if args.service.startswith("/") else "/" + args.service
     data = None if args.data is None else args.data == "true"
-    if not 0 < args.timeout <= MAX_TIMEOUT_S:  # also NaN and inf, which rclpy cannot wait
-        print(f"policy-align call: error: --timeout must be > 0 and <= {MAX_TIMEOUT_S:g} s",
-              file=sys.stderr)
-        return 2
-    context = rclpy.Context()
-    try:
-        rclpy.init(context=context)
-    except RuntimeError as err:  # rcl's RCLError, e.g. a ROS_DOMAIN_ID that is no number
-        print(f"policy-align call: error: {err}", file=sys.stderr)
+    context = open_context("call", args.timeout)
+    if context is None:
         return 2
     node = None
     try:

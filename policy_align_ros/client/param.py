@@ -28,14 +28,13 @@ import yaml
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
 from rclpy.exceptions import NameValidationException
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
+from policy_align_ros.client.oneshot import open_context, spin_until
+
 __all__ = ["get_parameter", "parse_value", "run_param", "set_parameter"]
 
-#: Longest ``--timeout`` [s]: rclpy's waits take int64 nanoseconds.
-MAX_TIMEOUT_S = 1e6
 #: Range of a ROS integer parameter (int64).
 _INT64 = (-(2**63), 2**63 - 1)
 
@@ -118,14 +117,7 @@ def _call(node: Node, srv_type, service: str, request, deadline: float):
             raise ParamError(3, f"node {service.rsplit('/', 1)[0]} not found: service "
                                 f"{service} not available")
         future = client.call_async(request)
-        executor = SingleThreadedExecutor(context=node.context)
-        try:
-            executor.add_node(node)
-            executor.spin_until_future_complete(
-                future, timeout_sec=max(deadline - time.monotonic(), 0.0))
-        finally:
-            executor.shutdown()  # a set call makes two: neither outlives its call
-        if not future.done() or future.result() is None:
+        if not spin_until(node, future, deadline):  # a set call makes two
             raise ParamError(3, f"service {service} did not answer")
         return future.result()
     finally:
@@ -177,15 +169,8 @@ def run_param(args: argparse.Namespace) -> int:
     if args.action == "get" and args.value is not None:
         print("policy-align param: error: get takes no VALUE", file=sys.stderr)
         return 2
-    if not 0 < args.timeout <= MAX_TIMEOUT_S:  # also NaN and inf, which rclpy cannot wait
-        print(f"policy-align param: error: --timeout must be > 0 and <= {MAX_TIMEOUT_S:g} s",
-              file=sys.stderr)
-        return 2
-    context = rclpy.Context()
-    try:
-        rclpy.init(context=context)
-    except RuntimeError as err:  # rcl's RCLError, e.g. a ROS_DOMAIN_ID that is no number
-        print(f"policy-align param: error: {err}", file=sys.stderr)
+    context = open_context("param", args.timeout)
+    if context is None:
         return 2
     deadline = time.monotonic() + args.timeout
     try:

@@ -33,6 +33,7 @@ apply these same rules; they are the one JointState-to-vector conversion of the 
 Of the reasons, :data:`UNTRUSTWORTHY` mark a message that is broken (a live consumer
 should stop acting on the stream), while ``unknown_joints`` and ``missing_joints`` mark a
 message meant for someone else (another publisher's joints on a shared topic).
+:func:`describe_skips` words the counts of skipped messages by reason for a log line.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ __all__ = [
     "UNTRUSTWORTHY",
     "JointSelector",
     "StreamClock",
+    "describe_skips",
     "validate_joint_names",
 ]
 
@@ -68,6 +70,30 @@ SAME, NEW, SKIP = 0, 1, 2
 
 # Bounds the per-name-list cache; real streams have one or two distinct name lists.
 _CACHE_LIMIT = 64
+
+
+def describe_skips(skipped: dict[str, int], lost: int) -> str:
+    """The counts of skipped messages by reason, with a hint for the clock-related ones.
+
+    Parameters
+    ----------
+    skipped : dict
+        Skip reason -> messages skipped
+        (:attr:`~policy_align_ros.data.recording.DemoRecorder.skipped`); zeros are left out.
+    lost : int
+        Messages dropped while a failed write was pending
+        (:attr:`~policy_align_ros.data.recording.DemoRecorder.lost_while_pending`).
+    """
+    detail = ", ".join(f"{k}={v}" for k, v in skipped.items() if v)
+    if skipped.get("time_in_future"):
+        detail += (" (time_in_future: header stamps ahead of this node's clock; are the "
+                   "clocks synchronised, and use_sim_time the same on every node?)")
+    if skipped.get("time_negative"):
+        detail += (" (time_negative: header stamps before 1970; does the publisher "
+                   "stamp with a clock that was never set?)")
+    if lost:
+        detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
+    return detail
 
 
 def validate_joint_names(joints: Sequence[str] | None) -> list[str] | None:

@@ -66,7 +66,6 @@ __all__ = [
     "DemoRecorder",
     "PendingWriteError",
     "SaveResult",
-    "describe_skips",
     "validate_gap",
 ]
 
@@ -589,25 +588,3 @@ class DemoRecorder:
         self.written.append(path)
         return path
 
-
-def describe_skips(skipped: dict[str, int], lost: int) -> str:
-    """The counts of skipped messages by reason, with a hint for the clock-related ones.
-
-    Parameters
-    ----------
-    skipped : dict
-        Skip reason -> messages skipped (:attr:`DemoRecorder.skipped`); zeros are left out.
-    lost : int
-        Messages dropped while a failed write was pending
-        (:attr:`DemoRecorder.lost_while_pending`).
-    """
-    detail = ", ".join(f"{k}={v}" for k, v in skipped.items() if v)
-    if skipped.get("time_in_future"):
-        detail += (" (time_in_future: header stamps ahead of this node's clock; are the "
-                   "clocks synchronised, and use_sim_time the same on every node?)")
-    if skipped.get("time_negative"):
-        detail += (" (time_negative: header stamps before 1970; does the publisher "
-                   "stamp with a clock that was never set?)")
-    if lost:
-        detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
-    return detail

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +19,7 @@ from policy_align_ros.experiments.evaluation import METRIC_NAMES
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.learning.model_io import atomic_write_text
 
-__all__ = ["run_bench", "run_toy_bench", "format_mean_std"]
+__all__ = ["run_bench", "run_robot_bench", "run_toy_bench", "format_mean_std"]
 
 
 def format_mean_std(mean: float, std: float, percent: bool = False) -> str:
@@ -99,6 +101,59 @@ def run_toy_bench(args: argparse.Namespace) -> int:
     atomic_write_text(out / "toy.json", json.dumps(raw, indent=1))
     figure = plot_toy_figure(out / "toy.png", seed=args.seed)
     print(f"wrote {out / 'toy.md'}, {out / 'toy.json'} and {figure}")
+    return 0
+
+
+def run_robot_bench(
+    args: argparse.Namespace,
+    name: str,
+    run: Callable[[int, int, int, int, int], list[dict]],
+    format_table: Callable[[Sequence[dict]], str],
+    setup: Callable[[object, object], str],
+    plot_figure: Callable[[object, Path], None],
+    figure_key: str,
+) -> int:
+    """``policy-align bench grasp|humanoid``: print and write the table, write the figure.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Has ``datasets`` (None = the paper's 50), ``jobs``, ``out``, ``seed``; tests add
+        ``n_traj`` and ``n_samples`` (not CLI options: the paper's K = N = 100).
+    name : str
+        Stem of the files ``<out>/<name>.md``, ``.json`` and ``.png``.
+    run : callable
+        ``run(datasets, jobs, seed, n_traj, n_samples)``: one metrics dict per data set.
+    format_table : callable
+        The markdown table of ``run``'s results.
+    setup : callable
+        ``setup(K, N)``: the line under the table that states the set-up.
+    plot_figure : callable
+        ``plot_figure(results[0][figure_key], path)`` draws the figure.
+    figure_key : str
+        The key of data set 0's figure data.
+    """
+    datasets = 50 if args.datasets is None else int(args.datasets)
+    if datasets < 1:
+        raise ValueError(f"--datasets: must be >= 1, got {datasets}")
+    jobs = max(1, int(getattr(args, "jobs", 2) or 1))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    n_traj, n_samples = getattr(args, "n_traj", 100), getattr(args, "n_samples", 100)
+    t0 = time.perf_counter()
+    results = run(datasets, jobs, int(getattr(args, "seed", 0) or 0), int(n_traj),
+                  int(n_samples))
+    elapsed = time.perf_counter() - t0
+    table = format_table(results)
+    table += (f"\n{setup(n_traj, n_samples)}; {datasets} data sets in {elapsed:.0f} s "
+              f"with {jobs} worker(s).\n")
+    print(table)
+    paths = [out / f"{name}.{ext}" for ext in ("md", "json", "png")]
+    atomic_write_text(paths[0], table)
+    atomic_write_text(paths[1], json.dumps(
+        [{k: v for k, v in r.items() if isinstance(v, float)} for r in results], indent=1))
+    plot_figure(results[0][figure_key], paths[2])
+    print(f"wrote {paths[0]}, {paths[1]} and {paths[2]}", file=sys.stderr)
     return 0
 
 

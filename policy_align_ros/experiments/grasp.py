@@ -30,8 +30,6 @@ global regression and the naive baseline's training).
 
 from __future__ import annotations
 
-import json
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -39,12 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
+from policy_align_ros.experiments.bench import run_robot_bench
 from policy_align_ros.experiments.figures import save_figure
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.kinematics import Robot, nullspace_projector
 from policy_align_ros.kinematics.constraints import barrier_rows
 from policy_align_ros.learning import Trajectory
-from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.learning.outliers import largest_group
 from policy_align_ros.sim.demonstrations import (
     ConstraintFn,
@@ -387,30 +385,9 @@ def run(datasets: int, jobs: int, seed: int, n_traj: int = 100, n_samples: int =
 
 
 def main(args) -> int:
-    """``policy-align bench grasp``: print and write the table, write the figure.
-
-    ``args`` has ``datasets`` (None = the paper's 50), ``jobs``, ``out``, ``seed``.
-    """
-    datasets = 50 if args.datasets is None else int(args.datasets)
-    jobs = max(1, int(getattr(args, "jobs", 2) or 1))
-    if datasets < 1:
-        raise ValueError(f"--datasets: must be >= 1, got {datasets}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    # n_traj / n_samples are not CLI options: the paper's K = N = 100; tests shrink them.
-    results = run(datasets, jobs, int(getattr(args, "seed", 0) or 0),
-                  int(getattr(args, "n_traj", 100)), int(getattr(args, "n_samples", 100)))
-    elapsed = time.perf_counter() - t0
-    table = format_table(results)
-    table += (f"\nState: both Talos hand positions (6-D); K={getattr(args, 'n_traj', 100)}, "
-              f"N={getattr(args, 'n_samples', 100)}, dt={DT} s, narrow sigma; "
-              f"{datasets} data sets in {elapsed:.0f} s with {jobs} worker(s).\n")
-    print(table)
-    atomic_write_text(out / "grasp.md", table)
-    atomic_write_text(out / "grasp.json", json.dumps(
-        [{k: v for k, v in r.items() if isinstance(v, float)} for r in results], indent=1))
-    plot_figure(results[0]["rollouts"], out / "grasp.png")
-    print(f"wrote {out / 'grasp.md'}, {out / 'grasp.json'} and {out / 'grasp.png'}",
-          file=sys.stderr)
-    return 0
+    """``policy-align bench grasp``: see :func:`~.bench.run_robot_bench`."""
+    return run_robot_bench(
+        args, "grasp", run, format_table,
+        lambda k, n: (f"State: both Talos hand positions (6-D); K={k}, N={n}, dt={DT} s, "
+                      f"narrow sigma"),
+        plot_figure, "rollouts")

@@ -21,17 +21,15 @@ samples of the kept demonstrations.
 
 from __future__ import annotations
 
-import json
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from policy_align_ros.experiments.bench import run_robot_bench
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.kinematics import Robot
-from policy_align_ros.learning.model_io import atomic_write_text
 from policy_align_ros.learning.outliers import largest_group
 from policy_align_ros.sim.demonstrations import (
     ConstraintFn,
@@ -255,34 +253,10 @@ def run(datasets: int, jobs: int, seed: int, n_traj: int = 100, n_samples: int =
 
 
 def main(args) -> int:
-    """``policy-align bench humanoid``: print the table, write ``<out>/humanoid.md`` and
-    the figure ``<out>/humanoid.png``.
-
-    ``args`` has ``datasets`` (None = the paper's 50), ``jobs``, ``out``, ``seed``.
-    """
-
-    datasets = 50 if args.datasets is None else int(args.datasets)
-    if datasets < 1:
-        raise ValueError(f"--datasets: must be >= 1, got {datasets}")
-    jobs = max(1, int(getattr(args, "jobs", 2) or 1))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    # n_traj / n_samples are not CLI options: the paper's K = N = 100; tests shrink them.
-    results = run(datasets, jobs, int(getattr(args, "seed", 0) or 0),
-                  int(getattr(args, "n_traj", 100)), int(getattr(args, "n_samples", 100)))
-    elapsed = time.perf_counter() - t0
-    table = format_table(results)
-    table += (f"\nModel: example-robot-data `human`, joints {', '.join(JOINTS)}; "
-              f"K={getattr(args, 'n_traj', 100)}, N={getattr(args, 'n_samples', 100)}, "
-              f"dt={DT} s, plane re-drawn {SWITCHES} times per demonstration, narrow sigma; "
-              f"{datasets} data sets in {elapsed:.0f} s with "
-              f"{jobs} worker(s).\n")
-    print(table)
-    atomic_write_text(out / "humanoid.md", table)
-    atomic_write_text(out / "humanoid.json", json.dumps(
-        [{k: v for k, v in r.items() if isinstance(v, float)} for r in results], indent=1))
-    plot_figure(results[0]["figure"], out / "humanoid.png")
-    print(f"wrote {out / 'humanoid.md'}, {out / 'humanoid.json'} and "
-          f"{out / 'humanoid.png'}", file=sys.stderr)
-    return 0
+    """``policy-align bench humanoid``: see :func:`~.bench.run_robot_bench`."""
+    return run_robot_bench(
+        args, "humanoid", run, format_table,
+        lambda k, n: (f"Model: example-robot-data `human`, joints {', '.join(JOINTS)}; "
+                      f"K={k}, N={n}, dt={DT} s, plane re-drawn {SWITCHES} times per "
+                      f"demonstration, narrow sigma"),
+        plot_figure, "figure")

@@ -24,8 +24,9 @@ times (per step otherwise).
    alignment's offsets. A regressor whose ``fit`` takes ``free_groups`` (the default
    does) is also given the trajectories outside the aligned set, with offsets it re-fits
    freely: the paper discards them because no offset can be found for them by the
-   alignment, but their shape is data all the same (``docs/notes/outliers.md``). Their
-   ``offsets_`` are then the levels the global model gives them.
+   alignment, but their shape is data all the same
+   (``docs/design/alignment_and_outliers.md``). Their ``offsets_`` are then the levels the
+   global model gives them.
 """
 
 from __future__ import annotations

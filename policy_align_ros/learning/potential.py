@@ -84,7 +84,7 @@ def position_noise(positions: list[np.ndarray]) -> float:
     straddle a constraint switch), corrected from the median to the mean of a chi-square
     with ``n`` degrees of freedom, estimates ``sum_d s_d^2`` plus what is left of the
     motion, and the smaller of the third- and fourth-order estimates is kept (its
-    accuracy: ``docs/notes/potential.md``).
+    accuracy: ``docs/design/potential.md``).
 
     Parameters
     ----------
@@ -346,8 +346,8 @@ def sampling_gaps(traj: Trajectory) -> np.ndarray:
     which the state moved at velocities that nobody recorded. Where the constraint or the
     speed changed in between, no rule gets that step's potential drop right to first
     order, whatever the velocity timing. Stamps jittered by up to a fifth of a step stay
-    below the ratio. Measured with ``tools/recording_check.py`` (``docs/notes/potential.md``,
-    "Lost samples").
+    below the ratio. Measured with ``tools/recording_check.py``
+    (``docs/design/constraint_switches.md``).
 
     Returns
     -------
@@ -369,7 +369,7 @@ def leading_rest(positions: np.ndarray, noise: float) -> int:
     where the motion starts inside a sample period is wrong to first order under every
     rule, as at a constraint switch, and there the motion is usually at its fastest. A
     rest of noisy samples then weighs that error as much as the motion beside it
-    (``docs/notes/potential.md``, "Rest before the motion").
+    (``docs/design/leading_rest.md``).
     The rest is the samples that stay as close to the first one as noise alone keeps
     two samples, with probability ``1 -`` :data:`REST_FALSE_ALARM` (a chi-square with
     ``n`` degrees of freedom scaled by ``2 noise / n``; without noise, the first state
@@ -422,7 +422,7 @@ def switch_cuts(traj: Trajectory) -> np.ndarray:
     geometric mean of its neighbours' (the first and the last step: its one
     neighbour's), and above round-off (``sqrt(eps)``). The geometric mean, unlike the
     larger neighbour, still finds a switch right after a fast first step or next to
-    another switch (``docs/notes/potential.md``).
+    another switch (``docs/design/constraint_switches.md``).
 
     Returns
     -------

@@ -73,13 +73,8 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from policy_align_ros.data.dataset_dir import check_dataset_dir, default_fallback_dirs
-from policy_align_ros.data.messages import validate_joint_names
-from policy_align_ros.data.recording import (
-    DemoRecorder,
-    PendingWriteError,
-    describe_skips,
-    validate_gap,
-)
+from policy_align_ros.data.messages import describe_skips, validate_joint_names
+from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, validate_gap
 from policy_align_ros.nodes._common import run_node
 
 __all__ = ["RecorderNode", "main"]

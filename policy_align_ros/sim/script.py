@@ -33,8 +33,8 @@ from policy_align_ros.sim.demonstrations import sample_start_states
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
 
 __all__ = ["DEFAULT_FRAMES", "EXPERTS", "DemonstrationScript", "drop_roundoff_at_limits",
-           "hand_plane_rows", "make_hand_expert", "plane_segment", "random_plane_specs",
-           "stale_joint_state"]
+           "hand_plane_rows", "hands_command", "make_hand_expert", "plane_segment",
+           "random_plane_specs", "stale_joint_state"]
 
 DEFAULT_FRAMES = ["arm_left_7_link", "arm_right_7_link"]
 EXPERTS = ("joints", "hands")
@@ -89,6 +89,36 @@ def drop_roundoff_at_limits(q: np.ndarray, qdot: np.ndarray, lower: np.ndarray,
     outward = ((q <= lower) & (out < 0.0)) | ((q >= upper) & (out > 0.0))
     out[outward & (np.abs(out) < LIMIT_ROUNDOFF)] = 0.0
     return out
+
+
+def hands_command(hand_expert: TaskSpaceExpert, q: np.ndarray, A_x: np.ndarray | None,
+                  A_q: np.ndarray | None, lower: np.ndarray, upper: np.ndarray,
+                  vmax: np.ndarray, dt: float) -> np.ndarray:
+    """The hands expert's joint velocity (n,) at ``q`` (n,), scaled into the joint limits.
+
+    Parameters
+    ----------
+    hand_expert : TaskSpaceExpert
+    q : ndarray, shape (n,)
+        Joint positions [rad].
+    A_x : ndarray, shape (k, 3F), or None
+        Hand-space constraint rows.
+    A_q : ndarray, shape (c, n), or None
+        Joint-space constraint rows.
+    lower, upper, vmax : ndarray, shape (n,)
+        Joint limits [rad] and speed limits [rad/s].
+    dt : float
+        Control period [s].
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Joint velocity [rad/s]. The scale applies to the whole vector, and only where no
+        joint can make up for a bound, which keeps the hands on their planes.
+    """
+    qdot, _ = hand_expert.command(q, A_x, A_q, max_velocity=vmax, dt=dt)
+    qdot = drop_roundoff_at_limits(q, qdot, lower, upper)
+    return velocity_scale(q, qdot, dt, lower, upper, vmax) * qdot
 
 
 def hand_plane_rows(specs: Sequence[dict], hand_frames: Sequence[str]
@@ -228,9 +258,5 @@ class DemonstrationScript:
             return constrained_command(q, pi, A, lower, upper, self.vmax, self.period)
         A_q = (np.vstack([c.matrix(q) for c in self.constraints]) if self.constraints
                else None)
-        qdot, _ = self.hand_expert.command(q, self.A_x, A_q, max_velocity=self.vmax,
-                                           dt=self.period)
-        qdot = drop_roundoff_at_limits(q, qdot, lower, upper)
-        # Only where no joint can make up for a bound; one scale for the whole vector
-        # keeps the hands on their planes.
-        return velocity_scale(q, qdot, self.period, lower, upper, self.vmax) * qdot
+        return hands_command(self.hand_expert, q, self.A_x, A_q, lower, upper, self.vmax,
+                             self.period)

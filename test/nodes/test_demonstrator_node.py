@@ -155,6 +155,50 @@ def _spin_until(executor, predicate, timeout: float) -> bool:
     return predicate()
 
 
+def _one_demo_demonstrator(context, lockstep: bool) -> Demonstrator:
+    """A demonstrator of one unconstrained 1 s demonstration at 100 Hz, started at once."""
+    return Demonstrator(context=context, parameter_overrides=[
+        Parameter("robot", value="talos"), Parameter("joints", value=JOINTS),
+        Parameter("rate_hz", value=100.0), Parameter("num_demos", value=1),
+        Parameter("demo_duration_s", value=1.0), Parameter("constraint_frames", value=[""]),
+        Parameter("reach_timeout_s", value=0.1), Parameter("startup_delay_s", value=0.0),
+        Parameter("service_timeout_s", value=20.0),
+        Parameter("step_on_joint_state", value=lockstep)])
+
+
+def _fake_recorder(context, q: np.ndarray):
+    """The fake recorder, robot and controller: one probe node.
+
+    It answers ``~/start_demo`` and ``~/stop_demo`` (appending "start"/"stop" to
+    ``events``), publishes the joint state ``q`` every 10 ms while ``publishing[0]``, and
+    collects the velocity commands. Returns (probe, publishing, events, commands).
+    """
+    probe = Node("recorder", context=context)
+    publishing, events, commands = [True], [], []
+
+    def publish_state():
+        if publishing[0]:
+            msg = JointState(name=JOINTS, position=q.tolist())
+            msg.header.stamp = probe.get_clock().now().to_msg()
+            states.publish(msg)
+
+    def trigger(name):
+        def answer(request, response):
+            events.append(name)
+            response.success, response.message = True, name
+            return response
+        return answer
+
+    states = probe.create_publisher(JointState, "/joint_states", 10)
+    probe.create_timer(0.01, publish_state)
+    probe.create_service(Trigger, "~/start_demo", trigger("start"))
+    probe.create_service(Trigger, "~/stop_demo", trigger("stop"))
+    probe.create_subscription(JointState, "/joint_states", lambda msg: None, 10)
+    probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
+                              lambda msg: commands.append(np.array(msg.data)), 100)
+    return probe, publishing, events, commands
+
+
 @pytest.mark.parametrize(("domain_id", "lockstep"), [(185, False), (186, True)])
 def test_stale_joint_states_pause_with_zero_commands_and_destroy_sends_zero(domain_id,
                                                                             lockstep):
@@ -165,43 +209,16 @@ def test_stale_joint_states_pause_with_zero_commands_and_destroy_sends_zero(doma
     rclpy.init(context=context, domain_id=domain_id)
     nodes = []
     try:
-        demo = Demonstrator(context=context, parameter_overrides=[
-            Parameter("robot", value="talos"), Parameter("joints", value=JOINTS),
-            Parameter("rate_hz", value=100.0), Parameter("num_demos", value=1),
-            Parameter("demo_duration_s", value=1.0), Parameter("constraint_frames", value=[""]),
-            Parameter("reach_timeout_s", value=0.1), Parameter("startup_delay_s", value=0.0),
-            Parameter("service_timeout_s", value=20.0),
-            Parameter("step_on_joint_state", value=lockstep)])
-        probe = Node("recorder", context=context)  # the fake recorder, robot and controller
-        nodes += [demo, probe]
+        demo = _one_demo_demonstrator(context, lockstep)
+        nodes.append(demo)
         bad = demo.set_parameters([Parameter("state_timeout_s", value=float("nan"))])
         assert not bad[0].successful and "state_timeout_s" in bad[0].reason
         assert not demo.set_parameters([Parameter("state_timeout_s", value=0.0)])[0].successful
         assert demo.set_parameters([Parameter("state_timeout_s", value=0.1)])[0].successful
         lower, upper = demo.robot.lower, demo.robot.upper
         q = np.clip(demo.attractor + 0.2, lower, upper)  # away from it: the expert moves
-        publishing, events, commands = [True], [], []
-
-        def publish_state():
-            if publishing[0]:
-                msg = JointState(name=JOINTS, position=q.tolist())
-                msg.header.stamp = probe.get_clock().now().to_msg()
-                states.publish(msg)
-
-        def trigger(name):
-            def answer(request, response):
-                events.append(name)
-                response.success, response.message = True, name
-                return response
-            return answer
-
-        states = probe.create_publisher(JointState, "/joint_states", 10)
-        probe.create_timer(0.01, publish_state)
-        probe.create_service(Trigger, "~/start_demo", trigger("start"))
-        probe.create_service(Trigger, "~/stop_demo", trigger("stop"))
-        probe.create_subscription(JointState, "/joint_states", lambda msg: None, 10)
-        probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
-                                  lambda msg: commands.append(np.array(msg.data)), 100)
+        probe, publishing, events, commands = _fake_recorder(context, q)
+        nodes.append(probe)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(demo)
         executor.add_node(probe)

@@ -1,158 +1,25 @@
-"""Integration tests of the ``executor`` node (own rclpy.Context, domain ids 112, 150-159,
-200-211, 219).
+"""Integration tests of the ``executor`` node: arming, ramps, staleness, parameters, models,
+diagnostics, the controller check, sim time and lockstep (own rclpy.Context, domain ids 112,
+150-156, 158, 159, 200, 201, 204, 205, 208, 210, 211, 219).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
 itself is tested without a graph in test/control/.
 """
 
-import os
-import signal
-import subprocess
-import sys
-import time
-from pathlib import Path
-
 import numpy as np
 import pytest
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
+from executor_rig import ACC, JOINTS, PERIOD, Rig, _assert_ramped, _attractor_policy, _fit_model
 from rclpy.duration import Duration
-from rclpy.exceptions import InvalidParameterValueException
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, String
+from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
-from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.nodes import executor as executor_module
-from policy_align_ros.nodes._common import LATCHED_QOS
-from policy_align_ros.nodes.executor import Executor
-
-JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
-PLANE = "[{type: plane, frame: arm_left_7_link, normal: [0.3, -0.2, 1.0]}]"
-ACC = 5.0  # rad/s^2 in the rig: full speed (0.5 rad/s) after 10 periods of 10 ms
-PERIOD = 0.01
-STEP_TOL = 1e-12
-
-
-class Rig:
-    """An executor plus a probe node that fakes the robot and listens to the commands."""
-
-    def __init__(self, domain_id: int, **params):
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        # A generous state timeout: a loaded machine must not turn into stale states. No
-        # controller check unless a test asks for one (it would wait for an absent node).
-        overrides = {"robot": "talos", "joints": JOINTS, "rate_hz": 1.0 / PERIOD,
-                     "state_timeout_s": 0.5, "max_acceleration": ACC, "constraints": PLANE,
-                     "controller": "", **params}
-        self.node = Executor(context=self.context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in overrides.items()])
-        self.probe = Node("probe", context=self.context)
-        self.commands: list[np.ndarray] = []
-        self.diagnostics: list[DiagnosticArray] = []
-        self.probe.create_subscription(
-            Float64MultiArray, "/velocity_controller/commands",
-            lambda m: self.commands.append(np.array(m.data)), 1000)
-        self.probe.create_subscription(DiagnosticArray, "/diagnostics",
-                                       self.diagnostics.append, 100)
-        self.states = self.probe.create_publisher(JointState, "/joint_states", 10)
-        self.models = self.probe.create_publisher(String, "/learner/model", LATCHED_QOS)
-        self.enable_client = self.probe.create_client(SetBool, "/executor/enable")
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.probe)
-        self.q = self.node.robot.neutral() + 0.2
-        self.stamp = None  # None: stamp with the node clock
-
-    def publish_state(self, **fields) -> None:
-        msg = JointState(name=JOINTS, position=self.q.tolist(), **fields)
-        msg.header.stamp = (self.node.get_clock().now().to_msg() if self.stamp is None
-                            else self.stamp)
-        self.states.publish(msg)
-
-    def spin(self, seconds: float, publish_states: bool = True) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            if publish_states:
-                self.publish_state()
-            self.executor.spin_once(timeout_sec=0.005)
-
-    def spin_until(self, condition, timeout: float = 10.0, publish_states: bool = True,
-                   what: str = "condition") -> None:
-        end = time.monotonic() + timeout
-        while not condition():
-            assert time.monotonic() < end, f"timed out waiting for {what}"
-            if publish_states:
-                self.publish_state()
-            self.executor.spin_once(timeout_sec=0.005)
-
-    def enable(self, on: bool) -> SetBool.Response:
-        assert self.enable_client.wait_for_service(timeout_sec=5.0)
-        future = self.enable_client.call_async(SetBool.Request(data=on))
-        # Joint states keep coming while ~/enable waits (for the controller's answer).
-        self.spin_until(future.done, timeout=10.0, what="the ~/enable answer")
-        return future.result()
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.probe.destroy_node()
-        if self.node is not None:
-            self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-@pytest.fixture
-def rig(request):
-    made = []
-
-    def make(domain_id, **params):
-        made.append(Rig(domain_id, **params))
-        return made[-1]
-
-    yield make
-    for r in made:
-        r.close()
-
-
-def _attractor_policy(center):
-    return lambda X: -(X - center)
-
-
-def _assert_ramped(commands, start=None):
-    """Each joint's command changes by at most max_acceleration x period per message."""
-    seq = np.array(([start] if start is not None else []) + list(commands))
-    assert np.abs(np.diff(seq, axis=0)).max() <= ACC * PERIOD + STEP_TOL
-
-
-_FITTED: dict[tuple, bytes] = {}
-
-
-def _fit_model(path, joints, center):
-    """A model file at ``path`` trained on ``joints`` around ``center``.
-
-    Fitted once per (joints, center) and copied: a fit takes seconds on a loaded machine.
-    """
-    key = (tuple(joints), np.asarray(center, dtype=float).tobytes())
-    if key not in _FITTED:
-        rng = np.random.default_rng(0)
-        trajs = []
-        for _ in range(8):
-            q = center + rng.normal(scale=0.3, size=len(joints))
-            t = np.arange(40) * 0.05
-            trajs.append(center + (q - center) * np.exp(-t)[:, None])
-        model = PolicyAlign(sigma="medium").fit(
-            [Trajectory(x, t) for x in trajs], joint_names=joints)
-        model.save(path)
-        _FITTED[key] = Path(path).read_bytes()
-    else:
-        Path(path).write_bytes(_FITTED[key])
-    return path
 
 
 def test_enable_is_refused_without_a_model_and_with_stale_joint_states(rig):
@@ -289,123 +156,6 @@ def test_model_announced_on_learner_topic_is_loaded_and_checked(rig, tmp_path):
     assert r.node.model_path == str(good)  # refused: trained on other joints
     assert r.node.get_parameter("model_path").value == str(good)
     assert r.node.controller.armed  # a refused model changes nothing
-
-
-def _start_executor_process(domain_id: int, model, log: Path, **params):
-    """The executor as its console script runs it (``main()``), armed at the first state."""
-    code = "import sys; from policy_align_ros.nodes.executor import main; sys.exit(main())"
-    args = []
-    values = {"robot": "talos", "joints": "[" + ",".join(JOINTS) + "]",
-              "model_path": str(model), "start_enabled": "true", "state_timeout_s": "1.0",
-              **params}
-    for k, v in values.items():
-        args += ["-p", f"{k}:={v}"]
-    with open(log, "wb") as out:
-        return subprocess.Popen([sys.executable, "-c", code, "--ros-args", *args],
-                                env=dict(os.environ, ROS_DOMAIN_ID=str(domain_id)),
-                                stdout=out, stderr=subprocess.STDOUT)
-
-
-def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
-    """The installed-style process (``main()``) stops the robot when interrupted."""
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=157)
-    probe = Node("probe", context=context)
-    proc = None
-    try:
-        model = _fit_model(tmp_path / "model.npz", JOINTS, np.zeros(len(JOINTS)))
-        commands = []
-        probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
-                                  lambda m: commands.append(np.array(m.data)), 100)
-        states = probe.create_publisher(JointState, "/joint_states", 10)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(probe)
-        log = tmp_path / "executor.log"
-        proc = _start_executor_process(157, model, log)
-        q = np.full(len(JOINTS), 0.3)
-        end = time.monotonic() + 30.0
-        while not (commands and np.any(commands[-1])) and time.monotonic() < end:
-            msg = JointState(name=JOINTS, position=q.tolist())
-            msg.header.stamp = probe.get_clock().now().to_msg()
-            states.publish(msg)
-            executor.spin_once(timeout_sec=0.01)
-        assert commands and np.any(commands[-1]), log.read_text()
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10.0) == 0, log.read_text()
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.01)
-        assert not np.any(commands[-1]), log.read_text()
-        assert "armed: following the policy" in log.read_text()
-    finally:
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        probe.destroy_node()
-        rclpy.try_shutdown(context=context)
-
-
-def test_sigkill_mid_motion_sim_robot_stops_within_its_command_timeout(tmp_path):
-    """Killed executor: no final zero; only the command timeout stops the robot.
-
-    A ros2_control velocity controller holds the last command forever; ``sim_robot``
-    drops it after ``command_timeout_s``. This is the hazard the README describes: a
-    real robot needs that timeout on the controller side.
-    """
-    from policy_align_ros.nodes.sim_robot import SimRobot
-
-    timeout_s, period_ns = 0.2, 10_000_000
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=203)
-    nodes, proc = [], None
-    try:
-        model = _fit_model(tmp_path / "model.npz", JOINTS, np.zeros(len(JOINTS)))
-        sim = SimRobot(context=context, parameter_overrides=[
-            Parameter("joints", value=JOINTS), Parameter("rate_hz", value=100.0),
-            Parameter("command_timeout_s", value=timeout_s),
-            Parameter("initial_positions", value=[0.5, 0.4, 0.5, -0.8, 0.4, 0.4, 0.4])])
-        probe = Node("probe", context=context)
-        nodes += [sim, probe]
-        states: list[tuple[int, np.ndarray, np.ndarray]] = []
-        probe.create_subscription(JointState, "/joint_states", lambda m: states.append(
-            (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, np.array(m.position),
-             np.array(m.velocity))), 1000)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(sim)
-        executor.add_node(probe)
-        log = tmp_path / "executor.log"
-        proc = _start_executor_process(203, model, log, state_timeout_s="0.5")
-        # Moving under the executor's commands (a bound on a failure, not on speed).
-        end = time.monotonic() + 60.0
-        while not (states and np.abs(states[-1][2]).max() > 0.05):
-            assert time.monotonic() < end and proc.poll() is None, log.read_text()
-            executor.spin_once(timeout_sec=0.01)
-        proc.send_signal(signal.SIGKILL)
-        assert proc.wait(timeout=10.0) == -signal.SIGKILL
-        killed = len(states)
-        # Spin until the sim has published 30 states after the timeout expired.
-        end = time.monotonic() + 30.0
-        while True:
-            last_ns = round(sim.sim._command_time * 1e9)
-            after = [s for s in states if s[0] > last_ns + round(timeout_s * 1e9) + period_ns]
-            if len(after) >= 30:
-                break
-            assert time.monotonic() < end, "no 30 states after the command timeout"
-            executor.spin_once(timeout_sec=0.01)
-        # No zero command came: the last one received still moves the robot...
-        assert np.abs(sim.sim._command).max() > 0.05
-        assert np.abs(states[killed - 1][2]).max() > 0.05
-        # ...until command_timeout_s after it (plus one period for the tick): then still.
-        for stamp, q, qdot in after:
-            assert not np.any(qdot), (stamp - last_ns) / 1e9
-            np.testing.assert_array_equal(q, after[0][1])
-    finally:
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def test_model_path_set_at_run_time_loads_the_model_or_is_refused(rig, tmp_path):
@@ -583,18 +333,6 @@ def test_every_arming_change_is_reported_at_once(rig, monkeypatch):
     assert armed_flags() == ["true", "false", "true", "false"]
 
 
-def test_a_model_path_that_does_not_load_at_start_stops_the_node(tmp_path):
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=202)
-    try:
-        with pytest.raises(InvalidParameterValueException, match="missing.npz"):
-            Executor(context=context, parameter_overrides=[
-                Parameter("joints", value=JOINTS),
-                Parameter("model_path", value=str(tmp_path / "missing.npz"))])
-    finally:
-        rclpy.try_shutdown(context=context)
-
-
 def test_enable_checks_the_controllers_joint_order(rig):
     """~/enable reads the controller's ``joints`` (same single-threaded executor: no deadlock)."""
     r = rig(204, controller="/velocity_controller")
@@ -653,123 +391,6 @@ def test_enable_without_an_answering_controller_arms_and_says_so(rig):
     assert "joints parameter" in desc.description
 
 
-HAND = "gripper_left_base_link"
-_FRAMES: dict[str, object] = {}
-
-
-def _frames_model():
-    """A PolicyAlign model learnt on left-hand positions of task-space expert demos.
-
-    Six demonstrations of a hand-space expert (``xdot = pi_x = -grad phi_x``, driven through
-    the arm), mapped to hand states as ``policy-align learn --state frames:...`` does.
-    Returns (model, state definition dict, target (3,), robot, state map).
-    """
-    from policy_align_ros.kinematics import LearningStateMap, Robot, TaskSpaceMap
-    from policy_align_ros.sim.demonstrations import sample_start_states, task_space_rollout
-    from policy_align_ros.sim.experts import TaskSpaceExpert
-
-    if not _FRAMES:
-        robot = Robot.load("talos", joints=JOINTS)
-        smap = TaskSpaceMap(robot, [HAND])
-        q0 = robot.neutral()
-        target = smap.states(q0) + np.array([0.1, 0.05, 0.08])
-        expert = TaskSpaceExpert(smap, target, 1.0)
-        starts = sample_start_states(np.random.default_rng(0), q0, 6, 0.05, robot.lower,
-                                     robot.upper)
-        demos = [task_space_rollout(q, expert, None, 60, 0.05, name=f"demo_{k}")
-                 for k, q in enumerate(starts)]
-        learn_map = LearningStateMap(robot, [HAND])
-        model = PolicyAlign().fit([learn_map(d.joints) for d in demos])
-        _FRAMES.update(model=model, state=learn_map.definition(), target=target,
-                       robot=robot, smap=smap)
-    return (_FRAMES["model"], _FRAMES["state"], _FRAMES["target"], _FRAMES["robot"],
-            _FRAMES["smap"])
-
-
-def _save_frames_model(path: Path, state: dict) -> Path:
-    model = _frames_model()[0]
-    model.state_definition_ = state
-    try:
-        model.save(path)
-    finally:
-        model.state_definition_ = _FRAMES["state"]
-    return path
-
-
-def test_frames_model_moves_the_hand_along_the_projected_policy(rig, tmp_path):
-    """A model learnt on hand positions drives the arm through J under A(q)."""
-    from policy_align_ros.control import policy_for_state
-    from policy_align_ros.kinematics import constraint_from_spec
-
-    model, state, target, robot, smap = _frames_model()
-    path = _save_frames_model(tmp_path / "hand.npz", state)
-    plane = f"[{{type: plane, frame: {HAND}, normal: [0, 0, 1]}}]"
-    r = rig(206, model_path=str(path), constraints=plane)
-    assert r.node.model_state == f"frames {HAND}"
-    # Phase 1, the robot held still: after the ramp the command is the task-space map
-    # of the learnt pi_x under the hand plane, scaled by the speed limit only.
-    r.q = robot.clip(robot.neutral() + np.array([0.1, 0.15, -0.1, 0.2, 0.0, 0.1, 0.0]))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
-    r.spin_until(lambda: len(r.commands) >= 3 and np.array_equal(r.commands[-1],
-                                                                 r.commands[-2]),
-                 what="a steady command")
-    _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
-    c = r.commands[-1]
-    A = constraint_from_spec({"type": "plane", "frame": HAND, "normal": [0, 0, 1]},
-                             robot).matrix(r.q)
-    assert np.abs(A @ c).max() < 1e-9  # A(q) qdot = 0
-    x, J = smap.kinematics(r.q)
-    pi_x = model.policy(x[None])[0]
-    N_x = np.diag([1.0, 1.0, 0.0])
-    xdot = J @ c  # the hand's velocity to first order
-    s = float(xdot @ (N_x @ pi_x)) / float(np.linalg.norm(N_x @ pi_x)) ** 2
-    assert 0.05 < s <= 1.0 + 1e-9
-    np.testing.assert_allclose(xdot, s * N_x @ pi_x, atol=1e-9)
-    expect = policy_for_state(model, state, robot, r.node._constraint_matrix).command(r.q)
-    np.testing.assert_allclose(c, s * expect, atol=1e-9)
-    # Phase 2, closed loop: the arm integrates each command; the hand slides in its
-    # plane towards the target's projection.
-    start = x.copy()
-    count = len(r.commands)
-    for _ in range(300):
-        r.spin_until(lambda n=count: len(r.commands) > n, what="the next command")
-        count = len(r.commands)
-        r.q = robot.clip(r.q + PERIOD * r.commands[-1])
-    end = smap.states(r.q)
-    # Held in its plane: exact to first order per step; 300 Euler steps of the arm
-    # drift at second order.
-    assert abs(end[2] - start[2]) < 2e-3
-    before = np.linalg.norm((start - target)[:2])
-    assert np.linalg.norm((end - target)[:2]) < 0.3 * before, (before, end - target)
-
-
-def test_frames_model_of_another_robot_or_frame_set_is_refused(rig, tmp_path):
-    from policy_align_ros.kinematics import FrameStateDefinition, Robot
-
-    _, state, _, _, _ = _frames_model()
-    good = _save_frames_model(tmp_path / "hand.npz", state)
-    panda = FrameStateDefinition.from_robot(Robot.load("panda"), ["panda_hand"]).to_dict()
-    other_robot = _save_frames_model(tmp_path / "panda.npz", panda)
-    two = _save_frames_model(tmp_path / "two.npz",
-                             {**state, "frames": [HAND, "arm_left_4_link"]})
-    unknown = _save_frames_model(tmp_path / "kind.npz", {**state, "type": "poses"})
-    r = rig(207, model_path=str(good))
-    result = r.node.set_parameters([Parameter("model_path", value=str(other_robot))])[0]
-    assert not result.successful
-    assert "panda.npz: state definition does not match the robot: URDF differs" in result.reason
-    result = r.node.set_parameters([Parameter("model_path", value=str(two))])[0]
-    assert not result.successful
-    assert ("policy: learnt on 3-D states, the state map gives 6-D states (2 frames)"
-            in result.reason)
-    result = r.node.set_parameters([Parameter("model_path", value=str(unknown))])[0]
-    assert not result.successful and "state definition of type 'poses'" in result.reason
-    # Announced by the learner: refused with the reason, the loaded model stays.
-    r.models.publish(String(data=str(other_robot)))
-    r.spin(0.3)
-    assert r.node.model_path == str(good) and r.node.model_state == f"frames {HAND}"
-
-
 def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
     good = _fit_model(tmp_path / "good.npz", JOINTS, np.zeros(len(JOINTS)))
     r = rig(208, model_path=str(good), start_enabled=True, controller="/velocity_controller")
@@ -792,73 +413,6 @@ def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):
     finally:
         r.executor.remove_node(controller)
         controller.destroy_node()
-
-
-def test_frame_support_distance_measures_the_hand_state_and_its_gradient():
-    """The guard's distance for a frames model: in hand space, gradient through J."""
-    from policy_align_ros.control import FrameSupportDistance
-
-    model, _, _, robot, smap = _frames_model()
-    distance = FrameSupportDistance(model, smap)
-    q = robot.clip(robot.neutral() + np.array([0.4, 0.3, -0.3, 0.5, 0.2, 0.3, 0.1]))
-    d, grad = distance(q)
-    x = smap.states(q)
-    expect, nearest = model.support_query(x[None])
-    assert d == pytest.approx(expect[0]) and d > 2.0  # the hand is off the data
-    assert d == pytest.approx(np.linalg.norm(x - nearest[0]) / model.support_spacing_)
-    h = 1e-6
-    fd = [(distance(q + h * e)[0] - distance(q - h * e)[0]) / (2 * h) for e in np.eye(q.size)]
-    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.abs(grad).max())
-
-
-def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_path):
-    """The guard scales hand motion leading away from the demonstrated hand states."""
-    from policy_align_ros.control import FrameSupportDistance
-
-    model, state, _, robot, smap = _frames_model()
-    path = _save_frames_model(tmp_path / "hand.npz", state)
-    q = robot.clip(robot.neutral() + np.array([0.4, 0.3, -0.3, 0.5, 0.2, 0.3, 0.1]))
-    x = smap.states(q)
-    d, nearest = model.support_query(x[None])
-    u = (x - nearest[0]) / np.linalg.norm(x - nearest[0])  # outwards, in hand space
-    p = model.policy(x[None])[0]
-    a = float(p @ u)
-    assert a < 0.0  # the learnt policy leads back to the data...
-    w = (p - a * u) / np.linalg.norm(p - a * u)
-    b = float(p @ w)
-    # ...so hold the hand on a plane that turns it outwards: with n = cos(t) u + sin(t) w
-    # and t = pi - delta, N_x p . u = sin(delta) (a sin(delta) + b cos(delta)) > 0.
-    delta = 0.5 * np.arctan2(b, -a)
-    n = -np.cos(delta) * u + np.sin(delta) * w
-    plane = f"[{{type: plane, frame: {HAND}, normal: {n.tolist()}}}]"
-    r = rig(209, model_path=str(path), constraints=plane, max_extrapolation=1000.0)
-    r.q = q
-    guard = r.node.controller.step.guard
-    assert isinstance(guard.distance, FrameSupportDistance)
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
-
-    def steady():
-        r.spin_until(lambda: len(r.commands) >= 3 and np.array_equal(r.commands[-1],
-                                                                     r.commands[-2]),
-                     what="a steady command")
-        return r.commands[-1]
-
-    free = steady()
-    d_q, grad = FrameSupportDistance(model, smap)(q)
-    assert d_q == pytest.approx(d[0]) and float(grad @ free) > 0.0  # leads further out
-    assert r.node.controller.extrapolation_scale == 1.0
-    assert r.node.controller.step.extrapolation_distance == pytest.approx(d[0])
-    # One spacing beyond max_extrapolation: scaled by 1 - 1 / band < 1, same direction.
-    assert r.node.set_parameters([Parameter("max_extrapolation", value=d[0] - 1.0)]
-                                 )[0].successful
-    count = len(r.commands)
-    r.spin_until(lambda: len(r.commands) > count + 2, what="commands after the change")
-    scaled = steady()
-    g = r.node.controller.extrapolation_scale
-    assert 0.0 < g < 1.0
-    np.testing.assert_allclose(scaled, g * free, atol=1e-9)
-    _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
 
 
 def _enable_waiting_for_an_absent_controller(r: Rig):
@@ -923,11 +477,3 @@ def test_lockstep_steps_once_per_joint_state_and_still_stops_on_stale_states(rig
                  what="the stale-state disarm")
     r.spin(0.05, publish_states=False)
     assert np.all(r.commands[-1] == 0.0)
-
-
-def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason(node_process):
-    # rcl gives ``joints:=[]`` to rclpy as an unset parameter (None), not as an empty list.
-    done = node_process("executor", 171, "joints:=[]")
-    assert done.returncode == 1
-    assert "Traceback" not in done.stderr
-    assert "joints: must be a non-empty list" in done.stderr

@@ -1,7 +1,7 @@
 """``tools/independent_check.py``: PolicyAlign on data generated outside the package.
 
 Two of its problems run here as a guard on generalisation to data the defaults were never
-tuned on (``docs/notes/trend_kernel.md``, "Four more problems"): joint locks with
+tuned on (``docs/design/independent_check.md``): joint locks with
 constraints that switch inside a sample period (the demonstrations are split there and the
 pieces tied across the cut), and jittered time steps recorded without velocities.
 """

@@ -11,17 +11,13 @@ from collections.abc import Callable
 import numpy as np
 
 from policy_align_ros.client.demo.settings import MIN_START_SEPARATION, DemoSettings, StageError
-from policy_align_ros.control import ControlStep, speed_limits, velocity_scale
+from policy_align_ros.control import ControlStep, speed_limits
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
 from policy_align_ros.sim.demonstrations import rollout, sample_start_states, task_space_rollout
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
-from policy_align_ros.sim.script import (
-    drop_roundoff_at_limits,
-    hand_plane_rows,
-    random_plane_specs,
-)
+from policy_align_ros.sim.script import hand_plane_rows, hands_command, random_plane_specs
 
 __all__ = ["Task", "new_starts"]
 
@@ -100,10 +96,8 @@ class Task:
             return np.array(out)
         for _ in range(steps):
             A_q = np.vstack([c.matrix(q) for c in constraints]) if constraints else None
-            qdot, _ = self.hand_expert.command(q, None, A_q, max_velocity=self.vmax,
-                                               dt=self.dt)
-            qdot = drop_roundoff_at_limits(q, qdot, robot.lower, robot.upper)
-            qdot *= velocity_scale(q, qdot, self.dt, robot.lower, robot.upper, self.vmax)
+            qdot = hands_command(self.hand_expert, q, None, A_q, robot.lower, robot.upper,
+                                 self.vmax, self.dt)
             q = robot.clip(q + self.dt * qdot)
             out.append(q.copy())
         return np.array(out)

@@ -251,7 +251,7 @@ class CVSearch:
         the trend alone.
 
         A length scale and a penalty trade against each other, so neither orders the
-        residuals by itself (``docs/notes/trend_kernel.md``).
+        residuals by itself (``docs/design/cv_selection.md``).
         """
         scores = self.scores
         within = _within(scores, keys, margin)

@@ -33,8 +33,8 @@ demonstrations then tie together through the shape of ``f`` alone; ``inf``: the
 alignment's offsets). The ``b_k`` are eliminated in closed form, so this costs no more
 than the fit without them. Demonstrations named in ``fit(..., free_groups=...)`` always
 have free offsets, whatever ``offset_ridge``: the alignment could not level them (weakly
-connected trajectories), so only their shape is data (``docs/notes/outliers.md``,
-``docs/notes/trend_kernel.md``).
+connected trajectories), so only their shape is data
+(``docs/design/alignment_and_outliers.md``, ``docs/design/trend_kernel.md``).
 
 Choosing the hyperparameters
 ----------------------------
@@ -56,8 +56,8 @@ trend alone among them). When a residual is kept, the trend's and the offsets' p
 are scored again with it. Scores closer than :data:`CV_RESOLUTION` are ties, settled
 toward the simpler model; a trend alone that fits to that resolution skips the residual's
 search. All fold errors come from per-fold sums (one pass over the data per length
-scale), so the search costs a few small Cholesky solves per candidate;
-``docs/notes/trend_kernel.md`` has the measurements. The data are thinned evenly in arc
+scale), so the search costs a few small Cholesky solves per candidate
+(``docs/design/cv_selection.md``). The data are thinned evenly in arc
 length along each demonstration first (a robot at rest adds samples but no information),
 to at most ``max_fit_points`` samples.
 
@@ -134,7 +134,7 @@ class TrendKernelRegression(BaseEstimator):
         ``"cv"`` (default) to choose between them. The single-index trend is only tried
         when the quadratic does not already fit the held-out shapes to
         :data:`~.cv.CV_RESOLUTION`: it suits potentials that flatten or steepen away from
-        the goal (velocity-limited or quartic attractors; ``docs/notes/trend_kernel.md``).
+        the goal (velocity-limited or quartic attractors; ``docs/design/single_index.md``).
     trend_ridge : "cv" or float
         Penalty on the anisotropic part ``S`` of the quadratic trend (standardised units;
         ``inf``: an isotropic bowl only), or ``"cv"`` to choose from ``TREND_RIDGE_GRID``.

@@ -27,7 +27,7 @@ per demonstration are solved for inside the residual, and the Jacobian is Kaufma
 the active columns, ``-P_perp (dB / dtheta) beta``; the steps are Levenberg-Marquardt's
 on the normal equations. Started from a quadratic trend's Hessian and minimum it
 converges in about ten evaluations
-(``tools/single_index_check.py``, ``docs/notes/trend_kernel.md``).
+(``tools/single_index_check.py``, ``docs/design/single_index.md``).
 """
 
 from __future__ import annotations
@@ -222,7 +222,7 @@ def levenberg_marquardt(residual, jacobian, theta: np.ndarray, max_nfev: int,
     -----
     ``J' J`` costs ``m p^2`` and a Cholesky factor ``p^3 / 3`` per step, where
     ``scipy.optimize.least_squares`` does an SVD of ``J``, several times the work for
-    the index's tall Jacobians (``docs/notes/trend_kernel.md``).
+    the index's tall Jacobians (``docs/design/single_index.md``).
     """
     r = residual(theta)
     cost = float(r @ r)
