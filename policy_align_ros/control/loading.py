@@ -31,7 +31,7 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
     ``{"type": "frames", ...}``) must have been learnt on the same robot (URDF, joints,
     locked posture) and frames; its task-space policy ``pi_x`` is mapped to joint
     velocities satisfying ``constraint`` by
-    :func:`policy_align_ros.kinematics.task_space.policy_for_state`.
+    :func:`policy_align_ros.control.task_policy.policy_for_state`.
 
     Parameters
     ----------

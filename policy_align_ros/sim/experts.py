@@ -9,7 +9,7 @@ positions (m) of ``F`` frames, the expert's potential ``phi_x`` is a quadratic i
 and its motion is ``xdot = N_x pi_x(x)`` with ``pi_x = -grad phi_x`` and ``N_x`` the
 projector of hand-space constraint rows ``A_x`` (k, 3F), realised on the robot through
 the frames' Jacobian ``J`` (3F, n) by the joint velocity of
-:func:`policy_align_ros.kinematics.task_space.joint_velocity_within_limits`. A joint-space
+:func:`policy_align_ros.control.resolved_rate.joint_velocity_within_limits`. A joint-space
 expert seen in hand space is not a gradient field there, so it cannot stand in for a
 hand-space one.
 """
@@ -204,7 +204,7 @@ class TaskSpaceExpert:
     rest : array_like, shape (n,), optional
         Rest posture of the redundant joints (default the robot's reference posture).
     rest_gain, limit_gain, limit_margin, max_secondary, threshold, damping : float
-        As for :class:`~policy_align_ros.kinematics.task_space.TaskSpacePolicy`.
+        As for :class:`~policy_align_ros.control.task_policy.TaskSpacePolicy`.
     """
 
     def __init__(self, state_map: TaskSpaceMap, center: Sequence[float],
@@ -252,7 +252,7 @@ class TaskSpaceExpert:
         With ``max_velocity`` and ``dt``, joints that would exceed their speed or cross a
         position limit within ``dt`` are held at that bound and the hand motion is
         redistributed over the other joints
-        (:func:`~policy_align_ros.kinematics.task_space.joint_velocity_within_limits`).
+        (:func:`~policy_align_ros.control.resolved_rate.joint_velocity_within_limits`).
         Scaling the whole command instead would record ``xdot = s N_x pi_x`` with
         ``s < 1``: not a projection of ``pi_x``, so the potential estimated from the
         recording would be wrong there.
