@@ -45,6 +45,8 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.experiments.pool import parallel_map
+from policy_align_ros.experiments.recording_cases import RECORDING_CASES
+from policy_align_ros.experiments.retiming import learnt_minimum
 from policy_align_ros.experiments.suite_cases import CASES, Problem
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
 from policy_align_ros.learning.model_io import atomic_write_text, json_float
@@ -56,7 +58,11 @@ from policy_align_ros.learning.regressors import (
 )
 from policy_align_ros.sim.demonstrations import ConstraintFn, Demonstration, rollout
 
-__all__ = ["format_table", "main", "parse_settings", "plot_figure", "run_case"]
+__all__ = ["ALL_CASES", "format_table", "main", "parse_settings", "plot_figure", "run_case"]
+
+#: Every case ``--cases`` may name: the suite's exact experts (run by default) and the
+#: recordings of real teachers and robots (:mod:`.recording_cases`, run when named).
+ALL_CASES = {**CASES, **RECORDING_CASES}
 
 N_TEST_DEMOS = 10
 N_ROLLOUTS = 10
@@ -70,6 +76,9 @@ CLOSE = 0.01
 
 def _demos(problem: Problem, starts: np.ndarray, rng: np.random.Generator
            ) -> list[Demonstration]:
+    if problem.record is not None:
+        return [problem.record(x0, problem.training_constraint(rng), rng, str(i))
+                for i, x0 in enumerate(starts)]
     return [rollout(x0, problem.potential, problem.training_constraint(rng),
                     problem.n_samples, problem.dt, name=str(i))
             for i, x0 in enumerate(starts)]
@@ -169,6 +178,19 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals
     return out
 
 
+def _goal_report(model: PolicyAlign, problem: Problem, goals) -> dict[str, float]:
+    """The learnt minimum reached from the expert's (free) end point against the true
+    minimum (state units; the hand's distance in mm where the case has a hand), and the
+    median free end/start."""
+    start = goals["free"][0][0]
+    found = learnt_minimum(model, start)
+    out = {"min_error": float(np.linalg.norm(found - problem.minimum))}
+    if "hand" in problem.extras:
+        hand = problem.extras["hand"]
+        out["min_hand_mm"] = 1e3 * float(np.linalg.norm(hand(found) - hand(problem.minimum)))
+    return out
+
+
 def _policy_time_us(model: PolicyAlign, x: np.ndarray, repeats: int = 200) -> float:
     times = []
     for _ in range(repeats):
@@ -243,7 +265,7 @@ def run_case(task: tuple) -> dict:
     settings = task[2] if len(task) > 2 else {}
     noise = task[3] if len(task) > 3 else 0.0
     n_train = task[4] if len(task) > 4 else None
-    case = CASES[name]
+    case = ALL_CASES[name]
     rng = np.random.default_rng(seed)
     problem = case.make(rng)
     if n_train:
@@ -283,6 +305,8 @@ def run_case(task: tuple) -> dict:
             "fit_s": fit_time, "policy_us": _policy_time_us(model, Xd[0]),
             **_closed_loop(model, problem, starts, goals),
         }
+        if problem.minimum is not None:
+            result["models"][label].update(_goal_report(model, problem, goals))
     result["cv"] = _candidate_check(base, recorded, masks, Xd, pid)
     result["chosen"] = {name: getattr(base.regressor_, name + "_") for name in
                         ("trend_form", "trend_ridge", "length_scale", "kernel_ridge",
@@ -304,7 +328,7 @@ def format_table(results: list[dict]) -> str:
     """Markdown table: mean over seeds per case, previous vs new model."""
     header = "| case | n | rate | model | " + " | ".join(c[1] for c in _COLUMNS) + " | extra |"
     lines = [header, "|" + "---|" * (5 + len(_COLUMNS))]
-    for name in CASES:
+    for name in ALL_CASES:
         rows = [r for r in results if r["case"] == name]
         if not rows:
             continue
@@ -324,6 +348,7 @@ def format_table(results: list[dict]) -> str:
                              f"{per_set})")
             lines.append(f"| {name} | {rows[0]['n']} | {rows[0]['rate']} | {label} | "
                          + " | ".join(cells) + f" | {'; '.join(extra)} |")
+    lines += _goal_table(results)
     good = [r["cv"]["pick_within_20pct"] for r in results]
     lines.append("")
     excess = [r["cv"]["picked_nupe"] - r["cv"]["best_candidate_nupe"] for r in results]
@@ -333,12 +358,38 @@ def format_table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+_GOAL_COLUMNS = (("min_error", "learnt min - true min [state units]", "{:.4f}"),
+                 ("min_hand_mm", "at the hand [mm]", "{:.1f}"),
+                 ("free_rel_median", "free end vs expert end / start (median)", "{:.3f}"),
+                 ("unseen_rel_median", "unseen end vs expert end / start (median)",
+                  "{:.3f}"))
+
+
+def _goal_table(results: list[dict]) -> list[str]:
+    """Markdown lines for the cases with a true minimum: per data set, joined by ``/``,
+    the learnt minimum's distance from the true one and the closed-loop ends."""
+    rows = [r for r in results if "min_error" in r["models"]["new"]]
+    if not rows:
+        return []
+    lines = ["", "Learnt goal (per data set, in seed order):", "",
+             "| case | model | " + " | ".join(c[1] for c in _GOAL_COLUMNS) + " |",
+             "|" + "---|" * (2 + len(_GOAL_COLUMNS))]
+    for name in ALL_CASES:
+        mine = sorted((r for r in rows if r["case"] == name), key=lambda r: r["seed"])
+        for label in ("previous", "new") if mine else ():
+            cells = ["/".join(fmt.format(r["models"][label][key]) for r in mine)
+                     if key in mine[0]["models"][label] else "-"
+                     for key, _, fmt in _GOAL_COLUMNS]
+            lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def main(args: argparse.Namespace) -> int:
     """Run the suite over ``--datasets`` seeds from ``--seed`` (default 3 from 0)."""
     names = list(CASES) if not getattr(args, "cases", None) else args.cases.split(",")
-    unknown = [c for c in names if c not in CASES]
+    unknown = [c for c in names if c not in ALL_CASES]
     if unknown:
-        raise ValueError(f"unknown suite case(s) {unknown}; known: {sorted(CASES)}")
+        raise ValueError(f"unknown suite case(s) {unknown}; known: {sorted(ALL_CASES)}")
     n_sets = args.datasets or 3
     settings = parse_settings(getattr(args, "set", None) or [])
     noise = float(getattr(args, "noise", 0.0) or 0.0)
@@ -351,7 +402,7 @@ def main(args: argparse.Namespace) -> int:
     tasks = [(name, args.seed + i, settings, noise, n_train)
              for i in range(n_sets) for name in names]
     # Slow cases first, so that the worker pool stays busy.
-    tasks.sort(key=lambda t: -CASES[t[0]].n)
+    tasks.sort(key=lambda t: -ALL_CASES[t[0]].n)
     t0 = time.perf_counter()
     results = parallel_map(run_case, tasks, args.jobs, "suite")
     table = format_table(results)
@@ -379,7 +430,7 @@ def plot_figure(results: list[dict], path: Path) -> None:
 
     from policy_align_ros.experiments.figures import save_figure
 
-    cases = [name for name in CASES if any(r["case"] == name for r in results)]
+    cases = [name for name in ALL_CASES if any(r["case"] == name for r in results)]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.6),
                              gridspec_kw={"width_ratios": [1.3, 1.3, 1.0]})
     styles = {"previous": ("0.55", "o", -0.12), "new": ("C0", "s", 0.12)}

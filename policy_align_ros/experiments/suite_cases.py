@@ -126,6 +126,11 @@ class Problem:
     minima: np.ndarray | None = None
     sigma: str = "medium"
     extras: dict = field(default_factory=dict)
+    #: ``record(x0, constraint, rng, name) -> Demonstration``: how a demonstration is
+    #: recorded (None: the exact constrained expert, ``sim.demonstrations.rollout``).
+    record: Callable | None = None
+    #: The expert's true minimum (n,), for the learnt-minimum column (None: not reported).
+    minimum: np.ndarray | None = None
 
 
 @dataclass

@@ -1,0 +1,86 @@
+"""The real-recording suite cases (policy_align_ros.experiments.recording_cases) and the
+re-timing check (policy_align_ros.experiments.retiming) build and run on a tiny size."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from policy_align_ros.experiments import recording_cases, suite
+from policy_align_ros.experiments.recording_cases import RECORDING_CASES
+from policy_align_ros.experiments.retiming import (
+    retime,
+    retiming_shift,
+    smoothstep_warp,
+)
+from policy_align_ros.learning import PolicyAlign, Trajectory
+
+
+@pytest.mark.parametrize("name", sorted(RECORDING_CASES))
+def test_each_case_records_demonstrations_with_ground_truth(name):
+    rng = np.random.default_rng(0)
+    problem = RECORDING_CASES[name].make(rng)
+    demos = suite._demos(problem, problem.sample_starts(rng, 2), rng)
+    n = RECORDING_CASES[name].n
+    for d in demos:
+        m = d.trajectory.n_samples
+        assert d.trajectory.positions.shape == (m, n) and d.policy.shape == (m, n)
+        assert d.projectors.shape == (m, n, n) and np.all(np.isfinite(d.potential))
+    # The true minimum is a minimum: the expert's policy vanishes there.
+    assert np.linalg.norm(problem.potential.policy(problem.minimum[None])) < 1e-4
+
+
+def test_the_bumps_shift_the_minimum_off_the_attractor():
+    problem = RECORDING_CASES["bumps_2"].make(np.random.default_rng(0))
+    assert np.linalg.norm(problem.minimum - problem.potential.centre) > 0.05
+
+
+def test_the_contact_case_slides_on_the_table(monkeypatch):
+    problem = RECORDING_CASES["contact_arm_7"].make(np.random.default_rng(1))
+    rng = np.random.default_rng(2)
+    (demo,) = suite._demos(problem, problem.sample_starts(rng, 1), rng)
+    hand = np.array([problem.extras["hand"](q) for q in demo.trajectory.positions])
+    assert hand[:, 2].min() >= problem.extras["table"] - 2e-3  # never through the table
+
+
+def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
+    make = RECORDING_CASES["human_timing_2"].make
+    small = replace(RECORDING_CASES["human_timing_2"],
+                    make=lambda rng: replace(make(rng), n_train=6))
+    monkeypatch.setitem(suite.ALL_CASES, "human_timing_2", small)
+    monkeypatch.setattr(suite, "N_TEST_DEMOS", 3)
+    monkeypatch.setattr(suite, "N_ROLLOUTS", 2)
+    result = suite.run_case(("human_timing_2", 0))
+    for label in ("previous", "new"):
+        model = result["models"][label]
+        assert model["min_error"] >= 0 and np.isfinite(model["free_rel_median"])
+    table = suite.format_table([result])
+    assert "| human_timing_2 | new |" in table  # the learnt-goal table's row
+
+
+def test_retime_keeps_positions_and_rescales_velocities():
+    t = np.linspace(0.0, 2.0, 41)
+    X = np.stack([np.sin(t), t], axis=1)
+    V = np.stack([np.cos(t), np.ones_like(t)], axis=1)
+    out = retime(Trajectory(X, t, V), smoothstep_warp)
+    assert np.array_equal(out.positions, X) and out.times[0] == 0 and out.times[-1] == 2.0
+    fd = np.gradient(X, out.times, axis=0)
+    assert np.allclose(out.velocities[5:-5], fd[5:-5], rtol=0.05, atol=0.02)
+    with pytest.raises(ValueError, match="warp"):
+        retime(Trajectory(X, t, V), lambda s: 1.0 - s)
+
+
+def test_retiming_shift_is_zero_for_the_identity_and_measured_otherwise():
+    rng = np.random.default_rng(0)
+    problem = recording_cases.RECORDING_CASES["bumps_2"].make(rng)
+    demos = suite._demos(problem, problem.sample_starts(rng, 5), rng)
+    trajs = [d.trajectory for d in demos]
+
+    def factory():
+        return PolicyAlign(random_state=0)
+
+    assert retiming_shift(factory, trajs, 0, lambda s: s) == pytest.approx(0.0, abs=1e-9)
+    shift = retiming_shift(factory, trajs, 0, smoothstep_warp)
+    assert np.isfinite(shift) and shift >= 0
+    with pytest.raises(ValueError, match="k"):
+        retiming_shift(factory, trajs, 9, smoothstep_warp)
