@@ -9,6 +9,8 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align param get|set NODE NAME [VALUE]
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
         [--seed S] [--out DIR] [--cases a,b] [--set NAME=VALUE]
+    policy-align bench lasa [--protocol loo|all|both] [--shapes tuning|reporting|all|A,B]
+        [--methods a,b] [--jobs J] [--out DIR] [--set NAME=VALUE]
 """
 
 from __future__ import annotations
@@ -77,7 +79,8 @@ def _build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="reproduce the paper's experiments, measure speed")
     bench.add_argument("which",
-                       choices=["toy", "grasp", "humanoid", "scale", "executor", "suite"])
+                       choices=["toy", "grasp", "humanoid", "scale", "executor", "suite",
+                                "lasa"])
     bench.add_argument("--datasets", type=int, default=None,
                        help="data sets per cell (default: the paper's number)")
     bench.add_argument("--jobs", type=int, default=2, help="worker processes")
@@ -86,14 +89,22 @@ def _build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--cases", default=None,
                        help="suite only: comma-separated case names (default: all)")
     bench.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                       help="suite only: a TrendKernelRegression parameter of the new model "
-                            "(repeatable), e.g. offset_ridge=inf, for ablations")
+                       help="suite: a TrendKernelRegression parameter of the new model "
+                            "(repeatable), e.g. offset_ridge=inf, for ablations; lasa: a "
+                            "PolicyAlign or TrendKernelRegression parameter")
     bench.add_argument("--noise", type=float, default=0.0, metavar="F",
                        help="suite only: white noise on the recorded positions of the "
                             "training demonstrations, of RMS norm F median steps per sample")
     bench.add_argument("--demos", type=int, default=None, metavar="K",
                        help="suite only: K training demonstrations per data set instead of "
                             "the case's own number")
+    bench.add_argument("--protocol", default="both", choices=("loo", "all", "both"),
+                       help="lasa only: leave one demonstration out, train on all 7, or both")
+    bench.add_argument("--shapes", default="all",
+                       help="lasa only: tuning, reporting, all or comma-separated names")
+    bench.add_argument("--methods", default=None, type=lambda s: s.split(","),
+                       help="lasa only: comma-separated subset of policy_align,naive,gmr,"
+                            "grad_field (default: all four)")
     return parser
 
 

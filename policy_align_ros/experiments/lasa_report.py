@@ -1,0 +1,145 @@
+"""The LASA benchmark's markdown report: headline table, targets, per-shape tables.
+
+Aggregation: a shape's nV and DTW are the means over its evaluated demonstrations (7 per
+protocol); the table gives their median over shapes. Convergence is the share of all
+rollouts; fit time the median over all fits.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from policy_align_ros.experiments.lasa_methods import METHOD_LABELS
+
+__all__ = ["summarise", "format_report", "TARGETS"]
+
+#: Targets (leave one out, reporting shapes): median nV, median DTW (mm), % converged.
+TARGETS = {"nV": 0.5, "dtw_mm": 10.0, "converged_pct": 95.0}
+_SETS = ("tuning", "reporting")
+
+
+def _per_shape(rows: list[dict], key: str) -> dict[str, float]:
+    shapes: dict[str, list[float]] = {}
+    for r in rows:
+        shapes.setdefault(r["shape"], []).append(float(r[key]))
+    return {s: float(np.mean(v)) for s, v in shapes.items()}
+
+
+def summarise(records: Sequence[dict], method: str, protocol: str,
+              shape_set: str | None = None) -> dict[str, float] | None:
+    """Median over shapes of nV and DTW, % of rollouts converged, median fit time (s).
+
+    Parameters
+    ----------
+    records : sequence of dict
+        Records of ``lasa.run_task``.
+    method, protocol : str
+        Which rows.
+    shape_set : {"tuning", "reporting"} or None
+        Restrict to one half of the split; None: all shapes.
+
+    Returns
+    -------
+    dict or None
+        ``nV``, ``dtw_mm``, ``converged_pct``, ``final_mm`` (median over rollouts of the
+        final distance to the goal), ``fit_s``, ``n_shapes``, ``n_rollouts``;
+        None when no record matches.
+    """
+    rows = [r for r in records if r["method"] == method and r["protocol"] == protocol
+            and (shape_set is None or r["set"] == shape_set)]
+    if not rows:
+        return None
+    # One fit per (shape, held-out demonstration): its time is repeated on its records.
+    fits = {(r["shape"], r["demo"] if protocol == "loo" else -1): r["fit_s"] for r in rows}
+    return {
+        "nV": float(np.median(list(_per_shape(rows, "nV").values()))),
+        "dtw_mm": float(np.median(list(_per_shape(rows, "dtw_mm").values()))),
+        "converged_pct": 100.0 * float(np.mean([r["converged"] for r in rows])),
+        "final_mm": float(np.median([r["final_mm"] for r in rows])),
+        "fit_s": float(np.median(list(fits.values()))),
+        "n_shapes": len({r["shape"] for r in rows}),
+        "n_rollouts": len(rows),
+    }
+
+
+def _headline(records, methods, protocols) -> list[str]:
+    lines = ["| shapes | protocol | method | nV (median over shapes) | DTW mm (median) "
+             "| converged % (rollouts) | final distance mm (median) | fit s (median) "
+             "| shapes / rollouts |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for shape_set in (*_SETS, None):
+        for protocol in protocols:
+            for method in methods:
+                s = summarise(records, method, protocol, shape_set)
+                if s is None:
+                    continue
+                lines.append(
+                    f"| {shape_set or 'all'} | {protocol} | {METHOD_LABELS[method]} "
+                    f"| {s['nV']:.3f} | {s['dtw_mm']:.2f} | {s['converged_pct']:.0f} "
+                    f"| {s['final_mm']:.2f} "
+                    f"| {s['fit_s']:.3f} | {s['n_shapes']} / {s['n_rollouts']} |")
+    return lines
+
+
+def _targets(records, methods) -> list[str]:
+    lines = []
+    for method in methods:
+        s = summarise(records, method, "loo", "reporting")
+        if s is None:
+            continue
+        verdicts = [
+            f"nV {s['nV']:.3f} {'<=' if s['nV'] <= TARGETS['nV'] else '>'} "
+            f"{TARGETS['nV']}",
+            f"DTW {s['dtw_mm']:.2f} mm {'<=' if s['dtw_mm'] <= TARGETS['dtw_mm'] else '>'} "
+            f"{TARGETS['dtw_mm']:.0f} mm",
+            f"converged {s['converged_pct']:.0f} % "
+            f"{'>=' if s['converged_pct'] >= TARGETS['converged_pct'] else '<'} "
+            f"{TARGETS['converged_pct']:.0f} %"]
+        met = (s["nV"] <= TARGETS["nV"] and s["dtw_mm"] <= TARGETS["dtw_mm"]
+               and s["converged_pct"] >= TARGETS["converged_pct"])
+        lines.append(f"- {METHOD_LABELS[method]}: {'all met' if met else 'missed'} "
+                     f"({'; '.join(verdicts)})")
+    return lines
+
+
+def _shape_table(records, methods, protocol) -> list[str]:
+    rows = [r for r in records if r["protocol"] == protocol]
+    shapes = {r["shape"]: r["set"] for r in rows}
+    lines = ["| shape | set | " + " | ".join(METHOD_LABELS[m] for m in methods) + " |",
+             "|---|---|" + "---|" * len(methods)]
+    for shape, shape_set in shapes.items():
+        cells = []
+        for method in methods:
+            mine = [r for r in rows if r["shape"] == shape and r["method"] == method]
+            if not mine:
+                cells.append("—")
+                continue
+            cells.append(f"{np.mean([r['nV'] for r in mine]):.2f} / "
+                         f"{np.mean([r['dtw_mm'] for r in mine]):.1f} / "
+                         f"{100 * np.mean([r['converged'] for r in mine]):.0f} %")
+        lines.append(f"| {shape} | {shape_set} | "
+                     + " | ".join(cells) + " |")
+    return lines
+
+
+def format_report(records: Sequence[dict], methods: Sequence[str],
+                  protocols: Sequence[str], elapsed: float, command: str) -> str:
+    """The markdown of ``lasa.md``."""
+    parts = [f"## LASA handwriting (`{command}`)", "",
+             *_headline(records, methods, protocols), "",
+             "nV: RMS |f(x_i) - v_i| / RMS |v_i| on the evaluated demonstration's samples; "
+             "DTW: mean Euclidean cost along the optimal DTW path between the demonstration "
+             "and the rollout's first 1.5 T (every 5th sample); converged: |x(3T)| < 0.01 W. "
+             "A shape's value is the mean over its evaluated demonstrations. `all`: trained "
+             "on the 7 demonstrations; `loo`: trained on 6, evaluated on the held-out one.",
+             ""]
+    if "loo" in protocols:
+        parts += ["Targets (leave one out, reporting shapes: median nV <= 0.5, median DTW "
+                  "<= 10 mm, >= 95 % converged):", "", *_targets(records, methods), ""]
+    for protocol in protocols:
+        parts += [f"### Per shape, protocol `{protocol}` (nV / DTW mm / converged)", "",
+                  *_shape_table(records, methods, protocol), ""]
+    parts.append(f"Wall time: {elapsed:.0f} s.")
+    return "\n".join(parts) + "\n"

