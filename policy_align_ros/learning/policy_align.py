@@ -57,6 +57,7 @@ from policy_align_ros.learning.bandwidth import (
 )
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.fitting import check_query
+from policy_align_ros.learning.folds import fit_checks
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.pieces import merge_pieces, split_pieces, switch_junctions
 from policy_align_ros.learning.potential import (
@@ -280,12 +281,18 @@ class PolicyAlign(BaseEstimator):
         t2 = time.perf_counter()
         scores, n_fitted = self._fit_global(est, template, free, aligned)
         timings["regression"] = time.perf_counter() - t2
-        timings["total"] = time.perf_counter() - t0
         self._log(f"global model fitted on {n_fitted} samples with the {self.integration_} "
                   f"potentials ({timings['regression']:.2f} s)")
+        t3 = time.perf_counter()
+        # The learnt goal and the held-out error against a zero policy (warns when no better).
+        checks = fit_checks(self.regressor_, est.trajs, est.masks, self.inliers_,
+                            self.aligned_potentials_, free, est.parents,
+                            random_state=self.random_state)
+        timings["checks"] = time.perf_counter() - t3
+        timings["total"] = time.perf_counter() - t0
 
         self._merge_and_support(est, trajs[0].n_dims, joint_names)
-        self.fit_summary_ = self._summary(est, table, scores, timings)
+        self.fit_summary_ = {**self._summary(est, table, scores, timings), **checks}
         return self
 
     def _check_data(self, trajectories: Sequence[Trajectory | np.ndarray],
