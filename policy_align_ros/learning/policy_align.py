@@ -177,6 +177,10 @@ class PolicyAlign(BaseEstimator):
         the Euler rule and the velocity check are corrected for it.
         ``fit_summary_["noise_to_step"]`` is the share of the mean squared step it
         explains: near 1, the recording's steps are mostly noise.
+    fit_summary_ : dict
+        The fit's counts and measures, saved with the model; with ``goal``,
+        ``heldout_vs_zero`` and ``worse_than_zero`` (:func:`~policy_align_ros.learning.
+        folds.fit_checks`: a ``UserWarning`` when no better than a zero policy).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,

@@ -96,7 +96,8 @@ def test_fold_refits_use_the_regressors_folds_with_its_choice_fixed():
     assert sorted(held.tolist()) == list(range(6))
     for fold in folds:
         assert fold.regressor.trend_form_ == reg.trend_form_
-        np.testing.assert_allclose(fold.regressor.gradient(X), reg.gradient(X), rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(fold.regressor.gradient(X), reg.gradient(X), rtol=1e-4,
+                                   atol=1e-5)
 
 
 def test_along_motion_error_is_zero_for_the_true_policy_under_a_constraint():
