@@ -49,7 +49,12 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.data.bags.dataset import DatasetReport, load_dataset
-from policy_align_ros.data.quality import Gates, observed_ncpe, refusals
+from policy_align_ros.data.quality import (
+    Gates,
+    observed_ncpe,
+    refusals,
+    zero_policy_comparison,
+)
 from policy_align_ros.data.selection import find_duplicates, fingerprint, holdout_split
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.model_io import json_float
@@ -165,6 +170,9 @@ class PipelineResult:
             text += f"position noise {100 * noisy:.0f} % of the mean squared step (corrected); "
         text += (f"fit {s['fit_time_s']:.2f} s; held-out nCPE "
                  + ("n/a" if ncpe is None else f"{ncpe:.4f}") + " (along observed motion)")
+        goal = goal_text(s.get("goal"))
+        if goal:
+            text += f"; {goal}"
         current = s.get("current_model") or {}
         if current.get("heldout_ncpe_observed") is not None:
             text += (f", current model {current['heldout_ncpe_observed']:.4f} on "
@@ -176,6 +184,49 @@ class PipelineResult:
         return f"{prefix}{text}; model {self.model_path}"
 
 
+
+
+def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The learn summary's part of ``fit_summary_["goal"]``
+    (:func:`~policy_align_ros.learning.goal.goal_summary`): counts and distances (state
+    units; ``*_fraction`` of the data's extent), without the points."""
+    if not goal:
+        return None
+    keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
+            "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction")
+    out = {key: goal.get(key) for key in keys}
+    out["n_minima"] = len(goal.get("minima", ()))
+    out["n_demonstrated_goals"] = len(goal.get("demonstrated_goals", ()))
+    return _json_floats(out)
+
+
+def goal_text(digest: dict[str, Any] | None) -> str:
+    """The learnt goal in words, from :func:`goal_digest` ("" without one)."""
+    if not digest:
+        return ""
+    k = digest["n_minima"]
+    text = f"learnt goal: {k} minim{'um' if k == 1 else 'a'}"
+    if digest["goal_error_fraction"] is not None:
+        text += (f", {100 * digest['goal_error_fraction']:.2g} % of the data's extent from "
+                 "where the demonstrations rest")
+    elif digest["n_rests"] == 0:
+        text += ", no demonstration ends at rest"
+    elif digest["n_demonstrated_goals"] == 0:
+        text += ", every rest is under an active constraint"
+    if digest["fold_spread_fraction"] is not None:
+        text += f" (spread over the CV folds {100 * digest['fold_spread_fraction']:.2g} %)"
+    if digest["n_escaped"]:
+        text += f"; {digest['n_escaped']} descents found no minimum"
+    return text
+
+
+def _json_floats(value: Any) -> Any:
+    """``value`` with every non-finite float as None (the summary is JSON)."""
+    if isinstance(value, dict):
+        return {key: _json_floats(v) for key, v in value.items()}
+    if isinstance(value, float):
+        return json_float(value, "null")
+    return value
 
 
 def _check_writable(path: Path) -> None:
@@ -486,7 +537,8 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
     unaligned = [train_names[i] for i in np.flatnonzero(model.groups_ != 0)]
     current = _current_model_check(run.path, model, held, held_names,
                                    [fingerprint(demos.trajs[k]) for k in test_k], fit.ncpe)
-    refused = refusals(model, run.sigma, train, unaligned, current, run.gates)
+    zero = zero_policy_comparison(model.policy, held) if held else None
+    refused = refusals(model, run.sigma, train, unaligned, current, run.gates, zero)
     duplicate_of = demos.duplicate_of
     summary: dict[str, Any] = {
         "demonstrations": {
@@ -505,6 +557,11 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "noise_to_step": json_float(model.fit_summary_["noise_to_step"], "null"),
         "fit_time_s": float(fit.seconds),
         "heldout_ncpe_observed": fit.ncpe,
+        "heldout_vs_zero": {"cv_folds": _json_floats(model.fit_summary_.get("heldout_vs_zero")),
+                            "held_out": _json_floats(zero)},
+        "worse_than_zero": bool(model.fit_summary_.get("worse_than_zero"))
+        or bool(zero and zero["ratio"] >= 1.0),
+        "goal": goal_digest(model.fit_summary_.get("goal")),
         "state": states.state,
         "joints": list(demos.joints),
         "robot": run.robot if states.definition is not None else None,

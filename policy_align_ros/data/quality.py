@@ -1,9 +1,10 @@
 """Quality of a learnt model: nCPE along the observed motion and the degenerate-fit gates.
 
-ROS-free; imports numpy only. nCPE is measured along the observed motion
-(:func:`observed_ncpe`), so it needs no constraint; :func:`refusals` applies the
-thresholds of :class:`Gates` to a fit of the learn pipeline
-(:mod:`policy_align_ros.data.pipeline`).
+ROS-free; imports numpy and the learning core. nCPE is measured along the observed motion
+(:func:`observed_ncpe`), so it needs no constraint, and so is the comparison with a zero
+policy (:func:`zero_policy_comparison`); :func:`refusals` applies the thresholds of
+:class:`Gates` to a fit of the learn pipeline (:mod:`policy_align_ros.data.pipeline`) and
+refuses a model no better than a zero policy.
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from policy_align_ros.learning.folds import along_motion_errors
+
 if TYPE_CHECKING:
     from policy_align_ros.learning import PolicyAlign, Trajectory
 
-__all__ = ["Gates", "observed_ncpe", "refusals"]
+__all__ = ["Gates", "observed_ncpe", "refusals", "zero_policy_comparison"]
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,8 @@ def observed_ncpe(policy: Callable[[np.ndarray], np.ndarray],
 
 
 def refusals(model: PolicyAlign, sigma: str | float, train: Sequence[Trajectory],
-             unaligned: Sequence[str], current: dict[str, Any], gates: Gates) -> list[str]:
+             unaligned: Sequence[str], current: dict[str, Any], gates: Gates,
+             heldout_zero: dict[str, Any] | None = None) -> list[str]:
     """Why a fit is degenerate, one line per gate it fails (empty when it passes).
 
     Parameters
@@ -128,6 +132,14 @@ def refusals(model: PolicyAlign, sigma: str | float, train: Sequence[Trajectory]
         and ``new_ncpe_observed`` of the new model on ``compared_on``).
     gates : Gates
         The thresholds.
+    heldout_zero : dict, optional
+        The new model's along-motion error beside a zero policy's on the pipeline's
+        held-out demonstrations (:func:`zero_policy_comparison`).
+
+    A model no better than a zero policy is always refused: its own CV folds
+    (``fit_summary_["worse_than_zero"]``, see :mod:`policy_align_ros.learning.folds`) or
+    the held-out demonstrations found its error along the observed motion no smaller
+    than that of standing still.
     """
     out: list[str] = []
     X = np.concatenate([t.positions for t in train])
@@ -149,4 +161,43 @@ def refusals(model: PolicyAlign, sigma: str | float, train: Sequence[Trajectory]
             f"held-out nCPE {new:.4f} is worse than the current model's {old:.4f} on the "
             f"same {len(current['compared_on'])} demonstrations (heldout_tolerance "
             f"{gates.heldout_tolerance:g})")
+    summary = getattr(model, "fit_summary_", None) or {}
+    cv = summary.get("heldout_vs_zero")
+    if summary.get("worse_than_zero") and cv:
+        out.append(
+            f"no better than a zero policy: held-out error {cv['error']:.4g} vs a zero "
+            f"policy's {cv['zero_error']:.4g} (ratio {cv['ratio']:.3g}, squared speed "
+            f"along the observed motion, {cv['n_samples']} samples of {cv['n_folds']} CV "
+            "folds)")
+    if heldout_zero and heldout_zero["ratio"] >= 1.0:
+        out.append(
+            f"no better than a zero policy on the held-out demonstrations: error "
+            f"{heldout_zero['error']:.4g} vs a zero policy's {heldout_zero['zero_error']:.4g}"
+            f" (ratio {heldout_zero['ratio']:.3g}, {heldout_zero['n_samples']} samples)")
     return out
+
+
+def zero_policy_comparison(policy: Callable[[np.ndarray], np.ndarray],
+                           trajectories: Sequence[Trajectory]) -> dict[str, Any] | None:
+    """A policy's mean squared error along the observed motion beside a zero policy's.
+
+    Parameters
+    ----------
+    policy : callable
+        ``policy(X)`` (m, n) -> (m, n) in state units per second.
+    trajectories : sequence of Trajectory
+        Demonstrations the policy was not fitted on, with times (s).
+
+    Returns
+    -------
+    dict or None
+        ``error`` and ``zero_error`` ((state units/s)^2), ``ratio`` (1: no better than a
+        zero policy), ``whole_velocity_ratio`` and ``n_samples``, as in
+        :func:`policy_align_ros.learning.folds.heldout_vs_zero`; None when nothing moves.
+    """
+    sums, count = along_motion_errors(policy, trajectories)
+    if count == 0 or sums[1] <= 0.0:
+        return None
+    return {"error": float(sums[0] / count), "zero_error": float(sums[1] / count),
+            "ratio": float(sums[0] / sums[1]), "whole_velocity_ratio": float(sums[2] / sums[1]),
+            "n_samples": int(count)}

@@ -57,6 +57,7 @@ from policy_align_ros.learning.bandwidth import (
 )
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.fitting import check_query
+from policy_align_ros.learning.folds import fit_checks
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.pieces import merge_pieces, split_pieces, switch_junctions
 from policy_align_ros.learning.potential import (
@@ -176,6 +177,10 @@ class PolicyAlign(BaseEstimator):
         the Euler rule and the velocity check are corrected for it.
         ``fit_summary_["noise_to_step"]`` is the share of the mean squared step it
         explains: near 1, the recording's steps are mostly noise.
+    fit_summary_ : dict
+        The fit's counts and measures, saved with the model; with ``goal``,
+        ``heldout_vs_zero`` and ``worse_than_zero`` (:func:`~policy_align_ros.learning.
+        folds.fit_checks`: a ``UserWarning`` when no better than a zero policy).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,
@@ -280,12 +285,18 @@ class PolicyAlign(BaseEstimator):
         t2 = time.perf_counter()
         scores, n_fitted = self._fit_global(est, template, free, aligned)
         timings["regression"] = time.perf_counter() - t2
-        timings["total"] = time.perf_counter() - t0
         self._log(f"global model fitted on {n_fitted} samples with the {self.integration_} "
                   f"potentials ({timings['regression']:.2f} s)")
+        t3 = time.perf_counter()
+        # The learnt goal and the held-out error against a zero policy (warns when no better).
+        checks = fit_checks(self.regressor_, est.trajs, est.masks, self.inliers_,
+                            self.aligned_potentials_, free, est.parents,
+                            random_state=self.random_state)
+        timings["checks"] = time.perf_counter() - t3
+        timings["total"] = time.perf_counter() - t0
 
         self._merge_and_support(est, trajs[0].n_dims, joint_names)
-        self.fit_summary_ = self._summary(est, table, scores, timings)
+        self.fit_summary_ = {**self._summary(est, table, scores, timings), **checks}
         return self
 
     def _check_data(self, trajectories: Sequence[Trajectory | np.ndarray],

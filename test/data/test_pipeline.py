@@ -309,3 +309,36 @@ def test_joint_state_learning_needs_no_pinocchio(dataset, tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_model_no_better_than_a_zero_policy_is_refused_and_force_writes_it(tmp_path):
+    rng = np.random.default_rng(5)
+    walks = [np.cumsum(rng.normal(scale=0.05, size=(60, 2)), axis=0) + rng.uniform(-1, 1, 2)
+             for _ in range(7)]
+    data = _write(tmp_path / "walks", walks)
+    path = tmp_path / "model.npz"
+    with pytest.warns(UserWarning):
+        result = learn_pipeline([data], path)
+    assert result.refused and not result.written and not path.exists()
+    assert any("no better than a zero policy" in r for r in result.refusals)
+    assert result.summary["worse_than_zero"] is True
+    cv = result.summary["heldout_vs_zero"]["cv_folds"]
+    assert cv["error"] >= cv["zero_error"] > 0
+    args = dict(inputs=[str(data)], out=str(path), joints=None, sigma="medium", gap=0.5)
+    with pytest.warns(UserWarning):
+        assert run_learn(argparse.Namespace(**args)) == 1
+    assert not path.exists()
+    with pytest.warns(UserWarning):
+        assert run_learn(argparse.Namespace(**args, force=True)) == 0
+    block = PolicyAlign.load(path).fit_summary_["pipeline"]
+    assert block["forced"] and block["worse_than_zero"]
+
+
+def test_the_learn_summary_reports_the_learnt_goal(clean):
+    result, path = clean
+    goal = result.summary["goal"]
+    assert goal["n_minima"] >= 1 and goal["extent"] > 0
+    assert result.summary["worse_than_zero"] is False
+    model = PolicyAlign.load(path)
+    assert len(model.fit_summary_["goal"]["minima"]) == goal["n_minima"]
+    assert model.fit_summary_["pipeline"]["goal"] == goal

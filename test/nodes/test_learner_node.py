@@ -136,6 +136,22 @@ def test_a_refused_fit_answers_false_keeps_the_model_and_publishes_nothing(rig, 
     assert PolicyAlign.load(model).fit_summary_["pipeline"]["forced"]
 
 
+@pytest.mark.filterwarnings("ignore:PolicyAlign:UserWarning")  # the fit's own warning
+def test_a_model_no_better_than_a_zero_policy_is_refused_with_the_goal_report(rig, tmp_path):
+    rng = np.random.default_rng(3)
+    for k in range(7):  # random walks: nothing to learn
+        X = np.cumsum(rng.normal(scale=0.05, size=(60, 2)), axis=0)
+        stamps = 10**18 + k * 10**10 + np.arange(60) * 50_000_000
+        write_joint_state_bag(tmp_path / "walks" / f"demo_{k:04d}", JOINTS, stamps, X)
+    model = tmp_path / "model.npz"
+    r = rig(168, dataset_dir=str(tmp_path / "walks"), model_path=str(model))
+    response = r.learn()
+    assert not response.success and not model.exists()
+    assert "no better than a zero policy" in response.message
+    summary = r.node.last_result.summary
+    assert summary["worse_than_zero"] and summary["goal"]["extent"] > 0
+
+
 def test_state_and_gate_parameters_are_validated_and_a_bad_frame_is_named(rig, tmp_path):
     arm = ["arm_left_1_joint", "arm_left_2_joint"]
     _write_dataset(tmp_path / "demos", n_demos=4, joints=arm)

@@ -178,6 +178,9 @@ class TrendKernelRegression(BaseEstimator):
         residual's choice compared: those within one standard error of the best score.
     cv_best_ : tuple or None
         The key of ``cv_scores_`` chosen (None without cross-validation).
+    cv_folds_ : dict or None
+        The CV fold of every demonstration id of ``groups`` (None without
+        cross-validation, and on a loaded model).
     mean_, scale_ : ndarray (n,), float
         Standardisation of the states (state units).
     y_mean_, y_scale_ : float
@@ -296,6 +299,9 @@ class TrendKernelRegression(BaseEstimator):
             # Samples grouped by fold: every fold's sums come from a slice, not a copy.
             order = np.argsort(demo_fold[demo], kind="stable")
             Z, u, demo = Z[order], u[order], demo[order]
+        # Kept so that a caller can refit the chosen model on the same training folds.
+        self.cv_folds_ = ({int(g): int(f) for g, f in zip(demo_ids, demo_fold, strict=True)}
+                          if n_folds >= 2 else None)
         F = quadratic_features(Z)
 
         d_med = _median_distance(C)
@@ -511,5 +517,6 @@ class TrendKernelRegression(BaseEstimator):
         model.cv_standard_errors_ = {}
         model.cv_dof_ = {}
         model.cv_best_ = None
+        model.cv_folds_ = None
         model._unpack()
         return model

@@ -1,0 +1,283 @@
+"""The chosen global model refitted on the CV's training folds, and what the refits measure.
+
+After :class:`~policy_align_ros.learning.PolicyAlign` has chosen its global model, the
+same model (the hyperparameters its cross-validation chose, fixed, so a refit costs one
+penalised solve rather than a search) is fitted again without each fold's demonstrations,
+on the folds the regressor's CV used (``TrendKernelRegression.cv_folds_``; other
+regressors: folds drawn alike, seeded). Each fold model is then scored on what it never
+saw:
+
+- :func:`heldout_vs_zero`: its error on the held-out demonstrations' observed velocities,
+  beside the error of a zero policy. Along the observed motion ``u = N pi`` (``N`` the
+  unknown constraint's projector), the error of a policy ``p`` is
+  ``||u - P_u p||^2`` with ``P_u = u u^T / ||u||^2`` (the true policy scores 0 whatever
+  the constraint; :func:`~policy_align_ros.data.quality.observed_ncpe` measures the same
+  on the learn pipeline's held-out demonstrations) and a zero policy's is ``||u||^2``. A
+  model whose held-out error is no smaller predicts the motion no better than standing
+  still;
+- :func:`fold_spread`: how far each fold model's nearest minimum lies from each minimum of
+  the full model (:mod:`~policy_align_ros.learning.goal`).
+
+:func:`fit_checks` runs both with :func:`~policy_align_ros.learning.goal.goal_summary` and
+warns when the model is no better than a zero policy. The held-out demonstrations took part
+in the alignment of the potentials the fold models are trained on (as in the regressor's
+own CV): the estimate is leave-demonstrations-out for the global model, not for the
+alignment. Notation as in :mod:`~policy_align_ros.learning.goal`.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from policy_align_ros.learning.fitting import assign_folds
+from policy_align_ros.learning.goal import BOX_MARGIN, goal_summary, learnt_minima
+from policy_align_ros.learning.regressors import TrendKernelRegression, takes_free_groups
+from policy_align_ros.learning.trajectory import Trajectory
+
+__all__ = ["FoldModel", "fit_checks", "fold_refits", "fold_spread", "heldout_vs_zero",
+           "along_motion_errors"]
+
+#: Folds drawn for a regressor that keeps none (as many as TrendKernelRegression's CV).
+N_FOLDS = 10
+#: Held-out samples scored per fold at most (evenly strided): the estimate needs a few
+#: thousand, a 10^6-sample fit would otherwise spend seconds on it.
+MAX_SCORED = 2000
+
+
+@dataclasses.dataclass
+class FoldModel:
+    """A global model fitted without the demonstrations ``held_out`` (their group ids)."""
+
+    held_out: np.ndarray
+    regressor: Any
+
+
+def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
+                free_groups: np.ndarray | None = None, *, random_state: int | None = 0
+                ) -> list[FoldModel]:
+    """The fitted ``regressor`` refitted once per CV fold, without that fold's groups.
+
+    Parameters
+    ----------
+    regressor : fitted regressor
+        The chosen global model. A ``TrendKernelRegression`` with a CV is refitted with
+        the hyperparameters it chose (``cv_best_``) on its own folds (``cv_folds_``);
+        another regressor as a fresh copy of its parameters, on folds drawn with
+        ``random_state``.
+    X, y, groups : ndarrays (m, n), (m,), (m,)
+        What it was fitted on: states, aligned potentials, demonstration ids.
+    free_groups : ndarray of int, optional
+        Demonstrations whose offsets it re-fits freely (passed on for those kept).
+    random_state : int or None
+        Seeds the folds when the regressor keeps none.
+
+    Returns
+    -------
+    list of FoldModel
+        One per fold with training data whose refit succeeded.
+    """
+    ids = np.unique(groups)
+    folds = getattr(regressor, "cv_folds_", None)
+    if not folds or set(folds) != set(int(g) for g in ids):
+        drawn = assign_folds(ids, min(N_FOLDS, len(ids)), np.random.default_rng(random_state))
+        folds = {int(g): int(f) for g, f in zip(ids, drawn, strict=True)}
+    template = _fixed_copy(regressor)
+    free = np.zeros(0, dtype=np.int64) if free_groups is None else np.asarray(free_groups)
+    out = []
+    for fold in sorted(set(folds.values())):
+        held = np.array([g for g in ids if folds[int(g)] == fold])
+        train = ~np.isin(groups, held)
+        if not train.any():
+            continue
+        kept_free = np.intersect1d(free, groups[train])
+        extra = ({"free_groups": kept_free}
+                 if kept_free.size and takes_free_groups(template) else {})
+        try:
+            model = copy.deepcopy(template).fit(X[train], y[train], groups=groups[train],
+                                                **extra)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            continue  # a fold too small to fit says nothing either way
+        out.append(FoldModel(held, model))
+    return out
+
+
+def _fixed_copy(regressor):
+    """An unfitted copy of ``regressor`` with its CV's choice fixed, where it has one."""
+    best = getattr(regressor, "cv_best_", None)
+    if isinstance(regressor, TrendKernelRegression) and best is not None:
+        form, trend, length, kernel, offset = best
+        # NaN marks what a candidate has none of; the single-index trend's index starts
+        # from the quadratic its own CV picks, as in the full fit. Two folds: the fixed
+        # grid needs no search, and fewer folds cost less.
+        return TrendKernelRegression(
+            trend_form=form, trend_ridge="cv" if math.isnan(trend) else trend,
+            length_scale=1.0 if math.isnan(length) else length, kernel_ridge=kernel,
+            offset_ridge=offset, n_centres=regressor.n_centres,
+            max_fit_points=regressor.max_fit_points, n_folds=2,
+            random_state=regressor.random_state)
+    return type(regressor)(**regressor.get_params(deep=False))
+
+
+def along_motion_errors(policy, trajs: Sequence[Trajectory], max_samples: int = MAX_SCORED
+                        ) -> tuple[np.ndarray, int]:
+    """A policy's squared error along the observed motion, and a zero policy's.
+
+    Parameters
+    ----------
+    policy : callable
+        ``policy(X)`` (m, n) -> (m, n), state units per second (per step without times).
+    trajs : sequence of Trajectory
+        Demonstrations; ``u`` is the forward-difference velocity at each sample but the
+        last (samples that do not move are skipped).
+    max_samples : int
+        Samples scored at most, evenly strided over all of them.
+
+    Returns
+    -------
+    ndarray (3,)
+        Sums over the scored samples of ``||u - P_u pi_hat||^2``, of ``||u||^2`` (the
+        zero policy's) and of ``||u - pi_hat||^2`` (the whole velocity's error, a fair
+        measure only where nothing constrained the motion), in squared state units per
+        second.
+    count : int
+        Samples scored.
+    """
+    us = [np.diff(t.positions, axis=0) / t.dt[:, None] for t in trajs]
+    if not us:
+        return np.zeros(3), 0
+    u = np.concatenate(us)
+    x = np.concatenate([t.positions[:-1] for t in trajs])
+    norm2 = np.einsum("ij,ij->i", u, u)
+    moving = np.flatnonzero(norm2 > 1e-12 * max(float(norm2.max(initial=0.0)), 1e-300))
+    if not moving.size:
+        return np.zeros(3), 0
+    pick = moving[np.unique(np.linspace(0, len(moving) - 1, min(max_samples, len(moving)))
+                            .round().astype(int))]
+    u, x, norm2 = u[pick], x[pick], norm2[pick]
+    pi_hat = policy(x)
+    along = np.einsum("ij,ij->i", u, pi_hat) / norm2
+    # ||u - (u.p / ||u||^2) u||^2 = ||u||^2 (1 - u.p / ||u||^2)^2
+    sums = [np.sum(norm2 * (1.0 - along) ** 2), np.sum(norm2), np.sum((u - pi_hat) ** 2)]
+    return np.array(sums, dtype=float), len(pick)
+
+
+def heldout_vs_zero(folds: Sequence[FoldModel], trajs: Sequence[Trajectory]
+                    ) -> dict[str, float | int] | None:
+    """Every fold model's along-motion error on its held-out demonstrations, pooled.
+
+    Parameters
+    ----------
+    folds : sequence of FoldModel
+        Their ``held_out`` ids index ``trajs``.
+    trajs : sequence of Trajectory
+        The demonstrations (or pieces) the regressor's groups name.
+
+    Returns
+    -------
+    dict or None
+        ``error`` and ``zero_error``: mean squared along-motion error of the fold models
+        and of a zero policy ((state units/s)^2); ``ratio`` = error / zero_error (1: no
+        better than a zero policy); ``whole_velocity_ratio``, the same with the whole
+        velocity's error ``||u - pi_hat||^2`` (what a zero policy is beaten by where nothing
+        constrained the motion; under a constraint even the true policy scores above 0);
+        ``n_samples``; ``n_folds``. None when nothing held out moves.
+    """
+    sums, count = np.zeros(3), 0
+    for fold in folds:
+        held = [trajs[int(g)] for g in fold.held_out]
+        s, c = along_motion_errors(lambda X, r=fold.regressor: -r.gradient(X), held)
+        sums, count = sums + s, count + c
+    err, zero, whole = sums
+    if count == 0 or zero <= 0.0:
+        return None
+    return {"error": float(err / count), "zero_error": float(zero / count),
+            "ratio": float(err / zero), "whole_velocity_ratio": float(whole / zero),
+            "n_samples": int(count), "n_folds": len(folds)}
+
+
+def fold_spread(folds: Sequence[FoldModel], minima: np.ndarray, *, scale: float,
+                speed: float, bounds: tuple[np.ndarray, np.ndarray]) -> list[float | None]:
+    """Per minimum of the full model, the largest distance over the folds to the fold
+    model's nearest minimum (state units).
+
+    Each fold model is descended from the full model's minima (``scale``, ``speed`` and
+    ``bounds`` as in :func:`~policy_align_ros.learning.goal.learnt_minima`). A fold model
+    without any minimum there gives None for every minimum.
+    """
+    if not len(minima) or not folds:
+        return [None] * len(minima)
+    worst = np.zeros(len(minima))
+    for fold in folds:
+        found = learnt_minima(fold.regressor.predict, fold.regressor.gradient, minima,
+                              scale=scale, speed=speed, bounds=bounds).points
+        if not len(found):
+            return [None] * len(minima)
+        d = np.linalg.norm(minima[:, None, :] - found[None], axis=2).min(axis=1)
+        worst = np.maximum(worst, d)
+    return [float(d) for d in worst]
+
+
+def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarray],
+               keep: np.ndarray, potentials: Sequence[np.ndarray], free: np.ndarray,
+               parents: Sequence[Trajectory], *, random_state: int | None = 0
+               ) -> dict[str, Any]:
+    """The goal report and the zero-policy comparison of a fitted global model.
+
+    Parameters
+    ----------
+    regressor : fitted regressor
+        The global model of the potential.
+    pieces, masks : sequences of Trajectory and bool arrays (N_p,)
+        What the regressor's groups index, and their training samples.
+    keep : ndarray of int
+        The pieces it was fitted on; ``free`` those with free offsets.
+    potentials : sequence of ndarray (N_p,)
+        The aligned potentials it was fitted on.
+    parents : sequence of Trajectory
+        The whole demonstrations (their ends are where they rest).
+    random_state : int or None
+        Seeds the folds of a regressor that keeps none.
+
+    Returns
+    -------
+    dict
+        ``goal`` (:func:`~policy_align_ros.learning.goal.goal_summary`, with
+        ``fold_spread`` per minimum, ``fold_spread_max`` and its ``fold_spread_fraction``
+        of the extent), ``heldout_vs_zero`` (:func:`heldout_vs_zero`) and
+        ``worse_than_zero``; a ``UserWarning`` names the numbers when it is True.
+    """
+    X = np.concatenate([pieces[k].positions[masks[k]] for k in keep])
+    y = np.concatenate([potentials[k][masks[k]] for k in keep])
+    g = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
+    folds = fold_refits(regressor, X, y, g, free, random_state=random_state)
+    heldout = heldout_vs_zero(folds, pieces)
+    goal = goal_summary(parents, regressor.predict, regressor.gradient)
+    minima = np.array([m["point"] for m in goal["minima"]]).reshape(-1, X.shape[1])
+    Xall = np.concatenate([t.positions for t in parents])
+    extent = goal["extent"]
+    spread = fold_spread(folds, minima, scale=extent, speed=goal["typical_speed"],
+                         bounds=(Xall.min(axis=0) - BOX_MARGIN * extent,
+                                 Xall.max(axis=0) + BOX_MARGIN * extent))
+    for entry, d in zip(goal["minima"], spread, strict=True):
+        entry["fold_spread"] = d
+    known = [d for d in spread if d is not None]
+    goal["fold_spread_max"] = max(known) if known and len(known) == len(spread) else None
+    goal["fold_spread_fraction"] = (None if goal["fold_spread_max"] is None
+                                    else goal["fold_spread_max"] / extent)
+    goal["n_folds"] = len(folds)
+    worse = heldout is not None and heldout["error"] >= heldout["zero_error"]
+    if worse:
+        warnings.warn(
+            f"PolicyAlign: held-out error {heldout['error']:.4g} is no better than a zero "
+            f"policy's {heldout['zero_error']:.4g} (ratio {heldout['ratio']:.3g}, mean "
+            f"squared error along the observed motion of {heldout['n_samples']} held-out "
+            f"samples over {heldout['n_folds']} CV folds): the learnt policy predicts the "
+            "demonstrations no better than standing still", UserWarning, stacklevel=3)
+    return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse)}

@@ -1,0 +1,372 @@
+"""The learnt goal: the learnt potential's minima beside where the demonstrations rest.
+
+A potential-based policy ``pi(x) = -grad f(x)`` stops at the minima of ``f``. A user
+wants them where the demonstrations came to rest; a fit can explain the velocities well and
+still put its minimum elsewhere (human timing, tracking lag, contact), or have none (a
+potential that keeps falling past the goal). This module measures that, from the data and
+the learnt model only:
+
+- :func:`rest_points`: where each demonstration comes to rest at its end (its final samples
+  below ``fraction`` of its peak speed);
+- :func:`learnt_minima`: the local minima of the learnt potential, found by descending it
+  (projected Barzilai-Borwein steps with the
+  analytic gradient, all starts at once) from given starts, merged when closer than a
+  tolerance tied to the data's scale; a descent that leaves the box around the data found
+  no minimum (the policy runs away there);
+- :func:`goal_summary`: the learnt minima, each with its distance to the nearest
+  *demonstrated goal* (a cluster of rest points), and the data's extent to read the
+  distances as fractions. A rest where the learnt policy is far from zero is a rest under
+  an active constraint (a hand stopped by a table), not a goal: it is left out of the
+  demonstrated goals and counted.
+
+Notation: ``K`` demonstrations ``X_k`` (``N_k`` x ``n``, state units) with times in seconds
+(speeds in state units per second; per step without times). The *extent* ``W`` of a set
+of demonstrations is the largest side of their bounding box (state units).
+``docs/design/goal_report.md`` gives the reasons for the thresholds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
+
+__all__ = [
+    "ACTIVE_FRACTION",
+    "GOAL_MERGE",
+    "MINIMA_MERGE",
+    "REST_FRACTION",
+    "Minima",
+    "data_extent",
+    "goal_summary",
+    "learnt_minima",
+    "rest_points",
+    "sample_speeds",
+]
+
+#: A demonstration rests where its speed is below this fraction of its peak speed.
+REST_FRACTION = 0.02
+#: A rest where the learnt policy's speed exceeds this fraction of the typical demonstrated
+#: (peak) speed is a rest under an active constraint, not a goal.
+ACTIVE_FRACTION = 0.1
+#: Rest points closer than this fraction of the extent are one demonstrated goal.
+GOAL_MERGE = 0.05
+#: Learnt minima (and descent starts) closer than this fraction of the extent are one.
+MINIMA_MERGE = 1e-3
+#: The descent's box: the data's bounding box widened by this many extents on each side.
+BOX_MARGIN = 1.0
+#: The descent stops when the learnt speed is below this fraction of the speed scale: the
+#: minimum is then located to about this fraction of the distance over which the learnt
+#: speed reaches the typical speed.
+GRADIENT_TOL = 1e-6
+
+Field = Callable[[np.ndarray], np.ndarray]
+
+
+class Minima(NamedTuple):
+    """Local minima of a learnt potential (:func:`learnt_minima`).
+
+    Attributes
+    ----------
+    points : ndarray (k, n)
+        The minima (state units), lowest potential first.
+    values : ndarray (k,)
+        The potential there.
+    n_escaped : int
+        Descents that left the box around the data: no minimum there.
+    """
+
+    points: np.ndarray
+    values: np.ndarray
+    n_escaped: int
+
+
+def sample_speeds(traj: Trajectory) -> np.ndarray:
+    """Speed ``|xdot|`` at every sample, shape (N,), in state units per second (per step
+    without times).
+
+    From the recorded velocities when the trajectory has them; otherwise from finite
+    differences: each sample takes the speed of the step that ends at it (the first sample
+    that of the first step), so a sample counts as at rest only once it has stopped.
+    """
+    if traj.velocities is not None:
+        return np.linalg.norm(traj.velocities, axis=1)
+    step = np.linalg.norm(np.diff(traj.positions, axis=0), axis=1) / traj.dt
+    return np.concatenate([step[:1], step])
+
+
+def rest_points(trajs: Sequence[Trajectory | np.ndarray], fraction: float = REST_FRACTION
+                ) -> list[np.ndarray | None]:
+    """Where each demonstration comes to rest at its end.
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory or array_like (N_k, n)
+        The demonstrations (state units; times in seconds, or none: dt = 1).
+    fraction : float in (0, 1)
+        A sample rests when its speed (:func:`sample_speeds`) is below ``fraction`` of its
+        demonstration's peak speed.
+
+    Returns
+    -------
+    list of ndarray (n,) or None
+        Per demonstration, the mean position of its final run of resting samples; None
+        when its last sample does not rest (it ends in motion) or it never moves.
+    """
+    if not 0.0 < fraction < 1.0:
+        raise ValueError(f"fraction: must be in (0, 1), got {fraction!r}")
+    out: list[np.ndarray | None] = []
+    for traj in as_trajectories(trajs):
+        speed = sample_speeds(traj)
+        peak = float(speed.max())
+        resting = speed < fraction * peak
+        if peak <= 0.0 or not resting[-1]:
+            out.append(None)
+            continue
+        moving = np.flatnonzero(~resting)
+        first = int(moving[-1]) + 1 if moving.size else 0
+        out.append(traj.positions[first:].mean(axis=0))
+    return out
+
+
+def data_extent(trajs: Sequence[Trajectory | np.ndarray]) -> float:
+    """The largest side of the bounding box of all samples (state units)."""
+    X = np.concatenate([t.positions for t in as_trajectories(trajs)])
+    return float(np.max(X.max(axis=0) - X.min(axis=0)))
+
+
+def learnt_minima(potential: Field, gradient: Field, starts: np.ndarray, *,
+                  scale: float | None = None, speed: float | None = None,
+                  bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                  merge_tol: float = MINIMA_MERGE, max_iter: int = 1000) -> Minima:
+    """Local minima of a learnt potential, by descent from ``starts``.
+
+    Parameters
+    ----------
+    potential, gradient : callable
+        ``potential(X)`` (m,) and ``gradient(X)`` (m, n) of the learnt potential at states
+        ``X`` (m, n); the policy is ``-gradient``.
+    starts : ndarray (s, n)
+        Where the descents start (state units); starts closer than ``merge_tol * scale``
+        are descended once.
+    scale : float, optional
+        The data's extent (state units): the unit of ``merge_tol`` and of the box. Default:
+        the largest side of the starts' bounding box (1 if they coincide).
+    speed : float, optional
+        The typical speed (state units per second): a descent stops where the learnt speed
+        is below ``GRADIENT_TOL * speed``. Default: the largest learnt speed at the starts.
+    bounds : (lo, hi) ndarrays (n,), optional
+        The box of the descent (state units). Default: the starts' bounding box widened by
+        ``BOX_MARGIN * scale`` on each side. A descent that ends on its boundary found no
+        minimum and is counted in ``n_escaped``.
+    merge_tol : float
+        Minima closer than ``merge_tol * scale`` are one (the lowest is kept).
+    max_iter : int
+        Iterations of each descent.
+
+    Returns
+    -------
+    Minima
+        The merged minima (k, n), lowest potential first, their potential values (k,) and
+        the number of descents that escaped.
+    """
+    starts = np.atleast_2d(np.asarray(starts, dtype=float))
+    if starts.ndim != 2 or not len(starts) or not np.all(np.isfinite(starts)):
+        raise ValueError(f"starts: need a finite (s, n) array, got shape {starts.shape}")
+    n = starts.shape[1]
+    if scale is None:
+        side = float(np.max(np.ptp(starts, axis=0)))
+        scale = side if side > 0 else 1.0
+    if not scale > 0:
+        raise ValueError(f"scale: must be positive, got {scale!r}")
+    starts = _merge(starts, np.zeros(len(starts)), merge_tol * scale)[0]
+    if speed is None:
+        speed = float(np.max(np.linalg.norm(gradient(starts), axis=1)))
+    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
+    if bounds is None:
+        bounds = (starts.min(axis=0) - BOX_MARGIN * scale,
+                  starts.max(axis=0) + BOX_MARGIN * scale)
+    lo, hi = (np.asarray(b, dtype=float).reshape(n) for b in bounds)
+    X = _descend(potential, gradient, np.clip(starts, lo, hi), lo, hi, gtol, scale,
+                 max_iter)
+    edge = 1e-9 * scale
+    inside = ~np.any((X <= lo + edge) | (X >= hi - edge), axis=1)
+    if not inside.any():
+        return Minima(np.zeros((0, n)), np.zeros(0), int(len(X)))
+    P, v = _merge(X[inside], potential(X[inside]), merge_tol * scale)
+    return Minima(P, v, int(np.count_nonzero(~inside)))
+
+
+def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
+             hi: np.ndarray, gtol: float, scale: float, max_iter: int) -> np.ndarray:
+    """Projected gradient descent of every row of ``X`` (s, n) at once, inside the box
+    ``[lo, hi]``; returns where the rows end (s, n).
+
+    Each row takes Barzilai-Borwein steps (the secant estimate of the inverse curvature,
+    which copes with the anisotropic bowls the trend fits), shrunk until the potential
+    decreases (Armijo); a row stops when its projected gradient is below ``gtol`` or its
+    steps no longer move it. All rows share one call of ``potential`` and ``gradient``
+    per iteration: a descent costs a few hundred batched evaluations, not one per row.
+    """
+    X = X.copy()
+    f, g = potential(X), gradient(X)
+    alpha = 0.01 * scale / np.maximum(np.linalg.norm(g, axis=1), gtol)
+    active = np.linalg.norm(_projected(g, X, lo, hi), axis=1) > gtol
+    for _ in range(max_iter):
+        idx = np.flatnonzero(active)
+        if not idx.size:
+            break
+        trial = np.clip(X[idx] - alpha[idx, None] * g[idx], lo, hi)
+        step = trial - X[idx]
+        f_trial = potential(trial)
+        ok = f_trial <= f[idx] + 1e-4 * np.einsum("ij,ij->i", g[idx], step)
+        alpha[idx[~ok]] *= 0.25
+        done = alpha[idx] * np.linalg.norm(g[idx], axis=1) < 1e-12 * scale
+        if ok.any():
+            acc = idx[ok]
+            g_new = gradient(trial[ok])
+            s, y = step[ok], g_new - g[acc]
+            sy, ss = np.einsum("ij,ij->i", s, y), np.einsum("ij,ij->i", s, s)
+            alpha[acc] = np.where(sy > 0, ss / np.where(sy > 0, sy, 1.0), 4.0 * alpha[acc])
+            X[acc], f[acc], g[acc] = trial[ok], f_trial[ok], g_new
+            done[ok] |= np.linalg.norm(_projected(g_new, X[acc], lo, hi), axis=1) <= gtol
+        active[idx[done]] = False
+    return X
+
+
+def _projected(g: np.ndarray, X: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The gradient ``g`` (m, n) without the components that push ``X`` out of the box."""
+    out = g.copy()
+    out[(X <= lo) & (g > 0)] = 0.0
+    out[(X >= hi) & (g < 0)] = 0.0
+    return out
+
+
+def _merge(points: np.ndarray, values: np.ndarray, tol: float
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Points closer than ``tol`` (chained) as one: the lowest ``values`` of each group,
+    the groups ordered by it."""
+    if len(points) < 2 or tol <= 0:
+        order = np.argsort(values, kind="stable")
+        return points[order], values[order]
+    labels = _clusters(points, tol)
+    keep = [int(np.flatnonzero(labels == c)[np.argmin(values[labels == c])])
+            for c in range(labels.max() + 1)]
+    keep = sorted(keep, key=lambda i: values[i])
+    return points[keep], values[keep]
+
+
+def _clusters(points: np.ndarray, tol: float) -> np.ndarray:
+    """Single-linkage cluster label of every point (chains of points closer than ``tol``)."""
+    pairs = cKDTree(points).query_pairs(tol, output_type="ndarray")
+    m = len(points)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+    return connected_components(graph, directed=False)[1]
+
+
+def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
+                 gradient: Field, *, fraction: float = REST_FRACTION,
+                 active_fraction: float = ACTIVE_FRACTION) -> dict[str, Any]:
+    """The learnt minima beside the demonstrated goals, as JSON-able numbers.
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory or array_like (N_k, n)
+        The demonstrations the model was fitted on (state units, times in seconds).
+    potential, gradient : callable
+        The learnt potential (m,) and its gradient (m, n) at states (m, n).
+    fraction : float
+        Rest threshold of :func:`rest_points`.
+    active_fraction : float
+        A rest where the learnt speed ``|grad f|`` exceeds ``active_fraction`` times the
+        typical speed (the median of the demonstrations' peak speeds) is a rest under an
+        active constraint: not a demonstrated goal.
+
+    Returns
+    -------
+    dict
+        ``extent`` (W, state units); ``typical_speed`` (state units/s); ``n_rests``
+        (demonstrations that end at rest), ``n_not_at_rest``, ``n_constrained_rests``;
+        ``rest_speed_ratio`` (learnt speed over the typical speed at every rest);
+        ``demonstrated_goals`` [{``point``, ``n_rests``, ``nearest_minimum``,
+        ``fraction``}] (largest cluster first; ``nearest_minimum`` is the distance to the
+        nearest learnt minimum, None without minima, ``fraction`` that over W);
+        ``minima`` [{``point``, ``potential``, ``goal_distance``, ``goal_fraction``,
+        ``end_distance``, ``end_fraction``}] (distance to the nearest demonstrated goal,
+        None without goals; the median distance to the demonstrations' last samples, which
+        is all there is when they do not come to rest);
+        ``n_escaped`` (descents that found no minimum); ``goal_error`` and
+        ``goal_error_fraction``: the largest demonstrated goal's ``nearest_minimum`` (None
+        without goals or minima).
+    """
+    trajs = as_trajectories(trajs)
+    if not 0.0 < active_fraction:
+        raise ValueError(f"active_fraction: must be positive, got {active_fraction!r}")
+    extent = data_extent(trajs) or 1.0
+    speed = float(np.median([sample_speeds(t).max() for t in trajs])) or 1.0
+    rests = rest_points(trajs, fraction)
+    found = [r for r in rests if r is not None]
+    ratios = (np.linalg.norm(gradient(np.array(found)), axis=1) / speed if found
+              else np.zeros(0))
+    goals = [r for r, ratio in zip(found, ratios, strict=True) if ratio <= active_fraction]
+    X = np.concatenate([t.positions for t in trajs])
+    ends = np.array([t.positions[-1] for t in trajs])
+    starts = np.concatenate([np.array(found).reshape(-1, X.shape[1]), ends])
+    minima = learnt_minima(potential, gradient, starts, scale=extent, speed=speed,
+                           bounds=(X.min(axis=0) - BOX_MARGIN * extent,
+                                   X.max(axis=0) + BOX_MARGIN * extent))
+    goal_points, goal_sizes = _goal_clusters(goals, GOAL_MERGE * extent)
+    summary: dict[str, Any] = {
+        "extent": extent,
+        "typical_speed": speed,
+        "rest_fraction": fraction,
+        "n_rests": len(found),
+        "n_not_at_rest": len(rests) - len(found),
+        "n_constrained_rests": len(found) - len(goals),
+        "rest_speed_ratio": [float(r) for r in ratios],
+        "demonstrated_goals": [],
+        "minima": [],
+        "n_escaped": int(minima.n_escaped),
+    }
+    for g, size in zip(goal_points, goal_sizes, strict=True):
+        d = _nearest(minima.points, g)
+        summary["demonstrated_goals"].append({
+            "point": [float(v) for v in g], "n_rests": int(size), "nearest_minimum": d,
+            "fraction": None if d is None else d / extent})
+    for p, v in zip(minima.points, minima.values, strict=True):
+        d = _nearest(goal_points, p)
+        end = float(np.median(np.linalg.norm(ends - p, axis=1)))
+        summary["minima"].append({
+            "point": [float(c) for c in p], "potential": float(v), "goal_distance": d,
+            "goal_fraction": None if d is None else d / extent,
+            "end_distance": end, "end_fraction": end / extent})
+    first = summary["demonstrated_goals"][:1]
+    summary["goal_error"] = first[0]["nearest_minimum"] if first else None
+    summary["goal_error_fraction"] = first[0]["fraction"] if first else None
+    return summary
+
+
+def _goal_clusters(goals: list[np.ndarray], tol: float) -> tuple[np.ndarray, list[int]]:
+    """Rest points chained closer than ``tol`` as one goal: the clusters' means, largest
+    cluster first, and their sizes."""
+    if not goals:
+        return np.zeros((0, 0)), []
+    P = np.array(goals)
+    labels = _clusters(P, tol)
+    sizes = np.bincount(labels)
+    order = np.argsort(-sizes, kind="stable")
+    return np.array([P[labels == c].mean(axis=0) for c in order]), [int(sizes[c])
+                                                                   for c in order]
+
+
+def _nearest(points: np.ndarray, x: np.ndarray) -> float | None:
+    """Distance from ``x`` to the nearest of ``points`` (None when there are none)."""
+    if not len(points):
+        return None
+    return float(np.min(np.linalg.norm(points - x, axis=1)))

@@ -1,0 +1,119 @@
+"""Fold refits, the zero-policy comparison and the goal report of a fit
+(policy_align_ros.learning.folds, through PolicyAlign.fit)."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning.folds import along_motion_errors, fold_refits
+from policy_align_ros.learning.regressors import TrendKernelRegression
+
+A = np.array([[2.0, 0.5], [0.5, 1.0]])
+CENTRE = np.array([0.3, -0.2])
+DT = 0.05
+
+
+def _quadratic_demos(seed, k=8, steps=120):
+    """Unconstrained Euler flows of xdot = -A (x - c), at rest at their ends."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(k):
+        x, X = rng.uniform(-2.0, 2.0, 2), []
+        for _ in range(steps):
+            X.append(x.copy())
+            x = x - DT * A @ (x - CENTRE)
+        out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
+    return out
+
+
+def _random_walks(seed, k=6, steps=60):
+    rng = np.random.default_rng(seed)
+    return [Trajectory(np.cumsum(rng.normal(scale=0.05, size=(steps, 2)), axis=0)
+                       + rng.uniform(-1.0, 1.0, 2), times=DT * np.arange(steps))
+            for _ in range(k)]
+
+
+@pytest.fixture(scope="module")
+def quadratic():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a clean fit warns about nothing
+        return PolicyAlign(random_state=0).fit(_quadratic_demos(0))
+
+
+def test_the_learnt_goal_of_a_quadratic_is_its_minimum_and_where_demos_rest(quadratic):
+    summary = quadratic.fit_summary_
+    goal = summary["goal"]
+    (minimum,) = goal["minima"]
+    np.testing.assert_allclose(minimum["point"], CENTRE, atol=1e-4)
+    assert goal["n_rests"] == 8 and goal["n_constrained_rests"] == 0
+    assert goal["demonstrated_goals"][0]["n_rests"] == 8
+    assert goal["goal_error_fraction"] < 0.005
+    assert goal["n_folds"] == 8 and goal["fold_spread_fraction"] < 1e-3
+    assert summary["worse_than_zero"] is False
+    assert summary["heldout_vs_zero"]["ratio"] < 0.01
+    json.dumps(summary, allow_nan=False)  # JSON-able as it is
+
+
+def test_pure_noise_demonstrations_warn_no_better_than_a_zero_policy():
+    with pytest.warns(UserWarning) as caught:
+        model = PolicyAlign(random_state=0).fit(_random_walks(1))
+    summary = model.fit_summary_
+    assert summary["worse_than_zero"] is True
+    numbers = summary["heldout_vs_zero"]
+    assert numbers["error"] >= numbers["zero_error"] > 0
+    assert f"{numbers['error']:.4g}" in str(caught[0].message)
+    assert f"{numbers['zero_error']:.4g}" in str(caught[0].message)
+
+
+def test_the_goal_report_round_trips_and_files_without_it_load(quadratic, tmp_path):
+    path = quadratic.save(tmp_path / "model.npz")
+    loaded = PolicyAlign.load(path)
+    for key in ("goal", "heldout_vs_zero", "worse_than_zero"):
+        assert loaded.fit_summary_[key] == quadratic.fit_summary_[key]
+    # A file written before the report existed.
+    old = PolicyAlign.load(path)
+    for key in ("goal", "heldout_vs_zero", "worse_than_zero"):
+        del old.fit_summary_[key]
+    old_path = old.save(tmp_path / "old.npz")
+    again = PolicyAlign.load(old_path)
+    assert "goal" not in again.fit_summary_
+    np.testing.assert_allclose(again.policy(CENTRE[None] + 1.0), quadratic.policy(
+        CENTRE[None] + 1.0))
+
+
+def test_fold_refits_use_the_regressors_folds_with_its_choice_fixed():
+    trajs = _quadratic_demos(2, k=6, steps=40)
+    X = np.concatenate([t.positions for t in trajs])
+    y = 0.5 * np.einsum("ij,jk,ik->i", X - CENTRE, A, X - CENTRE)
+    groups = np.repeat(np.arange(6), 40)
+    reg = TrendKernelRegression(random_state=0).fit(X, y, groups=groups)
+    assert set(reg.cv_folds_) == set(range(6))
+    folds = fold_refits(reg, X, y, groups)
+    held = np.concatenate([f.held_out for f in folds])
+    assert sorted(held.tolist()) == list(range(6))
+    for fold in folds:
+        assert fold.regressor.trend_form_ == reg.trend_form_
+        np.testing.assert_allclose(fold.regressor.gradient(X), reg.gradient(X), rtol=1e-4,
+                                   atol=1e-5)
+
+
+def test_along_motion_error_is_zero_for_the_true_policy_under_a_constraint():
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(30, 2))
+    # Motion along x1 only: the blocked x2 component of the policy is not charged.
+    V = -X * np.array([1.0, 0.0])
+    Xs = np.concatenate([X[:1], X[:1] + np.cumsum(DT * V[:-1], axis=0)])
+    traj = Trajectory(Xs, times=DT * np.arange(30))
+    u = np.diff(Xs, axis=0) / DT
+
+    def policy(P):  # the recorded velocity plus a component the constraint blocks
+        return u + np.array([0.0, 5.0])
+
+    sums, count = along_motion_errors(policy, [traj])
+    assert count == 29
+    assert sums[0] == pytest.approx(0.0, abs=1e-20)
+    assert sums[1] == pytest.approx(float(np.sum(u**2)))
+    assert sums[2] == pytest.approx(25.0 * 29)

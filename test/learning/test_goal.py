@@ -1,0 +1,123 @@
+"""The learnt goal (policy_align_ros.learning.goal): rest points, minima, the summary."""
+
+import numpy as np
+import pytest
+
+from policy_align_ros.learning import Trajectory
+from policy_align_ros.learning.goal import (
+    data_extent,
+    goal_summary,
+    learnt_minima,
+    rest_points,
+    sample_speeds,
+)
+
+
+def _bowl(A, c):
+    """The potential 0.5 (x - c)' A (x - c) and its gradient."""
+    def potential(X):
+        D = X - c
+        return 0.5 * np.einsum("ij,jk,ik->i", D, A, D)
+
+    def gradient(X):
+        return (X - c) @ A
+
+    return potential, gradient
+
+
+def test_rest_point_is_the_mean_of_the_final_run_below_two_percent_of_peak_speed():
+    moving = np.linspace([0.0, 0.0], [1.0, 1.0], 11)            # 10 steps of 0.1 * sqrt 2
+    resting = np.array([[1.0, 1.0], [1.001, 1.0], [1.001, 1.001], [1.0, 1.001]])
+    # A pause half way (speed 0) is not the end: only the final run counts.
+    paused = np.concatenate([moving[:5], moving[4:5], moving[5:], resting])
+    times = 0.1 * np.arange(len(paused))
+    (point,) = rest_points([Trajectory(paused, times=times)])
+    np.testing.assert_allclose(point, resting.mean(axis=0))
+    # Ending in motion: no rest.
+    assert rest_points([moving]) == [None]
+    # A last step that is slow but not below 2 % of the peak does not rest either.
+    slow = np.concatenate([moving, moving[-1:] + [0.01, 0.0]])
+    assert rest_points([slow]) == [None]
+    assert rest_points([slow], fraction=0.1)[0] is not None
+
+
+def test_recorded_velocities_decide_the_speed_when_given():
+    X = np.linspace([0.0], [1.0], 6)
+    V = np.array([[1.0], [1.0], [1.0], [1.0], [0.0], [0.0]])
+    traj = Trajectory(X, times=np.arange(6.0), velocities=V)
+    np.testing.assert_allclose(sample_speeds(traj), V[:, 0])
+    np.testing.assert_allclose(rest_points([traj])[0], [0.9])
+    # Finite differences instead: every step moves, no rest.
+    assert rest_points([Trajectory(X, times=np.arange(6.0))]) == [None]
+
+
+def test_bad_rest_fraction_is_named():
+    with pytest.raises(ValueError, match="fraction"):
+        rest_points([np.zeros((3, 2))], fraction=1.5)
+
+
+def test_minimum_of_a_known_quadratic_is_found_where_it_is():
+    rng = np.random.default_rng(3)
+    n = 5
+    Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    A = (Q * np.geomspace(1.0, 100.0, n)) @ Q.T
+    c = rng.normal(size=n)
+    potential, gradient = _bowl(A, c)
+    starts = c + rng.normal(scale=2.0, size=(12, n))
+    minima = learnt_minima(potential, gradient, starts, scale=4.0, speed=100.0)
+    assert minima.points.shape == (1, n) and minima.n_escaped == 0
+    np.testing.assert_allclose(minima.points[0], c, atol=1e-4)
+    assert minima.values[0] == pytest.approx(0.0, abs=1e-8)
+
+
+def test_two_wells_give_two_minima_and_a_falling_plane_gives_none():
+    wells = np.array([[-1.0, 0.0], [1.0, 0.0]])
+
+    def potential(X):
+        d2 = np.sum((X[:, None, :] - wells[None]) ** 2, axis=2)
+        return 0.05 * np.sum(X**2, axis=1) - np.exp(-d2 / 0.2).sum(axis=1)
+
+    def gradient(X):
+        D = X[:, None, :] - wells[None]
+        e = np.exp(-np.sum(D**2, axis=2) / 0.2)
+        return 0.1 * X + np.einsum("mk,mkn->mn", e, D) / 0.1
+
+    starts = np.array([[-1.2, 0.3], [-0.8, -0.2], [1.1, 0.2], [0.9, -0.3]])
+    minima = learnt_minima(potential, gradient, starts, scale=2.0)
+    assert len(minima.points) == 2
+    np.testing.assert_allclose(np.sort(minima.points[:, 0]), [-1.0, 1.0], atol=0.02)
+    plane = learnt_minima(lambda X: X[:, 0], lambda X: np.tile([1.0, 0.0], (len(X), 1)),
+                          starts, scale=2.0)
+    assert len(plane.points) == 0 and plane.n_escaped == len(starts)
+
+
+def _flow(A, c, x0, steps=120, dt=0.05, wall=None):
+    """Euler steps of xdot = -A (x - c); ``wall`` (x1 <= wall) blocks the first coordinate."""
+    x, X = np.array(x0, dtype=float), []
+    for _ in range(steps):
+        X.append(x.copy())
+        v = -A @ (x - c)
+        if wall is not None and x[0] + dt * v[0] > wall:
+            v[0] = (wall - x[0]) / dt
+        x = x + dt * v
+    return Trajectory(np.array(X), times=dt * np.arange(steps))
+
+
+def test_a_rest_under_an_active_constraint_is_not_a_demonstrated_goal():
+    A, c = np.diag([1.0, 2.0]), np.array([1.0, 0.0])
+    potential, gradient = _bowl(A, c)
+    free = [_flow(A, c, x0) for x0 in ([-1.0, 1.0], [-1.5, -1.0], [2.5, 1.0])]
+    # Stopped by a wall at x1 = 0, where the policy still pushes at speed 1.
+    blocked = [_flow(A, c, x0, wall=0.0) for x0 in ([-2.0, 1.0], [-1.0, -1.5])]
+    summary = goal_summary(free + blocked, potential, gradient)
+    assert summary["n_rests"] == 5 and summary["n_constrained_rests"] == 2
+    assert summary["extent"] == pytest.approx(data_extent(free + blocked))
+    (goal,) = summary["demonstrated_goals"]
+    assert goal["n_rests"] == 3
+    (minimum,) = summary["minima"]
+    np.testing.assert_allclose(minimum["point"], c, atol=1e-5)
+    # The free demonstrations end within 2 % of their peak speed, so near the goal.
+    assert minimum["goal_fraction"] < 0.01
+    assert summary["goal_error"] == pytest.approx(goal["nearest_minimum"])
+    ratios = summary["rest_speed_ratio"]
+    assert sum(r > 0.1 for r in ratios) == 2

