@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning.goal import data_extent
 
 __all__ = ["data_extent", "learnt_minimum", "retime", "retiming_shift", "smoothstep_warp"]
 
@@ -45,12 +46,6 @@ def learnt_minimum(model, start: np.ndarray) -> np.ndarray:
                    jac=lambda x: -np.asarray(model.policy(x[None])[0], dtype=float),
                    method="L-BFGS-B", options={"gtol": 1e-9, "ftol": 1e-13, "maxiter": 1000})
     return res.x
-
-
-def data_extent(trajs: Sequence[Trajectory]) -> float:
-    """Largest side of the bounding box of all positions (state units)."""
-    X = np.concatenate([t.positions for t in trajs])
-    return float(np.max(X.max(axis=0) - X.min(axis=0)))
 
 
 def smoothstep_warp(s: np.ndarray) -> np.ndarray:

@@ -99,6 +99,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
         kept_free = np.intersect1d(free, groups[train])
         extra = ({"free_groups": kept_free}
                  if kept_free.size and takes_free_groups(template) else {})
+        if getattr(regressor, "goal_", None) is not None:
+            extra["goal"] = regressor.goal_  # the fold model is stationary there too
         try:
             model = copy.deepcopy(template).fit(X[train], y[train], groups=groups[train],
                                                 **extra)

@@ -27,6 +27,7 @@ of demonstrations is the largest side of their bounding box (state units).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
@@ -39,11 +40,13 @@ from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = [
     "ACTIVE_FRACTION",
+    "END_RADIUS",
     "GOAL_MERGE",
     "MINIMA_MERGE",
     "REST_FRACTION",
     "Minima",
     "data_extent",
+    "demonstrated_goal",
     "goal_summary",
     "learnt_minima",
     "rest_points",
@@ -57,6 +60,9 @@ REST_FRACTION = 0.02
 ACTIVE_FRACTION = 0.1
 #: Rest points closer than this fraction of the extent are one demonstrated goal.
 GOAL_MERGE = 0.05
+#: Demonstrations that end within this fraction of the extent of one another end at one
+#: place (:func:`demonstrated_goal`): the resolution of a goal a user can ask for.
+END_RADIUS = 0.01
 #: Learnt minima (and descent starts) closer than this fraction of the extent are one.
 MINIMA_MERGE = 1e-3
 #: The descent's box: the data's bounding box widened by this many extents on each side.
@@ -133,6 +139,54 @@ def rest_points(trajs: Sequence[Trajectory | np.ndarray], fraction: float = REST
         first = int(moving[-1]) + 1 if moving.size else 0
         out.append(traj.positions[first:].mean(axis=0))
     return out
+
+
+def demonstrated_goal(trajs: Sequence[Trajectory | np.ndarray],
+                      radius: float = END_RADIUS) -> np.ndarray | None:
+    """Where most demonstrations end: the goal the demonstrator meant, or None.
+
+    Each demonstration ends at the last tenth of its final rest run or, when it is still
+    moving at its last sample (a recording cut as the goal is reached), at that sample.
+    Trajectories of one potential-based policy end at its minima, whatever their timing; a
+    constraint holds each demonstration at a minimum of its own, so ends that differ mean
+    constraints (or demonstrations cut short). The goal is the mean of the ends within
+    ``radius`` extents of the end that has the most such neighbours, when they are more
+    than half of the demonstrations (and at least two); otherwise there is none.
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory or array_like (N_k, n)
+        The demonstrations (state units).
+    radius : float
+        Ends within ``radius`` times the extent (:func:`data_extent`) are one place.
+
+    Returns
+    -------
+    ndarray (n,) or None
+        The goal (state units).
+    """
+    trajs = as_trajectories(trajs)
+    ends = np.array([_end_point(t) for t in trajs])
+    if len(ends) < 2:
+        return None
+    near = cKDTree(ends).query_ball_point(ends, radius * data_extent(trajs))
+    best = max(near, key=len)
+    if len(best) < 2 or 2 * len(best) <= len(ends):
+        return None
+    return ends[best].mean(axis=0)
+
+
+def _end_point(traj: Trajectory, tail: float = 0.1) -> np.ndarray:
+    """Where a demonstration ends (n,): the mean of the last ``tail`` of its final rest
+    run (the flow still creeps toward its minimum over the run, so its early part lags),
+    or its last sample when it ends in motion."""
+    speed = sample_speeds(traj)
+    resting = speed < REST_FRACTION * float(speed.max())
+    if not resting[-1]:
+        return traj.positions[-1]
+    moving = np.flatnonzero(~resting)
+    run = len(resting) - (int(moving[-1]) + 1 if moving.size else 0)
+    return traj.positions[-max(1, int(math.ceil(tail * run))):].mean(axis=0)
 
 
 def data_extent(trajs: Sequence[Trajectory | np.ndarray]) -> float:

@@ -58,6 +58,13 @@ from policy_align_ros.learning.bandwidth import (
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.fitting import check_query
 from policy_align_ros.learning.folds import fit_checks
+from policy_align_ros.learning.goal import (
+    data_extent,
+    demonstrated_goal,
+    learnt_minima,
+    sample_speeds,
+)
+from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.pieces import merge_pieces, split_pieces, switch_junctions
 from policy_align_ros.learning.potential import (
@@ -71,6 +78,7 @@ from policy_align_ros.learning.regressors import (
     Regressor,
     TrendKernelRegression,
     takes_free_groups,
+    takes_goal,
 )
 from policy_align_ros.learning.support import (
     query_support,
@@ -80,7 +88,12 @@ from policy_align_ros.learning.support import (
 from policy_align_ros.learning.thinning import thin_each
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
-__all__ = ["PolicyAlign"]
+__all__ = ["ANCHOR_TOL", "PolicyAlign"]
+
+#: The paper's potential is kept when one of its minima lies within this fraction of the
+#: data's extent of where the demonstrations end; farther, the model is made stationary
+#: there (``PolicyAlign._anchor``).
+ANCHOR_TOL = 0.01
 
 
 @dataclasses.dataclass
@@ -284,6 +297,10 @@ class PolicyAlign(BaseEstimator):
 
         t2 = time.perf_counter()
         scores, n_fitted = self._fit_global(est, template, free, aligned)
+        anchor = self._anchor(trajs, template)
+        if anchor["anchored"]:
+            scores, n_fitted = self._fit_global(est, template, free, aligned,
+                                                np.asarray(anchor["goal"]))
         timings["regression"] = time.perf_counter() - t2
         self._log(f"global model fitted on {n_fitted} samples with the {self.integration_} "
                   f"potentials ({timings['regression']:.2f} s)")
@@ -296,7 +313,8 @@ class PolicyAlign(BaseEstimator):
         timings["total"] = time.perf_counter() - t0
 
         self._merge_and_support(est, trajs[0].n_dims, joint_names)
-        self.fit_summary_ = {**self._summary(est, table, scores, timings), **checks}
+        self.fit_summary_ = {**self._summary(est, table, scores, timings), **checks,
+                             "anchor": anchor}
         return self
 
     def _check_data(self, trajectories: Sequence[Trajectory | np.ndarray],
@@ -373,8 +391,33 @@ class PolicyAlign(BaseEstimator):
                                                               strict=True)])
         return table, free, aligned
 
+    def _anchor(self, trajs: list[Trajectory], template) -> dict:
+        """Stage 4b: whether the model must be made stationary where the demonstrations end.
+
+        Where most demonstrations end (:func:`~policy_align_ros.learning.goal.
+        demonstrated_goal`) does not depend on how they were timed. The paper's estimate is
+        kept when its potential has a minimum within :data:`ANCHOR_TOL` extents of that
+        goal; otherwise (a teacher's timing, a lagging robot, a potential its family cannot
+        hold) the global model is refitted stationary there. Returns the summary entry.
+        """
+        goal = demonstrated_goal(trajs)
+        out = {"goal": None if goal is None else [float(v) for v in goal],
+               "unanchored_error_fraction": None, "anchored": False}
+        if goal is None or not takes_goal(template):
+            return out
+        extent = data_extent(trajs)
+        speed = float(np.median([sample_speeds(t).max() for t in trajs])) or 1.0
+        found = learnt_minima(self.regressor_.predict, self.regressor_.gradient, goal[None],
+                              scale=extent, speed=speed)
+        error = (float(np.min(np.linalg.norm(found.points - goal, axis=1))) / extent
+                 if len(found.points) else math.inf)
+        out["unanchored_error_fraction"] = json_float(error, "null")
+        out["anchored"] = not error <= ANCHOR_TOL
+        return out
+
     def _fit_global(self, est: _Estimates, template, free: np.ndarray,
-                    aligned: dict[str, tuple]) -> tuple[dict[str, float | None], int]:
+                    aligned: dict[str, tuple], goal: np.ndarray | None = None
+                    ) -> tuple[dict[str, float | None], int]:
         """Stage 4: a copy of ``template`` fitted on every rule's aligned potentials; the
         rule whose fit has the better CV score is kept (``integration_``, ``regressor_``,
         ``offsets_``, ``aligned_potentials_``). Returns the scores and the samples fitted."""
@@ -382,6 +425,8 @@ class PolicyAlign(BaseEstimator):
         Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
         gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
         extra = {"free_groups": free} if free.size else {}
+        if goal is not None and takes_goal(template):
+            extra["goal"] = goal
         fits, scores = {}, {}
         for rule in est.rules:
             ytr = np.concatenate([aligned[rule][1][k][masks[k]] for k in keep])

@@ -121,3 +121,24 @@ def test_a_rest_under_an_active_constraint_is_not_a_demonstrated_goal():
     assert summary["goal_error"] == pytest.approx(goal["nearest_minimum"])
     ratios = summary["rest_speed_ratio"]
     assert sum(r > 0.1 for r in ratios) == 2
+
+
+def test_demonstrated_goal_is_where_most_demonstrations_end():
+    from policy_align_ros.learning.goal import demonstrated_goal
+
+    rng = np.random.default_rng(5)
+    goal = np.array([1.0, -2.0])
+    # Demonstrations cut as they reach the goal (still moving), one cut short elsewhere.
+    demos = [np.linspace(goal + rng.uniform(-3, 3, 2), goal, 30) for _ in range(5)]
+    demos.append(np.linspace([3.0, 3.0], [2.0, 2.0], 30))
+    assert np.allclose(demonstrated_goal(demos), goal)
+
+
+def test_no_demonstrated_goal_when_the_ends_differ():
+    from policy_align_ros.learning.goal import demonstrated_goal
+
+    rng = np.random.default_rng(6)
+    # Each demonstration held by its own constraint: it ends somewhere of its own.
+    demos = [np.linspace(rng.uniform(-3, 3, 2), rng.uniform(-3, 3, 2), 30) for _ in range(6)]
+    assert demonstrated_goal(demos) is None
+    assert demonstrated_goal(demos[:1]) is None

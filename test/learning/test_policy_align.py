@@ -465,3 +465,51 @@ def test_merged_pieces_get_contiguous_groups():
     np.testing.assert_array_equal(model.groups_, [0, 1, 0])
     np.testing.assert_array_equal(model.inliers_, [0, 2])
     np.testing.assert_array_equal(model.offsets_, [0.5, 2.0, 3.0])
+
+
+def _human_timed_demos(goal, n_demos=7, seed=0):
+    # Paths of the flow of a skewed bowl, walked with a teacher's timing: at rest at the
+    # start, bell-shaped speed, durations differing by a factor of two, cut at the goal.
+    rng = np.random.default_rng(seed)
+    H = np.array([[3.0, 1.0], [1.0, 1.0]])
+    demos = []
+    for _ in range(n_demos):
+        x = goal + rng.uniform(-2.0, 2.0, 2)
+        path = [x.copy()]
+        while np.linalg.norm(x - goal) > 1e-3:
+            x = x - 0.01 * H @ (x - goal)
+            path.append(x.copy())
+        path = np.array(path)
+        arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0),
+                                                              axis=1))))
+        s = np.linspace(0.0, 1.0, 120)
+        done = s**3 * (10 - 15 * s + 6 * s**2)  # minimum jerk: rest at both ends
+        positions = np.stack([np.interp(done * arc[-1], arc, path[:, d]) for d in range(2)],
+                             axis=1)
+        demos.append(Trajectory(positions=positions, times=s * rng.uniform(1.0, 2.0)))
+    return demos
+
+
+def _descend(model, x, steps=3000):
+    for _ in range(steps):
+        x = x + 0.002 * model.policy(x[None])[0]
+    return x
+
+
+def test_learnt_minimum_is_the_demonstrated_goal_and_does_not_move_when_retimed():
+    goal = np.array([0.5, -1.0])
+    demos = _human_timed_demos(goal)
+    extent = np.ptp(np.concatenate([d.positions for d in demos]), axis=0).max()
+    model = PolicyAlign().fit(demos)
+    anchor = model.fit_summary_["anchor"]
+    assert anchor["anchored"] and np.allclose(anchor["goal"], goal, atol=1e-3 * extent)
+    first = _descend(model, demos[0].positions[0])
+    assert np.linalg.norm(first - goal) < 0.01 * extent
+    # The same path walked with another timing: slow in the middle, fast at the ends.
+    d0 = demos[0]
+    s = np.linspace(0.0, 1.0, len(d0.times))
+    warped = np.stack([np.interp(s, (s**3 * (10 - 15 * s + 6 * s**2)), d0.positions[:, k])
+                       for k in range(2)], axis=1)
+    retimed = [Trajectory(positions=warped, times=d0.times * 1.7), *demos[1:]]
+    again = _descend(PolicyAlign().fit(retimed), demos[0].positions[0])
+    assert np.linalg.norm(again - first) < 0.01 * extent

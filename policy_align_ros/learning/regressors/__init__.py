@@ -26,6 +26,7 @@ from policy_align_ros.learning.regressors.registry import (
     register,
     regressor_class,
     takes_free_groups,
+    takes_goal,
 )
 from policy_align_ros.learning.regressors.trend_kernel import TrendKernelRegression
 
@@ -38,6 +39,7 @@ __all__ = [
     "register",
     "regressor_class",
     "takes_free_groups",
+    "takes_goal",
 ]
 
 # The baseline lives outside this package (it imports nothing from it), so it is

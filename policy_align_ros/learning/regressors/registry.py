@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import inspect
 
-__all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups"]
+__all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups", "takes_goal"]
 
 REGISTRY: dict[str, type] = {}
 
@@ -35,7 +35,16 @@ def regressor_class(name: str) -> type:
 
 def takes_free_groups(regressor) -> bool:
     """Whether ``regressor.fit`` accepts ``free_groups`` (offsets it re-fits freely)."""
+    return _takes(regressor, "free_groups")
+
+
+def takes_goal(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``goal`` (a point where the model is stationary)."""
+    return _takes(regressor, "goal")
+
+
+def _takes(regressor, argument: str) -> bool:
     try:
-        return "free_groups" in inspect.signature(regressor.fit).parameters
+        return argument in inspect.signature(regressor.fit).parameters
     except (TypeError, ValueError):
         return False

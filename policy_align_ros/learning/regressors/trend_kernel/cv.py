@@ -16,6 +16,7 @@ from policy_align_ros.learning.regressors.trend_kernel import single_index
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
     _index_design,
+    _kernel,
     _n_index_weights,
     _n_trend,
     _profile_scale,
@@ -267,7 +268,7 @@ class CVSearch:
             if where not in designs:
                 A, Kcc = cv.F, None
                 if where is not None:
-                    A, Kcc = np.hstack([cv.F, _gaussian(cv.Z, cv.C, ell)]), _gaussian(
+                    A, Kcc = np.hstack([cv.F, _kernel(cv.Z, cv.C, ell, cv.pinned)]), _gaussian(
                         cv.C, cv.C, ell)
                 designs[where] = (_FoldGrams(A, cv.u, cv.demo, one_fold, n,
                                              free=cv.trend.free), Kcc)

@@ -44,6 +44,36 @@ def _gaussian(Z: np.ndarray, C: np.ndarray, ell: float) -> np.ndarray:
     return np.exp(-0.5 * np.maximum(sq, 0.0) / ell**2)
 
 
+def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarray:
+    """Kernel features (m, m_c) of the residual; ``pinned``: flat at the origin.
+
+    A pinned feature is ``k_j(z) - e(z) (z' c_j) k_j(0) / ell^2`` with the envelope
+    ``e(z) = exp(-||z||^2 / (2 ell^2))``: its gradient at ``z = 0`` (the demonstrated goal
+    in the goal-centred standardisation) is zero, so no residual moves the trend's
+    stationary point, and away from the goal it is the Gaussian's.
+    """
+    K = _gaussian(Z, C, ell)
+    if not pinned:
+        return K
+    envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell**2)
+    at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell**2)
+    return K - envelope[:, None] * (Z @ C.T) * (at_goal / ell**2)[None, :]
+
+
+def _kernel_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.ndarray,
+                     pinned: bool) -> np.ndarray:
+    """Gradient (m, n) of ``_kernel(Z, C, ell, pinned) @ alpha`` with respect to ``Z``."""
+    ell2 = ell**2
+    Kw = _gaussian(Z, C, ell) * alpha
+    g = (Kw @ C - Kw.sum(axis=1)[:, None] * Z) / ell2
+    if pinned:
+        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
+        beta = alpha * np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2) / ell2
+        s = beta @ C  # sum_j beta_j c_j: the pinned terms are -e(z) z's
+        g -= envelope[:, None] * (s[None, :] - Z * ((Z @ s) / ell2)[:, None])
+    return g
+
+
 @functools.lru_cache(maxsize=8)
 def _upper(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Indices of the upper triangle of an (n, n) matrix, and the feature scale of each

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import scipy.sparse
 
-from policy_align_ros.learning.regressors.trend_kernel.features import _gaussian
+from policy_align_ros.learning.regressors.trend_kernel.features import _gaussian, _kernel
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     _convex_solve,
     _gram,
@@ -169,7 +169,8 @@ class _CVData:
 
     ``F`` (m, p_t) trend features, ``Z`` (m, n) states, ``u`` (m,) targets, ``C`` (m_c, n)
     kernel centres, ``demo`` (m,) and ``demo_fold`` (K,) as in :class:`_FoldGrams`;
-    ``trend`` the fold sums of ``F``, shared by every length scale.
+    ``trend`` the fold sums of ``F``, shared by every length scale; ``pinned``: kernel
+    features flat at the goal (:func:`~.features._kernel`).
     """
 
     F: np.ndarray
@@ -179,6 +180,7 @@ class _CVData:
     demo: np.ndarray
     demo_fold: np.ndarray
     trend: _FoldGrams
+    pinned: bool = False
 
     @property
     def n(self) -> int:
@@ -188,7 +190,7 @@ class _CVData:
     def kernel_sums(self, ell: float) -> tuple[_FoldGrams, np.ndarray]:
         """Fold sums of the trend and kernel features at length scale ``ell``, and the
         centres' Gram (m_c, m_c)."""
-        A = np.hstack([self.F, _gaussian(self.Z, self.C, ell)])
+        A = np.hstack([self.F, _kernel(self.Z, self.C, ell, self.pinned)])
         return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
                            free=self.trend.free),
                 _gaussian(self.C, self.C, ell))

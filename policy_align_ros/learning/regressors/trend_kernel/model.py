@@ -95,6 +95,8 @@ from policy_align_ros.learning.regressors.trend_kernel.cv import (
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
     _index_design,
+    _kernel,
+    _kernel_gradient,
     _median_distance,
     _n_index_weights,
     _n_trend,
@@ -241,14 +243,19 @@ class TrendKernelRegression(BaseEstimator):
 
     # -- fit --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
-            free_groups: np.ndarray | None = None) -> TrendKernelRegression:
+            free_groups: np.ndarray | None = None, goal: np.ndarray | None = None
+            ) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
         thinned in arc length). Without ``groups`` all samples form one demonstration and
         the hyperparameters that are ``"cv"`` fall back to mid-grid values.
         ``free_groups`` (ids in ``groups``) are demonstrations whose offsets are always
-        re-fitted freely: ``y`` carries their shape only.
+        re-fitted freely: ``y`` carries their shape only. ``goal`` (n,), state units:
+        where the demonstrations come to rest (:func:`~policy_align_ros.learning.goal.
+        demonstrated_goal`); the model is then stationary there: the quadratic trend is
+        centred on it and the residual is flat at it (:func:`~.features._kernel`), and the
+        single-index trend is not a candidate.
 
         Returns
         -------
@@ -266,6 +273,12 @@ class TrendKernelRegression(BaseEstimator):
             raise ValueError(f"free_groups names ids not in groups: {unknown[:5].tolist()}")
         # Hundreds of factorisations of a few hundred unknowns: OpenBLAS's threads cost
         # more than they bring there.
+        if goal is not None:
+            goal = np.asarray(goal, dtype=float)
+            if goal.shape != (X.shape[1],) or not np.all(np.isfinite(goal)):
+                raise ValueError(f"goal must be a finite ({X.shape[1]},) array, got shape "
+                                 f"{goal.shape}")
+        self.goal_ = goal
         with single_blas_thread():
             return self._fit(X, y, groups, free)
 
@@ -276,7 +289,8 @@ class TrendKernelRegression(BaseEstimator):
         X, y, groups = X[idx], y[idx], groups[idx]
         m, n = X.shape
         self.n_features_in_ = n
-        self.mean_ = X.mean(axis=0)
+        # Goal-centred: the standardised origin is the goal, where the model is stationary.
+        self.mean_ = X.mean(axis=0) if self.goal_ is None else self.goal_.copy()
         self.scale_ = float(np.sqrt(np.mean(np.var(X, axis=0)))) or 1.0
         # Demonstrations with free offsets carry no level: the outputs' scale (the unit of
         # every penalty) comes from the others.
@@ -303,6 +317,9 @@ class TrendKernelRegression(BaseEstimator):
         self.cv_folds_ = ({int(g): int(f) for g, f in zip(demo_ids, demo_fold, strict=True)}
                           if n_folds >= 2 else None)
         F = quadratic_features(Z)
+        pinned = self.goal_ is not None
+        if pinned:
+            F[:, 1:1 + n] = 0.0  # no linear term: the bowl's centre is the goal
 
         d_med = _median_distance(C)
         lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
@@ -310,6 +327,8 @@ class TrendKernelRegression(BaseEstimator):
         k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
         o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
         forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
+        if pinned:
+            forms = ["quadratic"]  # the single-index trend fits a centre of its own
         mid = (lengths[len(lengths) // 2], k_grid[len(k_grid) // 2])
         # Without CV, and as the fallback of a single-index trend whose profile fails to rise.
         search = CVSearch(("quadratic", t_grid[len(t_grid) // 2], *mid, o_grid[-1]))
@@ -325,7 +344,7 @@ class TrendKernelRegression(BaseEstimator):
                                  t_grid[len(t_grid) // 2], rng)
         else:
             cv = _CVData(F, Z, u, C, demo, demo_fold,
-                         _FoldGrams(F, u, demo, demo_fold, n, free=free))
+                         _FoldGrams(F, u, demo, demo_fold, n, free=free), pinned)
             best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
@@ -355,7 +374,7 @@ class TrendKernelRegression(BaseEstimator):
             A, P = F, _trend_penalty(n, self.trend_ridge_)
             self.centres_ = np.zeros((0, n))
         else:
-            A = np.hstack([F, _gaussian(Z, C, self.length_scale_)])
+            A = np.hstack([F, _kernel(Z, C, self.length_scale_, self.goal_ is not None)])
             P = _penalty(n, self.trend_ridge_, self.kernel_ridge_,
                               _gaussian(C, C, self.length_scale_))
             self.centres_ = C
@@ -413,8 +432,8 @@ class TrendKernelRegression(BaseEstimator):
              + np.einsum("ij,jk,ik->i", Z, self._S, Z))
         if len(self.alpha_):
             for s in range(0, len(Z), CHUNK):
-                u[s:s + CHUNK] += _gaussian(Z[s:s + CHUNK], self.centres_,
-                                            self.length_scale_) @ self.alpha_
+                u[s:s + CHUNK] += _kernel(Z[s:s + CHUNK], self.centres_, self.length_scale_,
+                                          self.goal_ is not None) @ self.alpha_
         return self.y_mean_ + self.y_scale_ * u
 
     def gradient(self, X: np.ndarray) -> np.ndarray:
@@ -426,11 +445,10 @@ class TrendKernelRegression(BaseEstimator):
             return g * (self.y_scale_ / self.scale_)
         g = self._b + self._p * Z + 2.0 * Z @ self._S
         if len(self.alpha_):
-            ell2 = self.length_scale_**2
             for s in range(0, len(Z), CHUNK):
-                Zc = Z[s:s + CHUNK]
-                Kw = _gaussian(Zc, self.centres_, self.length_scale_) * self.alpha_
-                g[s:s + CHUNK] += (Kw @ self.centres_ - Kw.sum(axis=1)[:, None] * Zc) / ell2
+                g[s:s + CHUNK] += _kernel_gradient(Z[s:s + CHUNK], self.centres_,
+                                                   self.length_scale_, self.alpha_,
+                                                   self.goal_ is not None)
         return g * (self.y_scale_ / self.scale_)
 
     # -- persistence ------------------------------------------------------------------
@@ -463,6 +481,7 @@ class TrendKernelRegression(BaseEstimator):
             "y_mean": self.y_mean_,
             "y_scale": self.y_scale_,
             "n_features_in": int(self.n_features_in_),
+            "goal": None if self.goal_ is None else [float(v) for v in self.goal_],
         }
         arrays = {"mean": self.mean_, "trend": self.trend_, "centres": self.centres_,
                   "alpha": self.alpha_, "index_matrix": self.index_matrix_,
@@ -496,6 +515,8 @@ class TrendKernelRegression(BaseEstimator):
             model.y_mean_ = float(meta["y_mean"])
             model.y_scale_ = float(meta["y_scale"])
             model.mean_ = np.asarray(arrays["mean"], dtype=float).reshape(n)
+            goal = meta.get("goal")  # absent before goal-centred models existed
+            model.goal_ = None if goal is None else np.asarray(goal, dtype=float).reshape(n)
             trend = np.asarray(arrays["trend"], dtype=float).ravel()
             if single and int(meta["version"]) < 3:
                 # Version 2's profile had no steepening columns: their weights are zero.
