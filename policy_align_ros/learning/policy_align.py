@@ -79,6 +79,7 @@ from policy_align_ros.learning.regressors import (
     TrendKernelRegression,
     takes_free_groups,
     takes_goal,
+    takes_motion,
 )
 from policy_align_ros.learning.support import (
     query_support,
@@ -427,6 +428,10 @@ class PolicyAlign(BaseEstimator):
         extra = {"free_groups": free} if free.size else {}
         if goal is not None and takes_goal(template):
             extra["goal"] = goal
+        if "goal" in extra and takes_motion(template):
+            # Timing-free evidence beside where the demonstrations end: which way they move.
+            extra["motion"] = np.concatenate([_steps(trajs[k].positions)[masks[k]]
+                                              for k in keep])
         fits, scores = {}, {}
         for rule in est.rules:
             ytr = np.concatenate([aligned[rule][1][k][masks[k]] for k in keep])
@@ -649,3 +654,11 @@ def _level_free(offsets: np.ndarray, potentials: list[np.ndarray], free: np.ndar
         offsets[k] += level
         potentials[k] = potentials[k] + level
     return offsets, potentials
+
+
+def _steps(positions: np.ndarray) -> np.ndarray:
+    """Each sample's step along its trajectory (N, n): central differences, one-sided at
+    the ends (state units)."""
+    if len(positions) < 2:
+        return np.zeros_like(positions)
+    return np.gradient(positions, axis=0)

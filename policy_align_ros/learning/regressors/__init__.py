@@ -27,6 +27,7 @@ from policy_align_ros.learning.regressors.registry import (
     regressor_class,
     takes_free_groups,
     takes_goal,
+    takes_motion,
 )
 from policy_align_ros.learning.regressors.trend_kernel import TrendKernelRegression
 
@@ -40,6 +41,7 @@ __all__ = [
     "regressor_class",
     "takes_free_groups",
     "takes_goal",
+    "takes_motion",
 ]
 
 # The baseline lives outside this package (it imports nothing from it), so it is

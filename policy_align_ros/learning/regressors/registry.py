@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import inspect
 
-__all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups", "takes_goal"]
+__all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups", "takes_goal",
+           "takes_motion"]
 
 REGISTRY: dict[str, type] = {}
 
@@ -41,6 +42,11 @@ def takes_free_groups(regressor) -> bool:
 def takes_goal(regressor) -> bool:
     """Whether ``regressor.fit`` accepts ``goal`` (a point where the model is stationary)."""
     return _takes(regressor, "goal")
+
+
+def takes_motion(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``motion`` (each sample's step, state units)."""
+    return _takes(regressor, "motion")
 
 
 def _takes(regressor, argument: str) -> bool:

@@ -65,3 +65,40 @@ def test_bad_goal_is_refused():
     X, y, g = _bowl_data(np.zeros(2))
     with pytest.raises(ValueError, match="goal"):
         TrendKernelRegression().fit(X, y, groups=g, goal=np.zeros(3))
+
+
+def _bundle(seed=0):
+    # Demonstrations bundled along one bent path into the goal (the origin), with values
+    # that fall along it: the values alone leave the slope across the bundle free.
+    rng = np.random.default_rng(seed)
+    X, y, g, steps = [], [], [], []
+    s = np.linspace(0.0, 1.0, 60)
+    for k in range(6):
+        offset = rng.normal(scale=0.02, size=2)
+        path = np.stack([-1.0 + s, 0.8 * np.sin(np.pi * s)], axis=1) + offset * (1 - s)[:, None]
+        X.append(path)
+        y.append((1.0 - s) ** 2)
+        g.append(np.full(len(s), k))
+        steps.append(np.gradient(path, axis=0))
+    return (np.concatenate(X), np.concatenate(y), np.concatenate(g),
+            np.concatenate(steps))
+
+
+def test_motion_makes_the_gradient_follow_bundled_demonstrations():
+    X, y, g, steps = _bundle()
+    goal = np.zeros(2)
+
+    def alignment(model):
+        # Cosine between the policy and the motion, over the first two thirds of the path.
+        pi = -model.gradient(X)
+        cos = np.sum(pi * steps, axis=1) / (np.linalg.norm(pi, axis=1)
+                                           * np.linalg.norm(steps, axis=1))
+        return float(np.median(cos[np.tile(np.arange(60) < 40, 6)]))
+
+    free = TrendKernelRegression().fit(X, y, groups=g, goal=goal)
+    guided = TrendKernelRegression().fit(X, y, groups=g, goal=goal, motion=steps)
+    assert alignment(guided) > 0.99 and alignment(free) < 0.9
+    assert np.allclose(guided.gradient(goal[None]), 0.0, atol=1e-9)
+    with pytest.raises(ValueError, match="direction_weight"):
+        TrendKernelRegression(direction_weight=-1.0).fit(X, y, groups=g, goal=goal,
+                                                         motion=steps)

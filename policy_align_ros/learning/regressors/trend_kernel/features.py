@@ -74,6 +74,34 @@ def _kernel_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.ndarray
     return g
 
 
+def _trend_jacobian(Z: np.ndarray, pinned: bool) -> np.ndarray:
+    """Gradients (m, n, p_t) of the :func:`quadratic_features` at ``Z`` (m, n) with respect
+    to ``z``; ``pinned``: the linear features are zero (the goal-centred trend)."""
+    m, n = Z.shape
+    iu, ju, scale = _upper(n)
+    J = np.zeros((m, n, _n_trend(n)))
+    if not pinned:
+        J[:, np.arange(n), 1 + np.arange(n)] = 1.0
+    J[:, :, 1 + n] = Z
+    cols = 2 + n + np.arange(len(iu))
+    J[:, iu, cols] += Z[:, ju] * scale
+    J[:, ju, cols] += Z[:, iu] * scale
+    return J
+
+
+def _kernel_jacobian(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarray:
+    """Gradients (m, n, m_c) of :func:`_kernel` features with respect to ``z``."""
+    ell2 = ell**2
+    K = _gaussian(Z, C, ell)
+    J = K[:, None, :] * (C.T[None, :, :] - Z[:, :, None]) / ell2
+    if pinned:
+        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
+        at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2) / ell2
+        J -= (envelope[:, None, None] * at_goal[None, None, :]
+              * (C.T[None, :, :] - Z[:, :, None] * (Z @ C.T)[:, None, :] / ell2))
+    return J
+
+
 @functools.lru_cache(maxsize=8)
 def _upper(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Indices of the upper triangle of an (n, n) matrix, and the feature scale of each

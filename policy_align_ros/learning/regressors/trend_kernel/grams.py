@@ -9,7 +9,11 @@ import math
 import numpy as np
 import scipy.sparse
 
-from policy_align_ros.learning.regressors.trend_kernel.features import _gaussian, _kernel
+from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _gaussian,
+    _kernel,
+    _kernel_jacobian,
+)
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     _convex_solve,
     _gram,
@@ -31,14 +35,17 @@ class _FoldGrams:
 
     def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
                  n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None,
-                 nonneg: bool = False):
+                 nonneg: bool = False, D: np.ndarray | None = None):
         """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
         shared by every length scale), so only the blocks of the new columns are summed.
         ``free`` (K,) bool: demonstrations whose offsets are free at every
         ``offset_ridge`` (default: none). The folds' solves: by default the first columns
         of ``A`` are :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps
         positive definite; with ``nonneg``, ``A`` is the single-index design ``[1, B]``,
-        whose profile weights :func:`_nonneg_solve` keeps >= 0."""
+        whose profile weights :func:`_nonneg_solve` keeps >= 0. ``D`` (m, n, p), optional:
+        direction rows of every sample (:func:`direction_rows`), observations of zero
+        added to the Grams of their folds only (no offsets, no targets); with ``base``,
+        ``base`` holds their first columns' sums already."""
         self.n = n
         self.nonneg = nonneg
         self.free = (np.zeros(len(demo_fold), dtype=bool) if free is None
@@ -67,6 +74,8 @@ class _FoldGrams:
                 self.G[f, :q, :q] = base.G[f]
                 self.G[f, :q, q:] = A[r, :q].T @ new[r]
                 self.G[f, q:, :q] = self.G[f, :q, q:].T
+        if D is not None:
+            self._add_directions(D, rows, q, base is not None)
         # The design itself is kept to score held-out folds from their residuals: at a
         # near-perfect fit the expanded sums (u'u - 2 w'r + w'Gw) cancel to round-off.
         self.A, self.u, self.demo, self.rows = A, u, demo, rows
@@ -76,6 +85,24 @@ class _FoldGrams:
         self._free: tuple[np.ndarray, ...] | None = None
         # Held-out error is scored against the within-demonstration spread of u.
         self.shape_ss = max(float(self.uu.sum() - np.sum(self.sk**2 / self.nk)), 1e-300)
+
+    def _add_directions(self, D: np.ndarray, rows: list[slice], q: int, has_base: bool
+                        ) -> None:
+        """Add each fold's sums of its direction rows ``D`` (m, n, p) to ``G``."""
+        p = D.shape[2]
+        for f, r in enumerate(rows):
+            new = D[r][:, :, q:].reshape(-1, p - q)
+            self.G[f, q:, q:] += new.T @ new
+            if q and has_base:
+                cross = D[r][:, :, :q].reshape(-1, q).T @ new
+                self.G[f, :q, q:] += cross
+                self.G[f, q:, :q] += cross.T
+            elif q:
+                old = D[r][:, :, :q].reshape(-1, q)
+                self.G[f, :q, :q] += old.T @ old
+                cross = old.T @ new
+                self.G[f, :q, q:] += cross
+                self.G[f, q:, :q] += cross.T
 
     def free_offset_sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per fold, the Gram and right-hand side terms that free offsets remove
@@ -170,7 +197,9 @@ class _CVData:
     ``F`` (m, p_t) trend features, ``Z`` (m, n) states, ``u`` (m,) targets, ``C`` (m_c, n)
     kernel centres, ``demo`` (m,) and ``demo_fold`` (K,) as in :class:`_FoldGrams`;
     ``trend`` the fold sums of ``F``, shared by every length scale; ``pinned``: kernel
-    features flat at the goal (:func:`~.features._kernel`).
+    features flat at the goal (:func:`~.features._kernel`); ``projectors`` (m, n, n) and
+    ``trend_directions`` (m, n, p_t): the samples' direction projectors and the trend's
+    direction rows (:func:`direction_rows`), or None.
     """
 
     F: np.ndarray
@@ -181,6 +210,8 @@ class _CVData:
     demo_fold: np.ndarray
     trend: _FoldGrams
     pinned: bool = False
+    projectors: np.ndarray | None = None
+    trend_directions: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -191,8 +222,13 @@ class _CVData:
         """Fold sums of the trend and kernel features at length scale ``ell``, and the
         centres' Gram (m_c, m_c)."""
         A = np.hstack([self.F, _kernel(self.Z, self.C, ell, self.pinned)])
+        D = None
+        if self.projectors is not None:
+            D = np.concatenate([self.trend_directions,
+                                direction_rows(self.projectors, _kernel_jacobian(
+                                    self.Z, self.C, ell, self.pinned))], axis=2)
         return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
-                           free=self.trend.free),
+                           free=self.trend.free, D=D),
                 _gaussian(self.C, self.C, ell))
 
 
@@ -205,3 +241,9 @@ def _fold_summary(err: np.ndarray, shape_ss: float) -> list[tuple[float, float]]
     with np.errstate(invalid="ignore"):
         se = np.std(err, axis=1, ddof=1) / math.sqrt(n_folds)
     return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]
+
+
+def direction_rows(projectors: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Direction rows (m, n, p): ``projectors`` (m, n, n) applied to the feature gradients
+    ``J`` (m, n, p); a row is zero when the model's gradient follows the sample's motion."""
+    return np.einsum("mij,mjp->mip", projectors, J)

@@ -97,13 +97,19 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _index_design,
     _kernel,
     _kernel_gradient,
+    _kernel_jacobian,
     _median_distance,
     _n_index_weights,
     _n_trend,
     _symmetric,
+    _trend_jacobian,
     quadratic_features,
 )
-from policy_align_ros.learning.regressors.trend_kernel.grams import _CVData, _FoldGrams
+from policy_align_ros.learning.regressors.trend_kernel.grams import (
+    _CVData,
+    _FoldGrams,
+    direction_rows,
+)
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     JITTER,
     _convex_solve,
@@ -157,6 +163,11 @@ class TrendKernelRegression(BaseEstimator):
         Cross-validation folds, each of whole demonstrations (``groups``); at most one
         per demonstration. Ten: with fewer, which demonstrations share a fold can decide
         the fit.
+    direction_weight : float
+        Used only by a fit given a ``goal`` and the samples' ``motion``: how much a slope
+        of the potential across a demonstration's motion over one step costs, against an
+        error of the same size in its values. Ten, chosen on the LASA tuning shapes
+        (``docs/design/goal_anchor.md``).
     random_state : int, numpy.random.Generator or None
         Seeds the choice of centres and folds.
 
@@ -209,6 +220,7 @@ class TrendKernelRegression(BaseEstimator):
         n_centres: int = 300,
         max_fit_points: int = 6000,
         n_folds: int = 10,
+        direction_weight: float = 10.0,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         self.trend_form = trend_form
@@ -219,6 +231,7 @@ class TrendKernelRegression(BaseEstimator):
         self.n_centres = n_centres
         self.max_fit_points = max_fit_points
         self.n_folds = n_folds
+        self.direction_weight = direction_weight
         self.random_state = random_state
 
     def _check_params(self) -> None:
@@ -236,6 +249,9 @@ class TrendKernelRegression(BaseEstimator):
         o = self.offset_ridge
         if o != "cv" and (not isinstance(o, (int, float)) or not o >= 0):
             raise ValueError(f"offset_ridge must be 'cv' or a float >= 0, got {o!r}")
+        w = self.direction_weight
+        if not isinstance(w, (int, float)) or not 0 <= w < math.inf:
+            raise ValueError(f"direction_weight must be a finite float >= 0, got {w!r}")
         for name, low in (("n_centres", 1), ("max_fit_points", 10), ("n_folds", 2)):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or value < low:
@@ -243,8 +259,8 @@ class TrendKernelRegression(BaseEstimator):
 
     # -- fit --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
-            free_groups: np.ndarray | None = None, goal: np.ndarray | None = None
-            ) -> TrendKernelRegression:
+            free_groups: np.ndarray | None = None, goal: np.ndarray | None = None,
+            motion: np.ndarray | None = None) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
@@ -255,7 +271,12 @@ class TrendKernelRegression(BaseEstimator):
         where the demonstrations come to rest (:func:`~policy_align_ros.learning.goal.
         demonstrated_goal`); the model is then stationary there: the quadratic trend is
         centred on it and the residual is flat at it (:func:`~.features._kernel`), and the
-        single-index trend is not a candidate.
+        single-index trend is not a candidate. ``motion`` (m, n), state units: each
+        sample's step along its demonstration; with a ``goal``, the fit then also
+        penalises the model's gradient across the motion, ``direction_weight`` times
+        (:func:`direction_projectors`): the potential's values along bundled
+        demonstrations leave its slope across them free, and a demonstration moves
+        downhill.
 
         Returns
         -------
@@ -279,14 +300,21 @@ class TrendKernelRegression(BaseEstimator):
                 raise ValueError(f"goal must be a finite ({X.shape[1]},) array, got shape "
                                  f"{goal.shape}")
         self.goal_ = goal
+        if motion is not None:
+            motion = np.asarray(motion, dtype=float)
+            if motion.shape != X.shape or not np.all(np.isfinite(motion)):
+                raise ValueError(f"motion must be a finite {X.shape} array, got shape "
+                                 f"{motion.shape}")
         with single_blas_thread():
-            return self._fit(X, y, groups, free)
+            return self._fit(X, y, groups, free, motion)
 
-    def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray
-             ) -> TrendKernelRegression:
+    def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray,
+             motion: np.ndarray | None = None) -> TrendKernelRegression:
         rng = np.random.default_rng(self.random_state)
         idx = thin_trajectories(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
+        use_motion = motion is not None and self.goal_ is not None and self.direction_weight
+        motion = motion[idx] if use_motion else None
         m, n = X.shape
         self.n_features_in_ = n
         # Goal-centred: the standardised origin is the goal, where the model is stationary.
@@ -313,6 +341,7 @@ class TrendKernelRegression(BaseEstimator):
             # Samples grouped by fold: every fold's sums come from a slice, not a copy.
             order = np.argsort(demo_fold[demo], kind="stable")
             Z, u, demo = Z[order], u[order], demo[order]
+            motion = None if motion is None else motion[order]
         # Kept so that a caller can refit the chosen model on the same training folds.
         self.cv_folds_ = ({int(g): int(f) for g, f in zip(demo_ids, demo_fold, strict=True)}
                           if n_folds >= 2 else None)
@@ -320,6 +349,11 @@ class TrendKernelRegression(BaseEstimator):
         pinned = self.goal_ is not None
         if pinned:
             F[:, 1:1 + n] = 0.0  # no linear term: the bowl's centre is the goal
+        projectors = DF = None
+        if motion is not None:
+            projectors = direction_projectors(motion / self.scale_, self.direction_weight)
+            DF = direction_rows(projectors, _trend_jacobian(Z, pinned))
+        self._projectors = projectors
 
         d_med = _median_distance(C)
         lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
@@ -344,7 +378,8 @@ class TrendKernelRegression(BaseEstimator):
                                  t_grid[len(t_grid) // 2], rng)
         else:
             cv = _CVData(F, Z, u, C, demo, demo_fold,
-                         _FoldGrams(F, u, demo, demo_fold, n, free=free), pinned)
+                         _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF), pinned,
+                         projectors, DF)
             best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
@@ -378,8 +413,16 @@ class TrendKernelRegression(BaseEstimator):
             P = _penalty(n, self.trend_ridge_, self.kernel_ridge_,
                               _gaussian(C, C, self.length_scale_))
             self.centres_ = C
+        D = None
+        if getattr(self, "_projectors", None) is not None:
+            J = _trend_jacobian(Z, True)
+            if not math.isinf(self.kernel_ridge_):
+                J = np.concatenate([J, _kernel_jacobian(Z, C, self.length_scale_, True)],
+                                   axis=2)
+            D = direction_rows(self._projectors, J)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
-                           free=free)
+                           free=free, D=D)
+        self._projectors = None
         G, r, m = grams.profiled_all(self.offset_ridge_)
         w = _convex_solve(G / m + P, r / m, n)
         if w is None or not np.all(np.isfinite(w)):
@@ -541,3 +584,26 @@ class TrendKernelRegression(BaseEstimator):
         model.cv_folds_ = None
         model._unpack()
         return model
+
+
+def direction_projectors(steps: np.ndarray, weight: float) -> np.ndarray:
+    """Per sample, ``sqrt(weight) |s| (I - s s' / |s|^2)`` (m, n, n) for its step ``s``.
+
+    Parameters
+    ----------
+    steps : ndarray (m, n)
+        Each sample's step along its demonstration (standardised state units).
+    weight : float
+        How much a slope across the motion over one step costs, against an error of the
+        same size in the potential's values.
+
+    Returns
+    -------
+    ndarray (m, n, n)
+        Zero for a sample that does not move.
+    """
+    norm = np.linalg.norm(steps, axis=1)
+    unit = np.divide(steps, norm[:, None], out=np.zeros_like(steps), where=norm[:, None] > 0)
+    n = steps.shape[1]
+    P = np.eye(n)[None] - unit[:, :, None] * unit[:, None, :]
+    return P * (np.sqrt(weight) * norm)[:, None, None]
