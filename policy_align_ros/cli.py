@@ -19,6 +19,38 @@ import argparse
 import sys
 
 
+def _add_bench(sub) -> None:
+    """The ``bench`` sub-command and its options (shared, suite-only and lasa-only)."""
+    bench = sub.add_parser("bench", help="reproduce the paper's experiments, measure speed")
+    bench.add_argument("which",
+                       choices=["toy", "grasp", "humanoid", "scale", "executor", "suite",
+                                "lasa"])
+    bench.add_argument("--datasets", type=int, default=None,
+                       help="data sets per cell (default: the paper's number)")
+    bench.add_argument("--jobs", type=int, default=2, help="worker processes")
+    bench.add_argument("--out", default="bench_out", help="directory for tables and figures")
+    bench.add_argument("--seed", type=int, default=0, help="base random seed")
+    bench.add_argument("--cases", default=None,
+                       help="suite only: comma-separated case names (default: all)")
+    bench.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                       help="suite: a TrendKernelRegression parameter of the new model "
+                            "(repeatable), e.g. offset_ridge=inf, for ablations; lasa: a "
+                            "PolicyAlign or TrendKernelRegression parameter")
+    bench.add_argument("--noise", type=float, default=0.0, metavar="F",
+                       help="suite only: white noise on the recorded positions of the "
+                            "training demonstrations, of RMS norm F median steps per sample")
+    bench.add_argument("--demos", type=int, default=None, metavar="K",
+                       help="suite only: K training demonstrations per data set instead of "
+                            "the case's own number")
+    bench.add_argument("--protocol", default="both", choices=("loo", "all", "both"),
+                       help="lasa only: leave one demonstration out, train on all 7, or both")
+    bench.add_argument("--shapes", default="all",
+                       help="lasa only: tuning, reporting, all or comma-separated names")
+    bench.add_argument("--methods", default=None, type=lambda s: s.split(","),
+                       help="lasa only: comma-separated subset of policy_align,naive,gmr,"
+                            "grad_field (default: all four)")
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="policy-align",
@@ -77,34 +109,7 @@ def _build_parser() -> argparse.ArgumentParser:
                        help="set only: the value, read as the parameter's type")
     param.add_argument("--timeout", type=float, default=10.0, help="seconds to wait")
 
-    bench = sub.add_parser("bench", help="reproduce the paper's experiments, measure speed")
-    bench.add_argument("which",
-                       choices=["toy", "grasp", "humanoid", "scale", "executor", "suite",
-                                "lasa"])
-    bench.add_argument("--datasets", type=int, default=None,
-                       help="data sets per cell (default: the paper's number)")
-    bench.add_argument("--jobs", type=int, default=2, help="worker processes")
-    bench.add_argument("--out", default="bench_out", help="directory for tables and figures")
-    bench.add_argument("--seed", type=int, default=0, help="base random seed")
-    bench.add_argument("--cases", default=None,
-                       help="suite only: comma-separated case names (default: all)")
-    bench.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                       help="suite: a TrendKernelRegression parameter of the new model "
-                            "(repeatable), e.g. offset_ridge=inf, for ablations; lasa: a "
-                            "PolicyAlign or TrendKernelRegression parameter")
-    bench.add_argument("--noise", type=float, default=0.0, metavar="F",
-                       help="suite only: white noise on the recorded positions of the "
-                            "training demonstrations, of RMS norm F median steps per sample")
-    bench.add_argument("--demos", type=int, default=None, metavar="K",
-                       help="suite only: K training demonstrations per data set instead of "
-                            "the case's own number")
-    bench.add_argument("--protocol", default="both", choices=("loo", "all", "both"),
-                       help="lasa only: leave one demonstration out, train on all 7, or both")
-    bench.add_argument("--shapes", default="all",
-                       help="lasa only: tuning, reporting, all or comma-separated names")
-    bench.add_argument("--methods", default=None, type=lambda s: s.split(","),
-                       help="lasa only: comma-separated subset of policy_align,naive,gmr,"
-                            "grad_field (default: all four)")
+    _add_bench(sub)
     return parser
 
 

@@ -50,6 +50,7 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_chained_offsets,
 )
+from policy_align_ros.learning.anchor import anchor_decision, motion_steps
 from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
     closest_approach_matrix,
@@ -58,13 +59,6 @@ from policy_align_ros.learning.bandwidth import (
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.fitting import check_query
 from policy_align_ros.learning.folds import fit_checks
-from policy_align_ros.learning.goal import (
-    data_extent,
-    demonstrated_goal,
-    learnt_minima,
-    sample_speeds,
-)
-from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.pieces import merge_pieces, split_pieces, switch_junctions
 from policy_align_ros.learning.potential import (
@@ -89,12 +83,7 @@ from policy_align_ros.learning.support import (
 from policy_align_ros.learning.thinning import thin_each
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
-__all__ = ["ANCHOR_TOL", "PolicyAlign"]
-
-#: The paper's potential is kept when one of its minima lies within this fraction of the
-#: data's extent of where the demonstrations end; farther, the model is made stationary
-#: there (``PolicyAlign._anchor``).
-ANCHOR_TOL = 0.01
+__all__ = ["PolicyAlign"]
 
 
 @dataclasses.dataclass
@@ -298,7 +287,9 @@ class PolicyAlign(BaseEstimator):
 
         t2 = time.perf_counter()
         scores, n_fitted = self._fit_global(est, template, free, aligned)
-        anchor = self._anchor(trajs, template)
+        # Stage 4b: made stationary where the demonstrations end if the paper's potential
+        # has no minimum there (learning/anchor.py).
+        anchor = anchor_decision(self.regressor_, trajs, takes_goal(template))
         if anchor["anchored"]:
             scores, n_fitted = self._fit_global(est, template, free, aligned,
                                                 np.asarray(anchor["goal"]))
@@ -392,30 +383,6 @@ class PolicyAlign(BaseEstimator):
                                                               strict=True)])
         return table, free, aligned
 
-    def _anchor(self, trajs: list[Trajectory], template) -> dict:
-        """Stage 4b: whether the model must be made stationary where the demonstrations end.
-
-        Where most demonstrations end (:func:`~policy_align_ros.learning.goal.
-        demonstrated_goal`) does not depend on how they were timed. The paper's estimate is
-        kept when its potential has a minimum within :data:`ANCHOR_TOL` extents of that
-        goal; otherwise (a teacher's timing, a lagging robot, a potential its family cannot
-        hold) the global model is refitted stationary there. Returns the summary entry.
-        """
-        goal = demonstrated_goal(trajs)
-        out = {"goal": None if goal is None else [float(v) for v in goal],
-               "unanchored_error_fraction": None, "anchored": False}
-        if goal is None or not takes_goal(template):
-            return out
-        extent = data_extent(trajs)
-        speed = float(np.median([sample_speeds(t).max() for t in trajs])) or 1.0
-        found = learnt_minima(self.regressor_.predict, self.regressor_.gradient, goal[None],
-                              scale=extent, speed=speed)
-        error = (float(np.min(np.linalg.norm(found.points - goal, axis=1))) / extent
-                 if len(found.points) else math.inf)
-        out["unanchored_error_fraction"] = json_float(error, "null")
-        out["anchored"] = not error <= ANCHOR_TOL
-        return out
-
     def _fit_global(self, est: _Estimates, template, free: np.ndarray,
                     aligned: dict[str, tuple], goal: np.ndarray | None = None
                     ) -> tuple[dict[str, float | None], int]:
@@ -430,7 +397,7 @@ class PolicyAlign(BaseEstimator):
             extra["goal"] = goal
         if "goal" in extra and takes_motion(template):
             # Timing-free evidence beside where the demonstrations end: which way they move.
-            extra["motion"] = np.concatenate([_steps(trajs[k].positions)[masks[k]]
+            extra["motion"] = np.concatenate([motion_steps(trajs[k].positions)[masks[k]]
                                               for k in keep])
         fits, scores = {}, {}
         for rule in est.rules:
@@ -655,10 +622,3 @@ def _level_free(offsets: np.ndarray, potentials: list[np.ndarray], free: np.ndar
         potentials[k] = potentials[k] + level
     return offsets, potentials
 
-
-def _steps(positions: np.ndarray) -> np.ndarray:
-    """Each sample's step along its trajectory (N, n): central differences, one-sided at
-    the ends (state units)."""
-    if len(positions) < 2:
-        return np.zeros_like(positions)
-    return np.gradient(positions, axis=0)

@@ -247,3 +247,26 @@ def direction_rows(projectors: np.ndarray, J: np.ndarray) -> np.ndarray:
     """Direction rows (m, n, p): ``projectors`` (m, n, n) applied to the feature gradients
     ``J`` (m, n, p); a row is zero when the model's gradient follows the sample's motion."""
     return np.einsum("mij,mjp->mip", projectors, J)
+
+
+def direction_projectors(steps: np.ndarray, weight: float) -> np.ndarray:
+    """Per sample, ``sqrt(weight) |s| (I - s s' / |s|^2)`` (m, n, n) for its step ``s``.
+
+    Parameters
+    ----------
+    steps : ndarray (m, n)
+        Each sample's step along its demonstration (standardised state units).
+    weight : float
+        How much a slope across the motion over one step costs, against an error of the
+        same size in the potential's values.
+
+    Returns
+    -------
+    ndarray (m, n, n)
+        Zero for a sample that does not move.
+    """
+    norm = np.linalg.norm(steps, axis=1)
+    unit = np.divide(steps, norm[:, None], out=np.zeros_like(steps), where=norm[:, None] > 0)
+    n = steps.shape[1]
+    P = np.eye(n)[None] - unit[:, :, None] * unit[:, None, :]
+    return P * (np.sqrt(weight) * norm)[:, None, None]

@@ -108,6 +108,7 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
     _CVData,
     _FoldGrams,
+    direction_projectors,
     direction_rows,
 )
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
@@ -585,25 +586,3 @@ class TrendKernelRegression(BaseEstimator):
         model._unpack()
         return model
 
-
-def direction_projectors(steps: np.ndarray, weight: float) -> np.ndarray:
-    """Per sample, ``sqrt(weight) |s| (I - s s' / |s|^2)`` (m, n, n) for its step ``s``.
-
-    Parameters
-    ----------
-    steps : ndarray (m, n)
-        Each sample's step along its demonstration (standardised state units).
-    weight : float
-        How much a slope across the motion over one step costs, against an error of the
-        same size in the potential's values.
-
-    Returns
-    -------
-    ndarray (m, n, n)
-        Zero for a sample that does not move.
-    """
-    norm = np.linalg.norm(steps, axis=1)
-    unit = np.divide(steps, norm[:, None], out=np.zeros_like(steps), where=norm[:, None] > 0)
-    n = steps.shape[1]
-    P = np.eye(n)[None] - unit[:, :, None] * unit[:, None, :]
-    return P * (np.sqrt(weight) * norm)[:, None, None]

@@ -1,0 +1,76 @@
+"""Whether a fit must be made stationary where the demonstrations end (the goal anchor).
+
+Where most demonstrations end (:func:`~policy_align_ros.learning.goal.demonstrated_goal`)
+does not depend on how they were timed. PolicyAlign keeps the paper's potential when it has
+a minimum within :data:`ANCHOR_TOL` extents of that goal; otherwise (a teacher's timing, a
+lagging robot, a potential its family cannot hold) it refits the global model stationary
+there, with the direction of the demonstrations' motion (:func:`motion_steps`) as
+timing-free evidence of the slope across them (``docs/design/goal_anchor.md``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from policy_align_ros.learning.goal import (
+    data_extent,
+    demonstrated_goal,
+    learnt_minima,
+    sample_speeds,
+)
+from policy_align_ros.learning.model_io import json_float
+from policy_align_ros.learning.trajectory import Trajectory
+
+__all__ = ["ANCHOR_TOL", "anchor_decision", "motion_steps"]
+
+#: The paper's potential is kept when one of its minima lies within this fraction of the
+#: data's extent of where the demonstrations end; farther, the model is made stationary
+#: there.
+ANCHOR_TOL = 0.01
+
+
+def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = True
+                    ) -> dict:
+    """The goal anchor's entry of ``fit_summary_`` for a fitted global model.
+
+    Parameters
+    ----------
+    regressor : fitted regressor
+        With ``predict(X)`` (m,) and ``gradient(X)`` (m, n): the paper's potential.
+    trajs : sequence of Trajectory
+        The demonstrations (state units).
+    can_anchor : bool
+        Whether the regressor can be refitted stationary at a goal (``takes_goal``).
+
+    Returns
+    -------
+    dict
+        ``goal`` (list of n floats, or None), ``unanchored_error_fraction`` (the distance
+        from the goal to the potential's nearest minimum over the extent; None when there
+        is no goal, inf as None when no minimum was found) and ``anchored`` (bool).
+    """
+    goal = demonstrated_goal(trajs)
+    out = {"goal": None if goal is None else [float(v) for v in goal],
+           "unanchored_error_fraction": None, "anchored": False}
+    if goal is None or not can_anchor:
+        return out
+    extent = data_extent(trajs)
+    speed = float(np.median([sample_speeds(t).max() for t in trajs])) or 1.0
+    found = learnt_minima(regressor.predict, regressor.gradient, goal[None], scale=extent,
+                          speed=speed)
+    error = (float(np.min(np.linalg.norm(found.points - goal, axis=1))) / extent
+             if len(found.points) else math.inf)
+    out["unanchored_error_fraction"] = json_float(error, "null")
+    out["anchored"] = not error <= ANCHOR_TOL
+    return out
+
+
+def motion_steps(positions: np.ndarray) -> np.ndarray:
+    """Each sample's step along its trajectory (N, n), state units: central differences,
+    one-sided at the ends (zeros for a single sample)."""
+    if len(positions) < 2:
+        return np.zeros_like(positions)
+    return np.gradient(positions, axis=0)
