@@ -5,6 +5,7 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align demo [--robot NAME] [--state joints|hands] [--seed N] [--out DIR]
     policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
         [--robot NAME --state joints|frames:F1,F2] [--holdout F] [--seed S] [--force]
+        [--overwrite]
     policy-align call SERVICE [--data true|false]
     policy-align param get|set NODE NAME [VALUE]
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
@@ -78,10 +79,14 @@ def _build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--state", default="joints",
                        help="joints (default) or frames:F1,F2 (stacked frame positions)")
     learn.add_argument("--holdout", type=float, default=0.2,
-                       help="fraction of demonstrations held out to score the fit")
+                       help="fraction of demonstrations held out to score the fit, in "
+                            "[0, 0.5] (the learner node's holdout_fraction range)")
     learn.add_argument("--seed", type=int, default=0, help="seed of the split and the fit")
     learn.add_argument("--force", action="store_true",
                        help="write the model even if the fit is refused as degenerate")
+    learn.add_argument("--overwrite", action="store_true",
+                       help="replace an --out model learnt for other joints or another "
+                            "state (one of the same joints is replaced without it)")
     learn.add_argument("--min-sigma2-fraction", type=float, default=None,
                        help="refuse sigma^2 below this fraction of the data variance "
                             "(default 1e-4)")

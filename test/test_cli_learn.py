@@ -113,3 +113,46 @@ def test_parsers():
     assert parse_joints("a, b") == ["a", "b"]
     with pytest.raises(ValueError, match="twice"):
         parse_joints("a,a")
+
+
+def test_holdout_range_is_the_learner_nodes(dataset, tmp_path):
+    from policy_align_ros.data.pipeline import HOLDOUT_RANGE
+
+    high = HOLDOUT_RANGE[1]
+    assert main(["learn", str(dataset), "--out", str(tmp_path / "a.npz"),
+                 "--holdout", str(high)]) == 0
+    assert main(["learn", str(dataset), "--out", str(tmp_path / "b.npz"),
+                 "--holdout", str(high + 0.1)]) == 2
+    assert not (tmp_path / "b.npz").exists()
+
+
+def test_out_of_other_joints_needs_overwrite(dataset, tmp_path, capsys):
+    out = tmp_path / "model.npz"
+    assert main(["learn", str(dataset), "--out", str(out)]) == 0
+    before = out.read_bytes()
+    args = ["learn", str(dataset), "--out", str(out), "--joints", "elbow,wrist"]
+    assert main(args) == 2
+    assert "--overwrite" in capsys.readouterr().err and out.read_bytes() == before
+    assert main([*args, "--force"]) == 2 and out.read_bytes() == before
+    assert main([*args, "--overwrite"]) == 0
+    assert PolicyAlign.load(out).joint_names_ == ["elbow", "wrist"]
+    assert main(args) == 0  # the same joints: replaced as before
+
+
+def test_a_constant_joint_is_left_out_and_named(tmp_path, capsys):
+    rng = np.random.default_rng(1)
+    t = np.arange(60) * 0.02
+    for k in range(6):
+        x0 = rng.uniform(-1.0, 1.0, size=2)
+        q = x0[None, :] * np.exp(-t)[:, None]
+        q = np.column_stack([q, np.full(len(t), 0.02)])
+        stamps = T0 + k * 10 * 10**9 + np.round(t * 1e9).astype(np.int64)
+        write_joint_state_bag(tmp_path / "d" / f"demo_{k:04d}", ["a", "b", "finger"],
+                              stamps, q)
+    out = tmp_path / "m.npz"
+    assert main(["learn", str(tmp_path / "d"), "--out", str(out)]) == 0
+    assert "finger" in capsys.readouterr().err
+    assert PolicyAlign.load(out).joint_names_ == ["a", "b"]
+    assert main(["learn", str(tmp_path / "d"), "--out", str(out), "--joints", "a,b,finger",
+                 "--overwrite"]) == 0
+    assert PolicyAlign.load(out).joint_names_ == ["a", "b", "finger"]

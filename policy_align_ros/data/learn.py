@@ -5,7 +5,8 @@ pipeline the ``learner`` node runs): discovery, de-duplication, hold-out split, 
 joint positions (rad) or stacked frame positions (m) with times in seconds, so the
 learnt policy is in state units per second, the quality summary and the degenerate-fit
 refusal. Exit codes: 0 model written; 1 fit refused as degenerate (the model file is left
-as it was; ``--force`` writes it anyway); 2 unusable input or a failed fit.
+as it was; ``--force`` writes it anyway); 2 unusable input, a failed fit, or an ``--out``
+model of other joints or another state without ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ def run_learn(args: argparse.Namespace) -> int:
     args : argparse.Namespace
         ``inputs`` (bag or dataset paths), ``out`` (model path), ``joints``
         (comma-separated or None), ``sigma`` (rule or sigma^2), ``gap`` (s), and optionally
-        ``robot``, ``state``, ``holdout``, ``seed``, ``force`` and the :class:`Gates`
+        ``robot``, ``state``, ``holdout``, ``seed``, ``force``, ``overwrite`` and the
+        :class:`Gates`
         fields (``min_sigma2_fraction``, ...; None keeps the default).
 
     Returns
@@ -73,11 +75,16 @@ def run_learn(args: argparse.Namespace) -> int:
             robot=getattr(args, "robot", None),
             gates=_gates(args),
             force=bool(getattr(args, "force", False)),
+            overwrite=bool(getattr(args, "overwrite", False)),
         )
     except (ValueError, OSError) as err:
         print(f"policy-align learn: error: {err}", file=sys.stderr)
         return 2
     s = result.summary
+    if s.get("constant_joints"):
+        print(f"policy-align learn: left out constant joint(s) "
+              f"{', '.join(s['constant_joints'])}: they never move in any demonstration "
+              "(name the joints with --joints to keep them)", file=sys.stderr)
     for entry in s["skipped_bags"]:
         print(f"policy-align learn: skipped bag {entry['bag']}: {entry['reason']}",
               file=sys.stderr)

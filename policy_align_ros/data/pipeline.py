@@ -6,7 +6,11 @@ call :func:`learn_pipeline`, which does, in order:
 1. **discovery**: bags and dataset directories are read with
    :func:`~policy_align_ros.data.bags.dataset.load_dataset` (joints matched by name, split
    at time gaps, malformed messages skipped and counted); bags that give nothing are named
-   with the reason, a missing joint is named beside the joints that exist;
+   with the reason (a bag without JointState messages with its topics), a missing joint is
+   named beside the joints that exist; unless ``joints`` is given, joints that never move
+   (:func:`~policy_align_ros.data.selection.constant_joints`) are left out of a joint state
+   and named; a model file at ``model_path`` learnt for other joints or another state is
+   replaced only with ``overwrite``;
 2. **de-duplication**: a bag named twice is read once, and demonstrations that are
    near-identical copies of an earlier one
    (:func:`~policy_align_ros.data.selection.find_duplicates`) are skipped and
@@ -49,13 +53,19 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.data.bags.dataset import DatasetReport, load_dataset
+from policy_align_ros.data.current_model import check_replacement, current_model_check
 from policy_align_ros.data.quality import (
     Gates,
     observed_ncpe,
     refusals,
     zero_policy_comparison,
 )
-from policy_align_ros.data.selection import find_duplicates, fingerprint, holdout_split
+from policy_align_ros.data.selection import (
+    constant_joints,
+    find_duplicates,
+    fingerprint,
+    holdout_split,
+)
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.state_spec import parse_state_spec
@@ -64,7 +74,12 @@ from policy_align_ros.learning.state_spec import parse_state_spec
 #: line mentions it (the fit corrects for any amount; see PolicyAlign.position_noise_).
 NOISY_STEPS = 0.1
 
+#: Allowed ``holdout_fraction`` (``--holdout``), shared by the CLI and the learner node:
+#: at least half of the distinct demonstrations always train the model.
+HOLDOUT_RANGE = (0.0, 0.5)
+
 __all__ = [
+    "HOLDOUT_RANGE",
     "PipelineResult",
     "SIGMA_RULES",
     "learn_pipeline",
@@ -125,7 +140,8 @@ class PipelineResult:
         (:func:`~policy_align_ros.data.selection.fingerprint` of each training one);
         ``cut_short_bags`` [{``bag``, ``reason``}] (damaged bags whose first part is used);
         ``skipped_bags`` [{``bag``, ``reason``}]; ``sigma2``; ``fit_time_s``;
-        ``heldout_ncpe_observed`` (float or None); ``state``; ``joints``; ``robot``;
+        ``heldout_ncpe_observed`` (float or None); ``state``; ``joints``;
+        ``constant_joints`` (left out because they never move); ``robot``;
         ``data`` (what was read, one line); ``current_model`` (its held-out nCPE on the
         demonstrations it was not trained on); ``gates``; ``refusals``; ``forced``.
     model : PolicyAlign
@@ -164,6 +180,8 @@ class PipelineResult:
             text += f", {len(demos['duplicates'])} duplicates skipped"
         if s["skipped_bags"]:
             text += f", {len(s['skipped_bags'])} bags skipped"
+        if s.get("constant_joints"):
+            text += (f", constant joint(s) {', '.join(s['constant_joints'])} left out")
         text += f"); state {s['state']}; sigma^2={s['sigma2']:.4g}; "
         noisy = s.get("noise_to_step")
         if noisy is not None and noisy >= NOISY_STEPS:
@@ -182,8 +200,6 @@ class PipelineResult:
                     f"(set force to write it anyway) [{text}]")
         prefix = f"forced despite: {'; '.join(self.refusals)}; " if self.refusals else ""
         return f"{prefix}{text}; model {self.model_path}"
-
-
 
 
 def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -252,47 +268,6 @@ def _load_frames_map(robot: str | None, frames: list[str], joints: list[str]):
     return LearningStateMap(Robot.load(robot, joints), frames)
 
 
-def _current_model_check(path: Path, model: PolicyAlign, held: list[Trajectory],
-                         held_names: list[str], held_prints: list[str],
-                         ncpe: float | None) -> dict[str, Any]:
-    """Score the model now at ``path`` on the held-out demonstrations it was not fit on."""
-    out: dict[str, Any] = {"path": str(path), "heldout_ncpe_observed": None,
-                           "compared_on": [], "note": ""}
-    if not path.is_file():
-        out["note"] = "no current model"
-        return out
-    try:
-        current = PolicyAlign.load(path)
-    except (ValueError, OSError) as err:
-        out["note"] = f"current model unreadable, not compared: {err}"
-        return out
-
-    def plain(defn: dict | None) -> dict | None:
-        return None if defn is None else {k: v for k, v in defn.items() if k != "rest"}
-
-    if (current.n_features_in_ != model.n_features_in_
-            or current.joint_names_ != model.joint_names_
-            or plain(getattr(current, "state_definition_", None))
-            != plain(model.state_definition_)):
-        out["note"] = "current model has another state, not compared"
-        return out
-    block = (current.fit_summary_ or {}).get("pipeline") or {}
-    # Demonstrations the current model was fit on would flatter it; its own held-out and
-    # new ones are fair. Recognised by content: names repeat across datasets.
-    trained_on = set(block.get("training_fingerprints", []))
-    if not block:
-        out["note"] = "current model's training demonstrations unknown; compared on all"
-    keep = [k for k, fp in enumerate(held_prints) if fp not in trained_on]
-    if not keep or ncpe is None:
-        out["note"] = out["note"] or "every held-out demonstration trained the current model"
-        return out
-    subset = [held[k] for k in keep]
-    out["compared_on"] = [held_names[k] for k in keep]
-    out["heldout_ncpe_observed"] = json_float(observed_ncpe(current.policy, subset), "null")
-    out["new_ncpe_observed"] = json_float(observed_ncpe(model.policy, subset), "null")
-    return out
-
-
 def learn_pipeline(
     inputs: str | Path | Sequence[str | Path],
     model_path: str | Path,
@@ -306,6 +281,7 @@ def learn_pipeline(
     robot: str | None = None,
     gates: Gates | None = None,
     force: bool = False,
+    overwrite: bool = False,
     state_map: Callable[[Trajectory], Trajectory] | None = None,
     log: Callable[[str], None] | None = None,
 ) -> PipelineResult:
@@ -320,14 +296,15 @@ def learn_pipeline(
         gates or ``force`` is set. When it exists, it is "the current model" the new fit
         must not be worse than on held-out data.
     joints : sequence of str, optional
-        Joints of the state, in order (default: those of the first message). For a
-        ``frames:`` state, the robot's moving joints (the others stay at the robot's
-        reference posture).
+        Joints of the state, in order (default: the joints the bags share, without those
+        that never move in any demonstration, for a joint state). For a ``frames:``
+        state, the robot's moving joints (the others stay at the robot's reference
+        posture).
     sigma : str or float
         PolicyAlign's ``sigma`` (rule or sigma^2 in squared state units).
     gap_s : float
         Split recordings at time gaps longer than this (s).
-    holdout_fraction : float in [0, 0.9]
+    holdout_fraction : float in HOLDOUT_RANGE ([0, 0.5])
         Fraction of the (unique) demonstrations held out
         (:func:`~policy_align_ros.data.selection.holdout_split`).
     seed : int
@@ -341,6 +318,10 @@ def learn_pipeline(
         Refusal thresholds (default ``Gates()``).
     force : bool
         Write the model even when a gate refuses it (the refusals stay in the summary).
+    overwrite : bool
+        Replace a model at ``model_path`` learnt for other joints or another state
+        (without it that is a ``ValueError`` before the fit). A model of the same joints
+        and state is always replaced by a fit that passes the gates.
     state_map : callable, optional
         Maps a joint Trajectory to a state Trajectory and has ``definition() -> dict``
         (like :class:`~policy_align_ros.kinematics.task_space.LearningStateMap`); given,
@@ -357,14 +338,19 @@ def learn_pipeline(
     ------
     ValueError
         Unusable input (the message names the path, joint, frame or parameter), fewer
-        than 2 unique demonstrations, or a failed fit.
+        than 2 unique demonstrations, a model of other joints at ``model_path`` without
+        ``overwrite``, or a failed fit.
     OSError
         When the model file cannot be written.
     """
     say = log or (lambda _msg: None)
     run = _check_arguments(inputs, model_path, sigma, state, robot, gates or Gates(), force,
-                           seed, holdout_fraction)
+                           seed, holdout_fraction, gap_s)
     demos = _discover(run, joints, gap_s, say)
+    if joints is None and run.state == "joints" and state_map is None:
+        _drop_constant_joints(demos, say)
+    if not overwrite:
+        check_replacement(run.path, demos.joints, run.state if state_map is None else None)
     _deduplicate(demos, run, say)
     train_k, test_k = _split(demos.unique, holdout_fraction, seed)
     states = _map_states(demos, run.state, state_map, robot)
@@ -388,6 +374,7 @@ class _Run:
     force: bool
     seed: int
     holdout_fraction: float
+    gap_s: float
 
 
 @dataclass
@@ -400,6 +387,7 @@ class _Demos:
     names: list[str]
     duplicate_of: dict[str, str] = field(default_factory=dict)
     unique: list[int] = field(default_factory=list)
+    constant: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -423,12 +411,14 @@ class _Fit:
 
 def _check_arguments(inputs: str | Path | Sequence[str | Path], model_path: str | Path,
                      sigma: str | float, state: str, robot: str | None, gates: Gates,
-                     force: bool, seed: int, holdout_fraction: float) -> _Run:
+                     force: bool, seed: int, holdout_fraction: float, gap_s: float) -> _Run:
     """Check every argument before reading any data; the message names the parameter."""
     sigma = parse_sigma(sigma)
     state = state_name(state)
-    if not (isinstance(holdout_fraction, (int, float)) and 0.0 <= holdout_fraction <= 0.9):
-        raise ValueError(f"holdout_fraction: must be in [0, 0.9], got {holdout_fraction!r}")
+    low, high = HOLDOUT_RANGE
+    if not (isinstance(holdout_fraction, (int, float)) and low <= holdout_fraction <= high):
+        raise ValueError(f"holdout_fraction: must be in [{low:g}, {high:g}], "
+                         f"got {holdout_fraction!r}")
     # Checked here: NumPy's own complaint about a negative seed names no parameter.
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
@@ -440,7 +430,8 @@ def _check_arguments(inputs: str | Path | Sequence[str | Path], model_path: str 
             raise ValueError(f"{p}: no such file or directory")
     path = Path(model_path).expanduser().resolve()
     _check_writable(path)
-    return _Run(paths, path, sigma, state, robot, gates, force, seed, holdout_fraction)
+    return _Run(paths, path, sigma, state, robot, gates, force, seed, holdout_fraction,
+                gap_s)
 
 
 def _discover(run: _Run, joints: Sequence[str] | None, gap_s: float,
@@ -474,11 +465,33 @@ def _deduplicate(demos: _Demos, run: _Run, say: Callable[[str], None]) -> None:
         say(f"skipped {len(duplicate_of)} duplicate demonstration(s): "
             + ", ".join(f"{a} = {b}" for a, b in duplicate_of.items()))
     if len(demos.unique) < 2:
+        # One demonstration read: typically one continuous ``ros2 bag record``.
+        hint = ("; a recording of several demonstrations is split only at pauses in its "
+                "messages longer than --gap seconds (learner: gap_s, now "
+                f"{run.gap_s:g}): lower --gap below those pauses, or record one bag per "
+                "demonstration (recorder ~/start_demo, ~/stop_demo)"
+                if len(demos.trajs) == 1 else "")
         raise ValueError(
             f"{', '.join(map(str, run.inputs))}: PolicyAlign needs at least 2 distinct "
             f"demonstrations, found {len(demos.unique)}"
             + (f" ({len(duplicate_of)} duplicates skipped)" if duplicate_of else "")
-            + f" ({demos.report.summary()})")
+            + f" ({demos.report.summary()}){hint}")
+
+
+def _drop_constant_joints(demos: _Demos, say: Callable[[str], None]) -> None:
+    """Leave joints that never move out of the state (a constant column adds a direction
+    no demonstration explores, and the executor would need it on the robot)."""
+    drop = constant_joints([t.positions for t in demos.trajs])
+    if not drop:
+        return
+    keep = [k for k in range(len(demos.joints)) if k not in drop]
+    demos.constant = [demos.joints[k] for k in drop]
+    demos.joints = [demos.joints[k] for k in keep]
+    demos.trajs = [Trajectory(t.positions[:, keep], t.times,
+                              None if t.velocities is None else t.velocities[:, keep],
+                              name=t.name) for t in demos.trajs]
+    say(f"left out {len(drop)} constant joint(s) that never move in any demonstration: "
+        f"{', '.join(demos.constant)} (name the joints explicitly to keep them)")
 
 
 def _split(unique: list[int], fraction: float, seed: int) -> tuple[list[int], list[int]]:
@@ -535,7 +548,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
     kept = set(int(i) for i in model.inliers_)
     discarded = [train_names[i] for i in range(len(train)) if i not in kept]
     unaligned = [train_names[i] for i in np.flatnonzero(model.groups_ != 0)]
-    current = _current_model_check(run.path, model, held, held_names,
+    current = current_model_check(run.path, model, held, held_names,
                                    [fingerprint(demos.trajs[k]) for k in test_k], fit.ncpe)
     zero = zero_policy_comparison(model.policy, held) if held else None
     refused = refusals(model, run.sigma, train, unaligned, current, run.gates, zero)
@@ -564,6 +577,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "goal": goal_digest(model.fit_summary_.get("goal")),
         "state": states.state,
         "joints": list(demos.joints),
+        "constant_joints": list(demos.constant),
         "robot": run.robot if states.definition is not None else None,
         "inputs": [str(p) for p in run.inputs],
         "data": report.summary(),

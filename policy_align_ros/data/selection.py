@@ -1,4 +1,5 @@
-"""Which demonstrations train a model: copies found, content hashes, the hold-out split.
+"""Which demonstrations train a model: copies found, content hashes, the hold-out split,
+and which joints never move.
 
 ROS-free; numpy and scipy only. States are arrays ``(N_k, n)`` in state units (rad or m).
 """
@@ -16,7 +17,13 @@ from scipy.spatial import cKDTree
 if TYPE_CHECKING:
     from policy_align_ros.learning import Trajectory
 
-__all__ = ["find_duplicates", "fingerprint", "holdout_split"]
+__all__ = ["CONSTANT_JOINT_FRACTION", "constant_joints", "find_duplicates", "fingerprint",
+           "holdout_split"]
+
+#: A joint whose range over every demonstration is at most this fraction of the widest
+#: joint's range is constant: a gripper that never moves, or a joint held by its brake.
+#: Its encoder noise (a few 1e-4 rad) stays below it for any arm motion over 0.5 rad.
+CONSTANT_JOINT_FRACTION = 1e-3
 
 
 def holdout_split(n_demos: int, fraction: float, seed: int) -> tuple[list[int], list[int]]:
@@ -92,3 +99,29 @@ def fingerprint(traj: Trajectory) -> str:
     if traj.times is not None:
         digest.update(np.ascontiguousarray(traj.times, dtype=np.float64).tobytes())
     return digest.hexdigest()[:16]
+
+
+def constant_joints(positions: Sequence[np.ndarray],
+                    fraction: float = CONSTANT_JOINT_FRACTION) -> list[int]:
+    """Columns that never move in any demonstration.
+
+    Parameters
+    ----------
+    positions : sequence of ndarray (N_k, n)
+        The demonstrations' joint positions (rad or m).
+    fraction : float
+        A column whose range (max - min over all samples of all demonstrations) is at most
+        ``fraction`` times the largest column's range is constant.
+
+    Returns
+    -------
+    list of int
+        Indices of the constant columns, ascending; empty when every column is constant
+        (nothing moves: there is no state to keep) or none is.
+    """
+    stacked = np.concatenate([np.asarray(p, dtype=float) for p in positions])
+    ranges = np.ptp(stacked, axis=0)
+    widest = float(np.max(ranges)) if ranges.size else 0.0
+    if widest <= 0.0:
+        return []
+    return [int(k) for k in np.flatnonzero(ranges <= fraction * widest)]

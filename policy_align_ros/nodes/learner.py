@@ -28,7 +28,13 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from policy_align_ros.data.pipeline import PipelineResult, learn_pipeline, parse_sigma, state_name
+from policy_align_ros.data.pipeline import (
+    HOLDOUT_RANGE,
+    PipelineResult,
+    learn_pipeline,
+    parse_sigma,
+    state_name,
+)
 from policy_align_ros.data.quality import Gates
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
@@ -81,7 +87,7 @@ class Learner(Node):
             "state joints and their order; unset = the joints of the first message"))
         self.declare_parameter("holdout_fraction", 0.2, descriptor(
             "fraction of demonstrations held out to report the nCPE",
-            float_range=(0.0, 0.5)))
+            float_range=HOLDOUT_RANGE))
         self.declare_parameter("gap_s", 0.5, descriptor(
             "split recordings into demonstrations at time gaps longer than this [s]",
             float_range=(0.0, 3600.0)))
@@ -93,6 +99,8 @@ class Learner(Node):
             "example-robot-data name or URDF path; gives the frames of a frames: state"))
         self.declare_parameter("force", False, descriptor(
             "write the model even when the fit is refused as degenerate"))
+        self.declare_parameter("overwrite", False, descriptor(
+            "replace a model at model_path learnt for other joints or another state"))
         defaults = Gates()
         for name, (text, limits) in _GATE_PARAMETERS.items():
             self.declare_parameter(name, float(getattr(defaults, name)), descriptor(
@@ -175,6 +183,7 @@ class Learner(Node):
             robot=value("robot").value or None,
             gates=Gates(**{f.name: value(f.name).value for f in fields(Gates)}),
             force=value("force").value,
+            overwrite=value("overwrite").value,
             log=self.get_logger().info,
         )
 

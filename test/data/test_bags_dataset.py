@@ -256,3 +256,26 @@ def test_bags_of_one_name_in_two_datasets_get_different_names(tmp_path):
     _, _, report = load_dataset([tmp_path / "ds1" / "a", tmp_path / "ds2" / "a"])
     names = sorted(d.name for d in report.demos)
     assert names == ["ds1/a/demo_0000", "ds1_only", "ds2/a/demo_0000", "ds2_only"]
+
+
+def test_a_bag_without_joint_states_is_named_with_its_topics(tmp_path):
+    bag = tmp_path / "tf_only"
+    string, tf = TS.types["std_msgs/msg/String"], "tf2_msgs/msg/TFMessage"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+        chatter = writer.add_connection("/chatter", string.__msgtype__, typestore=TS)
+        writer.add_connection("/tf", tf, typestore=TS)
+        for k in range(3):
+            writer.write(chatter, T0 + k * MS, TS.serialize_cdr(string(data="x"),
+                                                               string.__msgtype__))
+    with pytest.raises(ValueError) as err:
+        load_dataset(bag)
+    # The error itself (what the CLI and the learner print) lists the bag's topics.
+    assert "/chatter" in str(err.value) and "/tf" in str(err.value)
+    assert "std_msgs/msg/String" in str(err.value)
+    # In a dataset the other bags still count and this one is named with its topics.
+    good = tmp_path / "set"
+    _good_dataset(good, n_bags=2)
+    (good / "tf_only").symlink_to(bag, target_is_directory=True)
+    _, _, report = load_dataset(good)
+    reasons = dict(report.skipped_bags)
+    assert "/chatter" in reasons[str(good / "tf_only")]

@@ -19,7 +19,7 @@ import pytest
 
 from policy_align_ros.data import write_joint_state_bag
 from policy_align_ros.data.learn import run_learn
-from policy_align_ros.data.pipeline import learn_pipeline, state_name
+from policy_align_ros.data.pipeline import HOLDOUT_RANGE, learn_pipeline, state_name
 from policy_align_ros.data.quality import Gates
 from policy_align_ros.data.selection import find_duplicates, holdout_split
 from policy_align_ros.learning import PolicyAlign
@@ -342,3 +342,62 @@ def test_the_learn_summary_reports_the_learnt_goal(clean):
     model = PolicyAlign.load(path)
     assert len(model.fit_summary_["goal"]["minima"]) == goal["n_minima"]
     assert model.fit_summary_["pipeline"]["goal"] == goal
+
+
+def _write_joints(root, demos, joints):
+    for k, q in enumerate(demos):
+        stamps = 10**18 + k * 10**10 + np.arange(len(q)) * DT_NS
+        write_joint_state_bag(root / f"demo_{k:04d}", joints, stamps, q)
+    return root
+
+
+def test_holdout_range_is_one_shared_constant(dataset, tmp_path):
+    low, high = HOLDOUT_RANGE
+    result = learn_pipeline([dataset], tmp_path / "m.npz", holdout_fraction=high)
+    assert result.written and result.summary["holdout_fraction"] == high
+    for bad in (low - 0.01, high + 0.01):
+        with pytest.raises(ValueError, match="holdout_fraction"):
+            learn_pipeline([dataset], tmp_path / "m.npz", holdout_fraction=bad)
+
+
+def test_a_model_of_other_joints_is_replaced_only_with_overwrite(dataset, tmp_path):
+    path = tmp_path / "m.npz"
+    assert learn_pipeline([dataset], path).written
+    before = path.read_bytes()
+    other = _write_joints(tmp_path / "other", _demos(8, 0), ["a1", "a2"])
+    with pytest.raises(ValueError, match="overwrite") as err:
+        learn_pipeline([other], path)
+    assert "j1" in str(err.value) and "a1" in str(err.value)
+    assert path.read_bytes() == before
+    # force (write a degenerate model) is not overwrite.
+    with pytest.raises(ValueError, match="overwrite"):
+        learn_pipeline([other], path, force=True)
+    result = learn_pipeline([other], path, overwrite=True)
+    assert result.written and PolicyAlign.load(path).joint_names_ == ["a1", "a2"]
+    # The same joints in the same state: replaced without it.
+    assert learn_pipeline([other], path, seed=1).written
+
+
+def test_constant_joints_are_left_out_and_named_unless_joints_are_given(tmp_path):
+    demos = [np.column_stack([q[:, 0], np.full(len(q), 0.04), q[:, 1]])
+             for q in _demos(8, 0)]
+    root = _write_joints(tmp_path / "grip", demos, ["j1", "gripper", "j2"])
+    said = []
+    result = learn_pipeline([root], tmp_path / "m.npz", log=said.append)
+    assert result.summary["joints"] == ["j1", "j2"]
+    assert result.summary["constant_joints"] == ["gripper"]
+    assert result.model.n_features_in_ == 2
+    assert any("gripper" in line for line in said) and "gripper" in result.line()
+    named = learn_pipeline([root], tmp_path / "named.npz", joints=["j1", "gripper", "j2"])
+    assert named.summary["joints"] == ["j1", "gripper", "j2"]
+    assert named.summary["constant_joints"] == []
+
+
+def test_one_continuous_recording_names_gap_and_one_bag_per_demonstration(tmp_path):
+    q = np.concatenate(_demos(3, 0))  # three demonstrations without a pause between them
+    stamps = 10**18 + np.arange(len(q)) * DT_NS
+    write_joint_state_bag(tmp_path / "continuous", JOINTS, stamps, q)
+    with pytest.raises(ValueError, match="found 1") as err:
+        learn_pipeline([tmp_path / "continuous"], tmp_path / "m.npz")
+    assert "--gap" in str(err.value) and "gap_s" in str(err.value)
+    assert "one bag per demonstration" in str(err.value)

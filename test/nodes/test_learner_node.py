@@ -14,7 +14,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from policy_align_ros.data import write_joint_state_bag
-from policy_align_ros.data.pipeline import observed_ncpe, parse_sigma
+from policy_align_ros.data.pipeline import HOLDOUT_RANGE, observed_ncpe, parse_sigma
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.nodes._common import LATCHED_QOS
 from policy_align_ros.nodes.learner import Learner
@@ -186,6 +186,29 @@ def test_learn_fails_cleanly_with_a_single_demonstration(rig, tmp_path):
     r = rig(162, dataset_dir=str(tmp_path / "one"), model_path=str(tmp_path / "m.npz"))
     response = r.learn()
     assert not response.success and "at least 2 distinct demonstrations" in response.message
+    assert "gap_s" in response.message  # the fix for one continuous recording
+
+
+def test_holdout_range_and_a_model_of_other_joints_needs_overwrite(rig, tmp_path):
+    _write_dataset(tmp_path / "demos", n_demos=6)
+    _write_dataset(tmp_path / "other", n_demos=6, joints=["a1", "a2"])
+    model = tmp_path / "model.npz"
+    r = rig(169, dataset_dir=str(tmp_path / "demos"), model_path=str(model))
+    low, high = HOLDOUT_RANGE
+    for value, ok in ((high, True), (high + 0.01, False), (low - 0.01, False)):
+        result = r.node.set_parameters([Parameter("holdout_fraction", value=value)])[0]
+        assert result.successful == ok, value
+    assert r.learn().success
+    before = model.read_bytes()
+    r.node.set_parameters([Parameter("dataset_dir", value=str(tmp_path / "other")),
+                           Parameter("force", value=True)])
+    response = r.learn()
+    assert not response.success and "overwrite" in response.message
+    assert model.read_bytes() == before
+    assert r.node.set_parameters([Parameter("overwrite", value=True)])[0].successful
+    response = r.learn()
+    assert response.success, response.message
+    assert PolicyAlign.load(model).joint_names_ == ["a1", "a2"]
 
 
 def test_node_stays_responsive_and_refuses_a_second_run_while_learning(

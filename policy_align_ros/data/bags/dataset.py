@@ -18,7 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from policy_align_ros.data.bags.format import JOINT_STATE
-from policy_align_ros.data.bags.read import BagOpenError, find_bags, read_joint_states
+from policy_align_ros.data.bags.read import (
+    BagOpenError,
+    bag_topics,
+    find_bags,
+    read_joint_states,
+)
 from policy_align_ros.data.messages import (
     NEW,
     SKIP,
@@ -327,6 +332,8 @@ class _Reading:
                 one.n_read, one.counts, report.demos_found - found_before,
                 report.demos_too_short - short_before, self.min_samples,
                 self.selector.joints, list(one.names))
+            if not failure and not one.n_read and not one.counts["undecodable"]:
+                reason += "; " + _topics_text(bag)
             joints = self.selector.joints
             if not failure and own and joints and not set(joints) <= set(own):
                 # Joints chosen by vote: say first which set this bag has instead.
@@ -414,10 +421,28 @@ class _Reading:
         if not self.trajectories:
             where = ", ".join(str(p) for p in paths)
             problem = report.joint_problem()
+            # Each bag's reason (a bag of other topics lists them): the fix is in there.
+            reasons = "; ".join(f"{_tail(bag, 2)}: {why}"
+                                for bag, why in report.skipped_bags[:3])
+            more = len(report.skipped_bags) - 3
             raise ValueError(f"{where}: no usable demonstrations"
-                             + (f": {problem}" if problem else "") + f" ({report.summary()})")
+                             + (f": {problem}" if problem else "") + f" ({report.summary()})"
+                             + (f"; {reasons}" if reasons else "")
+                             + (f" and {more} more bag(s)" if more > 0 else ""))
         assert self.selector.joints is not None
         return self.trajectories, list(self.selector.joints), report
+
+
+def _topics_text(bag: Path) -> str:
+    """The bag's topics for a reader told to look for JointState there (one phrase)."""
+    topics = bag_topics(bag)
+    if not topics:
+        return "the bag has no topics"
+    shown = ", ".join(f"{topic} ({msgtype}, {count} messages)"
+                      for topic, msgtype, count in topics[:20])
+    more = f" and {len(topics) - 20} more" if len(topics) > 20 else ""
+    return (f"the bag's topics: {shown}{more} (record the robot's {JOINT_STATE} topic, "
+            "for example ros2 bag record /joint_states)")
 
 
 def _first_names(bag: Path) -> list[str]:

@@ -19,7 +19,8 @@ from rosbags.rosbag2 import Reader, ReaderError
 
 from policy_align_ros.data.bags.format import JOINT_STATE, TYPESTORE, is_temporary
 
-__all__ = ["BagOpenError", "find_bags", "finished_mcap_copy", "read_joint_states"]
+__all__ = ["BagOpenError", "bag_topics", "find_bags", "finished_mcap_copy",
+           "read_joint_states"]
 
 
 class BagOpenError(ValueError):
@@ -114,6 +115,26 @@ def read_joint_states(
         except (ReaderError, FileNotFoundError, OSError, KeyError) as err:
             raise BagOpenError(f"{path}: cannot open as a rosbag2 bag: {err}") from None
         yield from _joint_states(reader, counts)
+
+
+def bag_topics(bag: str | os.PathLike[str]) -> list[tuple[str, str, int]]:
+    """The topics of one bag: ``(topic, message type, message count)`` in bag order.
+
+    Empty when the bag cannot be opened (its reader reports why).
+    """
+    path = Path(bag)
+    topics: list[tuple[str, str, int]] = []
+    with contextlib.ExitStack() as stack:
+        try:
+            reader = _open_reader(path, stack)
+        except Exception:  # noqa: BLE001 - only a hint for an error message
+            return []
+        try:
+            for conn in reader.connections:
+                topics.append((conn.topic, conn.msgtype, int(conn.msgcount)))
+        finally:
+            reader.close()
+    return topics
 
 
 def _open_reader(path: Path, stack: contextlib.ExitStack) -> Reader:
