@@ -210,6 +210,7 @@ def run_node(
         print(f"error: {err}", file=sys.stderr)
         return 1
     node = None
+    executor = None
     code = 0
     try:
         node = make_node()
@@ -239,6 +240,12 @@ def run_node(
         watchdog = threading.Timer(TEARDOWN_TIMEOUT_S, _exit_stuck, (code,))
         watchdog.daemon = True
         watchdog.start()
+        # The executor goes before the node and the context: left to the garbage
+        # collector, it destroys its signal guard condition after the context shut down
+        # (or after the collector finalised the condition itself), printing "Exception
+        # ignored in Executor.__del__ ... InvalidHandle" on the way out.
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -1,6 +1,9 @@
 """Tests of ``policy-align call`` (policy_align_ros.client.call; domain ids 190-199)."""
 
 import argparse
+import os
+import subprocess
+import sys
 
 import pytest
 from rclpy.node import Node
@@ -71,3 +74,28 @@ def test_an_unusable_ros_domain_is_a_usage_error(monkeypatch, capsys):
     monkeypatch.setenv("ROS_DOMAIN_ID", "abc")
     assert _call("/ok", timeout=1.0) == 2
     assert capsys.readouterr().err
+
+
+# A call in its own process, then the garbage collector's worst order forced (an executor's
+# signal guard condition finalised before the executor): no executor may still hold one.
+_CALL_THEN_COLLECT = """
+import argparse, gc, sys
+from rclpy.signals import SignalHandlerGuardCondition
+from policy_align_ros.client.call import run_call
+
+code = run_call(argparse.Namespace(service="/missing", data=None, timeout=0.3))
+for obj in gc.get_objects():
+    if isinstance(obj, SignalHandlerGuardCondition):
+        obj.__del__()
+gc.collect()
+sys.exit(code)
+"""
+
+
+def test_a_call_process_ends_without_ignored_exceptions():
+    done = subprocess.run([sys.executable, "-c", _CALL_THEN_COLLECT],
+                          env=dict(os.environ, ROS_DOMAIN_ID="195"), capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 3, done.stderr
+    assert "Exception ignored" not in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr

@@ -1,10 +1,16 @@
 """The demo's report: targets, report.json's fields, the printed report (no ROS graph)."""
 
+import json
 from types import SimpleNamespace
 
 import numpy as np
 
-from policy_align_ros.client.demo.report import build_report, report_text, targets
+from policy_align_ros.client.demo.report import (
+    build_report,
+    report_text,
+    target_word,
+    targets,
+)
 from policy_align_ros.client.demo.settings import DemoSettings
 
 
@@ -55,3 +61,29 @@ def test_report_fails_an_unconstrained_run_that_made_no_progress():
     lenient = build_report(DemoSettings(require_progress=False), task, learnt, 0.1, stuck,
                            sim={})
     assert lenient["failure"] == ""
+
+
+def test_a_constrained_run_without_a_held_frame_reads_not_measured():
+    # A constraint that holds no frame (e.g. a joint-space plane) leaves the drift None:
+    # the drift target is not measured, never met, and the report is still written.
+    report = _report()
+    report["runs"][1].update(final_distance=0.01, held_frame_drift_mm=None,
+                             constraint=[{"type": "plane", "normal": [1.0, 0.0]}])
+    del report["runs"][1]["held_frame"]
+    status = targets(report)
+    assert status["unseen_constraint_1: final <= expert + 0.05 rad"] is True
+    assert status["unseen_constraint_1: held frame drift <= 1 mm"] is None
+    assert target_word(status["unseen_constraint_1: held frame drift <= 1 mm"]) \
+        == "not measured"
+    assert target_word(True) == "met" and target_word(False) == "MISSED"
+    assert report_text({**report, "targets": status}).count("not measured") == 1
+
+    task = SimpleNamespace(state_spec="joints", goal=np.zeros(2))
+    learnt = {"demonstrations": {"recorded": 5}, "sigma2": 0.05, "fit_time_s": 1.0,
+              "heldout_ncpe_observed": None, "summary_source": "model header"}
+    built = build_report(DemoSettings(robot="panda"), task, learnt, 0.1, report["runs"],
+                         sim={})
+    assert built["failure"] == ""
+    assert built["targets"]["unseen_constraint_1: held frame drift <= 1 mm"] is None
+    assert not all(built["targets"].values())
+    assert json.loads(json.dumps(built))["targets"] == built["targets"]

@@ -1,12 +1,17 @@
 """``policy-align demo``'s settings and random streams (no ROS graph)."""
 
 import argparse
+import os
 
 import numpy as np
 import pytest
 
 from policy_align_ros.client.demo.main import run_demo
-from policy_align_ros.client.demo.settings import random_streams, settings_from_args
+from policy_align_ros.client.demo.settings import (
+    pick_domain_id,
+    random_streams,
+    settings_from_args,
+)
 
 
 def test_seed_sets_every_stream_and_settings_are_checked():
@@ -19,3 +24,25 @@ def test_seed_sets_every_stream_and_settings_are_checked():
     with pytest.raises(ValueError, match="demos"):
         settings_from_args(argparse.Namespace(demos=2))
     assert run_demo(argparse.Namespace(state="elbows")) == 2
+
+
+def test_domain_id_honours_ros_domain_id_then_falls_back_to_a_private_one():
+    # An explicit id wins, then the user's ROS_DOMAIN_ID, then 1 + pid % 100.
+    assert pick_domain_id(17, {"ROS_DOMAIN_ID": "42"}) == 17
+    assert pick_domain_id(None, {"ROS_DOMAIN_ID": "42"}) == 42
+    assert pick_domain_id(None, {"ROS_DOMAIN_ID": " 0 "}) == 0
+    private = 1 + os.getpid() % 100
+    assert pick_domain_id(None, {}) == private
+    assert pick_domain_id(None, {"ROS_DOMAIN_ID": ""}) == private
+    for bad in ("seven", "233", "-1", "1.5"):
+        with pytest.raises(ValueError, match="ROS_DOMAIN_ID"):
+            pick_domain_id(None, {"ROS_DOMAIN_ID": bad})
+    with pytest.raises(ValueError, match="domain_id"):
+        pick_domain_id(300, {})
+
+
+def test_demo_refuses_a_bad_ros_domain_id_before_starting_anything(tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "not-a-number")
+    out = tmp_path / "demo"
+    assert run_demo(argparse.Namespace(out=str(out))) == 2
+    assert not out.exists()

@@ -4,6 +4,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 ENV = dict(os.environ, ROS_DOMAIN_ID="192")
 
 # A node whose constructor is hit by SIGTERM (a graph stopped while the machine is busy):
@@ -65,3 +67,38 @@ def test_a_teardown_that_never_returns_still_ends_the_process():
     done = subprocess.run([sys.executable, "-c", _STUCK_IN_TEARDOWN], env=ENV,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr  # ended by the watchdog, with the loop's code
+
+
+# A node that stops itself: run_node's normal way out. Then the garbage collector's worst
+# order is forced: it may finalise an executor's signal guard condition before the executor
+# itself (both unreachable together), and an executor that still holds it then prints
+# "Exception ignored in ... Executor.__del__ ... InvalidHandle".
+_STOPS_ITSELF = """
+import gc, os, signal, sys
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerGuardCondition
+from policy_align_ros.nodes._common import run_node
+
+class Short(Node):
+    def __init__(self):
+        super().__init__("short_lived")
+        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGTERM))
+
+code = run_node(Short, ["--ros-args"], executor_factory={factory})
+for obj in gc.get_objects():
+    if isinstance(obj, SignalHandlerGuardCondition):
+        obj.__del__()
+gc.collect()
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("factory", ["SingleThreadedExecutor",
+                                     "lambda: MultiThreadedExecutor(2)"])
+def test_a_node_main_ends_without_ignored_exceptions(factory):
+    done = subprocess.run([sys.executable, "-c", _STOPS_ITSELF.format(factory=factory)],
+                          env=ENV, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "Exception ignored" not in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr

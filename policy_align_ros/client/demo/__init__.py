@@ -9,9 +9,9 @@ called wall time.
 Stages (each one failing makes the command exit with status 1):
 
 1. start ``sim_robot`` (publishing ``/clock`` at ``real_time_factor`` times real time),
-   ``recorder``, ``learner``, ``executor`` and ``demonstrator`` as separate processes on a
-   private ROS domain, all with ``use_sim_time``; parameters in ``OUT/params.yaml``, logs in
-   ``OUT/logs/``;
+   ``recorder``, ``learner``, ``executor`` and ``demonstrator`` as separate processes on
+   ``ROS_DOMAIN_ID`` when set, else a private ROS domain, all with ``use_sim_time``;
+   parameters in ``OUT/params.yaml``, logs in ``OUT/logs/``;
 2. the demonstrator records ``demos`` demonstrations of its expert (joint space:
    ``pi(q) = -gain (q - q_c)``; hand space: ``pi_x = -gain (x - x_c)`` realised through the
    Jacobian) with both hands on planes of random orientation, re-drawn twice per

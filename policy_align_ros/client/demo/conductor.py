@@ -35,12 +35,13 @@ class Conductor:
     """
 
     def __init__(self, context: rclpy.Context, joints: list[str], graph: Graph) -> None:
+        self.selector = JointSelector(joints)
         self.node = Node("policy_align_demo", context=context, parameter_overrides=[
             Parameter("use_sim_time", value=True)])
         self.graph = graph
+        # Made last of what can fail: close() shuts it down before the context goes.
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self.selector = JointSelector(joints)
         self.q: np.ndarray | None = None
         self.trace: list[tuple[float, np.ndarray]] | None = None
         self.progress = ""

@@ -47,6 +47,7 @@ def run_demo(args: argparse.Namespace) -> int:
     """Entry of ``policy-align demo``; returns 0 when every stage succeeded."""
     try:
         s = settings_from_args(args)
+        domain = pick_domain_id(s.domain_id)
     except ValueError as err:
         print(f"[demo] {err}", file=sys.stderr, flush=True)
         return 2
@@ -64,7 +65,6 @@ def run_demo(args: argparse.Namespace) -> int:
     streams = random_streams(s.seed)
     params = s.out / "params.yaml"
     write_params(params, s, task, streams["demonstrator"])
-    domain = pick_domain_id(s.domain_id)
     graph = Graph(s.out, params, domain)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)

@@ -18,7 +18,7 @@ from policy_align_ros.client.demo.task import Task
 from policy_align_ros.learning.model_io import atomic_write_bytes
 
 __all__ = ["build_report", "report_text", "save_traces", "score_run", "sim_block",
-           "targets"]
+           "target_word", "targets"]
 
 
 def score_run(s: DemoSettings, task: Task, run_id: str, specs: list[dict], q0: np.ndarray,
@@ -136,8 +136,13 @@ def build_report(s: DemoSettings, task: Task, learnt: dict, fresh: float, runs: 
     return report
 
 
-def targets(report: dict) -> dict:
-    """The demo's targets, each met (True) or missed, from the report's numbers."""
+def targets(report: dict) -> dict[str, bool | None]:
+    """The demo's targets from the report's numbers.
+
+    Each is met (True), missed (False) or not measured (None, printed "not measured" and
+    never counted as met): a constrained run holds no frame when its constraint is no
+    ``position`` constraint, so its ``held_frame_drift_mm`` is None.
+    """
     joints = report["state"] == "joints"
     out = {"heldout_ncpe_fresh <= 0.2": report["heldout_ncpe_fresh"] <= 0.2}
     for run in report["runs"]:
@@ -149,7 +154,8 @@ def targets(report: dict) -> dict:
         elif joints:
             out[f"{key}: final <= expert + 0.05 rad"] = bool(
                 run["final_distance"] <= run["expert_final_distance"] + 0.05)
-            out[f"{key}: held frame drift <= 1 mm"] = bool(run["held_frame_drift_mm"] <= 1.0)
+            out[f"{key}: held frame drift <= 1 mm"] = _at_most(
+                run.get("held_frame_drift_mm"), 1.0)
         elif run["name"] == "unconstrained":
             out[f"{key}: each hand <= 20 mm"] = bool(
                 max(run["final_distance_per_hand_m"].values()) <= 0.02)
@@ -159,6 +165,16 @@ def targets(report: dict) -> dict:
                 <= run["expert_final_distance_per_hand_m"][f] + 0.02
                 for f in run["final_distance_per_hand_m"]))
     return out
+
+
+def _at_most(value: float | None, bound: float) -> bool | None:
+    """``value <= bound``, or None when ``value`` was not measured (None)."""
+    return None if value is None else bool(value <= bound)
+
+
+def target_word(status: bool | None) -> str:
+    """How a target's status is printed: met, MISSED or not measured (None)."""
+    return "not measured" if status is None else ("met" if status else "MISSED")
 
 
 def save_traces(path: Path, traces: dict[str, np.ndarray]) -> None:
@@ -215,7 +231,7 @@ def report_text(report: dict) -> str:
     status = report.get("targets", {})
     if status:
         lines.append("targets: " + "; ".join(
-            f"{k}: {'met' if v else 'MISSED'}" for k, v in status.items()))
+            f"{k}: {target_word(v)}" for k, v in status.items()))
     lines.append(f"total time: {report['total_time_s']:.1f} s")
     return "\n".join(lines)
 

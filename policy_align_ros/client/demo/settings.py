@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -112,11 +113,48 @@ def settings_from_args(args: argparse.Namespace) -> DemoSettings:
     return s
 
 
-def pick_domain_id(requested: int | None) -> int:
-    """``requested``, or a private ROS domain per process so two demos never mix."""
+#: Fast DDS's valid domain ids (docs/design.md section 8).
+DOMAIN_RANGE = (0, 232)
+
+
+def pick_domain_id(requested: int | None, environ: Mapping[str, str] | None = None) -> int:
+    """The demo's ROS domain id.
+
+    Parameters
+    ----------
+    requested : int or None
+        An explicit id (the settings' ``domain_id``); it wins.
+    environ : mapping of str to str, optional
+        The environment (default ``os.environ``). A non-empty ``ROS_DOMAIN_ID`` in it is
+        the user's choice of domain and is honoured.
+
+    Returns
+    -------
+    int
+        ``requested``, else ``ROS_DOMAIN_ID``, else a private domain per process
+        (``1 + pid % 100``) so two demos started without either never mix.
+
+    Raises
+    ------
+    ValueError
+        When the chosen id is no integer in Fast DDS's range 0-232.
+    """
+    environ = os.environ if environ is None else environ
     if requested is not None:
-        return int(requested)
-    return 1 + os.getpid() % 100
+        name, value = "domain_id", str(requested)
+    elif environ.get("ROS_DOMAIN_ID", "").strip():
+        name, value = "ROS_DOMAIN_ID", environ["ROS_DOMAIN_ID"].strip()
+    else:
+        return 1 + os.getpid() % 100
+    low, high = DOMAIN_RANGE
+    try:
+        domain = int(value)
+    except ValueError:
+        domain = None
+    if domain is None or not low <= domain <= high:
+        raise ValueError(f"{name}: must be an integer ROS domain id in {low}-{high}, "
+                         f"got {value!r}")
+    return domain
 
 
 def random_streams(seed: int) -> dict[str, np.random.Generator | int]:
