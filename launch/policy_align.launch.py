@@ -10,6 +10,11 @@ every node on ``/clock``, which ``sim_robot`` then publishes (without ``sim``, y
 simulator must). On a real robot leave
 ``sim`` false and remap ``/velocity_controller/commands`` to your forward command
 controller's topic (and see the README on what to pair the executor with).
+
+The executor's ``~/enable`` refuses until it has read the controller's joint order from
+the node named by its ``controller`` parameter (``config/executor.yaml``). With
+``sim:=true`` that node is ``sim_robot``: ``policy-align param set /executor controller
+/sim_robot`` before enabling.
 """
 
 from launch.actions import DeclareLaunchArgument

@@ -17,7 +17,12 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.status`: the executor's status in words (its ``/diagnostics``).
 """
 
-from policy_align_ros.control.armed import STAMP_REJECTIONS, ArmedController, Output
+from policy_align_ros.control.armed import (
+    IMPLAUSIBLE_POSITION,
+    STAMP_REJECTIONS,
+    ArmedController,
+    Output,
+)
 from policy_align_ros.control.guard import (
     DEFAULT_MAX_EXTRAPOLATION,
     DistanceFn,
@@ -25,10 +30,18 @@ from policy_align_ros.control.guard import (
     FrameSupportDistance,
     SupportDistance,
 )
-from policy_align_ros.control.joint_order import joint_order_problem, model_permutation
+from policy_align_ros.control.joint_order import (
+    NO_ORDER_CHECK,
+    joint_order_problem,
+    model_permutation,
+    order_check_off,
+    unchecked_order_refusal,
+)
 from policy_align_ros.control.limits import (
+    DEFAULT_STATE_LIMIT_MARGIN,
     joint_velocity_bounds,
     limit_locks,
+    position_outside_limits,
     ramp_toward,
     speed_limits,
     velocity_scale,
@@ -56,6 +69,9 @@ __all__ = [
     "DEFAULT_DRIFT_GAIN",
     "DEFAULT_MAX_EXTRAPOLATION",
     "DEFAULT_MIN_SINGULAR_VALUE",
+    "DEFAULT_STATE_LIMIT_MARGIN",
+    "IMPLAUSIBLE_POSITION",
+    "NO_ORDER_CHECK",
     "STAMP_REJECTIONS",
     "ArmedController",
     "ControlStep",
@@ -74,11 +90,14 @@ __all__ = [
     "limit_locks",
     "load_policy",
     "model_permutation",
+    "order_check_off",
+    "position_outside_limits",
     "policy_for_state",
     "project_with_locks",
     "ramp_toward",
     "secondary_velocity",
     "speed_limits",
     "task_to_joint_velocity",
+    "unchecked_order_refusal",
     "velocity_scale",
 ]

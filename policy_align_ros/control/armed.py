@@ -14,7 +14,9 @@ simulated time:
   it at once, because without a trusted ``q`` there is no safe command to ramp through;
 * *staleness*: joint states count as fresh by their arrival time and by their header
   stamp; zero stamps, stamps too old or too far in the future, and stamps going backwards
-  are untrustworthy.
+  are untrustworthy;
+* *plausibility*: a position outside its joint limits by more than ``state_limit_margin``
+  (a position of 1e6 rad, a wrong joint map) is untrustworthy too.
 """
 
 from __future__ import annotations
@@ -25,10 +27,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from policy_align_ros.control.limits import ROUNDOFF, ramp_toward, velocity_scale
+from policy_align_ros.control.limits import (
+    DEFAULT_STATE_LIMIT_MARGIN,
+    ROUNDOFF,
+    position_outside_limits,
+    ramp_toward,
+    velocity_scale,
+)
 from policy_align_ros.control.step import ControlStep, PolicyFn
 
-__all__ = ["STAMP_REJECTIONS", "ArmedController", "Output"]
+__all__ = ["IMPLAUSIBLE_POSITION", "STAMP_REJECTIONS", "ArmedController", "Output"]
 
 
 @dataclass
@@ -46,8 +54,9 @@ class Output:
     events : list of (str, str)
         ``(level, text)`` lines to log, level ``"info"`` or ``"warning"``.
     rejected : str
-        Set by :meth:`ArmedController.joint_state` when it refused the state for its
-        stamp: one of :data:`STAMP_REJECTIONS` (the log line has the details).
+        Set by :meth:`ArmedController.joint_state` when it refused the state: one of
+        :data:`STAMP_REJECTIONS` for its stamp, or :data:`IMPLAUSIBLE_POSITION` (the log
+        line has the details).
     extrapolation_scale : float
         The extrapolation guard's scale at the last evaluated step (1: not scaling).
     """
@@ -64,6 +73,8 @@ class Output:
 #: ``state_timeout_s + max_clock_skew_s``, later than the clock by ``max_clock_skew_s``.
 STAMP_REJECTIONS: tuple[str, ...] = ("zero_stamp", "stamp_backwards", "stamp_too_old",
                                      "stamp_in_future")
+#: Key of :attr:`Output.rejected` for a position outside its limits beyond the margin.
+IMPLAUSIBLE_POSITION = "position_outside_limits"
 
 #: Minimum time between two reports of a constraint forcing a larger change (ns).
 _FORCED_REPORT_NS = 1_000_000_000
@@ -94,6 +105,9 @@ class ArmedController:
         Allowed offset between the joint states' stamps and this clock (s), >= 0.
     joint_names : sequence of str, optional
         Names used in log lines (controller order).
+    state_limit_margin : float, optional
+        How far outside the step's joint limits a measured position may lie and still be
+        accepted (rad), >= 0.
 
     Attributes
     ----------
@@ -120,11 +134,13 @@ class ArmedController:
         state_timeout_s: float,
         max_clock_skew_s: float = 0.0,
         joint_names: Sequence[str] | None = None,
+        state_limit_margin: float = DEFAULT_STATE_LIMIT_MARGIN,
     ) -> None:
         self.step = step
         self.max_acceleration = max_acceleration
         self.state_timeout_s = state_timeout_s
         self.max_clock_skew_s = max_clock_skew_s
+        self.state_limit_margin = state_limit_margin
         n = step.n_joints
         self.joint_names = (list(joint_names) if joint_names is not None
                             else [f"joint {i}" for i in range(n)])
@@ -138,6 +154,7 @@ class ArmedController:
         # Nothing left to publish: disarmed and the zero command has gone out.
         self._silent = True
         self._q: np.ndarray | None = None
+        self._rejection = ""  # why the last joint state was refused (until one is taken)
         self._stamp_ns: int | None = None
         self._arrival_ns: int | None = None
         self._last_now_ns: int | None = None
@@ -182,6 +199,18 @@ class ArmedController:
         self._skew_ns = round(value * 1e9)
 
     @property
+    def state_limit_margin(self) -> float:
+        """Allowed excursion of a measured position beyond its joint limits (rad)."""
+        return self._state_limit_margin
+
+    @state_limit_margin.setter
+    def state_limit_margin(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"state_limit_margin: must be finite and >= 0, got {value}")
+        self._state_limit_margin = value
+
+    @property
     def max_delta(self) -> float:
         """Largest change of a joint's command in one step (rad/s)."""
         return self.max_acceleration * self.step.dt
@@ -203,7 +232,9 @@ class ArmedController:
         A stamp that is zero, older than ``state_timeout_s + max_clock_skew_s``, more than
         ``max_clock_skew_s`` in the future or earlier than the last one makes the state
         untrustworthy: the command goes to zero at once and the controller disarms. A
-        stamp equal to the last one is ignored (a repeat is no news).
+        stamp equal to the last one is ignored (a repeat is no news). So is a position
+        outside its joint limits by more than ``state_limit_margin``: a robot cannot be
+        there, so the state (a wrong joint map, a broken driver) cannot be trusted.
         """
         jumped = self._clock(now_ns)
         if jumped is not None:
@@ -226,11 +257,17 @@ class ArmedController:
         elif last is not None and stamp_ns < last:
             key = "stamp_backwards"
             problem = f"joint state stamp went backwards by {(last - stamp_ns) / 1e9:.3f} s"
+        else:
+            outside = position_outside_limits(q, self.step.lower, self.step.upper,
+                                              self._state_limit_margin, self.joint_names)
+            if outside:
+                key, problem = IMPLAUSIBLE_POSITION, f"implausible joint state: {outside}"
         if problem:
             out = self.reject_state(problem)
             out.rejected = key
             return out
         self._q = np.asarray(q, dtype=float)
+        self._rejection = ""
         self._stamp_ns = stamp_ns
         self._arrival_ns = int(now_ns)
         return self._output(None)
@@ -242,11 +279,14 @@ class ArmedController:
         command goes to zero at once.
         """
         self._forget_state()
+        self._rejection = reason
         return self.fault(reason)
 
     def state_problem(self, now_ns: int) -> str:
         """Why the joint states are not fresh at ``now_ns``; empty when they are."""
         if self._q is None:
+            if self._rejection:
+                return f"no valid joint state received (the last one: {self._rejection})"
             return "no valid joint state received"
         age = now_ns - self._arrival_ns
         if age > self._timeout_ns:
@@ -258,6 +298,7 @@ class ArmedController:
 
     def _forget_state(self) -> None:
         self._q = None
+        self._rejection = ""
         self._stamp_ns = None
         self._arrival_ns = None
 

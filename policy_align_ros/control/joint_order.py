@@ -6,7 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["joint_order_problem", "model_permutation"]
+__all__ = ["NO_ORDER_CHECK", "joint_order_problem", "model_permutation", "order_check_off",
+           "unchecked_order_refusal"]
 
 
 def model_permutation(model_joints: Sequence[str] | None, joints: Sequence[str]) -> np.ndarray:
@@ -74,3 +75,39 @@ def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
     return (f"controller {controller} orders the joints differently: command slot {slot} "
             f"is {theirs[slot]!r} there and {mine[slot]!r} here (controller order "
             f"{theirs})")
+
+
+#: The ``controller`` value that turns the joint order check off, typed on the command line
+#: (``-p controller:=none``; ``-p controller:=`` gives no string at all).
+NO_ORDER_CHECK = "none"
+
+
+def order_check_off(controller: str) -> bool:
+    """Whether ``controller`` (the executor's parameter) opts out of the order check.
+
+    Only an explicit choice does: :data:`NO_ORDER_CHECK` (any case, surrounding blanks
+    ignored) or an empty string (reachable from a parameter file).
+    """
+    text = controller.strip()
+    return not text or text.lower() == NO_ORDER_CHECK
+
+
+def unchecked_order_refusal(controller: str, why: str) -> str:
+    """The ~/enable refusal when ``controller``'s joint order could not be read.
+
+    Parameters
+    ----------
+    controller : str
+        Controller node name whose ``joints`` parameter was asked for.
+    why : str
+        What went wrong (no answer within the timeout, no string-array ``joints``).
+
+    Returns
+    -------
+    str
+        A sentence naming the problem and the fixes.
+    """
+    return (f"joint order of the command array not checked: {why}; start {controller}, "
+            f"or set controller to the node whose joints parameter lists the command "
+            f"order (-p controller:=/my_controller), or opt out of the check with "
+            f"-p controller:={NO_ORDER_CHECK}")

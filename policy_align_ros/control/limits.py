@@ -10,9 +10,11 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "DEFAULT_STATE_LIMIT_MARGIN",
     "ROUNDOFF",
     "joint_velocity_bounds",
     "limit_locks",
+    "position_outside_limits",
     "ramp_toward",
     "speed_limits",
     "velocity_scale",
@@ -20,6 +22,51 @@ __all__ = [
 
 #: Commands smaller than this (rad/s) are round-off: they are sent as exact zeros.
 ROUNDOFF = 1e-12
+
+#: How far (rad) a measured joint position may lie outside its URDF limits and still be
+#: believed: encoders, calibration and the braking overshoot of one period put real
+#: states a little outside, a wrong joint map or a broken driver far outside.
+DEFAULT_STATE_LIMIT_MARGIN = 0.1
+
+
+def position_outside_limits(
+    q: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    margin: float,
+    names: list[str],
+) -> str:
+    """Which measured positions are implausible: outside the limits by more than ``margin``.
+
+    Parameters
+    ----------
+    q : ndarray, shape (n,)
+        Measured joint positions (rad, or m for prismatic joints).
+    lower, upper : ndarray, shape (n,)
+        Joint limits (URDF); infinite entries (continuous joints) never flag.
+    margin : float
+        Allowed excursion beyond a limit (same units as ``q``), >= 0.
+    names : list of str, length n
+        Joint names, for the message.
+
+    Returns
+    -------
+    str
+        Empty when every position is plausible; else a sentence naming the joint furthest
+        outside, its value and its limits, and how many joints are outside.
+    """
+    q = np.asarray(q, dtype=float)
+    excess = np.maximum(lower - q, q - upper)
+    bad = np.flatnonzero(excess > margin)
+    if bad.size == 0:
+        return ""
+    i = int(bad[np.argmax(excess[bad])])
+    text = (f"{names[i]} at {q[i]:.6g} rad, outside its URDF limits "
+            f"[{lower[i]:.4g}, {upper[i]:.4g}] by more than state_limit_margin "
+            f"{margin:g} rad")
+    if bad.size > 1:
+        text += f" ({bad.size} joints outside: {', '.join(names[j] for j in bad)})"
+    return text
 
 
 def limit_locks(

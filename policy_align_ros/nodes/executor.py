@@ -35,12 +35,16 @@ docs/executor_safety.md explains it for robot owners):
   (a joint twice, NaN/inf, arrays of other lengths; counted, warned about at most every
   2 s) or untrustworthy by their header stamp (zero, too old, too far ahead of the node
   clock beyond ``max_clock_skew_s``, going backwards) send a zero command at once and
-  disarm; so does the node clock jumping backwards (a restarted simulation);
+  disarm; so does the node clock jumping backwards (a restarted simulation), and so does
+  a position outside its URDF limits by more than ``state_limit_margin`` (a position of
+  1e6 rad, a wrong joint map), naming the joint and the value;
 * ``~/enable`` also reads the ``joints`` parameter of the ros2_control controller named by
   ``controller`` (GetParameters, waiting at most 1 s of wall time while the node keeps
-  running) and refuses when its order differs from ``joints``; a controller that does not
-  answer is logged as "not checked" and arming goes ahead; ``controller`` set while the
-  check waits refuses that enable (the new controller's order was never read);
+  running) and refuses when its order differs from ``joints``, and when the order cannot
+  be read (no such node, no string-array ``joints``), naming the fix; only an explicit
+  ``controller:=none`` (or an empty string from a parameter file) arms without the check;
+  ``controller`` set while the check waits refuses that enable (the new controller's
+  order was never read);
 * the extrapolation guard scales down commands that lead further than
   ``max_extrapolation`` spacings of the training data away from it, to zero within a band
   at least the stopping distance at ``max_velocity``; frames held by position
@@ -88,6 +92,7 @@ from policy_align_ros.control import (
     DEFAULT_DRIFT_GAIN,
     DEFAULT_MAX_EXTRAPOLATION,
     DEFAULT_MIN_SINGULAR_VALUE,
+    DEFAULT_STATE_LIMIT_MARGIN,
     ArmedController,
     ControlStep,
     ExtrapolationGuard,
@@ -98,7 +103,9 @@ from policy_align_ros.control import (
     joint_order_problem,
     joint_velocity_bounds,
     load_policy,
+    order_check_off,
     speed_limits,
+    unchecked_order_refusal,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
 from policy_align_ros.kinematics import Robot, constraint_from_spec
@@ -125,7 +132,7 @@ CONTROLLER_TIMEOUT_S = 1.0
 #: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
 _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
                      "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
-                     "min_singular_value")
+                     "min_singular_value", "state_limit_margin")
 
 
 class Executor(Node):
@@ -187,6 +194,9 @@ class Executor(Node):
         self.declare_parameter("max_clock_skew_s", 0.05, descriptor(
             "allowed offset between joint-state stamps and the node clock [s]",
             float_range=(0.0, 10.0)))
+        self.declare_parameter("state_limit_margin", DEFAULT_STATE_LIMIT_MARGIN, descriptor(
+            "a joint state with a position outside its URDF limits by more than this is "
+            "refused and disarms [rad]", float_range=(0.0, 10.0)))
         self.declare_parameter("max_extrapolation", DEFAULT_MAX_EXTRAPOLATION, descriptor(
             "extrapolation guard: beyond this distance from the demonstrated data "
             "[spacings of the training data] commands leading further out scale down, to "
@@ -207,7 +217,8 @@ class Executor(Node):
             "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
         self.declare_parameter("controller", "/velocity_controller", descriptor(
             "node name of the ros2_control controller taking the commands; ~/enable reads "
-            "its joints parameter and refuses a different order (empty = no check)"))
+            "its joints parameter and refuses a different order or one it cannot read; "
+            "none = arm without the check"))
         self.declare_parameter("start_enabled", False, descriptor(
             "arm at the first fresh joint state when model_path loaded at start (else "
             "wait for ~/enable)", read_only=True))
@@ -228,7 +239,8 @@ class Executor(Node):
         return ArmedController(
             step, self.get_parameter("max_acceleration").value,
             self.get_parameter("state_timeout_s").value,
-            self.get_parameter("max_clock_skew_s").value, joint_names=joints)
+            self.get_parameter("max_clock_skew_s").value, joint_names=joints,
+            state_limit_margin=self.get_parameter("state_limit_margin").value)
 
     def _create_interfaces(self) -> None:
         """Publishers, subscriptions, the ~/enable service and the timers."""
@@ -314,7 +326,7 @@ class Executor(Node):
                 result = self._stage_model(param.value)
                 if result is not None:
                     return result
-            elif param.name == "controller" and param.value:
+            elif param.name == "controller" and not order_check_off(param.value):
                 try:
                     self._controller_service(param.value)
                 except (InvalidServiceNameException, InvalidTopicNameException,
@@ -335,7 +347,7 @@ class Executor(Node):
             self._retired_clients.append(self._controller_client)
             self._controller_client = None
             self._destroy_retired_clients()
-        if controller:
+        if not order_check_off(controller):
             self._controller_client = self.create_client(
                 GetParameters, self._controller_service(controller))
 
@@ -379,6 +391,8 @@ class Executor(Node):
                 control.state_timeout_s = param.value
             elif param.name == "max_clock_skew_s":
                 control.max_clock_skew_s = param.value
+            elif param.name == "state_limit_margin":
+                control.state_limit_margin = param.value
             elif param.name == "max_extrapolation" and control.step.guard is not None:
                 control.step.guard.max_extrapolation = param.value
             elif param.name in ("drift_gain", "drift_clamp_m", "min_singular_value"):
@@ -527,12 +541,12 @@ class Executor(Node):
         Returns
         -------
         (refusal, note)
-            ``refusal`` names a mismatch (empty: go ahead); ``note`` is appended to the
-            answer when the order could not be checked.
+            ``refusal`` names a mismatch or why the order could not be read (empty: go
+            ahead); ``note`` is appended to the answer when the check is off.
         """
         controller = self.get_parameter("controller").value
-        if not controller or client is None:
-            return "", ""
+        if order_check_off(controller) or client is None:
+            return "", f"; joint order check off (controller {controller!r})"
         answer = await call_with_timeout(
             client, GetParameters.Request(names=["joints"]), CONTROLLER_TIMEOUT_S)
         value = answer.values[0] if answer is not None and len(answer.values) == 1 else None
@@ -540,9 +554,7 @@ class Executor(Node):
             why = (f"{controller} did not answer within {CONTROLLER_TIMEOUT_S:g} s"
                    if answer is None else f"{controller} has no string-array joints "
                    "parameter")
-            text = f"joint order of the command array not checked: {why}"
-            self.get_logger().warning(text)
-            return "", f"; {text}"
+            return unchecked_order_refusal(controller, why), ""
         return joint_order_problem(value.string_array_value, self.robot.joint_names,
                                    controller), ""
 

@@ -24,7 +24,7 @@ from control_rigs import (
     _talos_hold_and_plane,
 )
 
-from policy_align_ros.control import ArmedController, ControlStep
+from policy_align_ros.control import IMPLAUSIBLE_POSITION, ArmedController, ControlStep
 from policy_align_ros.kinematics import Robot, constraint_from_spec
 
 
@@ -348,6 +348,10 @@ def test_bad_armed_controller_settings():
         ArmedController(step, 1.0, float("nan"))
     with pytest.raises(ValueError, match="max_clock_skew_s"):
         ArmedController(step, 1.0, 0.1, -1.0)
+    with pytest.raises(ValueError, match="state_limit_margin"):
+        ArmedController(step, 1.0, 0.1, state_limit_margin=-0.1)
+    with pytest.raises(ValueError, match="state_limit_margin"):
+        ArmedController(step, 1.0, 0.1, state_limit_margin=float("inf"))
 
 
 def test_held_frames_latch_at_enable_and_when_the_constraints_change():
@@ -417,3 +421,51 @@ def test_a_near_singular_constraint_matrix_ramps_down_and_says_why():
     # Rows more than joints can never be independent.
     step.constraints = [_Row(r) for r in np.eye(N + 1, N)]
     assert "near-singular" in step(np.zeros(N))[1]
+
+
+@pytest.mark.parametrize("joint, value, shown", [
+    (0, 1e6, "joint 0 at 1e+06 rad"),
+    (3, 3.0, "joint 3 at 3 rad"),    # the limit is 1.57
+    (5, -1.8, "joint 5 at -1.8 rad"),
+])
+def test_implausible_positions_are_refused_and_disarm_naming_joint_and_value(
+        joint, value, shown):
+    lower, upper = np.full(N, -1.57), np.full(N, 1.57)
+    step = ControlStep(lower, upper, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    for _ in range(20):
+        run.tick()
+    assert np.any(run.sent[-1])
+    run.q[joint] = value
+    out = run.state()
+    assert out.rejected == IMPLAUSIBLE_POSITION
+    assert out.command is not None and not np.any(out.command)  # zero at once
+    assert not run.control.armed and run.control.faulted
+    assert shown in run.control.zero_reason and "state_limit_margin" in run.control.zero_reason
+    # The refusal to arm again says why there is no state to arm on.
+    accepted, reason = run.arm()
+    assert not accepted and shown in reason
+    assert run.tick().command is None  # still implausible: nothing moves
+    run.q[joint] = 0.0
+    run.state()
+    assert run.arm() == (True, "enabled")
+
+
+def test_positions_just_outside_the_limits_within_the_margin_are_accepted():
+    lower, upper = np.full(N, -1.57), np.full(N, 1.57)
+    step = ControlStep(lower, upper, VMAX, DT, policy=_Linear(np.zeros(N)))
+    run = _Run(step, np.array([1.65, -1.65, 0.0, 0.0, 0.0, 0.0]))
+    assert run.state().rejected == ""
+    assert run.arm() == (True, "enabled")
+    for _ in range(20):
+        run.tick()
+    assert run.control.armed and np.any(run.sent[-1])
+    # A wider margin set at run time accepts what the default refuses, and back.
+    run.control.state_limit_margin = 0.5
+    run.q[2] = 1.9
+    assert run.state().rejected == "" and run.control.armed
+    run.k += 1
+    run.control.state_limit_margin = 0.1
+    assert run.state().rejected == IMPLAUSIBLE_POSITION and not run.control.armed

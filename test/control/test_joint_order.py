@@ -3,7 +3,12 @@
 import numpy as np
 import pytest
 
-from policy_align_ros.control import model_permutation
+from policy_align_ros.control import (
+    NO_ORDER_CHECK,
+    model_permutation,
+    order_check_off,
+    unchecked_order_refusal,
+)
 
 
 def test_model_permutation_maps_controller_order_to_model_order():
@@ -13,3 +18,17 @@ def test_model_permutation_maps_controller_order_to_model_order():
     np.testing.assert_array_equal(model_permutation(None, ["a", "b"]), [0, 1])
     with pytest.raises(ValueError, match=r"model needs \['d'\].*not in the model \['c'\]"):
         model_permutation(["a", "b", "d"], ["a", "b", "c"])
+
+
+@pytest.mark.parametrize("controller, off", [
+    ("none", True), (" None ", True), ("", True),
+    ("/velocity_controller", False), ("/none", False), ("nonexistent", False),
+])
+def test_only_an_explicit_none_or_empty_controller_turns_the_order_check_off(controller, off):
+    assert order_check_off(controller) is off
+
+
+def test_an_unread_joint_order_refusal_names_the_fixes():
+    text = unchecked_order_refusal("/velocity_controller", "it did not answer within 1 s")
+    assert "/velocity_controller" in text and "did not answer within 1 s" in text
+    assert f"controller:={NO_ORDER_CHECK}" in text and "start /velocity_controller" in text

@@ -6,7 +6,12 @@ from control_rigs import DT, LOWER, STEP_TOL, UPPER, VMAX, N
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from policy_align_ros.control import joint_velocity_bounds, ramp_toward, velocity_scale
+from policy_align_ros.control import (
+    joint_velocity_bounds,
+    position_outside_limits,
+    ramp_toward,
+    velocity_scale,
+)
 
 
 def constrained_projector(A):
@@ -86,3 +91,23 @@ def test_joint_velocity_bounds_from_position_and_speed_limits() -> None:
     lo, hi = joint_velocity_bounds(q, lower, upper, max_velocity=2.0, dt=0.01)
     np.testing.assert_allclose(hi, [0.0, 1.0, 2.0])  # 0.01 rad of room over 10 ms
     np.testing.assert_allclose(lo, [-2.0, -2.0, -2.0])
+
+
+def test_positions_outside_the_limits_beyond_the_margin_are_named_with_their_value():
+    names = [f"j{i}" for i in range(N)]
+    lower, upper = np.full(N, -1.57), np.full(N, 1.57)
+    q = np.zeros(N)
+    assert position_outside_limits(q, lower, upper, 0.1, names) == ""
+    q[2] = 1.65  # 0.08 beyond the limit: within the margin
+    q[4] = -1.6
+    assert position_outside_limits(q, lower, upper, 0.1, names) == ""
+    q[1] = 3.0
+    text = position_outside_limits(q, lower, upper, 0.1, names)
+    assert "j1 at 3 rad" in text and "1.57" in text and "j2" not in text
+    q[3] = -1e6  # the furthest out is named first, every joint outside is listed
+    text = position_outside_limits(q, lower, upper, 0.1, names)
+    assert text.startswith("j3 at -1e+06 rad") and "2 joints outside: j1, j3" in text
+    # A continuous joint (infinite limits) is never implausible.
+    q = np.full(N, 1e6)
+    assert position_outside_limits(q, np.full(N, -np.inf), np.full(N, np.inf), 0.1,
+                                   names) == ""

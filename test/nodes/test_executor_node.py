@@ -1,6 +1,6 @@
 """Integration tests of the ``executor`` node: arming, ramps, staleness, parameters, models,
 diagnostics, the controller check, sim time and lockstep (own rclpy.Context, domain ids 112,
-150-156, 158, 159, 200, 201, 204, 205, 208, 210, 211, 219).
+150-156, 158, 159, 200, 201, 204, 205, 208, 210-214, 219).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
@@ -365,7 +365,7 @@ def test_enable_checks_the_controllers_joint_order(rig):
         controller.destroy_node()
 
 
-def test_enable_without_an_answering_controller_arms_and_says_so(rig):
+def test_enable_without_an_answering_controller_refuses_and_names_the_fix(rig):
     r = rig(205)
     assert r.node.set_parameters([Parameter("controller", value="/velocity_controller")]
                                  )[0].successful
@@ -375,20 +375,86 @@ def test_enable_without_an_answering_controller_arms_and_says_so(rig):
     ticks = []
     r.node.create_timer(PERIOD, lambda: ticks.append(1))
     response = r.enable(True)
-    assert response.success and r.node.controller.armed
+    assert not response.success and not r.node.controller.armed
     assert ("joint order of the command array not checked: /velocity_controller did not "
             "answer within 1 s") in response.message
+    assert "start /velocity_controller" in response.message
+    assert "-p controller:=none" in response.message
     assert ticks  # the node kept running while it waited for the controller
+    r.spin(0.1)
+    assert r.commands == []  # refused: nothing was ever published
     for bad in ("has space", "/trailing/", "1starts_with_digit"):
         result = r.node.set_parameters([Parameter("controller", value=bad)])[0]
         assert not result.successful and "controller: not a valid node name" in result.reason
-    assert r.node.set_parameters([Parameter("controller", value="")])[0].successful
-    response = r.enable(False)
-    assert response.success
-    response = r.enable(True)
-    assert response.success and "not checked" not in response.message
+    # The explicit opt-outs: "none" (typed on the command line) and "" (a parameter file).
+    for off in ("none", ""):
+        assert r.node.set_parameters([Parameter("controller", value=off)])[0].successful
+        assert r.node._controller_client is None
+        response = r.enable(True)
+        assert response.success and r.node.controller.armed, response.message
+        assert "joint order check off" in response.message
+        assert r.enable(False).success
     desc = r.node.describe_parameters(["controller"])[0]
-    assert "joints parameter" in desc.description
+    assert "joints parameter" in desc.description and "none" in desc.description
+
+
+def test_a_controller_without_a_joints_parameter_refuses_the_enable(rig):
+    r = rig(212, controller="/velocity_controller")
+    controller = Node("velocity_controller", context=r.context)
+    try:
+        r.executor.add_node(controller)
+        r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+        r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                     what="fresh joint states")
+        response = r.enable(True)
+        assert not response.success and not r.node.controller.armed
+        assert "/velocity_controller has no string-array joints parameter" in response.message
+        assert "-p controller:=none" in response.message
+    finally:
+        r.executor.remove_node(controller)
+        controller.destroy_node()
+
+
+def test_controller_none_parses_on_the_command_line(ros_context):
+    context = ros_context(213)
+    node = executor_module.Executor(
+        context=context, cli_args=["--ros-args", "-p", "controller:=none"],
+        parameter_overrides=[Parameter("joints", value=JOINTS)])
+    try:
+        assert node.get_parameter("controller").value == "none"
+        assert node._controller_client is None  # nothing to wait for at ~/enable
+    finally:
+        node.destroy_node()
+
+
+def test_implausible_joint_states_disarm_at_once_naming_the_joint_and_value(rig):
+    r = rig(214)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.enable(True).success
+    r.spin_until(lambda: len(r.commands) >= 5, what="commands")
+    good = r.q.copy()
+    r.q[3] = 1e6
+    r.spin_until(lambda: not r.node.controller.armed, what="the disarm")
+    r.spin_until(lambda: not np.any(r.commands[-1]), what="the zero command")
+    assert "arm_left_4_joint at 1e+06 rad" in r.node.controller.zero_reason
+    assert r.node.rejected_states["position_outside_limits"] >= 1
+    response = r.enable(True)
+    assert not response.success and "arm_left_4_joint at 1e+06 rad" in response.message
+    # Within the margin: accepted as before (arm_left_1_joint's upper limit is 0.5236).
+    r.q = good
+    r.q[0] = 0.5236 + 0.05
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="a plausible state")
+    assert r.enable(True).success
+    r.spin(0.1)
+    assert r.node.controller.armed
+    # A margin set at run time applies to the next state.
+    assert r.node.set_parameters([Parameter("state_limit_margin", value=0.01)]
+                                 )[0].successful
+    r.spin_until(lambda: not r.node.controller.armed, what="the disarm")
+    assert "arm_left_1_joint at 0.5736 rad" in r.node.controller.zero_reason
 
 
 def test_start_enabled_goes_through_the_controller_check(rig, tmp_path):

@@ -27,12 +27,16 @@ from policy_align_ros.nodes.executor import Executor
 
 
 def _start_executor_process(domain_id: int, model, log: Path, **params):
-    """The executor as its console script runs it (``main()``), armed at the first state."""
+    """The executor as its console script runs it (``main()``), armed at the first state.
+
+    No controller node runs here: the joint order check is opted out of on the command
+    line (``controller:=none``), as a user without one would.
+    """
     code = "import sys; from policy_align_ros.nodes.executor import main; sys.exit(main())"
     args = []
     values = {"robot": "talos", "joints": "[" + ",".join(JOINTS) + "]",
               "model_path": str(model), "start_enabled": "true", "state_timeout_s": "1.0",
-              **params}
+              "controller": "none", **params}
     for k, v in values.items():
         args += ["-p", f"{k}:={v}"]
     with open(log, "wb") as out:
@@ -58,6 +62,7 @@ def test_sigint_to_the_executor_process_leaves_a_zero_command(tmp_path):
         log = tmp_path / "executor.log"
         proc = _start_executor_process(157, model, log)
         q = np.full(len(JOINTS), 0.3)
+        q[JOINTS.index("arm_left_4_joint")] = -0.3  # inside its limits [-2.36, 0]
         end = time.monotonic() + 30.0
         while not (commands and np.any(commands[-1])) and time.monotonic() < end:
             msg = JointState(name=JOINTS, position=q.tolist())
