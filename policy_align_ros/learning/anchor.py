@@ -19,7 +19,7 @@ from policy_align_ros.learning.goal import (
     data_extent,
     demonstrated_goal,
     learnt_minima,
-    sample_speeds,
+    typical_speed,
 )
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.trajectory import Trajectory
@@ -58,7 +58,7 @@ def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = T
     if goal is None or not can_anchor:
         return out
     extent = data_extent(trajs)
-    speed = float(np.median([sample_speeds(t).max() for t in trajs])) or 1.0
+    speed = typical_speed(trajs)
     found = learnt_minima(regressor.predict, regressor.gradient, goal[None], scale=extent,
                           speed=speed)
     error = (float(np.min(np.linalg.norm(found.points - goal, axis=1))) / extent

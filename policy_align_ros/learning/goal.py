@@ -51,6 +51,7 @@ __all__ = [
     "learnt_minima",
     "rest_points",
     "sample_speeds",
+    "typical_speed",
 ]
 
 #: A demonstration rests where its speed is below this fraction of its peak speed.
@@ -129,16 +130,21 @@ def rest_points(trajs: Sequence[Trajectory | np.ndarray], fraction: float = REST
         raise ValueError(f"fraction: must be in (0, 1), got {fraction!r}")
     out: list[np.ndarray | None] = []
     for traj in as_trajectories(trajs):
-        speed = sample_speeds(traj)
-        peak = float(speed.max())
-        resting = speed < fraction * peak
-        if peak <= 0.0 or not resting[-1]:
-            out.append(None)
-            continue
-        moving = np.flatnonzero(~resting)
-        first = int(moving[-1]) + 1 if moving.size else 0
-        out.append(traj.positions[first:].mean(axis=0))
+        first = _final_rest(traj, fraction)
+        out.append(None if first is None else traj.positions[first:].mean(axis=0))
     return out
+
+
+def _final_rest(traj: Trajectory, fraction: float) -> int | None:
+    """Index of the first sample of a demonstration's final run of samples below
+    ``fraction`` of its peak speed; None when its last sample moves or it never moves."""
+    speed = sample_speeds(traj)
+    peak = float(speed.max())
+    resting = speed < fraction * peak
+    if peak <= 0.0 or not resting[-1]:
+        return None
+    moving = np.flatnonzero(~resting)
+    return int(moving[-1]) + 1 if moving.size else 0
 
 
 def demonstrated_goal(trajs: Sequence[Trajectory | np.ndarray],
@@ -180,13 +186,17 @@ def _end_point(traj: Trajectory, tail: float = 0.1) -> np.ndarray:
     """Where a demonstration ends (n,): the mean of the last ``tail`` of its final rest
     run (the flow still creeps toward its minimum over the run, so its early part lags),
     or its last sample when it ends in motion."""
-    speed = sample_speeds(traj)
-    resting = speed < REST_FRACTION * float(speed.max())
-    if not resting[-1]:
+    first = _final_rest(traj, REST_FRACTION)
+    if first is None:
         return traj.positions[-1]
-    moving = np.flatnonzero(~resting)
-    run = len(resting) - (int(moving[-1]) + 1 if moving.size else 0)
+    run = traj.n_samples - first
     return traj.positions[-max(1, int(math.ceil(tail * run))):].mean(axis=0)
+
+
+def typical_speed(trajs: Sequence[Trajectory]) -> float:
+    """The median over demonstrations of their peak speed (state units per second), or 1
+    when none moves."""
+    return float(np.median([sample_speeds(t).max() for t in trajs])) or 1.0
 
 
 def data_extent(trajs: Sequence[Trajectory | np.ndarray]) -> float:
@@ -363,7 +373,7 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     if not 0.0 < active_fraction:
         raise ValueError(f"active_fraction: must be positive, got {active_fraction!r}")
     extent = data_extent(trajs) or 1.0
-    speed = float(np.median([sample_speeds(t).max() for t in trajs])) or 1.0
+    speed = typical_speed(trajs)
     rests = rest_points(trajs, fraction)
     found = [r for r in rests if r is not None]
     ratios = (np.linalg.norm(gradient(np.array(found)), axis=1) / speed if found

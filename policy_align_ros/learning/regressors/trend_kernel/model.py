@@ -354,7 +354,6 @@ class TrendKernelRegression(BaseEstimator):
         if motion is not None:
             projectors = direction_projectors(motion / self.scale_, self.direction_weight)
             DF = direction_rows(projectors, _trend_jacobian(Z, pinned))
-        self._projectors = projectors
 
         d_med = _median_distance(C)
         lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
@@ -385,12 +384,14 @@ class TrendKernelRegression(BaseEstimator):
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
         self._quadratic_pick, self._index = search.quadratic_pick, search.index
-        self._final_fit(best, F, Z, u, C, n, demo, free)
+        self._final_fit(best, F, Z, u, C, n, demo, free, projectors)
         return self
 
     def _final_fit(self, best: tuple, F: np.ndarray, Z: np.ndarray, u: np.ndarray,
-                   C: np.ndarray, n: int, demo: np.ndarray, free: np.ndarray) -> None:
-        """Fit the hyperparameters ``best`` on all samples and set the learnt attributes."""
+                   C: np.ndarray, n: int, demo: np.ndarray, free: np.ndarray,
+                   projectors: np.ndarray | None = None) -> None:
+        """Fit the hyperparameters ``best`` on all samples and set the learnt attributes;
+        ``projectors`` (m, n, n): the samples' direction projectors, or None."""
         (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
          self.offset_ridge_) = best
         self.index_matrix_, self.index_goal_, self.index_scale_ = (
@@ -415,15 +416,14 @@ class TrendKernelRegression(BaseEstimator):
                               _gaussian(C, C, self.length_scale_))
             self.centres_ = C
         D = None
-        if getattr(self, "_projectors", None) is not None:
+        if projectors is not None:
             J = _trend_jacobian(Z, True)
             if not math.isinf(self.kernel_ridge_):
                 J = np.concatenate([J, _kernel_jacobian(Z, C, self.length_scale_, True)],
                                    axis=2)
-            D = direction_rows(self._projectors, J)
+            D = direction_rows(projectors, J)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
                            free=free, D=D)
-        self._projectors = None
         G, r, m = grams.profiled_all(self.offset_ridge_)
         w = _convex_solve(G / m + P, r / m, n)
         if w is None or not np.all(np.isfinite(w)):
