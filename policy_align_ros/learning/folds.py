@@ -36,9 +36,14 @@ from typing import Any
 
 import numpy as np
 
+from policy_align_ros.learning.anchor import motion_steps
 from policy_align_ros.learning.fitting import assign_folds
 from policy_align_ros.learning.goal import BOX_MARGIN, goal_summary, learnt_minima
-from policy_align_ros.learning.regressors import TrendKernelRegression, takes_free_groups
+from policy_align_ros.learning.regressors import (
+    TrendKernelRegression,
+    takes_free_groups,
+    takes_motion,
+)
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["FoldModel", "fit_checks", "fold_refits", "fold_spread", "heldout_vs_zero",
@@ -60,8 +65,8 @@ class FoldModel:
 
 
 def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
-                free_groups: np.ndarray | None = None, *, random_state: int | None = 0
-                ) -> list[FoldModel]:
+                free_groups: np.ndarray | None = None, *, random_state: int | None = 0,
+                motion: np.ndarray | None = None) -> list[FoldModel]:
     """The fitted ``regressor`` refitted once per CV fold, without that fold's groups.
 
     Parameters
@@ -77,6 +82,9 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
         Demonstrations whose offsets it re-fits freely (passed on for those kept).
     random_state : int or None
         Seeds the folds when the regressor keeps none.
+    motion : ndarray (m, n), optional
+        Each sample's step: a regressor stationary at a goal was fitted with it, and
+        each fold model is fitted the same way.
 
     Returns
     -------
@@ -101,6 +109,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
                  if kept_free.size and takes_free_groups(template) else {})
         if getattr(regressor, "goal_", None) is not None:
             extra["goal"] = regressor.goal_  # the fold model is stationary there too
+            if motion is not None and takes_motion(template):
+                extra["motion"] = motion[train]
         try:
             model = copy.deepcopy(template).fit(X[train], y[train], groups=groups[train],
                                                 **extra)
@@ -258,7 +268,9 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
     X = np.concatenate([pieces[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
     g = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
-    folds = fold_refits(regressor, X, y, g, free, random_state=random_state)
+    motion = (np.concatenate([motion_steps(pieces[k].positions)[masks[k]] for k in keep])
+              if getattr(regressor, "goal_", None) is not None else None)
+    folds = fold_refits(regressor, X, y, g, free, random_state=random_state, motion=motion)
     heldout = heldout_vs_zero(folds, pieces)
     goal = goal_summary(parents, regressor.predict, regressor.gradient)
     minima = np.array([m["point"] for m in goal["minima"]]).reshape(-1, X.shape[1])
