@@ -59,6 +59,8 @@ from policy_align_ros.learning.bandwidth import (
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.fitting import check_query
 from policy_align_ros.learning.folds import fit_checks
+from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
+from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.pieces import merge_pieces, split_pieces, switch_junctions
 from policy_align_ros.learning.potential import (
@@ -130,6 +132,14 @@ class PolicyAlign(BaseEstimator):
         rule for regressors without one), and the Euler potentials are first rescaled by
         the velocities' measure of the Euler rule's bias (``euler_scale_``); otherwise the
         Euler rule.
+    tracking_lag : "auto" or float
+        Time constant (s, >= 0) by which the demonstrated velocity lagged the policy's
+        (:mod:`policy_align_ros.learning.lag`): a robot tracking velocity commands, a
+        person's speed building up from rest. ``"auto"`` (default): chosen by the
+        regressor's cross-validation among 0 and ``LAG_GRID``, 0 (the paper's estimate)
+        unless a lag predicts held-out demonstrations better by more than two standard
+        errors (lags below one sample period are not scored); untimed trajectories and
+        regressors without a CV score use 0.
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
         Kept well below ``eigen_tol``: many tiny weights add up to a link that decides
@@ -170,6 +180,9 @@ class PolicyAlign(BaseEstimator):
     integration_ : {"euler", "trapezoid", "trapezoid_late"}
         The rule used (also ``fit_summary_["integration"]``, saved with the model;
         ``fit_summary_["integration_cv"]`` holds the scores it was chosen by).
+    tracking_lag_ : float
+        The lag used (s; also ``fit_summary_["tracking_lag"]``, with the scores it was
+        chosen by in ``fit_summary_["tracking_lag_cv"]``).
     euler_scale_ : float
         Factor applied to the Euler potentials with ``integration="auto"`` where
         velocities are trusted (:func:`~policy_align_ros.learning.potential.euler_scale`;
@@ -197,6 +210,7 @@ class PolicyAlign(BaseEstimator):
         sigma: str | float = "medium",
         *,
         integration: str = "auto",
+        tracking_lag: str | float = "auto",
         weight_tol: float = 1e-12,
         merge_tol: float = 0.1,
         eigen_tol: float = 1e-8,
@@ -207,6 +221,7 @@ class PolicyAlign(BaseEstimator):
     ) -> None:
         self.sigma = sigma
         self.integration = integration
+        self.tracking_lag = tracking_lag
         self.weight_tol = weight_tol
         self.merge_tol = merge_tol
         self.eigen_tol = eigen_tol
@@ -221,6 +236,10 @@ class PolicyAlign(BaseEstimator):
             raise ValueError(
                 f"integration must be one of {METHODS}, got {self.integration!r}"
             )
+        lag = self.tracking_lag
+        if lag != "auto" and not (isinstance(lag, numbers.Real) and 0 <= lag < math.inf):
+            raise ValueError(f"tracking_lag must be 'auto' or a finite float >= 0 (s), "
+                             f"got {lag!r}")
         for name in ("weight_tol", "eigen_tol"):
             value = getattr(self, name)
             if not (isinstance(value, numbers.Real) and 0 < value < 1):
@@ -287,6 +306,11 @@ class PolicyAlign(BaseEstimator):
 
         t2 = time.perf_counter()
         scores, n_fitted = self._fit_global(est, template, free, aligned)
+        # Stage 4a: the demonstrations' tracking lag, where the CV finds one.
+        lag_scores = self._fit_lag(est, template, free, aligned)
+        if self.tracking_lag_ > 0.0:
+            free, aligned = self._align(est, template)[1:]
+            scores, n_fitted = self._fit_global(est, template, free, aligned)
         # Stage 4b: made stationary where the demonstrations end if the paper's potential
         # has no minimum there (learning/anchor.py).
         anchor = anchor_decision(self.regressor_, trajs, takes_goal(template))
@@ -306,7 +330,9 @@ class PolicyAlign(BaseEstimator):
 
         self._merge_and_support(est, trajs[0].n_dims, joint_names)
         self.fit_summary_ = {**self._summary(est, table, scores, timings), **checks,
-                             "anchor": anchor}
+                             "anchor": anchor, "tracking_lag": self.tracking_lag_,
+                             "tracking_lag_cv": {f"{t:g}": json_float(v)
+                                                 for t, v in lag_scores.items()}}
         return self
 
     def _check_data(self, trajectories: Sequence[Trajectory | np.ndarray],
@@ -347,6 +373,12 @@ class PolicyAlign(BaseEstimator):
             # Trusted velocities measure the Euler rule's bias: a rescaling, to first order.
             self.euler_scale_ = euler_scale(phi["euler"], phi[rules[1]])
             phi["euler"] = [self.euler_scale_ * p for p in phi["euler"]]
+        self.tracking_lag_ = 0.0
+        if self.tracking_lag != "auto" and self.tracking_lag > 0.0 and pieces[0].times is not None:
+            self.tracking_lag_ = float(self.tracking_lag)
+            kinetic = [kinetic_term(t) for t in pieces]
+            phi = {rule: lagged_potentials(p, kinetic, self.tracking_lag_)
+                   for rule, p in phi.items()}
         return _Estimates(trajs, masks, pieces, piece_masks, spans, switch_end, closest,
                           rules, phi)
 
@@ -383,14 +415,45 @@ class PolicyAlign(BaseEstimator):
                                                               strict=True)])
         return table, free, aligned
 
-    def _fit_global(self, est: _Estimates, template, free: np.ndarray,
-                    aligned: dict[str, tuple], goal: np.ndarray | None = None
-                    ) -> tuple[dict[str, float | None], int]:
-        """Stage 4: a copy of ``template`` fitted on every rule's aligned potentials; the
-        rule whose fit has the better CV score is kept (``integration_``, ``regressor_``,
-        ``offsets_``, ``aligned_potentials_``). Returns the scores and the samples fitted."""
+    def _fit_lag(self, est: _Estimates, template, free: np.ndarray,
+                 aligned: dict[str, tuple]) -> dict[float, float]:
+        """Stage 4a: with ``tracking_lag="auto"``, the lag whose potentials the fitted
+        regressor predicts best across held-out demonstrations, its hyperparameters fixed
+        (:func:`~policy_align_ros.learning.lag.choose_lag`). A lag found replaces the
+        potentials of the rule chosen in ``est`` (the caller aligns and fits again); sets
+        ``tracking_lag_``. Returns the scores."""
+        fixed = _fixed_hyperparameters(self.regressor_)
+        if self.tracking_lag != "auto" or fixed is None or est.trajs[0].times is None:
+            return {}
+        rule = self.integration_
+        kinetic = [kinetic_term(t) for t in est.trajs]
+        lagged = dataclasses.replace(est, rules=[rule])
+
+        def score(tau: float) -> tuple[float | None, float]:
+            if tau == 0.0:
+                return _cv_score(self.regressor_), _cv_error(self.regressor_)
+            lagged.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
+            offsets, potentials = self._align(lagged, template)[2][rule]
+            Xtr, ytr, gtr, extra = self._training_set(est, potentials, free, template)
+            fit = copy.deepcopy(fixed).fit(Xtr, ytr, groups=gtr, **extra)
+            return _cv_score(fit), _cv_error(fit)
+
+        period = float(np.median(np.concatenate([t.dt for t in est.trajs])))
+        tau, scores = choose_lag(score, period)
+        self.tracking_lag_ = tau
+        if tau > 0.0:
+            est.rules = [rule]
+            est.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
+        return scores
+
+    def _training_set(self, est: _Estimates, potentials: list[np.ndarray],
+                      free: np.ndarray, template, goal: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+        """The global model's training samples: states, aligned potentials, their
+        trajectory ids and the keyword arguments of the fit (free groups, goal, motion)."""
         trajs, masks, keep = est.trajs, est.masks, self.inliers_
         Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
+        ytr = np.concatenate([potentials[k][masks[k]] for k in keep])
         gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
         extra = {"free_groups": free} if free.size else {}
         if goal is not None and takes_goal(template):
@@ -399,9 +462,18 @@ class PolicyAlign(BaseEstimator):
             # Timing-free evidence beside where the demonstrations end: which way they move.
             extra["motion"] = np.concatenate([motion_steps(trajs[k].positions)[masks[k]]
                                               for k in keep])
+        return Xtr, ytr, gtr, extra
+
+    def _fit_global(self, est: _Estimates, template, free: np.ndarray,
+                    aligned: dict[str, tuple], goal: np.ndarray | None = None
+                    ) -> tuple[dict[str, float | None], int]:
+        """Stage 4: a copy of ``template`` fitted on every rule's aligned potentials; the
+        rule whose fit has the better CV score is kept (``integration_``, ``regressor_``,
+        ``offsets_``, ``aligned_potentials_``). Returns the scores and the samples fitted."""
         fits, scores = {}, {}
         for rule in est.rules:
-            ytr = np.concatenate([aligned[rule][1][k][masks[k]] for k in keep])
+            Xtr, ytr, gtr, extra = self._training_set(est, aligned[rule][1], free, template,
+                                                      goal)
             fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr, **extra)
             scores[rule] = _cv_score(fits[rule])
             if len(est.rules) > 1 and scores[rule] is None:
@@ -413,7 +485,7 @@ class PolicyAlign(BaseEstimator):
             scores, key=scores.get)
         self.regressor_ = fits[self.integration_]
         self.offsets_, self.aligned_potentials_ = _level_free(
-            *aligned[self.integration_], free, self.regressor_, trajs, masks)
+            *aligned[self.integration_], free, self.regressor_, est.trajs, est.masks)
         return scores, len(Xtr)
 
     def _merge_and_support(self, est: _Estimates, n: int,
@@ -606,6 +678,29 @@ def _cv_score(regressor) -> float | None:
         return None
     score = float(scores[best])
     return score if math.isfinite(score) else None
+
+
+def _cv_error(regressor) -> float:
+    """The standard error over the folds of the regressor's chosen CV score (NaN when it
+    has none)."""
+    best = getattr(regressor, "cv_best_", None)
+    errors = getattr(regressor, "cv_standard_errors_", None) or {}
+    return float(errors.get(best, math.nan)) if best is not None else math.nan
+
+
+def _fixed_hyperparameters(regressor):
+    """An unfitted copy of a CV-fitted ``regressor`` with the hyperparameters it chose
+    fixed (a cheap fit that scores other potentials with the same model), or None when
+    it has no CV choice to fix."""
+    if _cv_score(regressor) is None or not hasattr(regressor, "set_params"):
+        return None
+    names = ("trend_form", "trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
+    if not all(hasattr(regressor, name + "_") for name in names):
+        return None
+    chosen = {name: getattr(regressor, name + "_") for name in names}
+    # NaN: not used by the chosen form (the single-index trend's trend penalty).
+    chosen = {k: v for k, v in chosen.items() if not (isinstance(v, float) and math.isnan(v))}
+    return type(regressor)(**{**regressor.get_params(), **chosen})
 
 
 def _level_free(offsets: np.ndarray, potentials: list[np.ndarray], free: np.ndarray,
