@@ -34,7 +34,12 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from policy_align_ros.control.guard import ExtrapolationGuard
-from policy_align_ros.control.limits import limit_locks, velocity_scale
+from policy_align_ros.control.limits import (
+    braking_scale,
+    inner_limits,
+    limit_locks,
+    velocity_scale,
+)
 from policy_align_ros.kinematics.constraints import ConstraintModel
 from policy_align_ros.kinematics.projection import nullspace_projector, projector_from_svd
 
@@ -156,7 +161,7 @@ class ControlStep:
     Parameters
     ----------
     lower, upper : array_like, shape (n,)
-        Joint position limits.
+        Joint position limits (URDF).
     max_velocity : array_like, shape (n,)
         Per-joint speed limits (> 0).
     dt : float
@@ -186,6 +191,10 @@ class ControlStep:
     min_singular_value : float
         Smallest singular value of the constraint matrix below which the step refuses to
         command (units of its rows, m/rad for frame rows; >= 0, 0 = never).
+    joint_limit_margin : float
+        Distance (rad, >= 0) inside ``[lower, upper]`` at which joints come to rest: the
+        step brakes and locks joints at :attr:`control_lower` and :attr:`control_upper`
+        (:func:`~policy_align_ros.control.limits.inner_limits`).
 
     Attributes
     ----------
@@ -209,9 +218,11 @@ class ControlStep:
         drift_gain: float = DEFAULT_DRIFT_GAIN,
         drift_clamp_m: float = DEFAULT_DRIFT_CLAMP_M,
         min_singular_value: float = DEFAULT_MIN_SINGULAR_VALUE,
+        joint_limit_margin: float = 0.0,
     ) -> None:
         self.lower = np.asarray(lower, dtype=float)
         self.upper = np.asarray(upper, dtype=float)
+        self.joint_limit_margin = joint_limit_margin
         n = self.lower.shape[0]
         self.max_velocity = np.broadcast_to(np.asarray(max_velocity, dtype=float), (n,)).copy()
         if np.any(~(self.max_velocity > 0.0)):
@@ -241,6 +252,29 @@ class ControlStep:
 
     # -- settings -------------------------------------------------------------------
     @property
+    def joint_limit_margin(self) -> float:
+        """Distance (rad) inside the URDF limits at which braking brings joints to rest."""
+        return self._margin
+
+    @joint_limit_margin.setter
+    def joint_limit_margin(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"joint_limit_margin: must be finite and >= 0, got {value}")
+        self._margin = value
+        self._inner = inner_limits(self.lower, self.upper, value)
+
+    @property
+    def control_lower(self) -> np.ndarray:
+        """The lower limits the step brakes and locks at (n,): ``lower`` plus the margin."""
+        return self._inner[0]
+
+    @property
+    def control_upper(self) -> np.ndarray:
+        """The upper limits the step brakes and locks at (n,): ``upper`` less the margin."""
+        return self._inner[1]
+
+    @property
     def constraints(self) -> list[ConstraintModel]:
         """Constraints in force; setting them forgets the held references."""
         return self._constraints
@@ -260,6 +294,8 @@ class ControlStep:
         self._flat = flat
         self._holds = [i for i, c in enumerate(flat) if hasattr(c, "hold_position")]
         self._unilateral = [i for i, c in enumerate(flat) if getattr(c, "unilateral", False)]
+        # Barriers whose approach is braked (those that report their clearance).
+        self._barriers = [i for i in self._unilateral if hasattr(flat[i], "clearance")]
         # Latched at the next latch() or, failing that, at the next evaluate().
         self._references: dict[int, np.ndarray] = {}
 
@@ -438,7 +474,7 @@ class ControlStep:
             if problem:
                 return self._zeros.copy(), problem, self._eye
             if held is None or self._drift_gain == 0.0:
-                v, P = project_with_locks(q, pi, A, self.lower, self.upper, P0)
+                v, P = project_with_locks(q, pi, A, *self._inner, P0)
             else:
                 v, P = self._with_correction(q, pi, A, held, P0)
             if not self._unilateral:
@@ -449,8 +485,10 @@ class ControlStep:
                 break
             blocks = grown
             A, held = self._stack(blocks)
-        s = velocity_scale(q, v, self.dt, self.lower, self.upper, self.max_velocity,
+        s = velocity_scale(q, v, self.dt, *self._inner, self.max_velocity,
                            self.max_acceleration)
+        if self._barriers and self.max_acceleration is not None:
+            s = min(s, self._barrier_scale(q, v, blocks))
         v = s * v
         if self.guard is not None:
             try:
@@ -461,6 +499,35 @@ class ControlStep:
             if g < 1.0:
                 v = g * v
         return v, "", P
+
+    def _barrier_scale(self, q: np.ndarray, v: np.ndarray, blocks: list[np.ndarray]
+                       ) -> float:
+        """Scale that brakes ``v`` (n,) in time for every inactive barrier it approaches.
+
+        A barrier blocks motion towards it from its activation distance on; reaching
+        that shell at speed would make the projection stop the approach in one period.
+        So its clearance ``c`` (m beyond the shell, gradient ``g`` in m/rad) is treated
+        like a joint limit's room: the approach ``-g.v / |g|`` (rad/s along ``g``) over
+        the room ``c / |g|`` (rad, to first order) enters
+        :func:`~policy_align_ros.control.limits.braking_scale`.
+        """
+        rooms, rates = [], []
+        for i in self._barriers:
+            if blocks[i].shape[0]:
+                continue  # active: the projection has removed the approach already
+            c, g = self._flat[i].clearance(q)
+            if g is None:
+                continue
+            size = float(np.linalg.norm(g))
+            rate = -float(g @ v)
+            if size > 0.0 and rate > 0.0:
+                rooms.append(max(c, 0.0) / size)
+                rates.append(rate / size)
+        if not rooms:
+            return 1.0
+        peak = float(np.abs(v).max())
+        return braking_scale(np.array(rooms), np.array(rates), self.dt,
+                             self.max_acceleration, peak)
 
     def _enforceable(self, A: np.ndarray) -> tuple[str, np.ndarray | None]:
         """Why ``A`` (k, n) cannot be enforced (not finite, or :meth:`_singular`), empty
@@ -526,7 +593,7 @@ class ControlStep:
             correction = B.T @ np.linalg.solve(B @ B.T + lam2 * np.eye(B.shape[0]), task)
             correction[locked] = 0.0
             total = v + correction
-            new = limit_locks(q, total, self.lower, self.upper) & ~locked
+            new = limit_locks(q, total, *self._inner) & ~locked
             if not np.any(new):
                 return total, P
             locked |= new
@@ -556,4 +623,4 @@ class ControlStep:
         A = self.constraint_matrix(q, qdot)
         if not np.all(np.isfinite(A)):
             return None
-        return project_with_locks(q, qdot, A, self.lower, self.upper)[1]
+        return project_with_locks(q, qdot, A, *self._inner)[1]

@@ -297,8 +297,8 @@ class Executor(Node):
     def _joint_bounds(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Velocity bounds in force at call time: those ``ControlStep`` scales to."""
         step = self.controller.step
-        return joint_velocity_bounds(q, step.lower, step.upper, step.max_velocity, step.dt,
-                                     step.max_acceleration)
+        return joint_velocity_bounds(q, step.control_lower, step.control_upper,
+                                     step.max_velocity, step.dt, step.max_acceleration)
 
     def _constraints(self, text: str) -> list:
         return [constraint_from_spec(spec, self.robot) for spec in parse_constraint_specs(text)]
