@@ -7,6 +7,8 @@ its direction, hence ``A(q) qdot = 0``; clipping joints one by one would not.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 __all__ = [
@@ -14,6 +16,7 @@ __all__ = [
     "DEFAULT_STATE_LIMIT_MARGIN",
     "ROUNDOFF",
     "braking_scale",
+    "clearance_scale",
     "inner_limits",
     "joint_velocity_bounds",
     "limit_locks",
@@ -288,6 +291,47 @@ def braking_scale(room: np.ndarray, rate: np.ndarray, dt: float, max_acceleratio
         return np.inf
     s = np.minimum(room / (2.0 * dt * rate), np.sqrt(max_acceleration * room / (rate * peak)))
     return float(s.min())
+
+
+def clearance_scale(q: np.ndarray, v: np.ndarray, barriers: Sequence, dt: float,
+                    max_acceleration: float) -> float:
+    """Scale that brakes ``v`` (n,) in time for every barrier that it approaches.
+
+    A barrier blocks motion towards it from its activation distance on; reaching that
+    shell at speed would make the projection stop the approach within one period. So
+    each barrier's clearance ``c`` (m beyond the shell, gradient ``g`` in m/rad, from its
+    ``clearance(q)``) is treated like a joint limit's room: the approach ``-g.v / |g|``
+    (rad/s along ``g``) over the room ``c / |g|`` (rad, to first order) enters
+    :func:`braking_scale`.
+
+    Parameters
+    ----------
+    q, v : ndarray, shape (n,)
+        Positions (rad) and the unscaled command (rad/s).
+    barriers : sequence
+        Objects with ``clearance(q) -> (c, g)`` (``g`` None: no barrier there), inactive.
+    dt, max_acceleration : float
+        Period (s) and rad/s^2.
+
+    Returns
+    -------
+    float
+        The scale (>= 0; inf when no barrier is approached).
+    """
+    rooms, rates = [], []
+    for barrier in barriers:
+        c, g = barrier.clearance(q)
+        if g is None:
+            continue
+        size = float(np.linalg.norm(g))
+        rate = -float(g @ v)
+        if size > 0.0 and rate > 0.0:
+            rooms.append(max(c, 0.0) / size)
+            rates.append(rate / size)
+    if not rooms:
+        return np.inf
+    return braking_scale(np.array(rooms), np.array(rates), dt, max_acceleration,
+                         float(np.abs(v).max()))
 
 
 def ramp_toward(

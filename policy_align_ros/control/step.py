@@ -9,7 +9,10 @@ policy (rad/s), ``A(q)`` the stacked constraint matrix (k, n) of the configured 
   the policy within the constraints instead of the whole robot stalling;
 * the projected velocity is scaled by one factor ``s in [0, 1]`` so that no joint exceeds
   its maximum speed and no joint crosses a limit within one period
-  (:func:`~policy_align_ros.control.limits.velocity_scale`);
+  (:func:`~policy_align_ros.control.limits.velocity_scale`); with ``max_acceleration``
+  joints are braked in time to come to rest at their limits, which lie
+  ``joint_limit_margin`` inside the URDF's, and frames before the barriers they approach
+  (:func:`~policy_align_ros.control.limits.clearance_scale`);
 * the extrapolation guard (:mod:`policy_align_ros.control.guard`) scales down commands
   leading away from the demonstrated data;
 * *drift correction*: position-type constraints (``hold`` a frame) latch the frame's
@@ -35,7 +38,7 @@ import numpy as np
 
 from policy_align_ros.control.guard import ExtrapolationGuard
 from policy_align_ros.control.limits import (
-    braking_scale,
+    clearance_scale,
     inner_limits,
     limit_locks,
     velocity_scale,
@@ -488,7 +491,9 @@ class ControlStep:
         s = velocity_scale(q, v, self.dt, *self._inner, self.max_velocity,
                            self.max_acceleration)
         if self._barriers and self.max_acceleration is not None:
-            s = min(s, self._barrier_scale(q, v, blocks))
+            # Inactive barriers only: the projection has removed the approach to the others.
+            free = [self._flat[i] for i in self._barriers if not blocks[i].shape[0]]
+            s = min(s, clearance_scale(q, v, free, self.dt, self.max_acceleration))
         v = s * v
         if self.guard is not None:
             try:
@@ -499,35 +504,6 @@ class ControlStep:
             if g < 1.0:
                 v = g * v
         return v, "", P
-
-    def _barrier_scale(self, q: np.ndarray, v: np.ndarray, blocks: list[np.ndarray]
-                       ) -> float:
-        """Scale that brakes ``v`` (n,) in time for every inactive barrier it approaches.
-
-        A barrier blocks motion towards it from its activation distance on; reaching
-        that shell at speed would make the projection stop the approach in one period.
-        So its clearance ``c`` (m beyond the shell, gradient ``g`` in m/rad) is treated
-        like a joint limit's room: the approach ``-g.v / |g|`` (rad/s along ``g``) over
-        the room ``c / |g|`` (rad, to first order) enters
-        :func:`~policy_align_ros.control.limits.braking_scale`.
-        """
-        rooms, rates = [], []
-        for i in self._barriers:
-            if blocks[i].shape[0]:
-                continue  # active: the projection has removed the approach already
-            c, g = self._flat[i].clearance(q)
-            if g is None:
-                continue
-            size = float(np.linalg.norm(g))
-            rate = -float(g @ v)
-            if size > 0.0 and rate > 0.0:
-                rooms.append(max(c, 0.0) / size)
-                rates.append(rate / size)
-        if not rooms:
-            return 1.0
-        peak = float(np.abs(v).max())
-        return braking_scale(np.array(rooms), np.array(rates), self.dt,
-                             self.max_acceleration, peak)
 
     def _enforceable(self, A: np.ndarray) -> tuple[str, np.ndarray | None]:
         """Why ``A`` (k, n) cannot be enforced (not finite, or :meth:`_singular`), empty
