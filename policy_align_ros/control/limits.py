@@ -349,8 +349,9 @@ def ramp_toward(
     target = target`` (``target`` from
     :func:`~policy_align_ros.control.step.project_with_locks` with the same ``P``, or
     zero). A target with a part outside that null space (a drift correction, which moves
-    a held frame on purpose) gets that part at once: ``A c = A target`` at every
-    ``alpha``, so the held frame moves as the correction says while the rest ramps.
+    a held frame on purpose) gets that part at once when it fits within ``max_delta``:
+    ``A c = A target`` at every ``alpha``, so the held frame moves as the correction says
+    while the rest ramps.
 
     The projection itself may force a change: ``F = P previous + (I - P) target -
     previous`` is the part of the previous command that the current constraints forbid
