@@ -174,6 +174,7 @@ def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_p
     r.q = q
     guard = r.node.controller.step.guard
     assert isinstance(guard.distance, FrameSupportDistance)
+    assert guard.max_extrapolation_rad == 100.0
     r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
     assert r.enable(True).success
 
