@@ -464,3 +464,22 @@ def test_positions_just_outside_the_limits_within_the_margin_are_accepted():
     run.k += 1
     run.control.state_limit_margin = 0.1
     assert run.state().rejected == IMPLAUSIBLE_POSITION and not run.control.armed
+
+
+def test_only_real_forced_changes_are_reported():
+    # Full speed towards a limit, then max_acceleration cut to a rate that cannot brake in
+    # the room left: the position limit wins and says so; blends and round-off do not.
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Constant(np.eye(N)[0]))
+    run = _Run(step, np.zeros(N))
+    run.state()
+    run.arm()
+    while run.q[0] < 0.7:
+        run.tick()
+    assert not [e for e in run.events if "forces" in e[1]]
+    run.control.max_acceleration = 0.05
+    for _ in range(100):
+        run.tick()
+    assert run.q[0] <= UPPER[0] + 1e-12
+    forced = [text for level, text in run.events if "forces" in text]
+    assert len(forced) == 1 and "speed or position limit" in forced[0]
+    assert "joint 0" in forced[0]
