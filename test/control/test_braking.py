@@ -162,3 +162,20 @@ def test_a_hold_added_while_moving_is_blended_in_within_max_acceleration(talos):
     assert errors[0] > 0.05  # the first steps are a blend, not A qdot = 0 ...
     assert max(errors[100:]) < 1e-3  # ... then the hand is held (the drift correction
     assert errors[-1] < 1e-5  # pulling it back to where the hold began decays)
+
+
+def test_barrier_clearance_and_its_gradient(talos):
+    robot = talos
+    q = robot.neutral()
+    p = robot.frame_position(q, LEFT_HAND)
+    spec = {"type": "barrier", "frame": LEFT_HAND, "point": [0.0, 0.0, p[2] - 0.2],
+            "normal": [0.0, 0.0, 1.0], "distance": 0.05}
+    barrier = constraint_from_spec(spec, robot)
+    c, g = barrier.clearance(q)
+    assert c == pytest.approx(0.15)
+    eps = 1e-6
+    numeric = [(barrier.clearance(q + eps * e)[0] - barrier.clearance(q - eps * e)[0])
+               / (2 * eps) for e in np.eye(robot.nq)]
+    np.testing.assert_allclose(g, numeric, atol=1e-6)
+    boxed = constraint_from_spec({**spec, "lower": [p[0] + 1.0, None, None]}, robot)
+    assert boxed.clearance(q) == (float("inf"), None)  # outside its box: no barrier
