@@ -25,6 +25,7 @@ from policy_align_ros.control.armed import (
 )
 from policy_align_ros.control.guard import (
     DEFAULT_MAX_EXTRAPOLATION,
+    DEFAULT_MAX_EXTRAPOLATION_RAD,
     DistanceFn,
     ExtrapolationGuard,
     FrameSupportDistance,
@@ -38,7 +39,11 @@ from policy_align_ros.control.joint_order import (
     unchecked_order_refusal,
 )
 from policy_align_ros.control.limits import (
+    DEFAULT_JOINT_LIMIT_MARGIN,
     DEFAULT_STATE_LIMIT_MARGIN,
+    braking_scale,
+    clearance_scale,
+    inner_limits,
     joint_velocity_bounds,
     limit_locks,
     position_outside_limits,
@@ -67,7 +72,9 @@ from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_sta
 __all__ = [
     "DEFAULT_DRIFT_CLAMP_M",
     "DEFAULT_DRIFT_GAIN",
+    "DEFAULT_JOINT_LIMIT_MARGIN",
     "DEFAULT_MAX_EXTRAPOLATION",
+    "DEFAULT_MAX_EXTRAPOLATION_RAD",
     "DEFAULT_MIN_SINGULAR_VALUE",
     "DEFAULT_STATE_LIMIT_MARGIN",
     "IMPLAUSIBLE_POSITION",
@@ -82,8 +89,11 @@ __all__ = [
     "SupportDistance",
     "TaskSpacePolicy",
     "arming_status",
+    "braking_scale",
+    "clearance_scale",
     "constrained_command",
     "damped_pinv",
+    "inner_limits",
     "joint_order_problem",
     "joint_velocity_bounds",
     "joint_velocity_within_limits",

@@ -78,6 +78,8 @@ IMPLAUSIBLE_POSITION = "position_outside_limits"
 
 #: Minimum time between two reports of a constraint forcing a larger change (ns).
 _FORCED_REPORT_NS = 1_000_000_000
+#: Relative excess over the ramp's bound that counts as a forced change (not round-off).
+_FORCED_TOLERANCE = 1e-6
 
 
 class ArmedController:
@@ -431,7 +433,8 @@ class ArmedController:
         # speed limit lowered at run time is reached by the ramp, not in one step: a joint
         # that was already faster keeps its last speed as its bound while it slows down.
         speed_bound = np.maximum(step.max_velocity, np.abs(previous))
-        s = velocity_scale(q, command, step.dt, step.lower, step.upper, speed_bound)
+        s = velocity_scale(q, command, step.dt, step.control_lower, step.control_upper,
+                           speed_bound)
         if s < 1.0:
             command = s * command
         self._report_forced(command - previous, forced, s, now_ns, limit)
@@ -447,7 +450,8 @@ class ArmedController:
                        now_ns: int, limit: float) -> None:
         size_all = np.abs(change)
         size = float(size_all.max(initial=0.0))
-        if size <= limit * (1.0 + 1e-9) + 1e-12:
+        # Relative tolerance: a blend step is exactly max_delta up to round-off.
+        if size <= limit * (1.0 + _FORCED_TOLERANCE) + ROUNDOFF:
             return
         worst = int(np.argmax(size_all))
         # Throttled on the caller's clock: a barrier can stay in contact for many steps.
@@ -455,8 +459,7 @@ class ArmedController:
         if last is not None and now_ns - last < _FORCED_REPORT_NS:
             self._forced_suppressed += 1
             return
-        cause = ("speed or position limit" if s < 1.0 else
-                 "newly active or changed constraint")
+        cause = ("speed or position limit" if s < 1.0 else "constraint")
         more = (f" ({self._forced_suppressed} more since the last report)"
                 if self._forced_suppressed else "")
         self._forced_reported_ns = int(now_ns)

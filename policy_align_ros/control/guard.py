@@ -5,7 +5,9 @@ spacings of the training data, ``d_max`` the parameter ``max_extrapolation`` and
 band, a command leading further out (``grad d . qdot > 0``) is scaled by
 ``g = clip(1 - (d - d_max) / b, 0, 1)``; motion back in is never scaled. ``b`` is at
 least the stopping distance at ``max_velocity`` and ``max_acceleration`` (in spacings),
-so a joint ramping down from full speed at ``d_max`` stops inside the band.
+so a joint ramping down from full speed at ``d_max`` stops inside the band. A second
+bound, ``max_extrapolation_rad``, caps ``d_max + b`` in joint space: the robot stops
+within that many rad (2-norm) of the data, whatever the spacing of the data.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 
 __all__ = [
     "DEFAULT_MAX_EXTRAPOLATION",
+    "DEFAULT_MAX_EXTRAPOLATION_RAD",
     "MIN_BAND",
     "DistanceFn",
     "ExtrapolationGuard",
@@ -30,6 +33,11 @@ DistanceFn = Callable[[np.ndarray], tuple[float, "np.ndarray | None"]]
 #: Default ``max_extrapolation`` (spacings): beyond the farthest distance that runs from
 #: new starts of the demonstrations' own distribution reach, so those stay unscaled.
 DEFAULT_MAX_EXTRAPOLATION = 6.0
+#: Default ``max_extrapolation_rad`` (rad, joint-space 2-norm): how far beyond the data a
+#: wrong model may take the robot. Runs from new starts of the demonstrations' own
+#: distribution start up to 1.8 rad from the data but only approach it, which is never
+#: scaled.
+DEFAULT_MAX_EXTRAPOLATION_RAD = 0.5
 #: Smallest band of the guard (spacings), whatever the stopping distance.
 MIN_BAND = 1.0
 
@@ -141,6 +149,9 @@ class ExtrapolationGuard:
         ``d_max`` (spacings, > 0): the scale is 1 up to it.
     min_band : float
         Smallest band (spacings, > 0).
+    max_extrapolation_rad : float or None
+        ``R`` (rad, > 0): caps the reach ``d_max + b`` at ``R |grad d|`` spacings, i.e.
+        ``R`` rad of joint motion along ``grad d`` (None: no cap).
 
     Notes
     -----
@@ -152,12 +163,21 @@ class ExtrapolationGuard:
     within ``max(v_max) / a`` s, over at most ``|v_max| max(v_max) / (2 a)`` rad, which
     moves ``d`` by at most ``|grad|`` times that: the stopping distance at
     ``max_velocity`` in spacings. With no acceleration limit ``b = min_band``.
+
+    With ``R`` the reach is capped at ``r = R |grad|`` spacings: the band becomes
+    ``max(min(min_band, r), stop)`` and ``d_max`` becomes ``min(d_max, max(r - b,
+    0))``, so a command leading out stops within ``max(R, stop / |grad|)`` rad of the
+    data (for a joint-space model ``|grad| = 1 / h``, so ``d / |grad|`` is in rad; for
+    a task-space model it is the joint motion along ``grad`` that covers ``d``, to first
+    order).
     """
 
     def __init__(self, distance: DistanceFn, max_extrapolation: float = DEFAULT_MAX_EXTRAPOLATION,
-                 min_band: float = MIN_BAND) -> None:
+                 min_band: float = MIN_BAND,
+                 max_extrapolation_rad: float | None = DEFAULT_MAX_EXTRAPOLATION_RAD) -> None:
         self.distance = distance
         self.max_extrapolation = max_extrapolation
+        self.max_extrapolation_rad = max_extrapolation_rad
         if not (math.isfinite(min_band) and min_band > 0.0):
             raise ValueError(f"min_band: must be finite and > 0, got {min_band}")
         self.min_band = float(min_band)
@@ -174,6 +194,31 @@ class ExtrapolationGuard:
             raise ValueError(f"max_extrapolation: must be finite and > 0, got {value}")
         self._max = value
 
+    @property
+    def max_extrapolation_rad(self) -> float | None:
+        """``R`` in rad (None: no cap)."""
+        return self._max_rad
+
+    @max_extrapolation_rad.setter
+    def max_extrapolation_rad(self, value: float | None) -> None:
+        if value is not None:
+            value = float(value)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(
+                    f"max_extrapolation_rad: must be finite and > 0, got {value}")
+        self._max_rad = value
+
+    def bounds(self, grad_norm: float, max_velocity: np.ndarray,
+               max_acceleration: float | None) -> tuple[float, float]:
+        """``(d_max, b)`` in spacings for ``|grad d| = grad_norm`` (spacings per rad),
+        with the reach capped by ``max_extrapolation_rad``."""
+        stop = self._stop(grad_norm, max_velocity, max_acceleration)
+        if self._max_rad is None or not grad_norm > 0.0:
+            return self._max, max(self.min_band, stop)
+        reach = self._max_rad * grad_norm
+        b = max(min(self.min_band, reach), stop)
+        return min(self._max, max(reach - b, 0.0)), b
+
     def band(self, grad_norm: float, max_velocity: np.ndarray,
              max_acceleration: float | None) -> float:
         """Band ``b`` (spacings) for ``|grad d| = grad_norm`` (spacings per rad).
@@ -181,15 +226,21 @@ class ExtrapolationGuard:
         Raises ValueError when the stopping distance is not finite (an infinite
         ``max_velocity``).
         """
+        return max(self.min_band, self._stop(grad_norm, max_velocity, max_acceleration))
+
+    @staticmethod
+    def _stop(grad_norm: float, max_velocity: np.ndarray, max_acceleration: float | None
+              ) -> float:
+        """The stopping distance at ``max_velocity`` in spacings (0 without a limit)."""
         if max_acceleration is None or not grad_norm > 0.0:
-            return self.min_band
+            return 0.0
         vmax = np.asarray(max_velocity, dtype=float)
         stop = grad_norm * float(np.linalg.norm(vmax)) * float(vmax.max()) / (
             2.0 * max_acceleration)
         if not math.isfinite(stop):
             # No finite stopping distance (a joint without speed limit): no safe band.
             raise ValueError("band needs finite max_velocity and gradient")
-        return max(self.min_band, stop)
+        return stop
 
     def scale(self, q: np.ndarray, v: np.ndarray, max_velocity: np.ndarray,
               max_acceleration: float | None) -> tuple[float, float]:
@@ -204,12 +255,14 @@ class ExtrapolationGuard:
         d = float(d)
         if not (math.isfinite(d) and d >= 0.0):
             raise ValueError(f"extrapolation distance not finite ({d})")
-        if d <= self._max or grad is None:
+        if grad is None or (self._max_rad is None and d <= self._max):
             return 1.0, d
         grad = np.asarray(grad, dtype=float)
         if grad.shape != np.shape(v) or not np.all(np.isfinite(grad)):
             raise ValueError("extrapolation distance gradient not finite or of wrong shape")
         if float(grad @ v) <= 0.0:
             return 1.0, d  # back towards the data, or along it: never scaled
-        b = self.band(float(np.linalg.norm(grad)), max_velocity, max_acceleration)
-        return float(np.clip(1.0 - (d - self._max) / b, 0.0, 1.0)), d
+        d_max, b = self.bounds(float(np.linalg.norm(grad)), max_velocity, max_acceleration)
+        if d <= d_max:
+            return 1.0, d
+        return float(np.clip(1.0 - (d - d_max) / b, 0.0, 1.0)), d

@@ -9,7 +9,10 @@ policy (rad/s), ``A(q)`` the stacked constraint matrix (k, n) of the configured 
   the policy within the constraints instead of the whole robot stalling;
 * the projected velocity is scaled by one factor ``s in [0, 1]`` so that no joint exceeds
   its maximum speed and no joint crosses a limit within one period
-  (:func:`~policy_align_ros.control.limits.velocity_scale`);
+  (:func:`~policy_align_ros.control.limits.velocity_scale`); with ``max_acceleration``
+  joints are braked in time to come to rest at their limits, which lie
+  ``joint_limit_margin`` inside the URDF's, and frames before the barriers they approach
+  (:func:`~policy_align_ros.control.limits.clearance_scale`);
 * the extrapolation guard (:mod:`policy_align_ros.control.guard`) scales down commands
   leading away from the demonstrated data;
 * *drift correction*: position-type constraints (``hold`` a frame) latch the frame's
@@ -34,7 +37,12 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from policy_align_ros.control.guard import ExtrapolationGuard
-from policy_align_ros.control.limits import limit_locks, velocity_scale
+from policy_align_ros.control.limits import (
+    clearance_scale,
+    inner_limits,
+    limit_locks,
+    velocity_scale,
+)
 from policy_align_ros.kinematics.constraints import ConstraintModel
 from policy_align_ros.kinematics.projection import nullspace_projector, projector_from_svd
 
@@ -156,7 +164,7 @@ class ControlStep:
     Parameters
     ----------
     lower, upper : array_like, shape (n,)
-        Joint position limits.
+        Joint position limits (URDF).
     max_velocity : array_like, shape (n,)
         Per-joint speed limits (> 0).
     dt : float
@@ -186,6 +194,10 @@ class ControlStep:
     min_singular_value : float
         Smallest singular value of the constraint matrix below which the step refuses to
         command (units of its rows, m/rad for frame rows; >= 0, 0 = never).
+    joint_limit_margin : float
+        Distance (rad, >= 0) inside ``[lower, upper]`` at which joints come to rest: the
+        step brakes and locks joints at :attr:`control_lower` and :attr:`control_upper`
+        (:func:`~policy_align_ros.control.limits.inner_limits`).
 
     Attributes
     ----------
@@ -209,9 +221,11 @@ class ControlStep:
         drift_gain: float = DEFAULT_DRIFT_GAIN,
         drift_clamp_m: float = DEFAULT_DRIFT_CLAMP_M,
         min_singular_value: float = DEFAULT_MIN_SINGULAR_VALUE,
+        joint_limit_margin: float = 0.0,
     ) -> None:
         self.lower = np.asarray(lower, dtype=float)
         self.upper = np.asarray(upper, dtype=float)
+        self.joint_limit_margin = joint_limit_margin
         n = self.lower.shape[0]
         self.max_velocity = np.broadcast_to(np.asarray(max_velocity, dtype=float), (n,)).copy()
         if np.any(~(self.max_velocity > 0.0)):
@@ -241,6 +255,29 @@ class ControlStep:
 
     # -- settings -------------------------------------------------------------------
     @property
+    def joint_limit_margin(self) -> float:
+        """Distance (rad) inside the URDF limits at which braking brings joints to rest."""
+        return self._margin
+
+    @joint_limit_margin.setter
+    def joint_limit_margin(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"joint_limit_margin: must be finite and >= 0, got {value}")
+        self._margin = value
+        self._inner = inner_limits(self.lower, self.upper, value)
+
+    @property
+    def control_lower(self) -> np.ndarray:
+        """The lower limits the step brakes and locks at (n,): ``lower`` plus the margin."""
+        return self._inner[0]
+
+    @property
+    def control_upper(self) -> np.ndarray:
+        """The upper limits the step brakes and locks at (n,): ``upper`` less the margin."""
+        return self._inner[1]
+
+    @property
     def constraints(self) -> list[ConstraintModel]:
         """Constraints in force; setting them forgets the held references."""
         return self._constraints
@@ -260,6 +297,8 @@ class ControlStep:
         self._flat = flat
         self._holds = [i for i, c in enumerate(flat) if hasattr(c, "hold_position")]
         self._unilateral = [i for i, c in enumerate(flat) if getattr(c, "unilateral", False)]
+        # Barriers whose approach is braked (those that report their clearance).
+        self._barriers = [i for i in self._unilateral if hasattr(flat[i], "clearance")]
         # Latched at the next latch() or, failing that, at the next evaluate().
         self._references: dict[int, np.ndarray] = {}
 
@@ -438,7 +477,7 @@ class ControlStep:
             if problem:
                 return self._zeros.copy(), problem, self._eye
             if held is None or self._drift_gain == 0.0:
-                v, P = project_with_locks(q, pi, A, self.lower, self.upper, P0)
+                v, P = project_with_locks(q, pi, A, *self._inner, P0)
             else:
                 v, P = self._with_correction(q, pi, A, held, P0)
             if not self._unilateral:
@@ -449,8 +488,12 @@ class ControlStep:
                 break
             blocks = grown
             A, held = self._stack(blocks)
-        s = velocity_scale(q, v, self.dt, self.lower, self.upper, self.max_velocity,
+        s = velocity_scale(q, v, self.dt, *self._inner, self.max_velocity,
                            self.max_acceleration)
+        if self._barriers and self.max_acceleration is not None:
+            # Inactive barriers only: the projection has removed the approach to the others.
+            free = [self._flat[i] for i in self._barriers if not blocks[i].shape[0]]
+            s = min(s, clearance_scale(q, v, free, self.dt, self.max_acceleration))
         v = s * v
         if self.guard is not None:
             try:
@@ -526,7 +569,7 @@ class ControlStep:
             correction = B.T @ np.linalg.solve(B @ B.T + lam2 * np.eye(B.shape[0]), task)
             correction[locked] = 0.0
             total = v + correction
-            new = limit_locks(q, total, self.lower, self.upper) & ~locked
+            new = limit_locks(q, total, *self._inner) & ~locked
             if not np.any(new):
                 return total, P
             locked |= new
@@ -556,4 +599,4 @@ class ControlStep:
         A = self.constraint_matrix(q, qdot)
         if not np.all(np.isfinite(A)):
             return None
-        return project_with_locks(q, qdot, A, self.lower, self.upper)[1]
+        return project_with_locks(q, qdot, A, *self._inner)[1]

@@ -211,6 +211,25 @@ class BarrierConstraint(Constraint):
         self.upper = _bound(upper, "upper", np.inf)
         self.unilateral = bool(unilateral)
 
+    def clearance(self, q: np.ndarray) -> tuple[float, np.ndarray | None]:
+        """How far the frame is outside the activation shell, and the gradient.
+
+        Returns
+        -------
+        c : float
+            ``|n^T (p - point)| - distance`` (m): > 0 while the barrier cannot act yet.
+        grad : ndarray, shape (n,), or None
+            ``dc/dq`` (m/rad); None where the barrier does not exist (outside its box).
+        """
+        p = self.robot.frame_position(q, self.frame)
+        if ((self.lower is not None and np.any(p < self.lower))
+                or (self.upper is not None and np.any(p > self.upper))):
+            return float("inf"), None
+        signed = float(self.normal @ (p - self.point))
+        side = 1.0 if signed >= 0.0 else -1.0
+        grad = side * (self.normal @ self.robot.frame_jacobian(q, self.frame))
+        return abs(signed) - self.distance, grad
+
     def active(self, q: np.ndarray, qdot: np.ndarray | None = None) -> bool:
         """Whether the barrier blocks motion at ``q`` (with intended ``qdot``)."""
         return self.matrix(q, qdot).shape[0] > 0

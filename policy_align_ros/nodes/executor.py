@@ -28,8 +28,8 @@ docs/executor_safety.md explains it for robot owners):
 * each joint's command changes by at most ``max_acceleration * period`` per period, both
   when following the policy and when ramping down to zero after a disarm (published until
   the command is zero, then the topic is left alone), and when ``max_velocity`` is lowered
-  while armed; only a constraint that has just become active, or a joint limit, forces a
-  larger change (logged);
+  while armed; joints brake to rest ``joint_limit_margin`` inside their URDF limits and
+  before barriers, and a constraint added at run time is blended in at that rate;
 * joint states that are lost (none received for ``state_timeout_s``, or the last stamped
   longer ago than ``state_timeout_s + max_clock_skew_s``), broken
   (a joint twice, NaN/inf, arrays of other lengths; counted, warned about at most every
@@ -47,7 +47,8 @@ docs/executor_safety.md explains it for robot owners):
   order was never read);
 * the extrapolation guard scales down commands that lead further than
   ``max_extrapolation`` spacings of the training data away from it, to zero within a band
-  at least the stopping distance at ``max_velocity``; frames held by position
+  at least the stopping distance at ``max_velocity``, and at most
+  ``max_extrapolation_rad`` from the data in joint space; frames held by position
   constraints are latched at enable and their drift pulled back (``drift_gain``,
   ``drift_clamp_m``); a constraint matrix whose smallest singular value falls below
   ``min_singular_value`` ramps down and disarms, with the reason;
@@ -90,7 +91,9 @@ from std_srvs.srv import SetBool
 from policy_align_ros.control import (
     DEFAULT_DRIFT_CLAMP_M,
     DEFAULT_DRIFT_GAIN,
+    DEFAULT_JOINT_LIMIT_MARGIN,
     DEFAULT_MAX_EXTRAPOLATION,
+    DEFAULT_MAX_EXTRAPOLATION_RAD,
     DEFAULT_MIN_SINGULAR_VALUE,
     DEFAULT_STATE_LIMIT_MARGIN,
     ArmedController,
@@ -132,7 +135,8 @@ CONTROLLER_TIMEOUT_S = 1.0
 #: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
 _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
                      "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
-                     "min_singular_value", "state_limit_margin")
+                     "min_singular_value", "state_limit_margin", "joint_limit_margin",
+                     "max_extrapolation_rad")
 
 
 class Executor(Node):
@@ -202,6 +206,14 @@ class Executor(Node):
             "[spacings of the training data] commands leading further out scale down, to "
             "zero one band (>= the stopping distance at max_velocity) further",
             float_range=(0.1, 1000.0)))
+        self.declare_parameter("max_extrapolation_rad", DEFAULT_MAX_EXTRAPOLATION_RAD,
+                               descriptor(
+            "extrapolation guard: the robot stops within this joint-space distance of the "
+            "demonstrated data, whatever max_extrapolation says [rad, 2-norm]",
+            float_range=(0.01, 100.0)))
+        self.declare_parameter("joint_limit_margin", DEFAULT_JOINT_LIMIT_MARGIN, descriptor(
+            "joints brake to rest this far inside their URDF limits; a joint already "
+            "within it may only move inwards [rad]", float_range=(0.0, 0.5)))
         self.declare_parameter("drift_gain", DEFAULT_DRIFT_GAIN, descriptor(
             "gain pulling frames held by position constraints back to where they were at "
             "enable [1/s]; 0 = no drift correction", float_range=(0.0, 50.0)))
@@ -235,7 +247,8 @@ class Executor(Node):
             constraints=self._constraints(self.get_parameter("constraints").value),
             drift_gain=self.get_parameter("drift_gain").value,
             drift_clamp_m=self.get_parameter("drift_clamp_m").value,
-            min_singular_value=self.get_parameter("min_singular_value").value)
+            min_singular_value=self.get_parameter("min_singular_value").value,
+            joint_limit_margin=self.get_parameter("joint_limit_margin").value)
         return ArmedController(
             step, self.get_parameter("max_acceleration").value,
             self.get_parameter("state_timeout_s").value,
@@ -297,8 +310,8 @@ class Executor(Node):
     def _joint_bounds(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Velocity bounds in force at call time: those ``ControlStep`` scales to."""
         step = self.controller.step
-        return joint_velocity_bounds(q, step.lower, step.upper, step.max_velocity, step.dt,
-                                     step.max_acceleration)
+        return joint_velocity_bounds(q, step.control_lower, step.control_upper,
+                                     step.max_velocity, step.dt, step.max_acceleration)
 
     def _constraints(self, text: str) -> list:
         return [constraint_from_spec(spec, self.robot) for spec in parse_constraint_specs(text)]
@@ -395,7 +408,10 @@ class Executor(Node):
                 control.state_limit_margin = param.value
             elif param.name == "max_extrapolation" and control.step.guard is not None:
                 control.step.guard.max_extrapolation = param.value
-            elif param.name in ("drift_gain", "drift_clamp_m", "min_singular_value"):
+            elif param.name == "max_extrapolation_rad" and control.step.guard is not None:
+                control.step.guard.max_extrapolation_rad = param.value
+            elif param.name in ("drift_gain", "drift_clamp_m", "min_singular_value",
+                                "joint_limit_margin"):
                 setattr(control.step, param.name, param.value)
             elif param.name == "model_path" and self._staged is not None:
                 self._apply_staged()
@@ -419,10 +435,12 @@ class Executor(Node):
                ) -> ExtrapolationGuard | None:
         """The extrapolation guard for a newly loaded model (None: the model cannot have one)."""
         limit = self.get_parameter("max_extrapolation").value
+        cap = {"max_extrapolation_rad": self.get_parameter("max_extrapolation_rad").value}
         try:
             if state == "joints":
-                return ExtrapolationGuard(SupportDistance(model, perm), limit)
-            return ExtrapolationGuard(FrameSupportDistance(model, policy.state_map), limit)
+                return ExtrapolationGuard(SupportDistance(model, perm), limit, **cap)
+            return ExtrapolationGuard(FrameSupportDistance(model, policy.state_map), limit,
+                                      **cap)
         except (ValueError, AttributeError) as err:
             self.get_logger().warning(f"extrapolation guard off for this model: {err}")
             return None

@@ -226,6 +226,107 @@ def test_default_max_extrapolation_leaves_runs_from_the_start_distribution_unsca
     assert max(worst) > 0.5 * DEFAULT_MAX_EXTRAPOLATION  # the default is not arbitrary
 
 
+class _Support:
+    """The support part of a model (``support_query``), built as PolicyAlign.fit does."""
+
+    def __init__(self, trajectories):
+        from scipy.spatial import cKDTree
+
+        from policy_align_ros.learning.support import support_spacing, support_states
+
+        self.support_states_, groups = support_states(trajectories)
+        self.support_spacing_ = support_spacing(self.support_states_, groups)
+        self.n_features_in_ = self.support_states_.shape[1]
+        self._tree = cKDTree(self.support_states_)
+
+    def support_query(self, X):
+        from policy_align_ros.learning.support import query_support
+
+        return query_support(self._tree, self.support_states_, self.support_spacing_, X)
+
+
+def _quadratic_demonstrations(robot, rng, k, n_samples=100):
+    from policy_align_ros.sim.demonstrations import (
+        generate_demonstrations,
+        no_constraint,
+        sample_start_states,
+    )
+    from policy_align_ros.sim.experts import QuadraticPotential
+
+    q0 = robot.neutral()
+    starts = sample_start_states(rng, q0, k, 0.1, robot.lower, robot.upper)
+    free = lambda i, r: no_constraint(robot.nq)  # noqa: E731
+    return generate_demonstrations(QuadraticPotential(q0, 0.05), starts, free, n_samples,
+                                   1.0, rng)
+
+
+def test_default_rad_cap_leaves_runs_from_the_start_distribution_unscaled():
+    # Runs from new starts begin up to 1.8 rad from the data (beyond the 0.5 rad cap) but
+    # only approach it: the guard, with the executor's limits, never scales them.
+    robot = Robot.load("talos", TALOS_JOINTS + ["head_1_joint", "head_2_joint"])
+    vmax = np.full(robot.nq, 0.5)
+    farthest = 0.0
+    for seed, k in ((0, 3), (1, 10), (2, 40)):
+        rng = np.random.default_rng(seed)
+        demos = _quadratic_demonstrations(robot, rng, k)
+        support = _Support([d.trajectory.positions for d in demos])
+        guard = ExtrapolationGuard(SupportDistance(support))
+        assert guard.max_extrapolation_rad == 0.5
+        for run in _quadratic_demonstrations(robot, rng, 100):
+            for q, qdot in zip(run.trajectory.positions, run.trajectory.velocities,
+                               strict=True):
+                g, d = guard.scale(q, qdot, vmax, ACC)
+                assert g == 1.0
+                farthest = max(farthest, d * support.support_spacing_)
+    assert farthest > 1.0  # runs that do start far beyond the cap
+
+
+def test_a_model_pushing_away_from_the_data_stops_within_half_a_radian_of_it():
+    from scipy.spatial import cKDTree
+
+    from policy_align_ros.learning import PolicyAlign
+
+    joints = TALOS_JOINTS + ["head_1_joint", "head_2_joint"]
+    robot = Robot.load("talos", joints)
+    rng = np.random.default_rng(0)
+    demos = [d.trajectory.positions for d in _quadratic_demonstrations(robot, rng, 3)]
+    model = PolicyAlign(random_state=0).fit(demos, joint_names=joints)
+    samples = cKDTree(np.vstack(demos))
+    away = rng.normal(size=robot.nq)
+
+    def wrong(X):
+        """Straight away from the nearest support state, at 5 rad/s."""
+        _, nearest = model.support_query(X)
+        diff = X[0] - nearest[0]
+        size = float(np.linalg.norm(diff))
+        u = diff / size if size > 1e-9 else away / np.linalg.norm(away)
+        return 5.0 * u[None]
+
+    def run_from(q0, **guard_options):
+        guard = ExtrapolationGuard(SupportDistance(model), **guard_options)
+        step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 0.5), DT,
+                           policy=wrong, guard=guard, max_acceleration=ACC,
+                           joint_limit_margin=0.05)
+        run = _Run(step, q0)
+        run.state()
+        assert run.arm() == (True, "enabled")
+        beyond = []
+        for _ in range(500):
+            run.tick()
+            beyond.append(float(samples.query(run.q)[0]))
+        return run, np.array(beyond)
+
+    q0 = demos[0][50]
+    run, beyond = run_from(q0)
+    assert beyond.max() <= 0.5 + 1e-3
+    assert beyond.max() > 0.3  # it did leave the data, up to the edge
+    assert np.abs(run.sent[-1]).max() < 0.01 and run.control.armed
+    _assert_ramped(run.sent, ACC * DT, start=np.zeros(robot.nq))
+    # Measured in spacings alone (the cap off), the same model goes much further.
+    _, uncapped = run_from(q0, max_extrapolation_rad=None)
+    assert uncapped.max() > 1.5
+
+
 def test_guard_without_a_finite_stopping_distance_gives_zero_with_a_reason():
     guard = ExtrapolationGuard(_PointSupport(np.zeros(N)), 3.0)
     step = ControlStep(-10 * np.ones(N), 10 * np.ones(N), np.full(N, np.inf), DT,

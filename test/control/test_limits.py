@@ -50,16 +50,23 @@ def test_ramp_toward_bounds_every_joint_and_keeps_the_constraints(seed, k, max_d
         assert np.max(np.abs(command - previous)) == pytest.approx(max_delta)
 
 
-def test_ramp_toward_lets_a_new_constraint_force_its_change_but_no_more():
+def test_ramp_toward_blends_a_new_constraint_in_within_the_acceleration_limit():
     previous = np.array([0.4, 0.4, 0.0, 0.1, 0.0, 0.0])
     A = np.array([[1.0, 0, 0, 0, 0, 0]])  # joint 0 newly locked
     P = constrained_projector(A)
     target = np.array([0.0, 0.5, 0.3, 0.1, 0.0, 0.0])
     command, alpha, forced = ramp_toward(previous, target, P, 0.02)
     np.testing.assert_allclose(forced, [-0.4, 0, 0, 0, 0, 0], atol=1e-15)
-    assert command[0] == pytest.approx(0.0, abs=1e-15)  # the constraint wins at once
-    change = np.abs(command - previous)
-    assert np.all(change[1:] <= 0.02 + STEP_TOL) and 0.0 < alpha < 1.0
+    # The acceleration limit wins: joint 0 slows by 0.02, nothing else moves yet.
+    np.testing.assert_allclose(command, [0.38, 0.4, 0.0, 0.1, 0.0, 0.0], atol=1e-15)
+    assert alpha == 0.0
+    commands = [previous, command]
+    for _ in range(60):
+        commands.append(ramp_toward(commands[-1], target, P, 0.02)[0])
+    steps = np.abs(np.diff(commands, axis=0))
+    assert steps.max() <= 0.02 + STEP_TOL
+    assert commands[20][0] == pytest.approx(0.0, abs=1e-12)  # blended in after 0.4 / 0.02
+    np.testing.assert_allclose(commands[-1], target, atol=1e-12)
 
 
 def test_velocity_scale_brakes_for_limits_when_given_an_acceleration():
@@ -75,11 +82,16 @@ def test_ramp_toward_applies_a_correction_outside_the_null_space_at_once():
     A = rng.normal(size=(2, N))
     P = constrained_projector(A)
     correction = A.T @ rng.normal(size=2)  # in the row space of A
+    correction *= 0.005 / np.abs(correction).max()  # within one step's change
     target = P @ rng.normal(size=N) + correction
     previous = P @ rng.normal(size=N)
     command, alpha, _ = ramp_toward(previous, target, P, 0.01)
     assert alpha < 1.0
     np.testing.assert_allclose(A @ command, A @ target, atol=1e-12)
+    # A correction larger than one step's change is blended in, like a new constraint.
+    command, alpha, forced = ramp_toward(previous, target + 100 * correction, P, 0.01)
+    assert alpha == 0.0 and np.abs(command - previous).max() == pytest.approx(0.01)
+    np.testing.assert_allclose(command - previous, forced * 0.01 / np.abs(forced).max())
 
 
 def test_joint_velocity_bounds_from_position_and_speed_limits() -> None:

@@ -188,18 +188,20 @@ def test_policy_keeps_the_task_when_one_joint_brakes_toward_a_limit(
 
     q = robot.neutral()
     x = hand_map.states(q)
-    pol = Attractor(x + np.array([0.05, -0.05, 0.05]))
+    # A task that the other joints can take over within 0.5 rad/s.
+    pol = Attractor(x + np.array([0.03, -0.03, 0.03]))
     gains = {"limit_gain": 0.0, "rest_gain": 0.0}
     free = TaskSpacePolicy(pol, hand_map, **gains).command(q)
     # A limit 1e-5 rad ahead of the joint that moves most: braking at 2 rad/s^2 allows it
-    # 4.5 mrad/s, so scaling the whole command would all but stop the hand.
+    # 40 urad/s (2 * 1e-5 / 0.5 with a 0.5 rad/s speed limit: the whole command is
+    # braked by one factor), so scaling the whole command would all but stop the hand.
     j = int(np.argmax(np.abs(free)))
     lower, upper = robot.lower.copy(), robot.upper.copy()
     if free[j] > 0:
         upper[j] = q[j] + 1e-5
     else:
         lower[j] = q[j] - 1e-5
-    vmax = np.full(robot.nq, 1.0)
+    vmax = np.full(robot.nq, 0.5)
     assert velocity_scale(q, free, 0.01, lower, upper, vmax, 2.0) < 0.05
     bounded = TaskSpacePolicy(
         pol, hand_map, **gains,

@@ -169,10 +169,12 @@ def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_p
     delta = 0.5 * np.arctan2(b, -a)
     n = -np.cos(delta) * u + np.sin(delta) * w
     plane = f"[{{type: plane, frame: {HAND}, normal: {n.tolist()}}}]"
-    r = rig(209, model_path=str(path), constraints=plane, max_extrapolation=1000.0)
+    r = rig(209, model_path=str(path), constraints=plane, max_extrapolation=1000.0,
+            max_extrapolation_rad=100.0)  # the joint-space cap off: spacings alone
     r.q = q
     guard = r.node.controller.step.guard
     assert isinstance(guard.distance, FrameSupportDistance)
+    assert guard.max_extrapolation_rad == 100.0
     r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
     assert r.enable(True).success
 

@@ -131,9 +131,21 @@ def test_bad_parameters_are_refused_with_a_reason(rig):
     assert node.set_parameters([Parameter("max_clock_skew_s", value=0.2)])[0].successful
     assert node.controller.max_clock_skew_s == pytest.approx(0.2)
     assert not node.set_parameters([Parameter("rate_hz", value=50.0)])[0].successful
+    # The joint-limit margin reaches the control step's braking limits.
+    step = node.controller.step
+    assert step.joint_limit_margin == 0.05
+    for bad in (-0.1, 0.6, float("nan")):
+        assert not node.set_parameters([Parameter("joint_limit_margin", value=bad)]
+                                       )[0].successful
+    assert node.set_parameters([Parameter("joint_limit_margin", value=0.1)])[0].successful
+    finite = np.isfinite(step.upper) & (step.upper - step.lower > 0.4)
+    np.testing.assert_allclose(step.control_upper[finite], step.upper[finite] - 0.1)
+    assert not node.set_parameters([Parameter("max_extrapolation_rad", value=0.0)]
+                                   )[0].successful
     # Every numeric parameter documents its range.
     for desc in node.describe_parameters(["max_velocity", "max_acceleration",
-                                          "state_timeout_s", "max_clock_skew_s", "rate_hz"]):
+                                          "state_timeout_s", "max_clock_skew_s", "rate_hz",
+                                          "joint_limit_margin", "max_extrapolation_rad"]):
         assert desc.description and len(desc.floating_point_range) == 1, desc.name
 
 
