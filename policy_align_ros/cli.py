@@ -4,8 +4,8 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
 
     policy-align demo [--robot NAME] [--state joints|hands] [--seed N] [--out DIR]
     policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
-        [--robot NAME --state joints|frames:F1,F2] [--holdout F] [--seed S] [--force]
-        [--overwrite]
+        [--robot NAME --state joints|frames:F1,F2] [--robot-config NAME] [--holdout F]
+        [--seed S] [--force] [--overwrite]
     policy-align call SERVICE [--data true|false]
     policy-align param get|set NODE NAME [VALUE]
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
@@ -75,7 +75,11 @@ def _build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--sigma", default="medium", help="narrow|medium|wide or sigma^2")
     learn.add_argument("--gap", type=float, default=0.5, help="split demos at gaps [s]")
     learn.add_argument("--robot", default=None,
-                       help="example-robot-data name or URDF (needed for --state frames:)")
+                       help="example-robot-data name or URDF the demonstrations were "
+                            "recorded on (stored in the model; needed for --state frames:)")
+    learn.add_argument("--robot-config", default=None,
+                       help="robot config (talos, panda, ur5 or a .yaml path): its robot, "
+                            "and its joints unless --joints is given")
     learn.add_argument("--state", default="joints",
                        help="joints (default) or frames:F1,F2 (stacked frame positions)")
     learn.add_argument("--holdout", type=float, default=0.2,

@@ -156,7 +156,8 @@ def test_state_and_gate_parameters_are_validated_and_a_bad_frame_is_named(rig, t
     arm = ["arm_left_1_joint", "arm_left_2_joint"]
     _write_dataset(tmp_path / "demos", n_demos=4, joints=arm)
     r = rig(166, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "m.npz"),
-            state="frames:no_such_frame", joints=["arm_left_1_joint", "arm_left_9_joint"])
+            state="frames:no_such_frame", joints=["arm_left_1_joint", "arm_left_9_joint"],
+            robot="talos")
     assert not r.node.set_parameters([Parameter("state", value="hands")])[0].successful
     assert not r.node.set_parameters(
         [Parameter("max_discarded_fraction", value=1.5)])[0].successful
