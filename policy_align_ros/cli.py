@@ -61,7 +61,9 @@ def _build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="run the whole ROS 2 graph on a simulated robot")
-    demo.add_argument("--robot", default="talos", help="example-robot-data name or URDF")
+    demo.add_argument("--robot", default="talos",
+                      help="robot config (talos, panda, ur5 or a .yaml path), or an "
+                           "example-robot-data name or URDF (all joints, no frames)")
     demo.add_argument("--out", default="demo_out", help="directory for data, model, plots")
     demo.add_argument("--state", default="joints", choices=("joints", "hands"),
                       help="learn in joint space or in the positions of both hands")
