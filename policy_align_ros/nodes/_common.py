@@ -152,9 +152,10 @@ def declare_robot(node: Node, role: str, model_path: str | None = None
     setup = resolve_robot_setup(_override(node, "robot"), _override(node, "joints"),
                                 _override(node, "robot_config"), model)
     node.declare_parameter("robot_config", "", descriptor(
-        "robot config: a shipped name (talos, panda, ur5) or a .yaml path; gives robot, "
-        "joints and controller when they are not set; empty = the config named like the "
-        "robot, else talos", read_only=True))
+        "robot config: a shipped name (talos, panda, ur5) or a .yaml path; gives robot "
+        "and joints (and the controller, home posture and frames where the node uses "
+        "them) when they are not set; empty = the config named like the robot, else talos",
+        read_only=True))
     node.declare_parameter("robot", setup.robot, descriptor(
         f"example-robot-data name or URDF path of the {role} robot; unset = "
         + ("the model file's, else " if model_path else "") + "robot_config's",
