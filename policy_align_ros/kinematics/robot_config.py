@@ -100,6 +100,13 @@ class RobotSetup:
     config: RobotConfig | None
     sources: dict[str, str]
 
+    @property
+    def home(self) -> list[float] | None:
+        """The config's home posture (rad) when the joints are the config's, else None."""
+        if self.config is None or self.joints != self.config.joints:
+            return None
+        return self.config.home
+
     def hint(self) -> str:
         """Where ``robot`` and ``joints`` came from and how to set them (error messages)."""
         return (f"robot {self.robot!r} from the {self.sources['robot']}, joints from the "

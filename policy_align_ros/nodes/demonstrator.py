@@ -96,8 +96,8 @@ class Demonstrator(Node):
         joints = list(robot.joint_names)
         self.period = 1.0 / value("rate_hz").value
         attractor = optional_parameter(self, "attractor")
-        if attractor is None and setup.config is not None:
-            attractor = setup.config.home
+        if attractor is None:
+            attractor = setup.home
         self.script = DemonstrationScript(
             robot, attractor, value("gain").value,
             str(value("expert").value), value("constraint_frames").value,

@@ -73,7 +73,7 @@ class SimRobot(Node):
             float_range=(0.1, 100.0)))
 
         self.robot = load_robot(setup)
-        self._home = setup.config.home if setup.config is not None else None
+        self._home = setup.home
         joints = list(self.robot.joint_names)
         self.sim = KinematicSim(
             self.robot.lower, self.robot.upper, self._initial_positions(),

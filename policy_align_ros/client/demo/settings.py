@@ -141,7 +141,8 @@ def _apply_config(s: DemoSettings, config: RobotConfig) -> None:
     s.frames = s.frames or list(config.hands if s.state == "hands"
                                 else config.constraint_frames)
     s.unseen_constraint = s.unseen_constraint or list(config.unseen_constraint)
-    s.home = s.home or list(config.home or [])
+    if s.joints == config.joints:  # the home posture is one value per config joint
+        s.home = s.home or list(config.home or [])
 
 
 #: Fast DDS's valid domain ids (docs/design.md section 8).
