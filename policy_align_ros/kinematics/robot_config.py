@@ -30,6 +30,8 @@ from pathlib import Path
 
 import yaml
 
+from policy_align_ros.kinematics.robot import _resolve as _resolve_robot
+
 __all__ = [
     "DEFAULT_ROBOT_CONFIG",
     "RobotConfig",
@@ -293,6 +295,7 @@ def resolve_robot_setup(robot: str | None = None, joints: Sequence[str] | None =
     elif same:
         joints, sources["joints"] = list(config.joints), f"robot config {config.name}"
     else:
+        _resolve_robot(str(robot))  # an unknown robot name says so first, with the closest
         where = (f"robot config {config.name} is for robot {config.robot!r}"
                  if config is not None else "no robot config names it")
         raise ValueError(

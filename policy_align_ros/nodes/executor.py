@@ -5,7 +5,9 @@ At ``rate_hz`` it publishes ``qdot = s N(q) pi_hat(q)`` (rad/s, order = ``joints
 ``/joint_states`` (sensor_msgs/JointState, matched by name). ``N(q)`` comes from the
 ``constraints`` parameter (a YAML list of constraint specs, see
 ``policy_align_ros.kinematics.constraint_from_spec``) and ``s`` keeps every joint under
-``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.control`).
+``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.control`). The robot
+and ``joints`` are the explicit parameters, else the model file's at ``model_path``, else
+the robot config's (``robot_config``; docs/design.md section 4).
 
 A model learnt on frame positions (its header's state definition is ``{"type": "frames",
 ...}``) gives a task-space policy ``pi_x(x)`` (m/s) over the stacked positions ``x`` (3F,)

@@ -98,6 +98,9 @@ def test_unknown_joints_are_an_error_naming_the_fix():
         with pytest.raises(ValueError, match="robot_config") as err:
             resolve_robot_setup(**kwargs)
         assert "joints" in str(err.value)
+    # An unknown robot name is named as such, with the closest known names.
+    with pytest.raises(ValueError, match="unknown robot name 'pandas'.*panda"):
+        resolve_robot_setup("pandas")
 
 
 def test_the_learner_takes_robot_and_joints_from_the_config_when_unset():
