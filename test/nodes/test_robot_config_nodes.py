@@ -7,6 +7,7 @@ import rclpy
 from rclpy.parameter import Parameter
 
 from policy_align_ros.kinematics.robot_config import load_robot_config
+from policy_align_ros.nodes._common import DEFAULT_JOINTS
 from policy_align_ros.nodes.demonstrator import Demonstrator
 from policy_align_ros.nodes.recorder import RecorderNode
 from policy_align_ros.nodes.sim_robot import SimRobot
@@ -68,3 +69,7 @@ def test_recorder_records_the_configs_joints_unless_told(context, tmp_path):
         assert node._recorder.joints == ["panda_joint3"]
     finally:
         node.destroy_node()
+
+
+def test_the_default_joints_are_the_talos_configs():
+    assert DEFAULT_JOINTS == load_robot_config("talos").joints
