@@ -4,8 +4,8 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
 
     policy-align demo [--robot NAME] [--state joints|hands] [--seed N] [--out DIR]
     policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
-        [--robot NAME --state joints|frames:F1,F2] [--holdout F] [--seed S] [--force]
-        [--overwrite]
+        [--robot NAME --state joints|frames:F1,F2] [--robot-config NAME] [--holdout F]
+        [--seed S] [--force] [--overwrite]
     policy-align call SERVICE [--data true|false]
     policy-align param get|set NODE NAME [VALUE]
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
@@ -61,7 +61,9 @@ def _build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="run the whole ROS 2 graph on a simulated robot")
-    demo.add_argument("--robot", default="talos", help="example-robot-data name or URDF")
+    demo.add_argument("--robot", default="talos",
+                      help="robot config (talos, panda, ur5 or a .yaml path), or an "
+                           "example-robot-data name or URDF (all joints, no frames)")
     demo.add_argument("--out", default="demo_out", help="directory for data, model, plots")
     demo.add_argument("--state", default="joints", choices=("joints", "hands"),
                       help="learn in joint space or in the positions of both hands")
@@ -75,7 +77,11 @@ def _build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--sigma", default="medium", help="narrow|medium|wide or sigma^2")
     learn.add_argument("--gap", type=float, default=0.5, help="split demos at gaps [s]")
     learn.add_argument("--robot", default=None,
-                       help="example-robot-data name or URDF (needed for --state frames:)")
+                       help="example-robot-data name or URDF the demonstrations were "
+                            "recorded on (stored in the model; needed for --state frames:)")
+    learn.add_argument("--robot-config", default=None,
+                       help="robot config (talos, panda, ur5 or a .yaml path): its robot, "
+                            "and its joints unless --joints is given")
     learn.add_argument("--state", default="joints",
                        help="joints (default) or frames:F1,F2 (stacked frame positions)")
     learn.add_argument("--holdout", type=float, default=0.2,

@@ -11,7 +11,9 @@ from policy_align_ros.cli import main
 from policy_align_ros.data.bags.dataset import load_dataset
 from policy_align_ros.data.bags.write import write_joint_state_bag
 from policy_align_ros.data.learn import parse_joints, parse_sigma, run_learn
+from policy_align_ros.kinematics.robot_config import load_robot_config
 from policy_align_ros.learning.policy_align import PolicyAlign
+from policy_align_ros.learning.policy_file import read_robot_fields
 
 T0 = 1_700_000_000 * 10**9
 JOINTS = ["shoulder", "elbow", "wrist"]
@@ -156,3 +158,28 @@ def test_a_constant_joint_is_left_out_and_named(tmp_path, capsys):
     assert main(["learn", str(tmp_path / "d"), "--out", str(out), "--joints", "a,b,finger",
                  "--overwrite"]) == 0
     assert PolicyAlign.load(out).joint_names_ == ["a", "b", "finger"]
+
+
+def test_robot_config_gives_the_model_its_robot_and_joints(tmp_path):
+    # A recording of the Panda's arm plus a finger joint the config leaves out.
+    config = load_robot_config("panda")
+    names = config.joints + ["panda_finger_joint1"]
+    rng = np.random.default_rng(1)
+    t = np.arange(60) * 0.02
+    for k in range(6):
+        x0 = rng.uniform(-0.5, 0.5, size=len(names))
+        q = x0[None, :] * np.exp(-t)[:, None]
+        stamps = T0 + k * 10 * 10**9 + np.round(t * 1e9).astype(np.int64)
+        write_joint_state_bag(tmp_path / "demos" / f"demo_{k:04d}", names, stamps, q, -q)
+    out = tmp_path / "model.npz"
+    assert main(["learn", str(tmp_path / "demos"), "--out", str(out),
+                 "--robot-config", "panda"]) == 0
+    model = PolicyAlign.load(out)
+    assert model.robot_ == "panda" and model.joint_names_ == config.joints
+    assert read_robot_fields(out) == ("panda", config.joints)
+    # Without it the model names no robot (an executor then needs robot or robot_config).
+    assert main(["learn", str(tmp_path / "demos"), "--out", str(tmp_path / "plain.npz"),
+                 "--joints", ",".join(config.joints)]) == 0
+    assert PolicyAlign.load(tmp_path / "plain.npz").robot_ is None
+    assert main(["learn", str(tmp_path / "demos"), "--out", str(tmp_path / "bad.npz"),
+                 "--robot-config", "pandas"]) == 2

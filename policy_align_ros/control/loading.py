@@ -8,7 +8,7 @@ import numpy as np
 
 from policy_align_ros.control.joint_order import model_permutation
 from policy_align_ros.control.task_policy import policy_for_state
-from policy_align_ros.kinematics.robot import Robot
+from policy_align_ros.kinematics.robot import ROBOTS, Robot
 from policy_align_ros.learning import PolicyAlign
 
 __all__ = ["load_policy"]
@@ -26,11 +26,12 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
                 ) -> tuple[PolicyAlign, Callable[[np.ndarray], np.ndarray], np.ndarray, str]:
     """Load a PolicyAlign model file and make its joint-space policy for ``robot``.
 
-    A model learnt on joint positions must have been trained on ``robot``'s joints (in
-    any order). A model learnt on frame positions (its ``state_definition_`` is
-    ``{"type": "frames", ...}``) must have been learnt on the same robot (URDF, joints,
-    locked posture) and frames; its task-space policy ``pi_x`` is mapped to joint
-    velocities satisfying ``constraint`` by
+    A model naming the robot it was learnt for (``robot_``) must name ``robot`` (when
+    both are example-robot-data names). A model learnt on joint positions must have been
+    trained on ``robot``'s joints (in any order). A model learnt on frame positions (its
+    ``state_definition_`` is ``{"type": "frames", ...}``) must have been learnt on the same
+    robot (URDF, joints, locked posture) and frames; its task-space policy ``pi_x`` is
+    mapped to joint velocities satisfying ``constraint`` by
     :func:`policy_align_ros.control.task_policy.policy_for_state`.
 
     Parameters
@@ -60,6 +61,11 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
     """
     model = PolicyAlign.load(path)
     joints = list(robot.joint_names)
+    learnt_for = getattr(model, "robot_", None)
+    # Two robot names can be compared; a URDF path may be spelt differently for the same file.
+    if learnt_for in ROBOTS and robot.name in ROBOTS and learnt_for != robot.name:
+        raise ValueError(f"model {path}: learnt for robot {learnt_for!r}, the executor "
+                         f"controls {robot.name!r}")
     state = getattr(model, "state_definition_", None)
     if state is None:
         if model.joint_names_ is None and model.n_features_in_ != len(joints):

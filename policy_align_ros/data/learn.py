@@ -49,7 +49,8 @@ def run_learn(args: argparse.Namespace) -> int:
     args : argparse.Namespace
         ``inputs`` (bag or dataset paths), ``out`` (model path), ``joints``
         (comma-separated or None), ``sigma`` (rule or sigma^2), ``gap`` (s), and optionally
-        ``robot``, ``state``, ``holdout``, ``seed``, ``force``, ``overwrite`` and the
+        ``robot``, ``robot_config`` (gives ``robot`` and ``joints`` when unset),
+        ``state``, ``holdout``, ``seed``, ``force``, ``overwrite`` and the
         :class:`Gates`
         fields (``min_sigma2_fraction``, ...; None keeps the default).
 
@@ -59,20 +60,26 @@ def run_learn(args: argparse.Namespace) -> int:
         0 on success; 1 when the fit is refused (reasons on stderr); 2 with a message on
         stderr for unusable input or a failed fit.
     """
+    # Imported here: the kinematics package loads Pinocchio.
+    from policy_align_ros.kinematics.robot_config import learning_robot
+
     try:
         try:
             sigma = parse_sigma(getattr(args, "sigma", "medium"))
         except ValueError as err:
             raise ValueError(f"--{err}") from None
+        robot, joints = learning_robot(getattr(args, "robot", None),
+                                       parse_joints(getattr(args, "joints", None)),
+                                       getattr(args, "robot_config", None))
         result = learn_pipeline(
             args.inputs, args.out,
-            joints=parse_joints(getattr(args, "joints", None)),
+            joints=joints,
             sigma=sigma,
             gap_s=float(getattr(args, "gap", 0.5)),
             holdout_fraction=float(getattr(args, "holdout", 0.2)),
             seed=int(getattr(args, "seed", 0)),
             state=getattr(args, "state", "joints") or "joints",
-            robot=getattr(args, "robot", None),
+            robot=robot,
             gates=_gates(args),
             force=bool(getattr(args, "force", False)),
             overwrite=bool(getattr(args, "overwrite", False)),

@@ -313,7 +313,9 @@ def learn_pipeline(
         ``"joints"`` or ``"frames:F1,F2,..."``: learn in the stacked positions (m) of those
         frames of ``robot`` (Pinocchio, imported only then).
     robot : str, optional
-        example-robot-data name or URDF path; needed for a ``frames:`` state.
+        example-robot-data name or URDF path the demonstrations were recorded on;
+        needed for a ``frames:`` state, and stored in the model file (``robot_``) so the
+        executor knows it.
     gates : Gates, optional
         Refusal thresholds (default ``Gates()``).
     force : bool
@@ -578,7 +580,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "state": states.state,
         "joints": list(demos.joints),
         "constant_joints": list(demos.constant),
-        "robot": run.robot if states.definition is not None else None,
+        "robot": run.robot,
         "inputs": [str(p) for p in run.inputs],
         "data": report.summary(),
         "current_model": current,
@@ -599,6 +601,7 @@ def _write(result: PipelineResult, run: _Run, say: Callable[[str], None]) -> Pip
         return result
     model = result.model
     model.fit_summary_ = {**(model.fit_summary_ or {}), "pipeline": result.summary}
+    model.robot_ = run.robot  # the executor takes its robot from here when not told
     run.path.parent.mkdir(parents=True, exist_ok=True)
     model.save(run.path)
     result.written = True

@@ -18,6 +18,12 @@ from policy_align_ros.kinematics.constraints import (
 )
 from policy_align_ros.kinematics.projection import nullspace_projector, nullspace_projectors
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
+from policy_align_ros.kinematics.robot_config import (
+    RobotConfig,
+    RobotSetup,
+    load_robot_config,
+    resolve_robot_setup,
+)
 from policy_align_ros.kinematics.state_definition import FrameStateDefinition
 from policy_align_ros.kinematics.task_space import LearningStateMap, TaskSpaceMap
 from policy_align_ros.learning.state_spec import parse_state_spec
@@ -33,10 +39,14 @@ __all__ = [
     "PlaneConstraint",
     "PositionConstraint",
     "Robot",
+    "RobotConfig",
+    "RobotSetup",
     "StackedConstraint",
     "TaskSpaceMap",
     "constraint_from_spec",
+    "load_robot_config",
     "nullspace_projector",
     "nullspace_projectors",
+    "resolve_robot_setup",
     "parse_state_spec",
 ]

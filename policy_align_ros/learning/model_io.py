@@ -21,6 +21,7 @@ __all__ = [
     "FORMAT_VERSION",
     "save_npz",
     "load_npz",
+    "load_header",
     "atomic_write_bytes",
     "atomic_write_text",
     "json_float",
@@ -175,7 +176,16 @@ def save_npz(path: str | Path, header: dict, arrays: dict[str, np.ndarray]) -> P
     return atomic_write_bytes(path, lambda fh: np.savez(fh, **payload))
 
 
-def load_npz(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
+def load_header(path: str | Path, kind: str) -> dict:
+    """The JSON header of a file written by ``save_npz``, without reading its arrays.
+
+    Raises as :func:`load_npz`.
+    """
+    return load_npz(path, kind, with_arrays=False)[0]
+
+
+def load_npz(path: str | Path, kind: str, *, with_arrays: bool = True
+             ) -> tuple[dict, dict[str, np.ndarray]]:
     """Read a file written by ``save_npz``; errors name the file and the problem.
 
     Raises
@@ -197,7 +207,8 @@ def load_npz(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
             if _HEADER not in data.files:
                 raise ValueError("no header: not a policy_align_ros model file")
             header = json.loads(str(data[_HEADER]))
-            arrays = {name: data[name] for name in data.files if name != _HEADER}
+            arrays = {name: data[name] for name in data.files
+                      if name != _HEADER} if with_arrays else {}
     except (zipfile.BadZipFile, OSError, EOFError, json.JSONDecodeError) as err:
         raise ValueError(f"{path}: truncated or not a model file ({err})") from None
     except ValueError as err:

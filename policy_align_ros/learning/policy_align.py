@@ -203,6 +203,11 @@ class PolicyAlign(BaseEstimator):
         root frame, locked posture, URDF hash, rest posture) set by the learning pipeline
         (:mod:`policy_align_ros.data.pipeline`). Saved in the model header; files without
         it load as joint-state models.
+    robot_ : str or None
+        The robot the model was learnt for (example-robot-data name or URDF path), set
+        by the learning pipeline when it knows it; saved in the model header (files
+        without it load with None). The executor takes its robot and joints from it
+        when its own ``robot`` and ``joints`` are unset.
     """
 
     def __init__(
@@ -504,6 +509,8 @@ class PolicyAlign(BaseEstimator):
         self.joint_names_ = None if joint_names is None else [str(j) for j in joint_names]
         # Set by whoever maps joint states to another state (the learning pipeline).
         self.state_definition_ = None
+        # Set by whoever knows the robot (the learning pipeline's ``robot``).
+        self.robot_ = None
         self.timed_ = trajs[0].times is not None
 
     def _summary(self, est: _Estimates, table: LocalModelTable,

@@ -20,7 +20,7 @@ from policy_align_ros.learning import model_io
 from policy_align_ros.learning.base import check_is_fitted
 from policy_align_ros.learning.regressors.registry import regressor_class
 
-__all__ = ["read_model", "write_model"]
+__all__ = ["read_model", "read_robot_fields", "write_model"]
 
 
 def write_model(model, path: str | Path) -> Path:
@@ -37,8 +37,12 @@ def write_model(model, path: str | Path) -> Path:
                          f"{type(definition).__name__}")
     state = ("frame positions" if definition is not None
              else "joint positions" if model.joint_names_ else "positions")
+    robot = getattr(model, "robot_", None)
+    if robot is not None and not isinstance(robot, str):
+        raise ValueError(f"robot_ must be None or a str, got {type(robot).__name__}")
     header = {
         "kind": "policy_align",
+        "robot": robot,
         "joint_names": model.joint_names_,
         "state": state,
         "state_definition": definition,
@@ -80,6 +84,34 @@ def read_model(cls: type, path: str | Path):
     return model
 
 
+def read_robot_fields(path: str | Path) -> tuple[str | None, list[str] | None]:
+    """The robot and joints a model file was learnt for, from its header only.
+
+    Returns
+    -------
+    (robot, joints)
+        ``robot``: the header's ``robot`` (example-robot-data name or URDF path), else
+        that of its frames state definition, else None (files written before the field,
+        or learnt without naming the robot); ``joints``: the joint positions it was
+        learnt on (a frames state: its definition's joints), else None.
+
+    Raises
+    ------
+    ValueError, FileNotFoundError
+        For a file that is no policy_align model file.
+    """
+    header = model_io.load_header(path, kind="policy_align")
+    definition = header.get("state_definition")
+    definition = definition if isinstance(definition, dict) else {}
+    robot = header.get("robot") or definition.get("robot")
+    joints = definition.get("joints") if definition else header.get("joint_names")
+    if not isinstance(robot, str):
+        robot = None
+    if not (isinstance(joints, list) and joints and all(isinstance(j, str) for j in joints)):
+        joints = None
+    return robot, joints
+
+
 def _read_header(model, header: dict, arrays: dict[str, np.ndarray], params: dict) -> None:
     """The header's attributes of ``model``, and its regressor (KeyError, TypeError or
     ValueError when malformed)."""
@@ -101,6 +133,10 @@ def _read_header(model, header: dict, arrays: dict[str, np.ndarray], params: dic
     if model.joint_names_ is not None and (
             not isinstance(model.joint_names_, list) or len(model.joint_names_) != n):
         raise ValueError(f"joint_names must be null or a list of {n} names")
+    # Files written before the robot field know no robot.
+    model.robot_ = header.get("robot")
+    if model.robot_ is not None and not isinstance(model.robot_, str):
+        raise ValueError("robot must be null or a string")
     # Files written before task-space states have no definition: joint states.
     model.state_definition_ = header.get("state_definition")
     if model.state_definition_ is not None and not isinstance(

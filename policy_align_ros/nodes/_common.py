@@ -34,12 +34,17 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray
 
+from policy_align_ros.kinematics import Robot, RobotSetup, resolve_robot_setup
+from policy_align_ros.learning.policy_file import read_robot_fields
+
 __all__ = [
     "DEFAULT_JOINTS",
     "LATCHED_QOS",
     "accept",
     "call_with_timeout",
+    "declare_robot",
     "descriptor",
+    "load_robot",
     "optional_parameter",
     "reject",
     "run_node",
@@ -47,6 +52,7 @@ __all__ = [
 
 #: Talos upper body (talos_reduced.urdf): torso, both 7-DoF arms and head. The grippers
 #: are left out: they do not move the hands, and their reference posture is on a limit.
+#: The same list as config/robots/talos.yaml (the robot config used when none is named).
 DEFAULT_JOINTS: list[str] = (
     ["torso_1_joint", "torso_2_joint"]
     + [f"arm_left_{i}_joint" for i in range(1, 8)]
@@ -110,6 +116,64 @@ def optional_parameter(node: Node, name: str) -> Any:
         return node.get_parameter(name).value
     except ParameterUninitializedException:
         return None
+
+
+def _override(node: Node, name: str) -> Any:
+    """The value given for ``name`` at start (``-p`` or a parameters file), or None.
+
+    rclpy has no public accessor for the overrides before a parameter is declared; the
+    robot's parameters need them to choose their defaults.
+    """
+    param = getattr(node, "_parameter_overrides", {}).get(name)
+    return None if param is None else param.value
+
+
+def declare_robot(node: Node, role: str, model_path: str | None = None
+                  ) -> RobotSetup:
+    """Declare ``robot_config``, ``robot`` and ``joints`` (read-only) and resolve them.
+
+    ``robot`` and ``joints`` default to the resolved values (explicit parameter, then the
+    model file at the ``model_path`` parameter's value when given, then the robot config;
+    :func:`~policy_align_ros.kinematics.robot_config.resolve_robot_setup`), so a
+    parameter get shows what the node uses.
+
+    Raises
+    ------
+    ValueError
+        When the joints cannot be known, naming the fix.
+    """
+    model = None
+    path = _override(node, model_path) if model_path else None
+    if path:
+        try:
+            model = read_robot_fields(path)
+        except (OSError, ValueError):
+            model = None  # the model's own loading says why it is refused
+    setup = resolve_robot_setup(_override(node, "robot"), _override(node, "joints"),
+                                _override(node, "robot_config"), model)
+    node.declare_parameter("robot_config", "", descriptor(
+        "robot config: a shipped name (talos, panda, ur5) or a .yaml path; gives robot "
+        "and joints (and the controller, home posture and frames where the node uses "
+        "them) when they are not set; empty = the config named like the robot, else talos",
+        read_only=True))
+    node.declare_parameter("robot", setup.robot, descriptor(
+        f"example-robot-data name or URDF path of the {role} robot; unset = "
+        + ("the model file's, else " if model_path else "") + "robot_config's",
+        read_only=True))
+    node.declare_parameter("joints", setup.joints, descriptor(
+        f"{role} joints, in command order; unset = "
+        + ("the model file's, else " if model_path else "") + "robot_config's",
+        read_only=True))
+    return setup
+
+
+def load_robot(setup: RobotSetup) -> Robot:
+    """The robot of ``setup``; ValueError naming where robot and joints came from and
+    how to set them when it does not load (an unknown joint, a bad URDF)."""
+    try:
+        return Robot.load(setup.robot, setup.joints)
+    except ValueError as err:
+        raise ValueError(f"{err} ({setup.hint()})") from None
 
 
 class _NextCycle:

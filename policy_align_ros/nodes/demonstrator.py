@@ -55,12 +55,13 @@ from std_srvs.srv import Trigger
 
 from policy_align_ros.control import speed_limits
 from policy_align_ros.data.messages import JointSelector
-from policy_align_ros.kinematics import Robot
+from policy_align_ros.kinematics import RobotConfig
 from policy_align_ros.nodes._common import (
-    DEFAULT_JOINTS,
     LATCHED_QOS,
     accept,
+    declare_robot,
     descriptor,
+    load_robot,
     optional_parameter,
     publish_zero_command,
     reject,
@@ -88,13 +89,17 @@ class Demonstrator(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("demonstrator", **kwargs)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._declare_parameters()
+        setup = declare_robot(self, "commanded")
+        self._declare_parameters(setup.config)
         value = self.get_parameter
-        joints = list(value("joints").value)
-        robot = Robot.load(value("robot").value, joints)
+        robot = load_robot(setup)
+        joints = list(robot.joint_names)
         self.period = 1.0 / value("rate_hz").value
+        attractor = optional_parameter(self, "attractor")
+        if attractor is None:
+            attractor = setup.home
         self.script = DemonstrationScript(
-            robot, optional_parameter(self, "attractor"), value("gain").value,
+            robot, attractor, value("gain").value,
             str(value("expert").value), value("constraint_frames").value,
             value("hand_frames").value, optional_parameter(self, "hand_targets"),
             speed_limits(robot.velocity_limit, value("max_velocity").value), self.period,
@@ -131,20 +136,22 @@ class Demonstrator(Node):
         # states that stop coming (no step would then replace the last command).
         self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
 
-    def _declare_parameters(self) -> None:
+    def _declare_parameters(self, config: RobotConfig | None) -> None:
+        """The expert's and the schedule's parameters; frame lists default to those of
+        the robot config (``config``), else Talos's hands."""
         p = self.declare_parameter
-        p("robot", "talos", descriptor("example-robot-data name or URDF path", read_only=True))
-        p("joints", DEFAULT_JOINTS, descriptor("commanded joints, in order", read_only=True))
+        hands = config.hands if config is not None else DEFAULT_FRAMES
+        planes = config.constraint_frames if config is not None else DEFAULT_FRAMES
         p("attractor", Parameter.Type.DOUBLE_ARRAY, descriptor(
-            "minimum of the expert potential [rad]; unset = reference posture",
-            read_only=True))
+            "minimum of the expert potential [rad]; unset = robot_config's home, else the "
+            "reference posture", read_only=True))
         p("gain", 1.0, descriptor("expert gain: pi = -gain (q - attractor) [1/s]",
                                   read_only=True, float_range=(0.01, 20.0)))
         p("expert", "joints", descriptor(
             "joints: potential in joint space; hands: potential in the stacked positions "
             "of hand_frames, pi_x = -gain (x - hand_targets) realised through the "
             "Jacobian", read_only=True, constraints="joints | hands"))
-        p("hand_frames", DEFAULT_FRAMES, descriptor(
+        p("hand_frames", hands or [""], descriptor(
             "frames whose stacked positions are the hands expert's state",
             read_only=True))
         p("hand_targets", Parameter.Type.DOUBLE_ARRAY, descriptor(
@@ -157,7 +164,7 @@ class Demonstrator(Node):
                                       int_range=(1, 100000)))
         p("demo_duration_s", 3.0, descriptor("length of one demonstration [s]",
                                              read_only=True, float_range=(0.1, 600.0)))
-        p("constraint_frames", DEFAULT_FRAMES, descriptor(
+        p("constraint_frames", planes or [""], descriptor(
             "frames each restricted to a plane of random orientation per demonstration "
             "(empty string list entry '' = unconstrained)", read_only=True))
         p("plane_switches", 2, descriptor(

@@ -5,7 +5,9 @@ At ``rate_hz`` it publishes ``qdot = s N(q) pi_hat(q)`` (rad/s, order = ``joints
 ``/joint_states`` (sensor_msgs/JointState, matched by name). ``N(q)`` comes from the
 ``constraints`` parameter (a YAML list of constraint specs, see
 ``policy_align_ros.kinematics.constraint_from_spec``) and ``s`` keeps every joint under
-``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.control`).
+``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.control`). The robot
+and ``joints`` are the explicit parameters, else the model file's at ``model_path``, else
+the robot config's (``robot_config``; docs/design.md section 4).
 
 A model learnt on frame positions (its header's state definition is ``{"type": "frames",
 ...}``) gives a task-space policy ``pi_x(x)`` (m/s) over the stacked positions ``x`` (3F,)
@@ -115,11 +117,12 @@ from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.kinematics.constraints import parse_constraint_specs
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
-    DEFAULT_JOINTS,
     LATCHED_QOS,
     accept,
     call_with_timeout,
+    declare_robot,
     descriptor,
+    load_robot,
     publish_zero_command,
     reject,
     run_node,
@@ -158,8 +161,7 @@ class Executor(Node):
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
         self.add_post_set_parameters_callback(self._locked(self._after_set_parameters))
         self._declare_robot_parameters()
-        joints = list(self.get_parameter("joints").value)
-        self.robot = Robot.load(self.get_parameter("robot").value, joints)
+        joints = list(self.robot.joint_names)
         self._declare_control_parameters()
         self.controller = self._make_controller(joints)
         self._selector = JointSelector(joints)
@@ -171,11 +173,10 @@ class Executor(Node):
         self._create_interfaces()
 
     def _declare_robot_parameters(self) -> None:
-        """The read-only parameters the robot and the control period are built from."""
-        self.declare_parameter("robot", "talos", descriptor(
-            "example-robot-data name or URDF path of the controlled robot", read_only=True))
-        self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
-            "controlled joints, in command order", read_only=True))
+        """The read-only parameters the robot and the control period are built from:
+        robot and joints explicit, else the model file's, else robot_config's."""
+        setup = declare_robot(self, "controlled", model_path="model_path")
+        self.robot, self._default_controller = load_robot(setup), setup.controller
         self.declare_parameter("rate_hz", 100.0, descriptor(
             "control rate [Hz]", read_only=True, float_range=(1.0, 1000.0)))
 
@@ -227,10 +228,10 @@ class Executor(Node):
         self.declare_parameter("constraints", "[]", descriptor(
             "YAML list of constraint specs in force, e.g. "
             "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
-        self.declare_parameter("controller", "/velocity_controller", descriptor(
+        self.declare_parameter("controller", self._default_controller, descriptor(
             "node name of the ros2_control controller taking the commands; ~/enable reads "
             "its joints parameter and refuses a different order or one it cannot read; "
-            "none = arm without the check"))
+            "none = arm without the check; unset = robot_config's"))
         self.declare_parameter("start_enabled", False, descriptor(
             "arm at the first fresh joint state when model_path loaded at start (else "
             "wait for ~/enable)", read_only=True))

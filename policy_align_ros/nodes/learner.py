@@ -36,6 +36,7 @@ from policy_align_ros.data.pipeline import (
     state_name,
 )
 from policy_align_ros.data.quality import Gates
+from policy_align_ros.kinematics.robot_config import learning_robot
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     accept,
@@ -95,8 +96,13 @@ class Learner(Node):
             "random seed of the hold-out split and the fit", int_range=(0, 2**31 - 1)))
         self.declare_parameter("state", "joints", descriptor(
             "state learnt in: joints, or frames:F1,F2 (stacked frame positions, m)"))
-        self.declare_parameter("robot", "talos", descriptor(
-            "example-robot-data name or URDF path; gives the frames of a frames: state"))
+        self.declare_parameter("robot", "", descriptor(
+            "example-robot-data name or URDF path the demonstrations were recorded on, "
+            "stored in the model file (the executor takes it from there); gives the frames "
+            "of a frames: state; empty = robot_config's, else none"))
+        self.declare_parameter("robot_config", "", descriptor(
+            "robot config (talos, panda, ur5 or a .yaml path): robot and joints when they "
+            "are unset; empty = none"))
         self.declare_parameter("force", False, descriptor(
             "write the model even when the fit is refused as degenerate"))
         self.declare_parameter("overwrite", False, descriptor(
@@ -171,16 +177,19 @@ class Learner(Node):
         if not dataset.exists():
             raise ValueError(
                 f"dataset_dir: {dataset} does not exist (record demonstrations first)")
+        robot, joints = learning_robot(value("robot").value,
+                                       optional_parameter(self, "joints"),
+                                       value("robot_config").value)
         return learn_pipeline(
             [dataset],
             value("model_path").value,
             sigma=parse_sigma(value("sigma").value),
-            joints=optional_parameter(self, "joints"),
+            joints=joints,
             holdout_fraction=value("holdout_fraction").value,
             gap_s=value("gap_s").value,
             seed=value("seed").value,
             state=value("state").value,
-            robot=value("robot").value or None,
+            robot=robot,
             gates=Gates(**{f.name: value(f.name).value for f in fields(Gates)}),
             force=value("force").value,
             overwrite=value("overwrite").value,

@@ -75,6 +75,7 @@ from std_srvs.srv import Trigger
 from policy_align_ros.data.dataset_dir import check_dataset_dir, default_fallback_dirs
 from policy_align_ros.data.messages import describe_skips, validate_joint_names
 from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, validate_gap
+from policy_align_ros.kinematics.robot_config import load_robot_config
 from policy_align_ros.nodes._common import run_node
 
 __all__ = ["RecorderNode", "main"]
@@ -98,6 +99,11 @@ class RecorderNode(Node):
         joints = self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
             description="recorded joints, in order; unset or empty: those of the first "
             "message"))
+        config = self.declare_parameter("robot_config", "", ParameterDescriptor(
+            description="robot config (talos, panda, ur5 or a .yaml path) whose joints are "
+            "recorded when joints is unset; empty = none", read_only=True))
+        recorded = joints.value or (load_robot_config(config.value).joints
+                                    if config.value else None)
         self.declare_parameter("auto_split_gap_s", 0.0, ParameterDescriptor(
             description="0: manual mode (~/start_demo, ~/stop_demo); > 0: record "
             "continuously and split demonstrations at time gaps longer than this [s]",
@@ -110,7 +116,7 @@ class RecorderNode(Node):
             integer_range=[IntegerRange(from_value=1, to_value=1_000_000, step=1)]))
         self._recorder = DemoRecorder(
             self.get_parameter("dataset_dir").value,
-            joints=validate_joint_names(joints.value or None),
+            joints=validate_joint_names(recorded),
             auto_split_gap_s=self.get_parameter("auto_split_gap_s").value,
             topic=self.resolve_topic_name("/joint_states"),
             max_stamp_ahead_s=_MAX_STAMP_AHEAD_S,

@@ -31,11 +31,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from policy_align_ros.kinematics import Robot
 from policy_align_ros.nodes._common import (
-    DEFAULT_JOINTS,
     accept,
+    declare_robot,
     descriptor,
+    load_robot,
     optional_parameter,
     reject,
     run_node,
@@ -55,13 +55,11 @@ class SimRobot(Node):
         super().__init__("sim_robot", **kwargs)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
-        self.declare_parameter("robot", "talos", descriptor(
-            "example-robot-data name or URDF path of the simulated robot", read_only=True))
-        self.declare_parameter("joints", DEFAULT_JOINTS, descriptor(
-            "simulated joints, in command order; the others are locked at the reference "
-            "posture", read_only=True))
+        # The joints left out are locked at the reference posture.
+        setup = declare_robot(self, "simulated")
         self.declare_parameter("initial_positions", Parameter.Type.DOUBLE_ARRAY, descriptor(
-            "start and ~/reset positions [rad], one per joint; unset = reference posture"))
+            "start and ~/reset positions [rad], one per joint; unset = robot_config's home, "
+            "else the reference posture"))
         self.declare_parameter("rate_hz", 100.0, descriptor(
             "integration and /joint_states publishing rate [Hz]", read_only=True,
             float_range=(1.0, 1000.0)))
@@ -74,8 +72,9 @@ class SimRobot(Node):
             "with publish_clock: simulated seconds per wall-clock second", read_only=True,
             float_range=(0.1, 100.0)))
 
-        joints = list(self.get_parameter("joints").value)
-        self.robot = Robot.load(self.get_parameter("robot").value, joints)
+        self.robot = load_robot(setup)
+        self._home = setup.home
+        joints = list(self.robot.joint_names)
         self.sim = KinematicSim(
             self.robot.lower, self.robot.upper, self._initial_positions(),
             command_timeout_s=self.get_parameter("command_timeout_s").value,
@@ -116,7 +115,7 @@ class SimRobot(Node):
     def _initial_positions(self) -> np.ndarray:
         values = optional_parameter(self, "initial_positions")
         if values is None:
-            return self.robot.neutral()
+            return self.robot.neutral() if self._home is None else np.array(self._home)
         return np.asarray(values, dtype=float)
 
     def _on_set_parameters(self, params: Sequence[Parameter]):

@@ -12,6 +12,7 @@ from policy_align_ros.client.demo.settings import (
     random_streams,
     settings_from_args,
 )
+from policy_align_ros.kinematics.robot_config import load_robot_config
 
 
 def test_seed_sets_every_stream_and_settings_are_checked():
@@ -46,3 +47,18 @@ def test_demo_refuses_a_bad_ros_domain_id_before_starting_anything(tmp_path, mon
     out = tmp_path / "demo"
     assert run_demo(argparse.Namespace(out=str(out))) == 2
     assert not out.exists()
+
+
+def test_robot_names_a_config_that_fills_the_unset_settings():
+    s = settings_from_args(argparse.Namespace(robot="ur5"))
+    config = load_robot_config("ur5")
+    assert s.robot == "ur5" and s.joints == config.joints and s.frames == ["tool0"]
+    assert s.home == config.home and s.unseen_constraint == config.unseen_constraint
+    # An explicit joint subset keeps the robot's reference posture (home is per joint).
+    few = settings_from_args(argparse.Namespace(robot="ur5", joints=config.joints[:3]))
+    assert few.joints == config.joints[:3] and few.home == []
+    # A robot without a config: all its joints, no frames, no unseen constraint.
+    bare = settings_from_args(argparse.Namespace(robot="ur10"))
+    assert bare.robot_config == "" and bare.joints == [] and bare.frames == []
+    with pytest.raises(ValueError, match="hands"):
+        settings_from_args(argparse.Namespace(robot="panda", state="hands"))

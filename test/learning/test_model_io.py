@@ -1,5 +1,6 @@
 """Model files (policy_align_ros.learning.model_io and PolicyAlign.save/load)."""
 
+import copy
 import errno
 import json
 import math
@@ -20,6 +21,7 @@ from policy_align_ros.learning.model_io import (
     load_npz,
     save_npz,
 )
+from policy_align_ros.learning.policy_file import read_robot_fields
 
 
 @pytest.fixture(scope="module")
@@ -273,3 +275,30 @@ def test_json_float_writes_non_finite_values_as_each_format_holds_them():
         json.dumps({"a": object()}, default=json_float)
     with pytest.raises(ValueError, match="nonfinite"):
         json_float(math.inf, "zero")
+
+
+def test_the_robot_field_round_trips_and_is_read_from_the_header_alone(model, tmp_path):
+    assert model.robot_ is None  # a plain fit knows no robot
+    named = copy.copy(model)
+    named.robot_ = "panda"
+    path = named.save(tmp_path / "model.npz")
+    assert PolicyAlign.load(path).robot_ == "panda"
+    assert read_robot_fields(path) == ("panda", ["j1", "j2"])
+    named.robot_ = 7
+    with pytest.raises(ValueError, match="robot_"):
+        named.save(tmp_path / "bad.npz")
+
+
+def test_an_old_file_without_the_robot_field_still_loads(model, tmp_path):
+    source = model.save(tmp_path / "model.npz")
+    old = _rewrite(tmp_path, source, header=lambda h: {k: v for k, v in h.items()
+                                                       if k != "robot"})
+    assert "robot" not in load_npz(old, "policy_align")[0]
+    loaded = PolicyAlign.load(old)
+    assert loaded.robot_ is None and loaded.joint_names_ == ["j1", "j2"]
+    X = np.random.default_rng(1).uniform(-2, 2, size=(5, 2))
+    np.testing.assert_array_equal(loaded.policy(X), model.policy(X))
+    assert read_robot_fields(old) == (None, ["j1", "j2"])
+    bad = _rewrite(tmp_path, source, header=lambda h: _set(h, "robot", ["panda"]))
+    with pytest.raises(ValueError, match="robot must be null or a string"):
+        PolicyAlign.load(bad)

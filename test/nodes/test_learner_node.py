@@ -156,7 +156,8 @@ def test_state_and_gate_parameters_are_validated_and_a_bad_frame_is_named(rig, t
     arm = ["arm_left_1_joint", "arm_left_2_joint"]
     _write_dataset(tmp_path / "demos", n_demos=4, joints=arm)
     r = rig(166, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "m.npz"),
-            state="frames:no_such_frame", joints=["arm_left_1_joint", "arm_left_9_joint"])
+            state="frames:no_such_frame", joints=["arm_left_1_joint", "arm_left_9_joint"],
+            robot="talos")
     assert not r.node.set_parameters([Parameter("state", value="hands")])[0].successful
     assert not r.node.set_parameters(
         [Parameter("max_discarded_fraction", value=1.5)])[0].successful
@@ -285,3 +286,16 @@ def test_observed_ncpe_is_zero_for_the_true_policy_and_positive_otherwise():
         trajs.append(Trajectory(np.array(X), np.arange(30) * 0.01))
     assert observed_ncpe(lambda X: -X, trajs) < 1e-10
     assert observed_ncpe(lambda X: X, trajs) > 1.0
+
+
+def test_robot_config_names_the_models_robot_and_joints(rig, tmp_path):
+    _write_dataset(tmp_path / "demos", joints=JOINTS[::-1])
+    config = tmp_path / "arm.yaml"
+    config.write_text(f"robot: ur5\njoints: [{JOINTS[0]}, {JOINTS[1]}]\n")
+    model = tmp_path / "model.npz"
+    r = rig(199, dataset_dir=str(tmp_path / "demos"), model_path=str(model),
+            robot_config=str(config))
+    response = r.learn()
+    assert response.success, response.message
+    learnt = PolicyAlign.load(model)
+    assert learnt.robot_ == "ur5" and learnt.joint_names_ == JOINTS  # the config's order

@@ -14,8 +14,8 @@ Stages (each one failing makes the command exit with status 1):
    parameters in ``OUT/params.yaml``, logs in ``OUT/logs/``;
 2. the demonstrator records ``demos`` demonstrations of its expert (joint space:
    ``pi(q) = -gain (q - q_c)``; hand space: ``pi_x = -gain (x - x_c)`` realised through the
-   Jacobian) with both hands on planes of random orientation, re-drawn twice per
-   demonstration;
+   Jacobian) with the robot config's constraint frames (Talos: both hands; Panda, UR5:
+   the tool) on planes of random orientation, re-drawn twice per demonstration;
 3. ``/learner/learn`` fits PolicyAlign on all but a held-out share and announces the
    model; what was used, held out and discarded is read from the model file's header;
 4. the learnt policy is scored with the paper's nCPE on fresh demonstrations generated
@@ -23,7 +23,8 @@ Stages (each one failing makes the command exit with status 1):
 5. the executor drives the simulated robot from *new* start states drawn from the
    demonstrations' start distribution (a separate random stream; each is checked to be
    away from every recorded demonstration's start): ``free_runs`` unconstrained runs and
-   ``held_runs`` runs holding the left hand in place, a constraint never demonstrated.
+   ``held_runs`` runs under the robot config's ``unseen_constraint``, never demonstrated
+   (Talos: the left hand held in place; Panda, UR5: the tool held in place).
    Every run lasts ``run_duration_s``; the goal of a run is the point the expert reaches
    from the same start under the same constraint (integrated offline until it settles),
    and the expert's own distance to it after ``run_duration_s`` is reported beside the

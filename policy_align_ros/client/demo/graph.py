@@ -17,6 +17,7 @@ import yaml
 
 from policy_align_ros.client.demo.settings import DemoSettings, StageError
 from policy_align_ros.client.demo.task import Task
+from policy_align_ros.kinematics.robot_config import load_robot_config
 from policy_align_ros.learning.model_io import atomic_write_text
 
 __all__ = ["HANDS_EXPERT_MAX_VELOCITY", "Graph", "write_params"]
@@ -82,7 +83,13 @@ class _NoAliasDumper(yaml.SafeDumper):
 
 def write_params(path: Path, s: DemoSettings, task: Task, demonstrator_seed: int) -> None:
     """Write the parameters of every node of the graph to ``path`` (a ROS params file)."""
-    common = {"robot": s.robot, "joints": s.joints, "use_sim_time": True}
+    # The nodes read robot and joints from the robot config when the demo has one.
+    common: dict = {"robot": s.robot, "joints": s.joints}
+    if s.robot_config:
+        common = {"robot_config": s.robot_config}
+        if s.joints != load_robot_config(s.robot_config).joints:
+            common["joints"] = s.joints
+    common["use_sim_time"] = True
     rate = float(s.rate_hz)
     learner = {"dataset_dir": str(s.out / "demos"), "model_path": str(s.out / "model.npz"),
                "sigma": str(s.sigma), "joints": s.joints, "seed": int(s.seed),

@@ -35,7 +35,7 @@ def plot_report(out: Path, report: dict, traces: dict[str, np.ndarray]) -> list[
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    robot = Robot.load(report["robot"], _joints_of(out))
+    robot = Robot.load(report["robot"], report.get("joints") or _joints_of(out))
     frames = list(report.get("frames", []))
     hands = TaskSpaceMap(robot, frames) if frames else None
     hand_state = report["state"] == "hands"
@@ -75,7 +75,7 @@ def plot_report(out: Path, report: dict, traces: dict[str, np.ndarray]) -> list[
             if hand_state:
                 goal = traces[f"run{k}_goal"]
                 ax.plot(goal[0::3], goal[2::3], "k*", label="goal")
-            ax.set_title(run["id"] + (" (left hand held)" if run["constraint"] else ""))
+            ax.set_title(run["id"] + (" (unseen constraint)" if run["constraint"] else ""))
             ax.set_xlabel("x [m]")
             ax.set_ylabel("z [m]")
             ax.axis("equal")
@@ -88,6 +88,7 @@ def plot_report(out: Path, report: dict, traces: dict[str, np.ndarray]) -> list[
 def _joints_of(out: Path) -> list[str] | None:
     try:
         params = yaml.safe_load((out / "params.yaml").read_text())
-        return list(params["executor"]["ros__parameters"]["joints"])
+        # The learner is always told its joints (the other nodes may take a robot config's).
+        return list(params["learner"]["ros__parameters"]["joints"])
     except (OSError, KeyError, TypeError, yaml.YAMLError):
         return None

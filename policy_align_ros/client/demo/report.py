@@ -114,6 +114,8 @@ def build_report(s: DemoSettings, task: Task, learnt: dict, fresh: float, runs: 
                        f"({run['start_distance']:.4g} -> {run['final_distance']:.4g})")
     report = {
         "robot": s.robot,
+        "robot_config": s.robot_config or None,
+        "joints": list(s.joints),
         "state": s.state,
         "state_spec": task.state_spec,
         "frames": list(s.frames),

@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_align_ros.nodes._common import DEFAULT_JOINTS
-from policy_align_ros.sim.script import DEFAULT_FRAMES
+from policy_align_ros.kinematics.robot_config import RobotConfig, load_robot_config
 
 __all__ = [
     "DEFAULT_DEMOS",
@@ -48,12 +47,18 @@ class StageError(RuntimeError):
 class DemoSettings:
     """Knobs of the demo (the CLI exposes robot, state, seed and out; tests shrink the rest).
 
+    ``robot`` names a robot config (``config/robots/NAME.yaml`` or a .yaml path), which
+    gives ``joints``, ``frames``, ``unseen_constraint`` and ``home`` when they are unset,
+    or an example-robot-data name or URDF without one (all joints, no frames).
+
     Durations are simulated seconds; ``real_time_factor`` is simulated seconds per wall
     second (chosen so the graph keeps its control periods on 2 cores, see the report's
     ``sim`` block).
     """
 
     robot: str = "talos"
+    #: The robot config named by ``robot`` (a shipped name or a .yaml path), if any.
+    robot_config: str = ""
     out: Path = Path("demo_out")
     state: str = "joints"
     seed: int = 0
@@ -76,6 +81,11 @@ class DemoSettings:
     executor_params: dict = field(default_factory=dict)
     joints: list[str] = field(default_factory=list)
     frames: list[str] = field(default_factory=list)
+    #: Constraint specs of the run under a constraint never demonstrated (empty: hold the
+    #: first frame in place, or lock the first joint when there is no frame).
+    unseen_constraint: list[dict] = field(default_factory=list)
+    #: The demonstrations' attractor (rad); empty = the robot's reference posture.
+    home: list[float] = field(default_factory=list)
     plots: bool = True
     require_progress: bool = True
 
@@ -104,13 +114,35 @@ def settings_from_args(args: argparse.Namespace) -> DemoSettings:
         raise ValueError(f"seed: must be in [0, 2^31), got {s.seed}")
     if s.free_runs < 1:
         raise ValueError(f"free_runs: need at least one unconstrained run, got {s.free_runs}")
-    if not s.joints:
-        s.joints = list(DEFAULT_JOINTS) if s.robot == "talos" else []
-    if not s.frames:
-        s.frames = list(DEFAULT_FRAMES) if s.robot == "talos" else []
+    config = _robot_config(s.robot)
+    if config is not None:
+        _apply_config(s, config)
     if s.state == "hands" and len(s.frames) != 2:
-        raise ValueError("state hands: needs two hand frames (known for robot talos only)")
+        raise ValueError("state hands: needs two hand frames (the robot config's frames.hands;"
+                         " known for robot talos only)")
     return s
+
+
+def _robot_config(robot: str) -> RobotConfig | None:
+    """The robot config ``robot`` names (a shipped name or a .yaml path), else None (an
+    example-robot-data name or URDF without a config: all its joints, no frames)."""
+    if str(robot).endswith((".yaml", ".yml")):
+        return load_robot_config(robot)
+    try:
+        return load_robot_config(robot)
+    except ValueError:
+        return None
+
+
+def _apply_config(s: DemoSettings, config: RobotConfig) -> None:
+    """Fill the settings the robot config gives and that were not set."""
+    s.robot_config, s.robot = str(config.path), config.robot
+    s.joints = s.joints or list(config.joints)
+    s.frames = s.frames or list(config.hands if s.state == "hands"
+                                else config.constraint_frames)
+    s.unseen_constraint = s.unseen_constraint or list(config.unseen_constraint)
+    if s.joints == config.joints:  # the home posture is one value per config joint
+        s.home = s.home or list(config.home or [])
 
 
 #: Fast DDS's valid domain ids (docs/design.md section 8).

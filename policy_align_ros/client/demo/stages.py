@@ -59,15 +59,17 @@ def run_stages(s: DemoSettings, t0: float, graph: Graph, conductor: Conductor, t
 def run_schedule(s: DemoSettings, t0: float, conductor: Conductor, task: Task,
                  rng: np.random.Generator, recorded_starts: np.ndarray, wall_per_sim: float
                  ) -> tuple[list[dict], dict[str, np.ndarray], tuple[int, int]]:
-    """``free_runs`` unconstrained runs, then ``held_runs`` holding the first hand (or the
-    first joint) in place, from new starts away from ``recorded_starts`` (K, n).
+    """``free_runs`` unconstrained runs, then ``held_runs`` under the robot config's unseen
+    constraint (else the first frame, or the first joint, held in place), from new starts
+    away from ``recorded_starts`` (K, n).
 
     Returns the runs' report entries, their traces and the executor's ``(periods,
     missed)`` over all runs.
     """
     starts = new_starts(task, rng, s.free_runs + s.held_runs, recorded_starts)
-    held = [{"type": "position", "frame": s.frames[0]}] if s.frames else \
-        [{"type": "joints", "joints": s.joints[:1]}]
+    held = list(s.unseen_constraint) or (
+        [{"type": "position", "frame": s.frames[0]}] if s.frames else
+        [{"type": "joints", "joints": s.joints[:1]}])
     plan = [("unconstrained", []) for _ in range(s.free_runs)] + \
         [("unseen_constraint", held) for _ in range(s.held_runs)]
     runs, traces, ticks, missed = [], {}, 0, 0

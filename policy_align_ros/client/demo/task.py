@@ -35,7 +35,8 @@ class Task:
         self.robot = robot
         self.s = s
         self.dt = 1.0 / s.rate_hz
-        self.attractor = robot.neutral()
+        self.attractor = (np.asarray(s.home, dtype=float) if len(s.home)
+                          else robot.neutral())
         self.vmax = speed_limits(robot.velocity_limit, s.max_velocity)
         self.hands = TaskSpaceMap(robot, s.frames) if s.frames else None
         self.joint_expert = QuadraticPotential(self.attractor, weight=s.gain / 2.0)

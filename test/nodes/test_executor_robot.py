@@ -1,0 +1,81 @@
+"""The executor's robot and joints: an explicit parameter, then the model file, then the
+robot config, else an error naming the fix (own rclpy.Context, domain ids 196-198)."""
+
+import numpy as np
+import pytest
+import rclpy
+from executor_rig import _fit_model
+from rclpy.parameter import Parameter
+
+from policy_align_ros.kinematics.robot import robots_dir
+from policy_align_ros.kinematics.robot_config import load_robot_config
+from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.nodes.executor import Executor
+
+PANDA = load_robot_config("panda").joints
+UR5 = load_robot_config("ur5")
+
+
+@pytest.fixture
+def executor():
+    """``executor(domain_id, **params)``: an Executor node (or its exception), closed after
+    the test."""
+    contexts = []
+
+    def make(domain_id, **params):
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=domain_id)
+        contexts.append(context)
+        node = Executor(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+        contexts.append(node)
+        return node
+
+    yield make
+    for item in reversed(contexts):
+        if isinstance(item, Executor):
+            item.destroy_node()
+        else:
+            rclpy.try_shutdown(context=item)
+
+
+def _model(path, joints, center, robot):
+    """A model file learnt on ``joints`` naming ``robot`` (None: an old-format file)."""
+    _fit_model(path, joints, np.asarray(center, dtype=float))
+    model = PolicyAlign.load(path)
+    model.robot_ = robot
+    model.save(path)
+    return str(path)
+
+
+def test_robot_without_joints_takes_the_joints_of_its_config(executor):
+    node = executor(196, robot="panda")
+    assert node.robot.joint_names == PANDA
+    assert list(node.get_parameter("joints").value) == PANDA
+    assert node.get_parameter("controller").value == "/velocity_controller"
+    # Explicit joints come first.
+    other = executor(197, robot_config="panda", joints=PANDA[:3])
+    assert other.robot.joint_names == PANDA[:3] and other.robot.name == "panda"
+
+
+def test_the_model_file_gives_robot_and_joints_before_the_config(executor, tmp_path):
+    # Learnt on the UR5's joints in another order: the config's (controller) order wins.
+    path = _model(tmp_path / "ur5.npz", UR5.joints[::-1], UR5.home[::-1], "ur5")
+    node = executor(196, model_path=path)
+    assert node.robot.name == "ur5" and node.robot.joint_names == UR5.joints
+    assert node.get_parameter("robot").value == "ur5" and node.model_path == path
+    # An old file without the robot field: its joints, the robot named explicitly.
+    old = _model(tmp_path / "old.npz", PANDA[:4], np.zeros(4), None)
+    legacy = executor(197, robot="panda", model_path=old)
+    assert legacy.robot.joint_names == PANDA[:4] and legacy.model_path == old
+
+
+def test_unknown_joints_stop_the_node_with_the_fix(executor):
+    urdf = str(robots_dir() / "ur_description" / "urdf" / "ur5_robot.urdf")
+    with pytest.raises(ValueError, match="robot_config") as err:
+        executor(198, robot=urdf)
+    assert "joints" in str(err.value)
+    # Joints of another robot name where they came from and the fix.
+    with pytest.raises(ValueError, match="robot_config") as err:
+        executor(198, robot="panda", joints=["torso_1_joint"])
+    assert "torso_1_joint" in str(err.value)
