@@ -189,7 +189,8 @@ class Executor(Node):
         loads models and checks constraint specs on it)."""
         self.declare_parameter("model_path", "", descriptor(
             "model file (.npz); setting it loads the model or is refused with the reason; "
-            "empty at start = wait for /learner/model"))
+            "empty at start = wait for /learner/model (given at start, it wins over "
+            "/learner/model unless follow_learner)"))
         self.declare_parameter("max_velocity", 0.5, descriptor(
             "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
             float_range=(0.001, 10.0)))
