@@ -19,7 +19,11 @@ from policy_align_ros.nodes.executor import Executor
 
 def test_a_robot_that_does_not_move_stalls_ramps_down_and_reports_an_error(rig):
     stall_s = 0.3
-    r = rig(224, stall_time_s=stall_s)  # the rig's robot never moves
+    r = rig(224)  # the rig's robot never moves; no stall detection in the rig by default
+    result = r.node.set_parameters([Parameter("stall_time_s", value=0.05)])[0]
+    assert not result.successful and "stall_time_s" in result.reason  # shorter than a lag
+    assert r.node.set_parameters([Parameter("stall_time_s", value=stall_s)])[0].successful
+    assert r.node.controller.stall.stall_time_s == stall_s
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
     r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
                  what="fresh joint states")
