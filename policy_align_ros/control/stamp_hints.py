@@ -2,8 +2,9 @@
 
 A stamp seconds or more away from the node clock is rarely a slow network: it is a node
 on the system clock reading stamps of a simulator (seconds since the simulation
-started), or a node on simulated time reading stamps of the system clock. Both reject
-every joint state, and the fix is a parameter, so the refusal should name it.
+started), a node on simulated time reading stamps of the system clock, or two computers
+whose clocks are not synchronised. Each rejects every joint state, and the first two are
+fixed by a parameter, so the refusal should name it.
 """
 
 from __future__ import annotations
@@ -12,6 +13,9 @@ __all__ = ["CLOCK_MISMATCH_S", "CLOCK_REJECTIONS", "clock_mismatch_hint"]
 
 #: Stamp-to-clock differences beyond this (s) are a clock mismatch, not a delay.
 CLOCK_MISMATCH_S = 10.0
+#: Times from this on (ns, the year 2001) are taken for the system clock, earlier ones for
+#: a simulator's (seconds since it started).
+_SYSTEM_CLOCK_NS = 1_000_000_000 * 10**9
 #: Stamp rejections (keys of ``Output.rejected``) that a clock mismatch can explain.
 CLOCK_REJECTIONS = ("stamp_too_old", "stamp_in_future")
 
@@ -32,10 +36,14 @@ def clock_mismatch_hint(rejected: str, stamp_ns: int, now_ns: int) -> str:
     diff_s = (int(now_ns) - int(stamp_ns)) / 1e9
     if abs(diff_s) <= CLOCK_MISMATCH_S:
         return ""
-    if diff_s > 0:
+    if diff_s > 0 and stamp_ns < _SYSTEM_CLOCK_NS <= now_ns:
         return (f"the stamps look like simulator time while this node runs on the system "
                 f"clock (node clock - stamp = {diff_s:.1f} s): start it with "
                 f"-p use_sim_time:=true (and a /clock publisher)")
-    return (f"the stamps lie {-diff_s:.1f} s ahead of the node clock: the node looks like it "
-            f"runs on simulator time (use_sim_time) while the stamps are system time; "
-            f"use -p use_sim_time:=false, or stamp the joint states with /clock")
+    if diff_s < 0 and now_ns < _SYSTEM_CLOCK_NS <= stamp_ns:
+        return (f"the stamps look like system time while this node runs on simulator time "
+                f"(stamp - node clock = {-diff_s:.1f} s): start it with "
+                f"-p use_sim_time:=false, or stamp the joint states with /clock")
+    return (f"the stamps are {abs(diff_s):.1f} s {'behind' if diff_s > 0 else 'ahead of'} "
+            f"the node clock: are the clocks of the two computers synchronised, and do "
+            f"both nodes agree on use_sim_time?")

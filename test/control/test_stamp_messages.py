@@ -42,6 +42,9 @@ def test_small_offsets_and_other_rejections_carry_no_clock_hint():
     assert clock_mismatch_hint("zero_stamp", 0, now) == ""
     assert clock_mismatch_hint("stamp_too_old", now - 10**9, now) == ""
     assert "use_sim_time:=true" in clock_mismatch_hint("stamp_too_old", SIM_STAMP, now)
+    # Both on the system clock, a minute apart: unsynchronised clocks, not sim time.
+    hint = clock_mismatch_hint("stamp_too_old", now - 60 * 10**9, now)
+    assert "synchronised" in hint and "use_sim_time:=true" not in hint
 
 
 def test_a_frozen_stamp_is_told_apart_from_messages_that_stop():
