@@ -180,3 +180,16 @@ def test_the_detector_compares_displacements_over_the_window():
     level = arming_status(_controller(_Linear(np.zeros(N))), 0, model="", model_state="",
                           constraints="", rejected={})[0]
     assert level == OK
+
+
+def test_a_joint_moving_against_its_command_stalls():
+    class _Reversed(_Robot):  # joint 2 wired with the wrong sign
+        def run(self, dt, substeps=10):
+            self.command[2] = -self.command[2]
+            super().run(dt, substeps)
+            self.command[2] = -self.command[2]
+
+    control = _controller(_Constant(np.full(N, 0.2)))
+    _, _, stalled_at = _drive(control, _Reversed(np.zeros(N)), 2.0)
+    assert stalled_at is not None and "j2 commanded 0.200 rad/s but moved -0.2" in (
+        control.zero_reason)
