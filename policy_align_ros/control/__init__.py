@@ -14,6 +14,8 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
   velocities;
 - :mod:`.loading`: a model file as the executor's joint-space policy;
+- :mod:`.stall`: stall detection (a joint commanded to move that does not);
+- :mod:`.stamp_hints`: joint-state stamps far from the node clock, explained;
 - :mod:`.status`: the executor's status in words (its ``/diagnostics``).
 """
 
@@ -58,6 +60,12 @@ from policy_align_ros.control.resolved_rate import (
     secondary_velocity,
     task_to_joint_velocity,
 )
+from policy_align_ros.control.stall import (
+    DEFAULT_STALL_TIME_S,
+    StallDetector,
+    stall_time_problem,
+)
+from policy_align_ros.control.stamp_hints import clock_mismatch_hint
 from policy_align_ros.control.status import arming_status
 from policy_align_ros.control.step import (
     DEFAULT_DRIFT_CLAMP_M,
@@ -76,6 +84,7 @@ __all__ = [
     "DEFAULT_MAX_EXTRAPOLATION",
     "DEFAULT_MAX_EXTRAPOLATION_RAD",
     "DEFAULT_MIN_SINGULAR_VALUE",
+    "DEFAULT_STALL_TIME_S",
     "DEFAULT_STATE_LIMIT_MARGIN",
     "IMPLAUSIBLE_POSITION",
     "NO_ORDER_CHECK",
@@ -86,11 +95,13 @@ __all__ = [
     "ExtrapolationGuard",
     "FrameSupportDistance",
     "Output",
+    "StallDetector",
     "SupportDistance",
     "TaskSpacePolicy",
     "arming_status",
     "braking_scale",
     "clearance_scale",
+    "clock_mismatch_hint",
     "constrained_command",
     "damped_pinv",
     "inner_limits",
@@ -107,6 +118,7 @@ __all__ = [
     "ramp_toward",
     "secondary_velocity",
     "speed_limits",
+    "stall_time_problem",
     "task_to_joint_velocity",
     "unchecked_order_refusal",
     "velocity_scale",

@@ -16,7 +16,10 @@ simulated time:
   stamp; zero stamps, stamps too old or too far in the future, and stamps going backwards
   are untrustworthy;
 * *plausibility*: a position outside its joint limits by more than ``state_limit_margin``
-  (a position of 1e6 rad, a wrong joint map) is untrustworthy too.
+  (a position of 1e6 rad, a wrong joint map) is untrustworthy too;
+* *stall*: with a :class:`~policy_align_ros.control.stall.StallDetector`, a joint that
+  the measured positions show not following its command for ``stall_time_s`` ramps the
+  command down and disarms (:attr:`ArmedController.stalled`).
 """
 
 from __future__ import annotations
@@ -34,6 +37,8 @@ from policy_align_ros.control.limits import (
     ramp_toward,
     velocity_scale,
 )
+from policy_align_ros.control.stall import StallDetector
+from policy_align_ros.control.stamp_hints import clock_mismatch_hint
 from policy_align_ros.control.step import ControlStep, PolicyFn
 
 __all__ = ["IMPLAUSIBLE_POSITION", "STAMP_REJECTIONS", "ArmedController", "Output"]
@@ -110,6 +115,8 @@ class ArmedController:
     state_limit_margin : float, optional
         How far outside the step's joint limits a measured position may lie and still be
         accepted (rad), >= 0.
+    stall : StallDetector, optional
+        Stall detection while armed (None: off).
 
     Attributes
     ----------
@@ -118,8 +125,11 @@ class ArmedController:
     command : ndarray, shape (n,)
         The last command published (rad/s).
     faulted : bool
-        Whether the last disarm was caused by a fault (joint states, clock, policy output)
-        rather than requested; cleared when armed again.
+        Whether the last disarm was caused by a fault (joint states, clock, policy output,
+        a stall) rather than requested; cleared when armed again.
+    stalled : bool
+        Whether the last disarm was a stall (:attr:`zero_reason` describes it); cleared
+        when armed again.
     context : str
         Appended to arm and disarm log lines (the caller puts the model and the
         constraint specs there).
@@ -137,8 +147,11 @@ class ArmedController:
         max_clock_skew_s: float = 0.0,
         joint_names: Sequence[str] | None = None,
         state_limit_margin: float = DEFAULT_STATE_LIMIT_MARGIN,
+        stall: StallDetector | None = None,
     ) -> None:
         self.step = step
+        self.stall = stall
+        self.stalled = False
         self.max_acceleration = max_acceleration
         self.state_timeout_s = state_timeout_s
         self.max_clock_skew_s = max_clock_skew_s
@@ -159,6 +172,7 @@ class ArmedController:
         self._rejection = ""  # why the last joint state was refused (until one is taken)
         self._stamp_ns: int | None = None
         self._arrival_ns: int | None = None
+        self._repeat_ns: int | None = None  # arrival of the last repeat of that stamp
         self._last_now_ns: int | None = None
         self._forced_reported_ns: int | None = None
         self._published_ns: int | None = None  # when the last ramped command went out
@@ -244,6 +258,7 @@ class ArmedController:
         stamp_ns = int(stamp_ns)
         last = self._stamp_ns
         if last is not None and stamp_ns == last:
+            self._repeat_ns = int(now_ns)  # messages come, the stamp does not advance
             return self._output(None)
         key, problem = "", ""
         if stamp_ns <= 0:
@@ -265,13 +280,17 @@ class ArmedController:
             if outside:
                 key, problem = IMPLAUSIBLE_POSITION, f"implausible joint state: {outside}"
         if problem:
-            out = self.reject_state(problem)
+            hint = clock_mismatch_hint(key, stamp_ns, now_ns)
+            out = self.reject_state(f"{problem}; {hint}" if hint else problem)
             out.rejected = key
             return out
         self._q = np.asarray(q, dtype=float)
         self._rejection = ""
         self._stamp_ns = stamp_ns
         self._arrival_ns = int(now_ns)
+        self._repeat_ns = None
+        if self.stall is not None:
+            self.stall.position(self._q, stamp_ns)
         return self._output(None)
 
     def reject_state(self, reason: str) -> Output:
@@ -291,18 +310,25 @@ class ArmedController:
                 return f"no valid joint state received (the last one: {self._rejection})"
             return "no valid joint state received"
         age = now_ns - self._arrival_ns
+        stamp_age = now_ns - self._stamp_ns
+        if age <= self._timeout_ns and stamp_age <= self._timeout_ns + self._skew_ns:
+            return ""
+        repeat = self._repeat_ns
+        if repeat is not None and now_ns - repeat <= self._timeout_ns:
+            return (f"joint states stale: stamp frozen at {self._stamp_ns / 1e9:.3f} s while "
+                    f"messages keep arriving (the last {(now_ns - repeat) / 1e9:.3f} s ago, "
+                    f"no new stamp for {age / 1e9:.3f} s): a paused simulation or a driver "
+                    f"that repeats its stamp")
         if age > self._timeout_ns:
             return f"joint states stale: last received {age / 1e9:.3f} s ago"
-        age = now_ns - self._stamp_ns
-        if age > self._timeout_ns + self._skew_ns:
-            return f"joint states stale: last stamp {age / 1e9:.3f} s old"
-        return ""
+        return f"joint states stale: last stamp {stamp_age / 1e9:.3f} s old"
 
     def _forget_state(self) -> None:
         self._q = None
         self._rejection = ""
         self._stamp_ns = None
         self._arrival_ns = None
+        self._repeat_ns = None
 
     def _clock(self, now_ns: int) -> Output | None:
         """Check that the clock runs forwards; a jump back (restarted sim) disarms."""
@@ -341,7 +367,9 @@ class ArmedController:
         if self.armed:
             return True, "already enabled", self._output(None)
         self.armed = True
-        self.faulted = False
+        self.faulted = self.stalled = False
+        if self.stall is not None:
+            self.stall.reset()  # the window starts at the arming
         self._silent = False
         self.zero_reason = ""
         # Held frames stay where they are at enable; drift is measured from here.
@@ -394,6 +422,8 @@ class ArmedController:
         problem = self.state_problem(now_ns)
         if problem:
             return self.fault(problem)
+        if self.armed and self.stall is not None:
+            self._disarm_on_stall()
         q = self._q
         step = self.step
         previous = self.command
@@ -441,10 +471,22 @@ class ArmedController:
         self.command = command
         self._published_ns = now_ns
         self.ramp_scale = alpha
+        if self.armed and self.stall is not None:
+            self.stall.command(command, now_ns)
         if not self.armed and not np.any(command):
             self._silent = True
             self._log("info", f"command at zero ({self.zero_reason})")
         return self._output(command.copy())
+
+    def _disarm_on_stall(self) -> None:
+        """Ramp down and disarm when a joint does not follow its command (ERROR level)."""
+        stall = self.stall.check()
+        if stall:
+            self.armed = False
+            self.faulted = self.stalled = True
+            self.zero_reason = stall
+            self._log("warning", f"disarmed: {stall}; ramping down at "
+                                 f"{self.max_acceleration:g} rad/s^2")
 
     def _report_forced(self, change: np.ndarray, forced: np.ndarray, s: float,
                        now_ns: int, limit: float) -> None:

@@ -8,7 +8,10 @@ import numpy as np
 
 from policy_align_ros.control.armed import ArmedController
 
-__all__ = ["arming_status", "held_error_text"]
+__all__ = ["ERROR", "OK", "WARN", "arming_status", "held_error_text"]
+
+#: Levels of :func:`arming_status`, as diagnostic_msgs/DiagnosticStatus numbers them.
+OK, WARN, ERROR = 0, 1, 2
 
 
 def held_error_text(controller: ArmedController) -> str:
@@ -22,8 +25,8 @@ def held_error_text(controller: ArmedController) -> str:
 
 def arming_status(controller: ArmedController, now_ns: int, *, model: str, model_state: str,
                   constraints: str, rejected: Mapping[str, int]
-                  ) -> tuple[bool, str, dict[str, str]]:
-    """``(warn, message, values)`` describing ``controller`` at ``now_ns`` (ns).
+                  ) -> tuple[int, str, dict[str, str]]:
+    """``(level, message, values)`` describing ``controller`` at ``now_ns`` (ns).
 
     Parameters
     ----------
@@ -38,15 +41,19 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
 
     Returns
     -------
-    warn : bool
-        True when disarmed by a fault (not by a request).
+    level : int
+        :data:`ERROR` when disarmed by a stall (the robot did not follow its command),
+        :data:`WARN` when disarmed by another fault, :data:`OK` otherwise (armed, or
+        disarmed by a request).
     message : str
         Armed, ramping down or at zero, with the reason.
     values : dict str -> str
         Key-value pairs, in display order.
     """
     problem = controller.state_problem(now_ns)
-    warn = not controller.armed and controller.faulted
+    level = OK
+    if not controller.armed and controller.faulted:
+        level = ERROR if controller.stalled else WARN
     if controller.armed:
         message = "armed: following the policy"
     elif controller.publishing:
@@ -59,6 +66,9 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "model": model or "(none)",
         "model_state": model_state or "(none)",
         "zero_reason": controller.zero_reason,
+        "stalled": str(not controller.armed and controller.stalled).lower(),
+        "stall_time_s": (f"{controller.stall.stall_time_s:g}" if controller.stall is not None
+                         and controller.stall.enabled else "off"),
         "ramp_scale": f"{controller.ramp_scale:.3f}",
         "extrapolation_scale": (f"{controller.extrapolation_scale:.3f}"
                                 if step.guard is not None else "off"),
@@ -71,4 +81,4 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "rejected_joint_states": ", ".join(
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
     }
-    return warn, message, values
+    return level, message, values

@@ -12,7 +12,8 @@ besides ROS transport, with the safety layer on:
   evaluate ``pi_hat(q)``, build ``A(q)`` (2, 22) from Pinocchio hand Jacobians, check its
   smallest singular value, project, lock limit joints, scale, apply the extrapolation
   guard (nearest support state of the model, :class:`SupportDistance`) and the
-  acceleration ramp;
+  acceleration ramp, and run the stall detection (``stall_time_s`` 0.5 s: the window's
+  positions and lagged commands; the stall disarms counted in ``full_step_stalls``);
 * the values the node puts on ``/diagnostics`` (arming, zero reason, ramp and
   extrapolation scales, largest command), formatted as strings every step although the
   node publishes them once a second;
@@ -39,9 +40,11 @@ from pathlib import Path
 import numpy as np
 
 from policy_align_ros.control import (
+    DEFAULT_STALL_TIME_S,
     ArmedController,
     ControlStep,
     ExtrapolationGuard,
+    StallDetector,
     SupportDistance,
     model_permutation,
 )
@@ -109,7 +112,7 @@ def armed_step(control: ArmedController, period_ns: int):
 
     Each call advances a simulated clock by ``period_ns``, passes ``q`` as a joint state
     stamped now, ticks, and formats the diagnostic values. The controller is armed at
-    the first call.
+    the first call, and again after any disarm (``step.stalls`` counts the stall ones).
     """
     clock = {"now": 1_000_000_000}
     zeros = np.zeros(control.step.n_joints)
@@ -120,10 +123,13 @@ def armed_step(control: ArmedController, period_ns: int):
         control.joint_state(q, now, now)
         if not control.armed:
             control.arm(now)
+        was_armed = control.armed
         out = control.tick(now)
+        step.stalls += was_armed and control.stalled
         diagnostic_values(control, now)
         return (zeros if out.command is None else out.command), out.zero_reason
 
+    step.stalls = 0
     return step
 
 
@@ -137,14 +143,14 @@ def format_report(results: dict) -> str:
     full = results["full_step"]
     lines = [
         "Executor control step (22 joints, one plane per hand; joint state in, command out;",
-        "full_step: stamp checks, guard, ramp and diagnostic values on; held_frame: left",
-        "hand held instead of its plane, drift correction on)",
+        "full_step: stamp checks, guard, ramp, stall detection and diagnostic values on;",
+        "held_frame: left hand held instead of its plane, drift correction on)",
         "",
         "| part | p50 [us] | p99 [us] | max [us] |",
         "|---|---|---|---|",
     ]
     for key in ("full_step", "full_step_cpu", "held_frame", "control_law_only",
-                "policy_only", "constraints_only", "guard_distance_only"):
+                "policy_only", "constraints_only", "guard_distance_only", "stall_only"):
         r = results[key]
         lines.append(f"| {key} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['max_us']:.1f} |")
     verdict = "met" if full["p99_us"] < 1000.0 else "missed"
@@ -152,7 +158,8 @@ def format_report(results: dict) -> str:
               f"{steps} steps; model fitted in {fit_s:.1f} s; load average "
               f"{results['load_average_1min']:.1f} on {os.cpu_count()} cores)",
               f"full_step CPU time of the step (thread_time; preemption excluded): p99 "
-              f"{results['full_step_cpu']['p99_us']:.1f} us"]
+              f"{results['full_step_cpu']['p99_us']:.1f} us",
+              f"stall disarms during full_step: {results.get('full_step_stalls', 0)}"]
     return "\n".join(lines)
 
 
@@ -182,17 +189,19 @@ def main(args: argparse.Namespace) -> int:
                            policy=model.policy, permutation=perm,
                            guard=ExtrapolationGuard(SupportDistance(model, perm)))
         return ArmedController(step, max_acceleration=2.0, state_timeout_s=0.1,
-                               joint_names=JOINTS)
+                               joint_names=JOINTS, stall=StallDetector(
+                                   len(JOINTS), DEFAULT_STALL_TIME_S, joint_names=JOINTS))
 
     control = armed(constraints)
     states = np.concatenate([d.trajectory.positions for d in demos[:10]])
     cpu = np.empty(steps, dtype=np.int64)
+    full = armed_step(control, 1_000_000)
     results = {"joints": len(JOINTS), "constraint_rows": 2, "steps": steps,
                "fit_s": fit_s, "full_step": percentiles_us(time_steps(
-                   armed_step(control, 1_000_000), states, list(JOINTS), steps,
-                   cpu_ns=cpu))}
+                   full, states, list(JOINTS), steps, cpu_ns=cpu))}
     results["full_step_cpu"] = percentiles_us(cpu)
     results["full_step_armed_at_end"] = control.armed
+    results["full_step_stalls"] = full.stalls
     hold = constraint_from_spec({"type": "position", "frame": HANDS[0]}, robot)
     held = armed([hold, constraints[1]])
     results["held_frame"] = percentiles_us(time_steps(
@@ -212,6 +221,18 @@ def main(args: argparse.Namespace) -> int:
     distance = SupportDistance(model, perm)
     results["guard_distance_only"] = percentiles_us(time_steps(
         lambda q: (np.array([distance(q)[0]]), ""), states, list(JOINTS), steps // 4))
+    # The stall detection alone: a joint state in, a command recorded, the window checked.
+    stall = StallDetector(len(JOINTS), DEFAULT_STALL_TIME_S, joint_names=JOINTS)
+    stall_clock = {"now": 0}
+
+    def stall_step(q: np.ndarray) -> tuple[np.ndarray, str]:
+        stall_clock["now"] += 1_000_000
+        stall.position(q, stall_clock["now"])
+        stall.command(0.1 * q, stall_clock["now"])
+        return q, stall.check()
+
+    results["stall_only"] = percentiles_us(time_steps(
+        stall_step, states, list(JOINTS), steps // 4))
     # Tails on a shared machine come from preemption: say how busy it was.
     results["load_average_1min"] = os.getloadavg()[0]
     text = format_report(results)

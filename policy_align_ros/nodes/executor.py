@@ -54,6 +54,10 @@ docs/executor_safety.md explains it for robot owners):
   constraints are latched at enable and their drift pulled back (``drift_gain``,
   ``drift_clamp_m``); a constraint matrix whose smallest singular value falls below
   ``min_singular_value`` ramps down and disarms, with the reason;
+* a joint that does not follow its command (measured positions moving along it by less
+  than a quarter of the expected motion for ``stall_time_s`` while commanded at least
+  0.05 rad/s; :mod:`policy_align_ros.control.stall`) ramps down, disarms and is reported
+  at ERROR level;
 * all timing uses the node clock, so ``use_sim_time`` works;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second and on arming changes)
   reports the arming state, the model, why the command is zero, the ramp scale, the
@@ -62,10 +66,11 @@ docs/executor_safety.md explains it for robot owners):
 A ros2_control JointGroupVelocityController holds its last command forever, so the
 executor also publishes a zero when it shuts down; pair it with a controller-side command
 timeout for the case it is killed. The model is loaded from ``model_path`` at start (a
-file that does not load stops the node) and whenever ``model_path`` is set, which
-``/learner/model`` (std_msgs/String, transient local) announcements do: a model that does
-not load, or was trained on other joints, is refused with the reason and the current one
-stays.
+file that does not load stops the node) and whenever ``model_path`` is set. A
+``/learner/model`` (std_msgs/String, transient local) announcement sets it only when the
+executor follows the learner: ``follow_learner`` true, or no ``model_path`` given at start
+(an explicit model file wins otherwise). A model that does not load, or was trained on
+other joints, is refused with the reason and the current one stays.
 """
 
 from __future__ import annotations
@@ -97,19 +102,23 @@ from policy_align_ros.control import (
     DEFAULT_MAX_EXTRAPOLATION,
     DEFAULT_MAX_EXTRAPOLATION_RAD,
     DEFAULT_MIN_SINGULAR_VALUE,
+    DEFAULT_STALL_TIME_S,
     DEFAULT_STATE_LIMIT_MARGIN,
     ArmedController,
     ControlStep,
     ExtrapolationGuard,
     FrameSupportDistance,
     Output,
+    StallDetector,
     SupportDistance,
     arming_status,
+    clock_mismatch_hint,
     joint_order_problem,
     joint_velocity_bounds,
     load_policy,
     order_check_off,
     speed_limits,
+    stall_time_problem,
     unchecked_order_refusal,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
@@ -139,7 +148,7 @@ CONTROLLER_TIMEOUT_S = 1.0
 _FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
                      "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
                      "min_singular_value", "state_limit_margin", "joint_limit_margin",
-                     "max_extrapolation_rad")
+                     "max_extrapolation_rad", "stall_time_s")
 
 
 class Executor(Node):
@@ -185,7 +194,8 @@ class Executor(Node):
         loads models and checks constraint specs on it)."""
         self.declare_parameter("model_path", "", descriptor(
             "model file (.npz); setting it loads the model or is refused with the reason; "
-            "empty at start = wait for /learner/model"))
+            "empty at start = wait for /learner/model (given at start, it wins over "
+            "/learner/model unless follow_learner)"))
         self.declare_parameter("max_velocity", 0.5, descriptor(
             "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
             float_range=(0.001, 10.0)))
@@ -225,6 +235,14 @@ class Executor(Node):
             "the executor ramps to a stop when the constraint matrix's smallest singular "
             "value falls below this [m/rad for frame rows]; 0 = never",
             float_range=(0.0, 1.0)))
+        self.declare_parameter("stall_time_s", DEFAULT_STALL_TIME_S, descriptor(
+            "a joint commanded at >= 0.05 rad/s that moves by less than a quarter of that "
+            "for this long ramps down and disarms [s]; 0 = off, else >= 0.1",
+            float_range=(0.0, 10.0)))
+        self.declare_parameter("follow_learner", False, descriptor(
+            "load the models announced on /learner/model; they are followed anyway when no "
+            "model_path was given at start (else the model_path given wins)",
+            read_only=True))
         self.declare_parameter("constraints", "[]", descriptor(
             "YAML list of constraint specs in force, e.g. "
             "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
@@ -254,7 +272,9 @@ class Executor(Node):
             step, self.get_parameter("max_acceleration").value,
             self.get_parameter("state_timeout_s").value,
             self.get_parameter("max_clock_skew_s").value, joint_names=joints,
-            state_limit_margin=self.get_parameter("state_limit_margin").value)
+            state_limit_margin=self.get_parameter("state_limit_margin").value,
+            stall=StallDetector(len(joints), self.get_parameter("stall_time_s").value,
+                                joint_names=joints))
 
     def _create_interfaces(self) -> None:
         """Publishers, subscriptions, the ~/enable service and the timers."""
@@ -264,6 +284,9 @@ class Executor(Node):
             self._apply_staged()
         self._update_context()
         self._arm_at_start = bool(self.get_parameter("start_enabled").value)
+        # An explicit model file wins over /learner/model unless asked to follow it.
+        self._follow_learner = (bool(self.get_parameter("follow_learner").value)
+                                or not self.model_path)
         self._lockstep = bool(self.get_parameter("step_on_joint_state").value)
         if self._arm_at_start and self.controller.step.policy is None:
             self.get_logger().warning(
@@ -327,6 +350,8 @@ class Executor(Node):
             elif param.name in _FLOAT_PARAMETERS:
                 if not math.isfinite(param.value):
                     return reject(f"{param.name}: must be finite, got {param.value}")
+                if param.name == "stall_time_s" and stall_time_problem(param.value):
+                    return reject(stall_time_problem(param.value))
             elif param.name == "constraints" and self.robot is not None:
                 try:
                     self._constraints(param.value)
@@ -407,6 +432,8 @@ class Executor(Node):
                 control.max_clock_skew_s = param.value
             elif param.name == "state_limit_margin":
                 control.state_limit_margin = param.value
+            elif param.name == "stall_time_s":
+                control.stall.stall_time_s = param.value
             elif param.name == "max_extrapolation" and control.step.guard is not None:
                 control.step.guard.max_extrapolation = param.value
             elif param.name == "max_extrapolation_rad" and control.step.guard is not None:
@@ -447,6 +474,12 @@ class Executor(Node):
             return None
 
     def _on_model(self, msg: String) -> None:
+        if not self._follow_learner:
+            self.get_logger().info(
+                f"model announced on /learner/model ignored: {msg.data} (model_path "
+                f"{self.model_path} was given at start; -p follow_learner:=true follows "
+                f"the learner)")
+            return
         result = self.set_parameters([Parameter("model_path", value=msg.data)])[0]
         if not result.successful:
             self.get_logger().error(
@@ -469,7 +502,7 @@ class Executor(Node):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         out = self.controller.joint_state(q, stamp, now)
         if out.rejected:
-            self._count_rejected(out.rejected)
+            self._count_rejected(out.rejected, clock_mismatch_hint(out.rejected, stamp, now))
         self._emit(out)
         if self._lockstep and not out.rejected:
             self._emit(self.controller.tick(now))
@@ -478,10 +511,11 @@ class Executor(Node):
             self._arm_at_start = False
             self.executor.create_task(self._enable_at_start)
 
-    def _count_rejected(self, reason: str) -> None:
+    def _count_rejected(self, reason: str, hint: str = "") -> None:
         self.rejected_states[reason] += 1
         total = sum(self.rejected_states.values())
         text = f"joint state rejected: {reason} ({total} rejected so far)"
+        text += f"; {hint}" if hint else ""
         # Another publisher's joints on the same topic are normal; everything else is not.
         if reason == "unknown_joints":
             self.get_logger().debug(text, throttle_duration_sec=2.0)
@@ -605,12 +639,12 @@ class Executor(Node):
     def publish_diagnostics(self) -> None:
         """Publish the executor's status on ``/diagnostics``."""
         control = self.controller
-        warn, message, values = arming_status(
+        level, message, values = arming_status(
             control, self._now_ns(), model=self.model_path, model_state=self.model_state,
             constraints=self.get_parameter("constraints").value,
             rejected=self.rejected_states)
         status = DiagnosticStatus(
-            level=DiagnosticStatus.WARN if warn else DiagnosticStatus.OK,
+            level=(DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level],
             name=f"{self.get_name()}: arming", message=message,
             hardware_id=str(self.get_parameter("robot").value),
             values=[KeyValue(key=k, value=v) for k, v in values.items()])

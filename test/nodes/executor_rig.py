@@ -34,9 +34,10 @@ class Rig:
         rclpy.init(context=self.context, domain_id=domain_id)
         # A generous state timeout: a loaded machine must not turn into stale states. No
         # controller check unless a test asks for one (it would wait for an absent node).
+        # No stall detection unless a test asks for it: the faked robot never moves.
         overrides = {"robot": "talos", "joints": JOINTS, "rate_hz": 1.0 / PERIOD,
                      "state_timeout_s": 0.5, "max_acceleration": ACC, "constraints": PLANE,
-                     "controller": "", **params}
+                     "controller": "", "stall_time_s": 0.0, **params}
         self.node = Executor(context=self.context, parameter_overrides=[
             Parameter(k, value=v) for k, v in overrides.items()])
         self.probe = Node("probe", context=self.context)

@@ -287,7 +287,8 @@ def _executor_armed_cases(lab: Lab, base: dict, work: Path, model: Path, other: 
 
     out: list[Result] = []
     s = service_case
-    rig = NodeRig(lab, Executor, dict(base, model_path=str(model)))
+    # follow_learner: the announcements below must be tried, not ignored for model_path.
+    rig = NodeRig(lab, Executor, dict(base, model_path=str(model), follow_learner=True))
     commands: list[np.ndarray] = []
     rig.probe.create_subscription(Float64MultiArray, "/velocity_controller/commands",
                                   lambda m: commands.append(np.array(m.data)), 1000)
@@ -333,8 +334,10 @@ def cases_executor(lab: Lab) -> list[Result]:
     # 2 s, not the default 0.5 s: on a loaded 2-core machine the feeder thread can stall
     # for most of a second, which would disarm for staleness in the middle of a case
     # about something else.
+    # No stall detection: the fed joint states never move, whatever the commands.
     base = {"robot": "talos", "joints": ARM, "rate_hz": 50.0,
-            "state_timeout_s": STATE_TIMEOUT_S, "max_acceleration": 5.0, "controller": ""}
+            "state_timeout_s": STATE_TIMEOUT_S, "max_acceleration": 5.0, "controller": "",
+            "stall_time_s": 0.0}
     out = _executor_parameters(lab, base, work, other)
     out += _executor_armed_cases(lab, base, work, model, other, center)
     out.append(_executor_clock_jump(lab, base, model, center))
