@@ -1,6 +1,6 @@
 """The ``executor`` node: stall detection, model precedence and the messages about joint
 states that cannot be used (sim-time stamps, a frozen stamp) (own rclpy.Context, domain
-ids 224-227).
+ids 224, 225, 119 and 121).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The logic itself is tested without a
@@ -78,7 +78,7 @@ def test_a_model_path_given_at_start_wins_over_the_learner_topic(rig, tmp_path):
 
 
 def test_sim_time_stamps_are_named_in_the_enable_refusal_and_the_warning(rig, capfd):
-    r = rig(226)
+    r = rig(119)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
     r.stamp = Time(seconds=100).to_msg()  # a simulation 100 s in; the node: system clock
     r.spin_until(lambda: r.node.rejected_states["stamp_too_old"] >= 3,
@@ -93,7 +93,7 @@ def test_sim_time_stamps_are_named_in_the_enable_refusal_and_the_warning(rig, ca
 
 
 def test_a_frozen_stamp_is_named_while_messages_keep_arriving(rig):
-    r = rig(227)
+    r = rig(121)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
     r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
                  what="fresh joint states")

@@ -1,5 +1,5 @@
 """sim_robot, demonstrator and recorder on a robot config (own rclpy.Context, domain id
-195): robot, joints, home posture and frames come from the config unless set."""
+118): robot, joints, home posture and frames come from the config unless set."""
 
 import numpy as np
 import pytest
@@ -19,7 +19,7 @@ PANDA = load_robot_config("panda")
 @pytest.fixture
 def context():
     ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=195)
+    rclpy.init(context=ctx, domain_id=118)
     yield ctx
     rclpy.try_shutdown(context=ctx)
 
