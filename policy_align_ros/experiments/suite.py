@@ -311,6 +311,7 @@ def run_case(task: tuple) -> dict:
     result["chosen"] = {name: getattr(base.regressor_, name + "_") for name in
                         ("trend_form", "trend_ridge", "length_scale", "kernel_ridge",
                          "offset_ridge")}
+    result["chosen"]["tracking_lag"] = base.tracking_lag_
     return result
 
 
@@ -381,6 +382,12 @@ def _goal_table(results: list[dict]) -> list[str]:
                      if key in mine[0]["models"][label] else "-"
                      for key, _, fmt in _GOAL_COLUMNS]
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
+    lags = [f"{name} " + "/".join(f"{1e3 * r['chosen'].get('tracking_lag', 0.0):.0f}"
+                                  for r in sorted((r for r in rows if r["case"] == name),
+                                                  key=lambda r: r["seed"]))
+            for name in ALL_CASES if any(r["case"] == name for r in rows)]
+    lines += ["", "Tracking lag chosen by the new model (ms, per data set): "
+              + "; ".join(lags) + "."]
     return lines
 
 

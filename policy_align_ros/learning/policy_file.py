@@ -147,6 +147,8 @@ def _read_header(model, header: dict, arrays: dict[str, np.ndarray], params: dic
     # Files written before "auto" existed used the rule they name.
     model.integration_ = model.fit_summary_.get("integration", params.get(
         "integration", "euler"))
+    # Files written before the lag was estimated used none.
+    model.tracking_lag_ = float(model.fit_summary_.get("tracking_lag", 0.0))
     model.euler_scale_, model.position_noise_ = _noise_and_scale(
         header, model.fit_summary_)
 

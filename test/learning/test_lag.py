@@ -141,3 +141,14 @@ def test_no_lag_below_one_sample_period_is_scored():
     tau, _ = choose_lag(score, period=0.03)
     assert min(t for t in scored if t > 0) >= 0.03
     assert tau == 0.0 or tau >= 0.03
+
+
+def test_the_lag_is_saved_with_the_model(tmp_path):
+    demos, _ = _lagged_demos(0.08)
+    model = PolicyAlign().fit(demos)
+    path = tmp_path / "lagged.npz"
+    model.save(path)
+    loaded = PolicyAlign.load(path)
+    assert loaded.tracking_lag_ == model.tracking_lag_ > 0.0
+    X = demos[1].positions
+    np.testing.assert_allclose(loaded.policy(X), model.policy(X), rtol=1e-12, atol=1e-12)
