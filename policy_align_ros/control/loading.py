@@ -14,13 +14,6 @@ from policy_align_ros.learning import PolicyAlign
 __all__ = ["load_policy"]
 
 
-CONTROLLER_TIMEOUT_S = 1.0
-#: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
-_FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
-                     "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
-                     "min_singular_value")
-
-
 def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
                 bounds: Callable | None = None
                 ) -> tuple[PolicyAlign, Callable[[np.ndarray], np.ndarray], np.ndarray, str]:

@@ -50,7 +50,7 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_chained_offsets,
 )
-from policy_align_ros.learning.anchor import anchor_decision, motion_steps
+from policy_align_ros.learning.anchor import anchor_decision
 from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
     closest_approach_matrix,
@@ -59,6 +59,13 @@ from policy_align_ros.learning.bandwidth import (
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.fitting import check_query
 from policy_align_ros.learning.folds import fit_checks
+from policy_align_ros.learning.global_model import (
+    cv_error,
+    cv_score,
+    fixed_hyperparameters,
+    level_free,
+    training_set,
+)
 from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
@@ -75,7 +82,6 @@ from policy_align_ros.learning.regressors import (
     TrendKernelRegression,
     takes_free_groups,
     takes_goal,
-    takes_motion,
 )
 from policy_align_ros.learning.support import (
     query_support,
@@ -427,7 +433,7 @@ class PolicyAlign(BaseEstimator):
         (:func:`~policy_align_ros.learning.lag.choose_lag`). A lag found replaces the
         potentials of the rule chosen in ``est`` (the caller aligns and fits again); sets
         ``tracking_lag_``. Returns the scores."""
-        fixed = _fixed_hyperparameters(self.regressor_)
+        fixed = fixed_hyperparameters(self.regressor_)
         if self.tracking_lag != "auto" or fixed is None or est.trajs[0].times is None:
             return {}
         rule = self.integration_
@@ -436,12 +442,13 @@ class PolicyAlign(BaseEstimator):
 
         def score(tau: float) -> tuple[float | None, float]:
             if tau == 0.0:
-                return _cv_score(self.regressor_), _cv_error(self.regressor_)
+                return cv_score(self.regressor_), cv_error(self.regressor_)
             lagged.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
-            offsets, potentials = self._align(lagged, template)[2][rule]
-            Xtr, ytr, gtr, extra = self._training_set(est, potentials, free, template)
+            potentials = self._align(lagged, template)[2][rule][1]
+            Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
+                                                potentials, free, template)
             fit = copy.deepcopy(fixed).fit(Xtr, ytr, groups=gtr, **extra)
-            return _cv_score(fit), _cv_error(fit)
+            return cv_score(fit), cv_error(fit)
 
         period = float(np.median(np.concatenate([t.dt for t in est.trajs])))
         tau, scores = choose_lag(score, period)
@@ -451,24 +458,6 @@ class PolicyAlign(BaseEstimator):
             est.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
         return scores
 
-    def _training_set(self, est: _Estimates, potentials: list[np.ndarray],
-                      free: np.ndarray, template, goal: np.ndarray | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-        """The global model's training samples: states, aligned potentials, their
-        trajectory ids and the keyword arguments of the fit (free groups, goal, motion)."""
-        trajs, masks, keep = est.trajs, est.masks, self.inliers_
-        Xtr = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
-        ytr = np.concatenate([potentials[k][masks[k]] for k in keep])
-        gtr = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
-        extra = {"free_groups": free} if free.size else {}
-        if goal is not None and takes_goal(template):
-            extra["goal"] = goal
-        if "goal" in extra and takes_motion(template):
-            # Timing-free evidence beside where the demonstrations end: which way they move.
-            extra["motion"] = np.concatenate([motion_steps(trajs[k].positions)[masks[k]]
-                                              for k in keep])
-        return Xtr, ytr, gtr, extra
-
     def _fit_global(self, est: _Estimates, template, free: np.ndarray,
                     aligned: dict[str, tuple], goal: np.ndarray | None = None
                     ) -> tuple[dict[str, float | None], int]:
@@ -477,10 +466,10 @@ class PolicyAlign(BaseEstimator):
         ``offsets_``, ``aligned_potentials_``). Returns the scores and the samples fitted."""
         fits, scores = {}, {}
         for rule in est.rules:
-            Xtr, ytr, gtr, extra = self._training_set(est, aligned[rule][1], free, template,
-                                                      goal)
+            Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
+                                                aligned[rule][1], free, template, goal)
             fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr, **extra)
-            scores[rule] = _cv_score(fits[rule])
+            scores[rule] = cv_score(fits[rule])
             if len(est.rules) > 1 and scores[rule] is None:
                 break  # a regressor without CV scores cannot choose: the paper's Euler rule
         # Between potential rules, the one whose aligned potentials the regressor's CV
@@ -489,7 +478,7 @@ class PolicyAlign(BaseEstimator):
         self.integration_ = est.rules[0] if any(v is None for v in scores.values()) else min(
             scores, key=scores.get)
         self.regressor_ = fits[self.integration_]
-        self.offsets_, self.aligned_potentials_ = _level_free(
+        self.offsets_, self.aligned_potentials_ = level_free(
             *aligned[self.integration_], free, self.regressor_, est.trajs, est.masks)
         return scores, len(Xtr)
 
@@ -675,52 +664,3 @@ def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:
     squared = [np.einsum("ij,ij->i", d, d) for d in (np.diff(p, axis=0) for p in positions)]
     mean = float(np.mean(np.concatenate(squared)))
     return 2.0 * noise / mean if mean > 0 else math.inf
-
-
-def _cv_score(regressor) -> float | None:
-    """The regressor's cross-validation score of the hyperparameters it chose, if any."""
-    best = getattr(regressor, "cv_best_", None)
-    scores = getattr(regressor, "cv_scores_", None)
-    if best is None or not scores or best not in scores:
-        return None
-    score = float(scores[best])
-    return score if math.isfinite(score) else None
-
-
-def _cv_error(regressor) -> float:
-    """The standard error over the folds of the regressor's chosen CV score (NaN when it
-    has none)."""
-    best = getattr(regressor, "cv_best_", None)
-    errors = getattr(regressor, "cv_standard_errors_", None) or {}
-    return float(errors.get(best, math.nan)) if best is not None else math.nan
-
-
-def _fixed_hyperparameters(regressor):
-    """An unfitted copy of a CV-fitted ``regressor`` with the hyperparameters it chose
-    fixed (a cheap fit that scores other potentials with the same model), or None when
-    it has no CV choice to fix."""
-    if _cv_score(regressor) is None or not hasattr(regressor, "set_params"):
-        return None
-    names = ("trend_form", "trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
-    if not all(hasattr(regressor, name + "_") for name in names):
-        return None
-    chosen = {name: getattr(regressor, name + "_") for name in names}
-    # NaN: not used by the chosen form (the single-index trend's trend penalty).
-    chosen = {k: v for k, v in chosen.items() if not (isinstance(v, float) and math.isnan(v))}
-    return type(regressor)(**{**regressor.get_params(), **chosen})
-
-
-def _level_free(offsets: np.ndarray, potentials: list[np.ndarray], free: np.ndarray,
-                regressor, trajs: list[Trajectory], masks: list[np.ndarray]
-                ) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Offsets and aligned potentials with the trajectories ``free`` moved to the level of
-    the global model: the mean of ``f(x) - phi`` over their training samples, which is the
-    free offset a least-squares fit gives them."""
-    offsets, potentials = offsets.copy(), list(potentials)
-    for k in free:
-        x = trajs[k].positions[masks[k]]
-        level = float(np.mean(regressor.predict(x) - potentials[k][masks[k]]))
-        offsets[k] += level
-        potentials[k] = potentials[k] + level
-    return offsets, potentials
-

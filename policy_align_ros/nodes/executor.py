@@ -96,14 +96,6 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
 
 from policy_align_ros.control import (
-    DEFAULT_DRIFT_CLAMP_M,
-    DEFAULT_DRIFT_GAIN,
-    DEFAULT_JOINT_LIMIT_MARGIN,
-    DEFAULT_MAX_EXTRAPOLATION,
-    DEFAULT_MAX_EXTRAPOLATION_RAD,
-    DEFAULT_MIN_SINGULAR_VALUE,
-    DEFAULT_STALL_TIME_S,
-    DEFAULT_STATE_LIMIT_MARGIN,
     ArmedController,
     ControlStep,
     ExtrapolationGuard,
@@ -136,6 +128,10 @@ from policy_align_ros.nodes._common import (
     reject,
     run_node,
 )
+from policy_align_ros.nodes.executor_parameters import (
+    FLOAT_PARAMETERS,
+    declare_control_parameters,
+)
 
 __all__ = ["Executor", "main"]
 
@@ -144,13 +140,6 @@ __all__ = ["Executor", "main"]
 DIAGNOSTICS_PERIOD_S = 1.0
 #: How long ~/enable waits for the controller's joints parameter (s, wall time).
 CONTROLLER_TIMEOUT_S = 1.0
-#: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
-_FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
-                     "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
-                     "min_singular_value", "state_limit_margin", "joint_limit_margin",
-                     "max_extrapolation_rad", "stall_time_s")
-
-
 class Executor(Node):
     """The ``executor`` node (see the module docstring)."""
 
@@ -192,71 +181,7 @@ class Executor(Node):
     def _declare_control_parameters(self) -> None:
         """The run-time parameters (declared once the robot is loaded: their set callback
         loads models and checks constraint specs on it)."""
-        self.declare_parameter("model_path", "", descriptor(
-            "model file (.npz); setting it loads the model or is refused with the reason; "
-            "empty at start = wait for /learner/model (given at start, it wins over "
-            "/learner/model unless follow_learner)"))
-        self.declare_parameter("max_velocity", 0.5, descriptor(
-            "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
-            float_range=(0.001, 10.0)))
-        self.declare_parameter("max_acceleration", 2.0, descriptor(
-            "largest change of a joint's command per second [rad/s^2], also when ramping "
-            "down after a disable or a model swap", float_range=(0.01, 100.0)))
-        self.declare_parameter("state_timeout_s", 0.1, descriptor(
-            "joint states received longer ago than this, or stamped longer ago than this "
-            "plus max_clock_skew_s, stop and disarm [s]",
-            float_range=(0.001, 10.0)))
-        self.declare_parameter("max_clock_skew_s", 0.05, descriptor(
-            "allowed offset between joint-state stamps and the node clock [s]",
-            float_range=(0.0, 10.0)))
-        self.declare_parameter("state_limit_margin", DEFAULT_STATE_LIMIT_MARGIN, descriptor(
-            "a joint state with a position outside its URDF limits by more than this is "
-            "refused and disarms [rad]", float_range=(0.0, 10.0)))
-        self.declare_parameter("max_extrapolation", DEFAULT_MAX_EXTRAPOLATION, descriptor(
-            "extrapolation guard: beyond this distance from the demonstrated data "
-            "[spacings of the training data] commands leading further out scale down, to "
-            "zero one band (>= the stopping distance at max_velocity) further",
-            float_range=(0.1, 1000.0)))
-        self.declare_parameter("max_extrapolation_rad", DEFAULT_MAX_EXTRAPOLATION_RAD,
-                               descriptor(
-            "extrapolation guard: the robot stops within this joint-space distance of the "
-            "demonstrated data, whatever max_extrapolation says [rad, 2-norm]",
-            float_range=(0.01, 100.0)))
-        self.declare_parameter("joint_limit_margin", DEFAULT_JOINT_LIMIT_MARGIN, descriptor(
-            "joints brake to rest this far inside their URDF limits; a joint already "
-            "within it may only move inwards [rad]", float_range=(0.0, 0.5)))
-        self.declare_parameter("drift_gain", DEFAULT_DRIFT_GAIN, descriptor(
-            "gain pulling frames held by position constraints back to where they were at "
-            "enable [1/s]; 0 = no drift correction", float_range=(0.0, 50.0)))
-        self.declare_parameter("drift_clamp_m", DEFAULT_DRIFT_CLAMP_M, descriptor(
-            "largest held-frame error the drift correction acts on [m] (larger errors are "
-            "corrected at drift_gain * drift_clamp_m m/s)", float_range=(0.0001, 1.0)))
-        self.declare_parameter("min_singular_value", DEFAULT_MIN_SINGULAR_VALUE, descriptor(
-            "the executor ramps to a stop when the constraint matrix's smallest singular "
-            "value falls below this [m/rad for frame rows]; 0 = never",
-            float_range=(0.0, 1.0)))
-        self.declare_parameter("stall_time_s", DEFAULT_STALL_TIME_S, descriptor(
-            "a joint commanded at >= 0.05 rad/s that moves by less than a quarter of that "
-            "for this long ramps down and disarms [s]; 0 = off, else >= 0.1",
-            float_range=(0.0, 10.0)))
-        self.declare_parameter("follow_learner", False, descriptor(
-            "load the models announced on /learner/model; they are followed anyway when no "
-            "model_path was given at start (else the model_path given wins)",
-            read_only=True))
-        self.declare_parameter("constraints", "[]", descriptor(
-            "YAML list of constraint specs in force, e.g. "
-            "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
-        self.declare_parameter("controller", self._default_controller, descriptor(
-            "node name of the ros2_control controller taking the commands; ~/enable reads "
-            "its joints parameter and refuses a different order or one it cannot read; "
-            "none = arm without the check; unset = robot_config's"))
-        self.declare_parameter("start_enabled", False, descriptor(
-            "arm at the first fresh joint state when model_path loaded at start (else "
-            "wait for ~/enable)", read_only=True))
-        self.declare_parameter("step_on_joint_state", False, descriptor(
-            "one control step per new joint state instead of the rate_hz timer (lockstep "
-            "with a simulator publishing at rate_hz); the timer then only stops the robot "
-            "when joint states go stale", read_only=True))
+        declare_control_parameters(self, self._default_controller)
 
     def _make_controller(self, joints: list[str]) -> ArmedController:
         """The armed controller from the declared parameters."""
@@ -347,7 +272,7 @@ class Executor(Node):
                 # ``joints:=[]`` on the command line arrives unset (None), not as a list.
                 if not param.value or len(set(param.value)) != len(param.value):
                     return reject("joints: must be a non-empty list without repeats")
-            elif param.name in _FLOAT_PARAMETERS:
+            elif param.name in FLOAT_PARAMETERS:
                 if not math.isfinite(param.value):
                     return reject(f"{param.name}: must be finite, got {param.value}")
                 if param.name == "stall_time_s" and stall_time_problem(param.value):
