@@ -318,9 +318,9 @@ class PolicyAlign(BaseEstimator):
         t2 = time.perf_counter()
         scores, n_fitted = self._fit_global(est, template, free, aligned)
         # Stage 4a: the demonstrations' tracking lag, where the CV finds one.
-        lag_scores = self._fit_lag(est, template, free, aligned)
+        lag_scores = self._fit_lag(est, table, free)
         if self.tracking_lag_ > 0.0:
-            free, aligned = self._align(est, template)[1:]
+            aligned = self._offsets(est, table)
             scores, n_fitted = self._fit_global(est, template, free, aligned)
         # Stage 4b: made stationary where the demonstrations end if the paper's potential
         # has no minimum there (learning/anchor.py).
@@ -401,9 +401,8 @@ class PolicyAlign(BaseEstimator):
         offsets the regressor re-fits freely, and ``{rule: (offsets, potentials)}``."""
         X = np.concatenate([t.positions for t in est.trajs])
         labels = np.repeat(np.arange(len(est.trajs)), [t.n_samples for t in est.trajs])
-        phi_all = {rule: np.concatenate(est.phi[rule]) for rule in est.rules}
         table = local_model_table(
-            X, labels, phi_all[est.rules[0]], self.sigma2_,
+            X, labels, np.concatenate(est.phi[est.rules[0]]), self.sigma2_,
             weight_tol=self.weight_tol, merge_tol=self.merge_tol,
             max_neighbours=self.max_neighbours, closest=est.closest,
         )
@@ -415,19 +414,24 @@ class PolicyAlign(BaseEstimator):
             free = np.flatnonzero((self.groups_ != 0)
                                   & np.array([m.any() for m in est.masks], dtype=bool))
         self.inliers_ = np.union1d(largest_group(self.groups_), free)
+        return table, free, self._offsets(est, table)
+
+    def _offsets(self, est: _Estimates, table: LocalModelTable) -> dict[str, tuple]:
+        """Stage 3: per rule of ``est``, the offsets and aligned potentials of every piece
+        on the responsibilities of ``table`` and the groups ``groups_``."""
         aligned = {}
         for rule in est.rules:
-            rule_table = table if rule == est.rules[0] else table.with_potential(phi_all[rule])
+            rule_table = table.with_potential(np.concatenate(est.phi[rule]))
             H, a, _ = alignment_system(rule_table, self.groups_)
             pairs, jumps = switch_junctions(est.spans, est.switch_end, est.parents,
                                              est.phi[rule], self.groups_)
             offsets = solve_chained_offsets(H, a, pairs, jumps)
             aligned[rule] = (offsets, [p + b for p, b in zip(est.phi[rule], offsets,
                                                               strict=True)])
-        return table, free, aligned
+        return aligned
 
-    def _fit_lag(self, est: _Estimates, template, free: np.ndarray,
-                 aligned: dict[str, tuple]) -> dict[float, float]:
+    def _fit_lag(self, est: _Estimates, table: LocalModelTable, free: np.ndarray
+                 ) -> dict[float, float]:
         """Stage 4a: with ``tracking_lag="auto"``, the lag whose potentials the fitted
         regressor predicts best across held-out demonstrations, its hyperparameters fixed
         (:func:`~policy_align_ros.learning.lag.choose_lag`). A lag found replaces the
@@ -444,9 +448,9 @@ class PolicyAlign(BaseEstimator):
             if tau == 0.0:
                 return cv_score(self.regressor_), cv_error(self.regressor_)
             lagged.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
-            potentials = self._align(lagged, template)[2][rule][1]
+            potentials = self._offsets(lagged, table)[rule][1]
             Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
-                                                potentials, free, template)
+                                                potentials, free, fixed)
             fit = copy.deepcopy(fixed).fit(Xtr, ytr, groups=gtr, **extra)
             return cv_score(fit), cv_error(fit)
 
