@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from policy_align_ros.control import (
+    DEFAULT_JOINT_LIMIT_MARGIN,
     DEFAULT_STALL_TIME_S,
     ArmedController,
     ControlStep,
@@ -143,7 +144,8 @@ def format_report(results: dict) -> str:
     full = results["full_step"]
     lines = [
         "Executor control step (22 joints, one plane per hand; joint state in, command out;",
-        "full_step: stamp checks, guard, ramp, stall detection and diagnostic values on;",
+        "full_step: stamp checks, guard, joint-limit margin, ramp, stall detection and "
+        "diagnostic values on;",
         "held_frame: left hand held instead of its plane, drift correction on)",
         "",
         "| part | p50 [us] | p99 [us] | max [us] |",
@@ -187,7 +189,8 @@ def main(args: argparse.Namespace) -> int:
     def armed(constraint_list) -> ArmedController:
         step = ControlStep(robot.lower, robot.upper, vmax, 1e-3, constraints=constraint_list,
                            policy=model.policy, permutation=perm,
-                           guard=ExtrapolationGuard(SupportDistance(model, perm)))
+                           guard=ExtrapolationGuard(SupportDistance(model, perm)),
+                           joint_limit_margin=DEFAULT_JOINT_LIMIT_MARGIN)
         return ArmedController(step, max_acceleration=2.0, state_timeout_s=0.1,
                                joint_names=JOINTS, stall=StallDetector(
                                    len(JOINTS), DEFAULT_STALL_TIME_S, joint_names=JOINTS))
