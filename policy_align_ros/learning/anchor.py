@@ -2,7 +2,9 @@
 
 Where most demonstrations end (:func:`~policy_align_ros.learning.goal.demonstrated_goal`)
 does not depend on how they were timed. PolicyAlign keeps the paper's potential when it has
-a minimum within :data:`ANCHOR_TOL` extents of that goal; otherwise (a teacher's timing, a
+a minimum within :data:`ANCHOR_TOL` extents of that goal, or when it predicts held-out
+demonstrations to round-off (their timing is one potential's, so a rest away from its
+minimum is a rest under a constraint, not a goal); otherwise (a teacher's timing, a
 lagging robot, a potential its family cannot hold) it refits the global model stationary
 there, with the direction of the demonstrations' motion (:func:`motion_steps`) as
 timing-free evidence of the slope across them (``docs/design/goal_anchor.md``).
@@ -24,16 +26,19 @@ from policy_align_ros.learning.goal import (
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["ANCHOR_TOL", "anchor_decision", "motion_steps"]
+__all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision", "motion_steps"]
 
 #: The paper's potential is kept when one of its minima lies within this fraction of the
 #: data's extent of where the demonstrations end; farther, the model is made stationary
 #: there.
 ANCHOR_TOL = 0.01
+#: A CV score (held-out error over the within-demonstration spread) at or below this is
+#: round-off: the demonstrations are exact flows of the fitted potential.
+CONSISTENT_SCORE = 1e-10
 
 
-def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = True
-                    ) -> dict:
+def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = True,
+                    cv_score: float | None = None) -> dict:
     """The goal anchor's entry of ``fit_summary_`` for a fitted global model.
 
     Parameters
@@ -44,17 +49,22 @@ def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = T
         The demonstrations (state units).
     can_anchor : bool
         Whether the regressor can be refitted stationary at a goal (``takes_goal``).
+    cv_score : float, optional
+        The regressor's cross-validation score (held-out error over the spread); at or
+        below :data:`CONSISTENT_SCORE` the paper's potential is kept.
 
     Returns
     -------
     dict
         ``goal`` (list of n floats, or None), ``unanchored_error_fraction`` (the distance
         from the goal to the potential's nearest minimum over the extent; None when there
-        is no goal, inf as None when no minimum was found) and ``anchored`` (bool).
+        is no goal, inf as None when no minimum was found), ``consistent`` (the CV score
+        is at round-off) and ``anchored`` (bool).
     """
     goal = demonstrated_goal(trajs)
+    consistent = cv_score is not None and cv_score <= CONSISTENT_SCORE
     out = {"goal": None if goal is None else [float(v) for v in goal],
-           "unanchored_error_fraction": None, "anchored": False}
+           "unanchored_error_fraction": None, "consistent": consistent, "anchored": False}
     if goal is None or not can_anchor:
         return out
     extent = data_extent(trajs)
@@ -64,7 +74,7 @@ def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = T
     error = (float(np.min(np.linalg.norm(found.points - goal, axis=1))) / extent
              if len(found.points) else math.inf)
     out["unanchored_error_fraction"] = json_float(error, "null")
-    out["anchored"] = not error <= ANCHOR_TOL
+    out["anchored"] = not (error <= ANCHOR_TOL or consistent)
     return out
 
 

@@ -324,7 +324,8 @@ class PolicyAlign(BaseEstimator):
             scores, n_fitted = self._fit_global(est, template, free, aligned)
         # Stage 4b: made stationary where the demonstrations end if the paper's potential
         # has no minimum there (learning/anchor.py).
-        anchor = anchor_decision(self.regressor_, trajs, takes_goal(template))
+        anchor = anchor_decision(self.regressor_, trajs, takes_goal(template),
+                                 cv_score(self.regressor_))
         if anchor["anchored"]:
             scores, n_fitted = self._fit_global(est, template, free, aligned,
                                                 np.asarray(anchor["goal"]))

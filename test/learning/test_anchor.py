@@ -1,0 +1,70 @@
+"""Tests of the goal anchor's decision (policy_align_ros.learning.anchor)."""
+
+import numpy as np
+
+from policy_align_ros.learning.anchor import (
+    CONSISTENT_SCORE,
+    anchor_decision,
+    motion_steps,
+)
+from policy_align_ros.learning.trajectory import Trajectory
+
+
+class _Bowl:
+    """The potential |x - c|^2 with its gradient (a fitted regressor's interface)."""
+
+    def __init__(self, centre):
+        self.centre = np.asarray(centre, dtype=float)
+
+    def predict(self, X):
+        return np.sum((X - self.centre) ** 2, axis=1)
+
+    def gradient(self, X):
+        return 2.0 * (X - self.centre)
+
+
+def _demos_resting_at(goal, seed=0, k=5):
+    """Demonstrations converging to ``goal`` and resting there (2-D, 50 Hz)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 6.0, 0.02)
+    out = []
+    for _ in range(k):
+        start = goal + rng.uniform(-1.0, 1.0, 2)
+        X = goal + (start - goal) * np.exp(-1.5 * t)[:, None]
+        out.append(Trajectory(positions=X, times=t))
+    return out
+
+
+def test_a_potential_whose_minimum_is_where_the_demonstrations_end_is_kept():
+    goal = np.array([0.2, -0.1])
+    decision = anchor_decision(_Bowl(goal), _demos_resting_at(goal), cv_score=1e-3)
+    assert decision["goal"] is not None and not decision["anchored"]
+    assert decision["unanchored_error_fraction"] < 1e-3
+
+
+def test_a_minimum_away_from_the_demonstrated_goal_is_anchored():
+    goal = np.array([0.2, -0.1])
+    decision = anchor_decision(_Bowl(goal + [0.3, 0.0]), _demos_resting_at(goal),
+                               cv_score=1e-3)
+    assert decision["anchored"] and np.allclose(decision["goal"], goal, atol=1e-3)
+
+
+def test_a_fit_exact_to_round_off_keeps_the_papers_potential():
+    # Exact flows of the fitted potential that rest elsewhere rest under a constraint.
+    goal = np.array([0.2, -0.1])
+    decision = anchor_decision(_Bowl(goal + [0.3, 0.0]), _demos_resting_at(goal),
+                               cv_score=0.1 * CONSISTENT_SCORE)
+    assert decision["consistent"] and not decision["anchored"]
+
+
+def test_no_anchor_for_a_regressor_that_cannot_take_a_goal():
+    goal = np.array([0.2, -0.1])
+    decision = anchor_decision(_Bowl(goal + [0.3, 0.0]), _demos_resting_at(goal),
+                               can_anchor=False)
+    assert not decision["anchored"]
+
+
+def test_motion_steps_are_central_differences():
+    X = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 1.0]])
+    np.testing.assert_allclose(motion_steps(X), [[1.0, 0.0], [1.5, 0.5], [2.0, 1.0]])
+    assert motion_steps(X[:1]).shape == (1, 2)
