@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -38,9 +37,9 @@ import numpy as np
 
 from policy_align_ros.learning.anchor import motion_steps
 from policy_align_ros.learning.fitting import assign_folds
+from policy_align_ros.learning.global_model import fixed_copy
 from policy_align_ros.learning.goal import BOX_MARGIN, goal_summary, learnt_minima
 from policy_align_ros.learning.regressors import (
-    TrendKernelRegression,
     takes_free_groups,
     takes_motion,
 )
@@ -96,7 +95,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
     if not folds or set(folds) != set(int(g) for g in ids):
         drawn = assign_folds(ids, min(N_FOLDS, len(ids)), np.random.default_rng(random_state))
         folds = {int(g): int(f) for g, f in zip(ids, drawn, strict=True)}
-    template = _fixed_copy(regressor)
+    # Two folds: the fixed grid needs no search, and fewer folds cost less.
+    template = fixed_copy(regressor, n_folds=2)
     free = np.zeros(0, dtype=np.int64) if free_groups is None else np.asarray(free_groups)
     out = []
     for fold in sorted(set(folds.values())):
@@ -118,23 +118,6 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
             continue  # a fold too small to fit says nothing either way
         out.append(FoldModel(held, model))
     return out
-
-
-def _fixed_copy(regressor):
-    """An unfitted copy of ``regressor`` with its CV's choice fixed, where it has one."""
-    best = getattr(regressor, "cv_best_", None)
-    if isinstance(regressor, TrendKernelRegression) and best is not None:
-        form, trend, length, kernel, offset = best
-        # NaN marks what a candidate has none of; the single-index trend's index starts
-        # from the quadratic its own CV picks, as in the full fit. Two folds: the fixed
-        # grid needs no search, and fewer folds cost less.
-        return TrendKernelRegression(
-            trend_form=form, trend_ridge="cv" if math.isnan(trend) else trend,
-            length_scale=1.0 if math.isnan(length) else length, kernel_ridge=kernel,
-            offset_ridge=offset, n_centres=regressor.n_centres,
-            max_fit_points=regressor.max_fit_points, n_folds=2,
-            random_state=regressor.random_state)
-    return type(regressor)(**regressor.get_params(deep=False))
 
 
 def along_motion_errors(policy, trajs: Sequence[Trajectory], max_samples: int = MAX_SCORED

@@ -2,9 +2,9 @@
 
 Helpers of stage 4 of :class:`~policy_align_ros.learning.PolicyAlign`: the samples and
 aligned potentials the regressor is fitted on, its CV score of the hyperparameters it
-chose, a copy with those hyperparameters fixed (for scoring other potentials cheaply,
-``docs/design/tracking_lag.md``) and the level of the demonstrations whose offsets the
-regressor fitted freely.
+chose, a copy with those hyperparameters fixed (for the fold refits, and for scoring
+other potentials cheaply, ``docs/design/tracking_lag.md``) and the level of the
+demonstrations whose offsets the regressor fitted freely.
 """
 
 from __future__ import annotations
@@ -14,10 +14,14 @@ import math
 import numpy as np
 
 from policy_align_ros.learning.anchor import motion_steps
-from policy_align_ros.learning.regressors import takes_goal, takes_motion
+from policy_align_ros.learning.regressors import (
+    TrendKernelRegression,
+    takes_goal,
+    takes_motion,
+)
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["cv_error", "cv_score", "fixed_hyperparameters", "level_free", "training_set"]
+__all__ = ["cv_error", "cv_score", "fixed_copy", "level_free", "training_set"]
 
 
 def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndarray,
@@ -77,19 +81,31 @@ def cv_error(regressor) -> float:
     return float(errors.get(best, math.nan)) if best is not None else math.nan
 
 
-def fixed_hyperparameters(regressor):
-    """An unfitted copy of a CV-fitted ``regressor`` with the hyperparameters it chose
-    fixed (a cheap fit that scores other potentials with the same model), or None when
-    it has no CV choice to fix."""
-    if cv_score(regressor) is None or not hasattr(regressor, "set_params"):
-        return None
-    names = ("trend_form", "trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
-    if not all(hasattr(regressor, name + "_") for name in names):
-        return None
-    chosen = {name: getattr(regressor, name + "_") for name in names}
-    # NaN: not used by the chosen form (the single-index trend's trend penalty).
-    chosen = {k: v for k, v in chosen.items() if not (isinstance(v, float) and math.isnan(v))}
-    return type(regressor)(**{**regressor.get_params(), **chosen})
+def fixed_copy(regressor, n_folds: int | None = None):
+    """An unfitted copy of ``regressor`` with its CV's choice (``cv_best_``) fixed.
+
+    A ``TrendKernelRegression`` with a CV gets the hyperparameters it chose; NaN marks
+    what a candidate has none of (the single-index trend's index starts from the
+    quadratic its own CV picks, as in the full fit). Any other regressor is a fresh copy
+    of its parameters.
+
+    Parameters
+    ----------
+    regressor : fitted regressor
+    n_folds : int, optional
+        The copy's CV folds; the regressor's own when None. Its score is then comparable
+        with the regressor's (``cv_score``); fewer folds cost less where no score is read.
+    """
+    params = regressor.get_params(deep=False)
+    best = getattr(regressor, "cv_best_", None)
+    if isinstance(regressor, TrendKernelRegression) and best is not None:
+        form, trend, length, kernel, offset = best
+        params.update(trend_form=form, trend_ridge="cv" if math.isnan(trend) else trend,
+                      length_scale=1.0 if math.isnan(length) else length,
+                      kernel_ridge=kernel, offset_ridge=offset)
+        if n_folds is not None:
+            params["n_folds"] = n_folds
+    return type(regressor)(**params)
 
 
 def level_free(offsets: np.ndarray, potentials: list[np.ndarray], free: np.ndarray,

@@ -62,7 +62,7 @@ from policy_align_ros.learning.folds import fit_checks
 from policy_align_ros.learning.global_model import (
     cv_error,
     cv_score,
-    fixed_hyperparameters,
+    fixed_copy,
     level_free,
     training_set,
 )
@@ -438,9 +438,10 @@ class PolicyAlign(BaseEstimator):
         (:func:`~policy_align_ros.learning.lag.choose_lag`). A lag found replaces the
         potentials of the rule chosen in ``est`` (the caller aligns and fits again); sets
         ``tracking_lag_``. Returns the scores."""
-        fixed = fixed_hyperparameters(self.regressor_)
-        if self.tracking_lag != "auto" or fixed is None or est.trajs[0].times is None:
+        if (self.tracking_lag != "auto" or cv_score(self.regressor_) is None
+                or est.trajs[0].times is None):
             return {}
+        fixed = fixed_copy(self.regressor_)
         rule = self.integration_
         kinetic = [kinetic_term(t) for t in est.trajs]
         lagged = dataclasses.replace(est, rules=[rule])

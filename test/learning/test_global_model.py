@@ -7,7 +7,7 @@ import numpy as np
 from policy_align_ros.learning.global_model import (
     cv_error,
     cv_score,
-    fixed_hyperparameters,
+    fixed_copy,
     level_free,
     training_set,
 )
@@ -26,14 +26,17 @@ def _bowl_data(seed=0, k=6):
     return np.concatenate(X), np.concatenate(y), np.concatenate(g)
 
 
-def test_fixed_hyperparameters_score_the_same_data_as_the_cv_pick():
+def test_a_fixed_copy_scores_the_same_data_as_the_cv_pick():
     X, y, g = _bowl_data()
     fitted = TrendKernelRegression(n_folds=3, offset_ridge=0.0).fit(X, y, groups=g)
-    fixed = fixed_hyperparameters(fitted)
-    assert fixed is not None and not hasattr(fixed, "cv_best_")
+    fixed = fixed_copy(fitted)
+    assert fixed.n_folds == 3 and not hasattr(fixed, "cv_best_")
+    assert fixed_copy(fitted, n_folds=2).n_folds == 2
     refit = fixed.fit(X, y, groups=g)
-    assert refit.length_scale_ == fitted.length_scale_
     assert refit.kernel_ridge_ == fitted.kernel_ridge_
+    if math.isfinite(fitted.kernel_ridge_):  # the length scale of a residual it has
+        assert refit.length_scale_ == fitted.length_scale_
+    np.testing.assert_allclose(refit.predict(X), fitted.predict(X), rtol=1e-9, atol=1e-12)
     assert math.isclose(cv_score(refit), cv_score(fitted), rel_tol=1e-6, abs_tol=1e-12)
     assert math.isfinite(cv_error(refit))
 
@@ -43,8 +46,8 @@ def test_no_cv_score_without_a_cv_choice():
     model = TrendKernelRegression(n_folds=3, trend_form="quadratic", trend_ridge=1.0,
                                   length_scale=1.0, kernel_ridge=1.0, offset_ridge=0.0)
     assert cv_score(object()) is None and math.isnan(cv_error(object()))
-    assert fixed_hyperparameters(object()) is None
-    assert fixed_hyperparameters(model) is None  # not fitted: nothing chosen
+    assert cv_score(model) is None  # not fitted: nothing chosen
+    assert fixed_copy(model).get_params() == model.get_params()  # nothing to fix
 
 
 def test_training_set_stacks_the_training_samples_of_the_kept_trajectories():
