@@ -86,6 +86,14 @@ class Rig:
         self.spin_until(future.done, timeout=10.0, what="the ~/enable answer")
         return future.result()
 
+    def enable_when_fresh(self) -> None:
+        """Wait until the executor holds a usable joint state, then arm; the enable must
+        succeed."""
+        self.spin_until(lambda: self.node.controller.state_problem(self.node._now_ns()) == "",
+                        what="fresh joint states")
+        response = self.enable(True)
+        assert response.success, response.message
+
     def close(self) -> None:
         self.executor.shutdown()
         self.probe.destroy_node()

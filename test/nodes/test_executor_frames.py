@@ -71,8 +71,7 @@ def test_frames_model_moves_the_hand_along_the_projected_policy(rig, tmp_path):
     # Phase 1, the robot held still: after the ramp the command is the task-space map
     # of the learnt pi_x under the hand plane, scaled by the speed limit only.
     r.q = robot.clip(robot.neutral() + np.array([0.1, 0.15, -0.1, 0.2, 0.0, 0.1, 0.0]))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 3 and np.array_equal(r.commands[-1],
                                                                  r.commands[-2]),
                  what="a steady command")
@@ -175,8 +174,7 @@ def test_extrapolation_guard_of_a_frames_model_measures_in_hand_space(rig, tmp_p
     guard = r.node.controller.step.guard
     assert isinstance(guard.distance, FrameSupportDistance)
     assert guard.max_extrapolation_rad == 100.0
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
+    r.enable_when_fresh()
 
     def steady():
         r.spin_until(lambda: len(r.commands) >= 3 and np.array_equal(r.commands[-1],

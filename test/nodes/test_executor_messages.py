@@ -25,9 +25,7 @@ def test_a_robot_that_does_not_move_stalls_ramps_down_and_reports_an_error(rig):
     assert r.node.set_parameters([Parameter("stall_time_s", value=stall_s)])[0].successful
     assert r.node.controller.stall.stall_time_s == stall_s
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: not r.node.controller.armed, what="the stall's disarm")
     r.spin_until(lambda: not r.node.controller.publishing, what="the ramp down")
     r.spin(0.1)
@@ -95,9 +93,7 @@ def test_sim_time_stamps_are_named_in_the_enable_refusal_and_the_warning(rig, ca
 def test_a_frozen_stamp_is_named_while_messages_keep_arriving(rig):
     r = rig(121)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 5, what="commands")
     r.stamp = r.node.get_clock().now().to_msg()  # messages go on, their stamp stops
     r.spin_until(lambda: not r.node.controller.armed, what="the stale-state disarm")

@@ -36,18 +36,14 @@ def test_enable_is_refused_without_a_model_and_with_stale_joint_states(rig):
     response = r.enable(True)
     assert not response.success and "stale" in response.message
     r.stamp = None
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 5, what="commands")
 
 
 def test_commands_ramp_follow_the_policy_and_satisfy_the_constraint(rig):
     r = rig(151)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 30, what="30 commands")
     # Every step, starting from zero at enable: the first command too.
     _assert_ramped(r.commands, start=np.zeros(len(JOINTS)))
@@ -64,8 +60,7 @@ def test_commands_ramp_follow_the_policy_and_satisfy_the_constraint(rig):
 def test_stale_joint_states_stop_at_once_and_disarm(rig):
     r = rig(152, state_timeout_s=0.3)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 20 and np.max(np.abs(r.commands[-1])) > 0.1,
                  what="motion")
     r.spin_until(lambda: not r.node.controller.armed, publish_states=False, what="disarm")
@@ -81,8 +76,7 @@ def test_stale_joint_states_stop_at_once_and_disarm(rig):
 def test_disable_ramps_down_to_zero_then_stays_silent(rig):
     r = rig(153)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 20, what="motion")
     assert np.any(r.commands[-1])
     response = r.enable(False)
@@ -188,8 +182,7 @@ def test_model_path_set_at_run_time_loads_the_model_or_is_refused(rig, tmp_path)
     result = r.node.set_parameters([Parameter("model_path", value="")])[0]
     assert not result.successful and r.node.model_path == str(good)
     # A swap while armed ramps down and leaves the executor disarmed.
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 15, what="motion")
     assert r.node.set_parameters([Parameter("model_path", value=str(other))])[0].successful
     assert not r.node.controller.armed and "model swap" in r.node.controller.zero_reason
@@ -204,8 +197,7 @@ def test_broken_or_badly_stamped_joint_states_stop_at_once_and_are_counted(rig):
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
 
     def moving():
-        r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-        assert r.enable(True).success
+        r.enable_when_fresh()
         r.spin_until(lambda: len(r.commands) >= 15 and np.max(np.abs(r.commands[-1])) > 0.04,
                      what="motion")
 
@@ -298,8 +290,7 @@ def test_diagnostics_report_arming_model_zero_reason_and_ramp(rig, tmp_path):
     status, values = latest()
     assert values["armed"] == "false" and values["model"] == str(good)
     assert values["zero_reason"] == "not enabled yet" and "ramp_scale" in values
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: latest()[1]["armed"] == "true", what="armed diagnostics")
     status, values = latest()
     assert status.level == status.OK and values["zero_reason"] == ""
@@ -336,9 +327,7 @@ def test_every_arming_change_is_reported_at_once(rig, monkeypatch):
     assert values["armed"] == "false" and "stale" in values["zero_reason"]
     assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
     # Armed again and disabled: one status per change, none while nothing changes.
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states again")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     assert r.enable(False).success
     r.enable(False)  # already disarmed: no change, so no status
     r.spin(0.2)
@@ -442,9 +431,7 @@ def test_controller_none_parses_on_the_command_line(ros_context):
 def test_implausible_joint_states_disarm_at_once_naming_the_joint_and_value(rig):
     r = rig(214)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 5, what="commands")
     good = r.q.copy()
     r.q[3] = 1e6
@@ -457,9 +444,7 @@ def test_implausible_joint_states_disarm_at_once_naming_the_joint_and_value(rig)
     # Within the margin: accepted as before (arm_left_1_joint's upper limit is 0.5236).
     r.q = good
     r.q[0] = 0.5236 + 0.05
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="a plausible state")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin(0.1)
     assert r.node.controller.armed
     # A margin set at run time applies to the next state.
@@ -536,9 +521,7 @@ def test_a_controller_changed_while_enable_waits_for_it_refuses_the_enable(rig):
 def test_lockstep_steps_once_per_joint_state_and_still_stops_on_stale_states(rig):
     r = rig(211, step_on_joint_state=True)
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
-    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
-                 what="fresh joint states")
-    assert r.enable(True).success
+    r.enable_when_fresh()
     r.spin(0.05, publish_states=False)
     r.commands.clear()
     for i in range(20):
