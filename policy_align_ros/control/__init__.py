@@ -6,6 +6,7 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.limits`: speed limits, joint velocity bounds, the limit scale and the
   acceleration ramp;
 - :mod:`.guard`: the extrapolation guard and its distance to the demonstrated data;
+- :mod:`.locked_projection`: null-space projection with joints locked on their limits;
 - :mod:`.step`: one control step (:class:`ControlStep`: projection, limit locks, drift
   correction of held frames, near-singular constraints);
 - :mod:`.armed`: :class:`ArmedController`, arming, joint-state stamps and ramps on the
@@ -54,6 +55,7 @@ from policy_align_ros.control.limits import (
     velocity_scale,
 )
 from policy_align_ros.control.loading import load_policy
+from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
 from policy_align_ros.control.resolved_rate import (
     damped_pinv,
     joint_velocity_within_limits,
@@ -72,8 +74,6 @@ from policy_align_ros.control.step import (
     DEFAULT_DRIFT_GAIN,
     DEFAULT_MIN_SINGULAR_VALUE,
     ControlStep,
-    constrained_command,
-    project_with_locks,
 )
 from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_state
 

@@ -347,8 +347,8 @@ def ramp_toward(
     <= max_delta``. One ``alpha`` for all joints keeps the step's direction, so ``c``
     satisfies the constraints whenever ``P`` projects onto their null space and ``P
     target = target`` (``target`` from
-    :func:`~policy_align_ros.control.step.project_with_locks` with the same ``P``, or
-    zero). A target with a part outside that null space (a drift correction, which moves
+    :func:`~policy_align_ros.control.locked_projection.project_with_locks` with the same
+    ``P``, or zero). A target with a part outside that null space (a drift correction, which moves
     a held frame on purpose) gets that part at once when it fits within ``max_delta``:
     ``A c = A target`` at every ``alpha``, so the held frame moves as the correction says
     while the rest ramps.

@@ -6,7 +6,8 @@ policy (rad/s), ``A(q)`` the stacked constraint matrix (k, n) of the configured 
 
 * a joint sitting on a position limit and pushed outwards is *locked*, i.e. a unit row is
   appended to ``A`` and the policy is projected again, so the remaining joints still follow
-  the policy within the constraints instead of the whole robot stalling;
+  the policy within the constraints instead of the whole robot stalling
+  (:func:`~policy_align_ros.control.locked_projection.project_with_locks`);
 * the projected velocity is scaled by one factor ``s in [0, 1]`` so that no joint exceeds
   its maximum speed and no joint crosses a limit within one period
   (:func:`~policy_align_ros.control.limits.velocity_scale`); with ``max_acceleration``
@@ -43,6 +44,7 @@ from policy_align_ros.control.limits import (
     limit_locks,
     velocity_scale,
 )
+from policy_align_ros.control.locked_projection import project_with_locks
 from policy_align_ros.kinematics.constraints import ConstraintModel
 from policy_align_ros.kinematics.projection import nullspace_projector, projector_from_svd
 
@@ -53,8 +55,6 @@ __all__ = [
     "HOLD_DAMPING",
     "ControlStep",
     "PolicyFn",
-    "constrained_command",
-    "project_with_locks",
 ]
 
 #: ``policy(X (1, n)) -> (1, n)`` in rad/s, rows in model joint order.
@@ -73,89 +73,6 @@ HOLD_DAMPING = 0.01
 #: below which the executor stops: below what a held hand plus a plane on the other hand
 #: reach over random Talos postures.
 DEFAULT_MIN_SINGULAR_VALUE = 0.005
-
-
-def constrained_command(
-    q: np.ndarray,
-    pi: np.ndarray,
-    A: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    max_velocity: np.ndarray,
-    dt: float,
-    max_acceleration: float | None = None,
-) -> np.ndarray:
-    """Project ``pi`` onto the constraints' null space, lock limit joints, then scale.
-
-    Parameters
-    ----------
-    q : ndarray, shape (n,)
-        Current joint positions.
-    pi : ndarray, shape (n,)
-        Unconstrained policy at ``q`` (units of ``q`` per second).
-    A : ndarray, shape (k, n)
-        Constraint matrix at ``q`` (k >= 0).
-    lower, upper, max_velocity : ndarray, shape (n,)
-        Joint limits and speed limits.
-    dt : float
-        Control period (s).
-    max_acceleration : float, optional
-        Braking limit near joint limits (see :func:`velocity_scale`).
-
-    Returns
-    -------
-    ndarray, shape (n,)
-        ``s N' pi`` with ``N'`` the projector of ``A`` stacked with unit rows of the locked
-        joints, so ``A qdot = 0`` up to round-off, no speed limit is exceeded and no joint
-        crosses a limit within ``dt``.
-    """
-    v, _ = project_with_locks(q, pi, A, lower, upper)
-    return velocity_scale(q, v, dt, lower, upper, max_velocity, max_acceleration) * v
-
-
-def project_with_locks(
-    q: np.ndarray,
-    pi: np.ndarray,
-    A: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    projector: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """``N' pi`` and ``N'``: the projector of ``A`` plus unit rows of the locked joints.
-
-    Parameters
-    ----------
-    q, pi : ndarray, shape (n,)
-        Positions and the velocity to project (units of ``q`` per second).
-    A : ndarray, shape (k, n)
-        Constraint matrix at ``q`` (k >= 0).
-    lower, upper : ndarray, shape (n,)
-        Joint limits.
-    projector : ndarray, shape (n, n), optional
-        ``nullspace_projector(A)`` when the caller has it already (saves an SVD).
-
-    Returns
-    -------
-    v : ndarray, shape (n,)
-        The projected velocity, exactly 0 on locked joints.
-    projector : ndarray, shape (n, n)
-        ``N'``, so that a later command can be projected onto the same space.
-    """
-    n = q.shape[0]
-    P = nullspace_projector(A, n) if projector is None else projector
-    v = P @ pi
-    locked = np.zeros(n, dtype=bool)
-    # Each pass locks at least one more joint, so this ends after at most n passes.
-    for _ in range(n):
-        new = limit_locks(q, v, lower, upper) & ~locked
-        if not np.any(new):
-            break
-        locked |= new
-        P = nullspace_projector(np.vstack([A, np.eye(n)[locked]]))
-        v = P @ pi
-    v[locked] = 0.0  # exact zeros where the projection leaves round-off
-    return v, P
-
 
 
 class ControlStep:
@@ -541,8 +458,10 @@ class ControlStep:
         the held rows, ``N_o`` the projector of the other rows and the locked joints and
         ``e`` the held frames' errors, each clamped to ``drift_clamp_m`` in norm. A joint
         that the sum pushes out of its limit is locked too (then both parts are
-        recomputed), as in :func:`project_with_locks`. ``P0``, when given, is the
-        projector of ``A`` alone (computed by the near-singularity check on the way).
+        recomputed), as in
+        :func:`~policy_align_ros.control.locked_projection.project_with_locks`. ``P0``,
+        when given, is the projector of ``A`` alone (computed by the near-singularity
+        check on the way).
         """
         n = self.n_joints
         if len(self._references) < len(self._holds):
