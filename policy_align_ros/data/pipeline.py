@@ -54,6 +54,7 @@ import numpy as np
 
 from policy_align_ros.data.bags.dataset import DatasetReport, load_dataset
 from policy_align_ros.data.current_model import check_replacement, current_model_check
+from policy_align_ros.data.goal_digest import goal_digest, goal_text
 from policy_align_ros.data.quality import (
     Gates,
     observed_ncpe,
@@ -67,7 +68,7 @@ from policy_align_ros.data.selection import (
     holdout_split,
 )
 from policy_align_ros.learning import PolicyAlign, Trajectory
-from policy_align_ros.learning.model_io import json_float
+from policy_align_ros.learning.model_io import json_float, json_floats
 from policy_align_ros.learning.state_spec import parse_state_spec
 
 #: Share of the mean squared step explained by position noise from which the summary
@@ -140,7 +141,8 @@ class PipelineResult:
         (:func:`~policy_align_ros.data.selection.fingerprint` of each training one);
         ``cut_short_bags`` [{``bag``, ``reason``}] (damaged bags whose first part is used);
         ``skipped_bags`` [{``bag``, ``reason``}]; ``sigma2``; ``fit_time_s``;
-        ``heldout_ncpe_observed`` (float or None); ``state``; ``joints``;
+        ``heldout_ncpe_observed`` (float or None); ``goal``
+        (:func:`~policy_align_ros.data.goal_digest.goal_digest`); ``state``; ``joints``;
         ``constant_joints`` (left out because they never move); ``robot``;
         ``data`` (what was read, one line); ``current_model`` (its held-out nCPE on the
         demonstrations it was not trained on); ``gates``; ``refusals``; ``forced``.
@@ -200,49 +202,6 @@ class PipelineResult:
                     f"(set force to write it anyway) [{text}]")
         prefix = f"forced despite: {'; '.join(self.refusals)}; " if self.refusals else ""
         return f"{prefix}{text}; model {self.model_path}"
-
-
-def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
-    """The learn summary's part of ``fit_summary_["goal"]``
-    (:func:`~policy_align_ros.learning.goal.goal_summary`): counts and distances (state
-    units; ``*_fraction`` of the data's extent), without the points."""
-    if not goal:
-        return None
-    keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
-            "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction")
-    out = {key: goal.get(key) for key in keys}
-    out["n_minima"] = len(goal.get("minima", ()))
-    out["n_demonstrated_goals"] = len(goal.get("demonstrated_goals", ()))
-    return _json_floats(out)
-
-
-def goal_text(digest: dict[str, Any] | None) -> str:
-    """The learnt goal in words, from :func:`goal_digest` ("" without one)."""
-    if not digest:
-        return ""
-    k = digest["n_minima"]
-    text = f"learnt goal: {k} minim{'um' if k == 1 else 'a'}"
-    if digest["goal_error_fraction"] is not None:
-        text += (f", {100 * digest['goal_error_fraction']:.2g} % of the data's extent from "
-                 "where the demonstrations rest")
-    elif digest["n_rests"] == 0:
-        text += ", no demonstration ends at rest"
-    elif digest["n_demonstrated_goals"] == 0:
-        text += ", every rest is under an active constraint"
-    if digest["fold_spread_fraction"] is not None:
-        text += f" (spread over the CV folds {100 * digest['fold_spread_fraction']:.2g} %)"
-    if digest["n_escaped"]:
-        text += f"; {digest['n_escaped']} descents found no minimum"
-    return text
-
-
-def _json_floats(value: Any) -> Any:
-    """``value`` with every non-finite float as None (the summary is JSON)."""
-    if isinstance(value, dict):
-        return {key: _json_floats(v) for key, v in value.items()}
-    if isinstance(value, float):
-        return json_float(value, "null")
-    return value
 
 
 def _check_writable(path: Path) -> None:
@@ -572,8 +531,8 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "noise_to_step": json_float(model.fit_summary_["noise_to_step"], "null"),
         "fit_time_s": float(fit.seconds),
         "heldout_ncpe_observed": fit.ncpe,
-        "heldout_vs_zero": {"cv_folds": _json_floats(model.fit_summary_.get("heldout_vs_zero")),
-                            "held_out": _json_floats(zero)},
+        "heldout_vs_zero": {"cv_folds": json_floats(model.fit_summary_.get("heldout_vs_zero")),
+                            "held_out": json_floats(zero)},
         "worse_than_zero": bool(model.fit_summary_.get("worse_than_zero"))
         or bool(zero and zero["ratio"] >= 1.0),
         "goal": goal_digest(model.fit_summary_.get("goal")),

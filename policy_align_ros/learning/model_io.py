@@ -25,6 +25,7 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "json_float",
+    "json_floats",
     "to_json",
 ]
 
@@ -142,6 +143,19 @@ def json_float(value: Any, nonfinite: str = "keep") -> Any:
             return None
         if nonfinite != "keep":
             raise ValueError(f"nonfinite must be 'keep', 'string' or 'null', got {nonfinite!r}")
+    return value
+
+
+def json_floats(value: Any) -> Any:
+    """``value`` with every float, in nested dicts too, as :func:`json_float` with
+    ``nonfinite="null"`` makes it: a non-finite one as None (for reports that are JSON).
+
+    Other values (lists included) are returned as they are.
+    """
+    if isinstance(value, dict):
+        return {key: json_floats(v) for key, v in value.items()}
+    if isinstance(value, float):
+        return json_float(value, "null")
     return value
 
 

@@ -18,6 +18,7 @@ from policy_align_ros.learning.model_io import (
     atomic_write_bytes,
     atomic_write_text,
     json_float,
+    json_floats,
     load_npz,
     save_npz,
 )
@@ -302,3 +303,9 @@ def test_an_old_file_without_the_robot_field_still_loads(model, tmp_path):
     bad = _rewrite(tmp_path, source, header=lambda h: _set(h, "robot", ["panda"]))
     with pytest.raises(ValueError, match="robot must be null or a string"):
         PolicyAlign.load(bad)
+
+
+def test_json_floats_makes_non_finite_floats_null_in_nested_dicts():
+    value = {"a": np.float64(math.inf), "b": {"c": math.nan, "d": 0.5}, "e": 3, "f": None}
+    assert json_floats(value) == {"a": None, "b": {"c": None, "d": 0.5}, "e": 3, "f": None}
+    assert type(json_floats(np.float64(0.5))) is float and json_floats("x") == "x"

@@ -1,0 +1,54 @@
+"""The learnt goal in the learn summary: a digest of the fit's goal report, and its words.
+
+Every fit reports its learnt minima beside where the demonstrations rest
+(:func:`~policy_align_ros.learning.goal.goal_summary`, stored as
+``fit_summary_["goal"]``; ``docs/design/goal_report.md``). The learn pipeline
+(:mod:`policy_align_ros.data.pipeline`) keeps a digest of it in the model file's
+``training.pipeline`` block (:func:`goal_digest`: counts and distances, no points) and says
+it in its one-line answer (:func:`goal_text`). Distances are in state units (rad for a
+joint state, m for a ``frames:`` state); ``*_fraction`` values are fractions of the data's
+extent.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from policy_align_ros.learning.model_io import json_floats
+
+__all__ = ["goal_digest", "goal_text"]
+
+
+def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The learn summary's part of ``fit_summary_["goal"]``
+    (:func:`~policy_align_ros.learning.goal.goal_summary`): counts and distances (state
+    units; ``*_fraction`` of the data's extent), without the points; non-finite values as
+    None. None without a goal report."""
+    if not goal:
+        return None
+    keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
+            "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction")
+    out = {key: goal.get(key) for key in keys}
+    out["n_minima"] = len(goal.get("minima", ()))
+    out["n_demonstrated_goals"] = len(goal.get("demonstrated_goals", ()))
+    return json_floats(out)
+
+
+def goal_text(digest: dict[str, Any] | None) -> str:
+    """The learnt goal in words, from :func:`goal_digest` ("" without one)."""
+    if not digest:
+        return ""
+    k = digest["n_minima"]
+    text = f"learnt goal: {k} minim{'um' if k == 1 else 'a'}"
+    if digest["goal_error_fraction"] is not None:
+        text += (f", {100 * digest['goal_error_fraction']:.2g} % of the data's extent from "
+                 "where the demonstrations rest")
+    elif digest["n_rests"] == 0:
+        text += ", no demonstration ends at rest"
+    elif digest["n_demonstrated_goals"] == 0:
+        text += ", every rest is under an active constraint"
+    if digest["fold_spread_fraction"] is not None:
+        text += f" (spread over the CV folds {100 * digest['fold_spread_fraction']:.2g} %)"
+    if digest["n_escaped"]:
+        text += f"; {digest['n_escaped']} descents found no minimum"
+    return text

@@ -1,0 +1,47 @@
+"""The learnt goal in the learn summary (policy_align_ros.data.goal_digest). ROS-free."""
+
+from __future__ import annotations
+
+import json
+import math
+
+from policy_align_ros.data.goal_digest import goal_digest, goal_text
+
+
+def _goal(**changes):
+    """A goal report as learning.goal.goal_summary and the fold spread write it."""
+    goal = {"extent": 2.0, "typical_speed": 1.0, "n_rests": 4, "n_not_at_rest": 0,
+            "n_constrained_rests": 1, "n_escaped": 0, "goal_error": 0.02,
+            "goal_error_fraction": 0.01, "fold_spread_max": 0.004,
+            "fold_spread_fraction": 0.002,
+            "demonstrated_goals": [{"point": [0.0, 0.0], "n_rests": 3}],
+            "minima": [{"point": [0.01, 0.0]}, {"point": [1.0, 1.0]}]}
+    return {**goal, **changes}
+
+
+def test_the_digest_keeps_counts_and_distances_without_points_and_is_json():
+    digest = goal_digest(_goal(fold_spread_max=math.inf, fold_spread_fraction=math.nan))
+    assert digest["n_minima"] == 2 and digest["n_demonstrated_goals"] == 1
+    assert digest["goal_error"] == 0.02 and digest["extent"] == 2.0
+    assert digest["fold_spread_max"] is None and digest["fold_spread_fraction"] is None
+    assert "minima" not in digest and "demonstrated_goals" not in digest
+    assert json.loads(json.dumps(digest, allow_nan=False)) == digest
+    assert goal_digest(None) is None and goal_digest({}) is None
+
+
+def test_the_goal_in_words():
+    assert goal_text(None) == ""
+    text = goal_text(goal_digest(_goal(n_escaped=3)))
+    assert text.startswith("learnt goal: 2 minima, 1 % of the data's extent from where")
+    assert "(spread over the CV folds 0.2 %)" in text
+    assert text.endswith("; 3 descents found no minimum")
+    one = goal_text(goal_digest(_goal(minima=[{}], fold_spread_fraction=None)))
+    assert one.startswith("learnt goal: 1 minimum,") and "spread" not in one
+
+
+def test_without_a_goal_error_the_words_say_why():
+    moving = _goal(goal_error=None, goal_error_fraction=None, n_rests=0,
+                   demonstrated_goals=[])
+    assert "no demonstration ends at rest" in goal_text(goal_digest(moving))
+    held = _goal(goal_error=None, goal_error_fraction=None, demonstrated_goals=[])
+    assert "every rest is under an active constraint" in goal_text(goal_digest(held))
