@@ -14,7 +14,8 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.joint_order`: model and controller joint orders;
 - :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
   velocities;
-- :mod:`.loading`: a model file as the executor's joint-space policy;
+- :mod:`.loading`: a model file as the executor's joint-space policy (read once at
+  start, :class:`StartModel`);
 - :mod:`.stall`: stall detection (a joint commanded to move that does not);
 - :mod:`.stamp_hints`: joint-state stamps far from the node clock, explained;
 - :mod:`.status`: the executor's status in words (its ``/diagnostics``).
@@ -54,7 +55,7 @@ from policy_align_ros.control.limits import (
     speed_limits,
     velocity_scale,
 )
-from policy_align_ros.control.loading import load_policy
+from policy_align_ros.control.loading import StartModel, load_policy
 from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
 from policy_align_ros.control.resolved_rate import (
     damped_pinv,
@@ -96,6 +97,7 @@ __all__ = [
     "FrameSupportDistance",
     "Output",
     "StallDetector",
+    "StartModel",
     "SupportDistance",
     "TaskSpacePolicy",
     "arming_status",

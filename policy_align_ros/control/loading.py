@@ -1,4 +1,10 @@
-"""Loading a model file as the executor's joint-space policy for its robot."""
+"""Loading a model file as the executor's joint-space policy for its robot.
+
+At start the executor needs the model file twice: the robot and joints it names (to build
+the robot) and then the model (to make its policy for that robot). :class:`StartModel`
+reads the file once for both, so they also come from one version of a file that the
+learner may replace at any time.
+"""
 
 from __future__ import annotations
 
@@ -10,12 +16,53 @@ from policy_align_ros.control.joint_order import model_permutation
 from policy_align_ros.control.task_policy import policy_for_state
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
 from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
-__all__ = ["load_policy"]
+__all__ = ["StartModel", "load_policy"]
+
+
+class StartModel:
+    """The model file given at start, read once for its robot fields and its policy.
+
+    :meth:`robot_fields` serves as the ``read_fields`` of
+    :func:`~policy_align_ros.nodes._common.declare_robot`; :meth:`take` hands the model
+    read then to :func:`load_policy` when the same path is loaded.
+    """
+
+    def __init__(self) -> None:
+        self._path: str | None = None
+        self._model: PolicyAlign | None = None
+
+    def robot_fields(self, path: str) -> tuple[str | None, list[str] | None]:
+        """``(robot, joints)`` the model file at ``path`` names, as
+        :func:`~policy_align_ros.learning.policy_file.read_robot_fields` reads them.
+
+        The whole model is read and kept for :meth:`take`. A file that does not load as a
+        model may still name them in its header: then the header is read (and the load's
+        error is reported when the node loads the model).
+
+        Raises
+        ------
+        ValueError, OSError
+            For a file that is no policy_align model file.
+        """
+        try:
+            self._model, self._path = PolicyAlign.load(path), path
+        except (OSError, ValueError):
+            self._model = self._path = None
+            return read_robot_fields(path)
+        return model_robot_fields(self._model)
+
+    def take(self, path: str) -> PolicyAlign | None:
+        """The model read by :meth:`robot_fields` when it was read from ``path``, else None;
+        given once (a later load of the path reads the file again)."""
+        model = self._model if path == self._path else None
+        self._model = self._path = None
+        return model
 
 
 def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
-                bounds: Callable | None = None
+                bounds: Callable | None = None, model: PolicyAlign | None = None
                 ) -> tuple[PolicyAlign, Callable[[np.ndarray], np.ndarray], np.ndarray, str]:
     """Load a PolicyAlign model file and make its joint-space policy for ``robot``.
 
@@ -39,6 +86,8 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
     bounds : callable ``q (n,) -> (lo, hi)``, optional
         Joint velocity bounds (rad/s) a task-space policy keeps to by redistributing its
         task (the executor passes its speed, position and braking limits).
+    model : PolicyAlign, optional
+        The model already read from ``path`` (:meth:`StartModel.take`); None reads it.
 
     Returns
     -------
@@ -52,7 +101,8 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
     ValueError, FileNotFoundError, OSError
         For a missing or unreadable file, or a model that does not fit ``robot``.
     """
-    model = PolicyAlign.load(path)
+    if model is None:
+        model = PolicyAlign.load(path)
     joints = list(robot.joint_names)
     learnt_for = getattr(model, "robot_", None)
     # Two robot names can be compared; a URDF path may be spelt differently for the same file.

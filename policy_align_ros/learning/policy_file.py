@@ -20,7 +20,7 @@ from policy_align_ros.learning import model_io
 from policy_align_ros.learning.base import check_is_fitted
 from policy_align_ros.learning.regressors.registry import regressor_class
 
-__all__ = ["read_model", "read_robot_fields", "write_model"]
+__all__ = ["model_robot_fields", "read_model", "read_robot_fields", "write_model"]
 
 
 def write_model(model, path: str | Path) -> Path:
@@ -100,7 +100,18 @@ def read_robot_fields(path: str | Path) -> tuple[str | None, list[str] | None]:
     ValueError, FileNotFoundError
         For a file that is no policy_align model file.
     """
-    header = model_io.load_header(path, kind="policy_align")
+    return _robot_fields(model_io.load_header(path, kind="policy_align"))
+
+
+def model_robot_fields(model) -> tuple[str | None, list[str] | None]:
+    """:func:`read_robot_fields` of a model already read (:func:`read_model`): its
+    ``robot_``, ``state_definition_`` and ``joint_names_`` are its file's header fields."""
+    return _robot_fields({"robot": model.robot_, "state_definition": model.state_definition_,
+                          "joint_names": model.joint_names_})
+
+
+def _robot_fields(header: dict) -> tuple[str | None, list[str] | None]:
+    """``(robot, joints)`` of a model file's header (see :func:`read_robot_fields`)."""
     definition = header.get("state_definition")
     definition = definition if isinstance(definition, dict) else {}
     robot = header.get("robot") or definition.get("robot")

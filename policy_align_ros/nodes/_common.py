@@ -128,14 +128,17 @@ def _override(node: Node, name: str) -> Any:
     return None if param is None else param.value
 
 
-def declare_robot(node: Node, role: str, model_path: str | None = None
-                  ) -> RobotSetup:
+def declare_robot(node: Node, role: str, model_path: str | None = None,
+                  read_fields: Callable[[str], tuple[str | None, list[str] | None]]
+                  = read_robot_fields) -> RobotSetup:
     """Declare ``robot_config``, ``robot`` and ``joints`` (read-only) and resolve them.
 
     ``robot`` and ``joints`` default to the resolved values (explicit parameter, then the
     model file at the ``model_path`` parameter's value when given, then the robot config;
     :func:`~policy_align_ros.kinematics.robot_config.resolve_robot_setup`), so a
-    parameter get shows what the node uses.
+    parameter get shows what the node uses. ``read_fields(path)`` reads the model file's
+    ``(robot, joints)`` (the executor's reads the whole model once:
+    :class:`~policy_align_ros.control.loading.StartModel`).
 
     Raises
     ------
@@ -146,7 +149,7 @@ def declare_robot(node: Node, role: str, model_path: str | None = None
     path = _override(node, model_path) if model_path else None
     if path:
         try:
-            model = read_robot_fields(path)
+            model = read_fields(path)
         except (OSError, ValueError):
             model = None  # the model's own loading says why it is refused
     setup = resolve_robot_setup(_override(node, "robot"), _override(node, "joints"),

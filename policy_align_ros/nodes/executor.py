@@ -102,6 +102,7 @@ from policy_align_ros.control import (
     FrameSupportDistance,
     Output,
     StallDetector,
+    StartModel,
     SupportDistance,
     arming_status,
     clock_mismatch_hint,
@@ -154,6 +155,8 @@ class Executor(Node):
         self.model_path = ""
         # A model loaded while validating ``model_path``, applied once the set succeeds.
         self._staged: tuple[str, PolicyAlign, Callable, np.ndarray, str] | None = None
+        # The model file given at start, read once for the robot and the policy.
+        self._start_model = StartModel()
         #: What the loaded model's state is: "joints" or "frames F1, F2".
         self.model_state = ""
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
@@ -173,7 +176,8 @@ class Executor(Node):
     def _declare_robot_parameters(self) -> None:
         """The read-only parameters the robot and the control period are built from:
         robot and joints explicit, else the model file's, else robot_config's."""
-        setup = declare_robot(self, "controlled", model_path="model_path")
+        setup = declare_robot(self, "controlled", model_path="model_path",
+                              read_fields=self._start_model.robot_fields)
         self.robot, self._default_controller = load_robot(setup), setup.controller
         self.declare_parameter("rate_hz", 100.0, descriptor(
             "control rate [Hz]", read_only=True, float_range=(1.0, 1000.0)))
@@ -332,7 +336,8 @@ class Executor(Node):
         try:
             model, policy, perm, state = load_policy(path, self.robot,
                                                      self._constraint_matrix,
-                                                     self._joint_bounds)
+                                                     self._joint_bounds,
+                                                     self._start_model.take(path))
         except (ValueError, OSError) as err:
             return reject(f"model_path: not loaded: {err}")
         self._staged = (path, model, policy, perm, state)

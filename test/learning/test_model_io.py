@@ -22,7 +22,7 @@ from policy_align_ros.learning.model_io import (
     load_npz,
     save_npz,
 )
-from policy_align_ros.learning.policy_file import read_robot_fields
+from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
 
 @pytest.fixture(scope="module")
@@ -285,6 +285,13 @@ def test_the_robot_field_round_trips_and_is_read_from_the_header_alone(model, tm
     path = named.save(tmp_path / "model.npz")
     assert PolicyAlign.load(path).robot_ == "panda"
     assert read_robot_fields(path) == ("panda", ["j1", "j2"])
+    assert model_robot_fields(PolicyAlign.load(path)) == ("panda", ["j1", "j2"])
+    # A frames state names its robot and joints in its definition.
+    framed = copy.copy(model)
+    framed.state_definition_ = {"type": "frames", "robot": "talos", "joints": ["a", "b"]}
+    path = framed.save(tmp_path / "frames.npz")
+    assert read_robot_fields(path) == ("talos", ["a", "b"])
+    assert model_robot_fields(PolicyAlign.load(path)) == ("talos", ["a", "b"])
     named.robot_ = 7
     with pytest.raises(ValueError, match="robot_"):
         named.save(tmp_path / "bad.npz")
@@ -300,6 +307,7 @@ def test_an_old_file_without_the_robot_field_still_loads(model, tmp_path):
     X = np.random.default_rng(1).uniform(-2, 2, size=(5, 2))
     np.testing.assert_array_equal(loaded.policy(X), model.policy(X))
     assert read_robot_fields(old) == (None, ["j1", "j2"])
+    assert model_robot_fields(loaded) == (None, ["j1", "j2"])
     bad = _rewrite(tmp_path, source, header=lambda h: _set(h, "robot", ["panda"]))
     with pytest.raises(ValueError, match="robot must be null or a string"):
         PolicyAlign.load(bad)

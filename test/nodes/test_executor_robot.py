@@ -1,5 +1,6 @@
 """The executor's robot and joints: an explicit parameter, then the model file, then the
-robot config, else an error naming the fix (own rclpy.Context, domain ids 196-198)."""
+robot config, else an error naming the fix; the model file is read once (own
+rclpy.Context, domain ids 196-198)."""
 
 import numpy as np
 import pytest
@@ -9,7 +10,7 @@ from rclpy.parameter import Parameter
 
 from policy_align_ros.kinematics.robot import robots_dir
 from policy_align_ros.kinematics.robot_config import load_robot_config
-from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning import PolicyAlign, model_io
 from policy_align_ros.nodes.executor import Executor
 
 PANDA = load_robot_config("panda").joints
@@ -68,6 +69,21 @@ def test_the_model_file_gives_robot_and_joints_before_the_config(executor, tmp_p
     old = _model(tmp_path / "old.npz", PANDA[:4], np.zeros(4), None)
     legacy = executor(197, robot="panda", model_path=old)
     assert legacy.robot.joint_names == PANDA[:4] and legacy.model_path == old
+
+
+def test_the_model_file_given_at_start_is_read_once(executor, tmp_path, monkeypatch):
+    path = _model(tmp_path / "ur5.npz", UR5.joints, UR5.home, "ur5")
+    reads = []
+    load_npz = model_io.load_npz
+    monkeypatch.setattr(model_io, "load_npz", lambda *a, **k: reads.append(a[0])
+                        or load_npz(*a, **k))
+    node = executor(198, model_path=path)
+    # Robot, joints and the policy from one read of the file.
+    assert node.robot.name == "ur5" and node.controller.step.policy is not None
+    assert reads == [path]
+    # Setting model_path later reads the file again: it may have been replaced.
+    assert node.set_parameters([Parameter("model_path", value=path)])[0].successful
+    assert reads == [path, path]
 
 
 def test_unknown_joints_stop_the_node_with_the_fix(executor):
