@@ -155,8 +155,7 @@ class Executor(Node):
         self.model_path = ""
         # A model loaded while validating ``model_path``, applied once the set succeeds.
         self._staged: tuple[str, PolicyAlign, Callable, np.ndarray, str] | None = None
-        # The model file given at start, read once for the robot and the policy.
-        self._start_model = StartModel()
+        self._start_model = StartModel()  # read once for the robot and the policy
         #: What the loaded model's state is: "joints" or "frames F1, F2".
         self.model_state = ""
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
@@ -334,10 +333,9 @@ class Executor(Node):
             return reject("model_path: empty; the loaded model stays (disable with "
                           "~/enable to stop)")
         try:
-            model, policy, perm, state = load_policy(path, self.robot,
-                                                     self._constraint_matrix,
-                                                     self._joint_bounds,
-                                                     self._start_model.take(path))
+            model, policy, perm, state = load_policy(
+                path, self.robot, self._constraint_matrix, self._joint_bounds,
+                self._start_model.take(path))
         except (ValueError, OSError) as err:
             return reject(f"model_path: not loaded: {err}")
         self._staged = (path, model, policy, perm, state)
