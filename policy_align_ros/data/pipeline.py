@@ -535,6 +535,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
                             "held_out": json_floats(zero)},
         "worse_than_zero": bool(model.fit_summary_.get("worse_than_zero"))
         or bool(zero and zero["ratio"] >= 1.0),
+        "no_minimum": bool(model.fit_summary_.get("no_minimum")),
         "goal": goal_digest(model.fit_summary_.get("goal")),
         "state": states.state,
         "joints": list(demos.joints),

@@ -139,7 +139,8 @@ def refusals(model: PolicyAlign, sigma: str | float, train: Sequence[Trajectory]
     A model no better than a zero policy is always refused: its own CV folds
     (``fit_summary_["worse_than_zero"]``, see :mod:`policy_align_ros.learning.folds`) or
     the held-out demonstrations found its error along the observed motion no smaller
-    than that of standing still.
+    than that of standing still. So is a model whose potential has no minimum near the
+    data (``fit_summary_["no_minimum"]``): it would not stop at a goal.
     """
     out: list[str] = []
     X = np.concatenate([t.positions for t in train])
@@ -169,6 +170,12 @@ def refusals(model: PolicyAlign, sigma: str | float, train: Sequence[Trajectory]
             f"policy's {cv['zero_error']:.4g} (ratio {cv['ratio']:.3g}, squared speed "
             f"along the observed motion, {cv['n_samples']} samples of {cv['n_folds']} CV "
             "folds)")
+    goal = summary.get("goal") or {}
+    if summary.get("no_minimum"):
+        out.append(
+            f"the learnt potential has no minimum: all {goal.get('n_escaped')} descents from "
+            "where the demonstrations end left the data's region, so the policy would not "
+            "stop at a goal")
     if heldout_zero and heldout_zero["ratio"] >= 1.0:
         out.append(
             f"no better than a zero policy on the held-out demonstrations: error "

@@ -55,10 +55,15 @@ def smoothstep_warp(s: np.ndarray) -> np.ndarray:
 
 
 def retime(traj: Trajectory, warp: Warp) -> Trajectory:
-    """``traj`` with its stamps moved by ``warp`` of the normalised time; same positions.
+    """``traj``'s path travelled on a warped clock, recorded at the same stamps.
 
-    The sample at normalised time ``s`` is stamped ``t0 + T warp(s)``; recorded velocities
-    are rescaled by the chain rule ``dx/dt_new = dx/dt_old * dt_old/dt_new``.
+    The sample stamped at normalised time ``u`` shows the state the demonstration had at
+    normalised time ``warp(u)`` (linear interpolation between its samples): the same
+    path, start, end, duration and sample rate, with the speed along the path multiplied
+    by ``warp'(u)``. Recorded velocities follow by the chain rule,
+    ``v(warp(u)) warp'(u)``. (Moving the stamps instead, ``t0 + T warp(u)``, inverts the
+    speed change and, for a warp with ``warp' = 0`` at an end, makes the first step
+    infinitely fast, which no recorder produces.)
 
     Parameters
     ----------
@@ -76,13 +81,18 @@ def retime(traj: Trajectory, warp: Warp) -> Trajectory:
         raise ValueError(f"traj {traj.name!r}: has no stamps to re-time")
     t = traj.times
     span = float(t[-1] - t[0])
-    new = t[0] + span * np.asarray(warp((t - t[0]) / span), dtype=float)
-    if new.shape != t.shape or np.any(np.diff(new) <= 0):
-        raise ValueError("warp: must be strictly increasing on the samples' times")
+    u = (t - t[0]) / span
+    s = np.asarray(warp(u), dtype=float)
+    if s.shape != u.shape or np.any(np.diff(s) <= 0) or abs(s[0]) > 1e-12 \
+            or abs(s[-1] - 1.0) > 1e-12:
+        raise ValueError("warp: must map the samples' normalised times [0, 1] onto [0, 1], "
+                         "strictly increasing")
+    X = np.stack([np.interp(s, u, x) for x in traj.positions.T], axis=1)
     v = traj.velocities
     if v is not None:
-        v = v * np.gradient(t, new)[:, None]
-    return Trajectory(traj.positions, new, v, name=traj.name)
+        slope = np.gradient(s, u)
+        v = np.stack([np.interp(s, u, c) for c in v.T], axis=1) * slope[:, None]
+    return Trajectory(X, t.copy(), v, name=traj.name)
 
 
 def retiming_shift(model_factory: Callable[[], PolicyAlign], trajs: Sequence[Trajectory],

@@ -19,7 +19,8 @@ saw:
   the full model (:mod:`~policy_align_ros.learning.goal`).
 
 :func:`fit_checks` runs both with :func:`~policy_align_ros.learning.goal.goal_summary` and
-warns when the model is no better than a zero policy. The held-out demonstrations took part
+warns when the model is no better than a zero policy, or when its potential has no minimum
+near the data. The held-out demonstrations took part
 in the alignment of the potentials the fold models are trained on (as in the regressor's
 own CV): the estimate is leave-demonstrations-out for the global model, not for the
 alignment. Notation as in :mod:`~policy_align_ros.learning.goal`.
@@ -246,7 +247,8 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
         ``goal`` (:func:`~policy_align_ros.learning.goal.goal_summary`, with
         ``fold_spread`` per minimum, ``fold_spread_max`` and its ``fold_spread_fraction``
         of the extent), ``heldout_vs_zero`` (:func:`heldout_vs_zero`) and
-        ``worse_than_zero``; a ``UserWarning`` names the numbers when it is True.
+        ``worse_than_zero`` and ``no_minimum`` (no descent found a minimum); a
+        ``UserWarning`` names the numbers when either is True.
     """
     X = np.concatenate([pieces[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
@@ -270,6 +272,15 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
                                     else goal["fold_spread_max"] / extent)
     goal["n_folds"] = len(folds)
     worse = heldout is not None and heldout["error"] >= heldout["zero_error"]
+    # Every descent from where the demonstrations end left the data's box widened by its
+    # extent: the policy has no goal to stop at (it would run to the executor's guard).
+    no_minimum = not goal["minima"]
+    if no_minimum:
+        warnings.warn(
+            f"PolicyAlign: the learnt potential has no minimum: all {goal['n_escaped']} "
+            f"descents from where the demonstrations end left the data's box widened by "
+            f"its extent {extent:.4g}; the policy would not stop at a goal (do the "
+            "demonstrations end where the task ends?)", UserWarning, stacklevel=3)
     if worse:
         warnings.warn(
             f"PolicyAlign: held-out error {heldout['error']:.4g} is no better than a zero "
@@ -277,4 +288,5 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
             f"squared error along the observed motion of {heldout['n_samples']} held-out "
             f"samples over {heldout['n_folds']} CV folds): the learnt policy predicts the "
             "demonstrations no better than standing still", UserWarning, stacklevel=3)
-    return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse)}
+    return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),
+            "no_minimum": bool(no_minimum)}

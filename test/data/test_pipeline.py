@@ -334,11 +334,25 @@ def test_a_model_no_better_than_a_zero_policy_is_refused_and_force_writes_it(tmp
     assert block["forced"] and block["worse_than_zero"]
 
 
+def test_a_model_whose_potential_has_no_minimum_is_refused(tmp_path):
+    rng = np.random.default_rng(3)
+    t = 0.02 * np.arange(100)
+    lines = [rng.normal(scale=0.3, size=2) + t[:, None] * np.array([1.0, 0.5])
+             for _ in range(8)]
+    data = _write(tmp_path / "lines", lines)
+    path = tmp_path / "model.npz"
+    with pytest.warns(UserWarning):
+        result = learn_pipeline([data], path, holdout_fraction=0.0)
+    assert result.refused and not result.written and not path.exists()
+    assert len(result.refusals) == 1
+    assert result.summary["no_minimum"] is True and result.summary["worse_than_zero"] is False
+
+
 def test_the_learn_summary_reports_the_learnt_goal(clean):
     result, path = clean
     goal = result.summary["goal"]
     assert goal["n_minima"] >= 1 and goal["extent"] > 0
-    assert result.summary["worse_than_zero"] is False
+    assert result.summary["worse_than_zero"] is False and result.summary["no_minimum"] is False
     model = PolicyAlign.load(path)
     assert len(model.fit_summary_["goal"]["minima"]) == goal["n_minima"]
     assert model.fit_summary_["pipeline"]["goal"] == goal

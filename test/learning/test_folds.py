@@ -52,7 +52,7 @@ def test_the_learnt_goal_of_a_quadratic_is_its_minimum_and_where_demos_rest(quad
     assert goal["demonstrated_goals"][0]["n_rests"] == 8
     assert goal["goal_error_fraction"] < 0.005
     assert goal["n_folds"] == 8 and goal["fold_spread_fraction"] < 1e-3
-    assert summary["worse_than_zero"] is False
+    assert summary["worse_than_zero"] is False and summary["no_minimum"] is False
     assert summary["heldout_vs_zero"]["ratio"] < 0.01
     json.dumps(summary, allow_nan=False)  # JSON-able as it is
 
@@ -64,8 +64,27 @@ def test_pure_noise_demonstrations_warn_no_better_than_a_zero_policy():
     assert summary["worse_than_zero"] is True
     numbers = summary["heldout_vs_zero"]
     assert numbers["error"] >= numbers["zero_error"] > 0
-    assert f"{numbers['error']:.4g}" in str(caught[0].message)
-    assert f"{numbers['zero_error']:.4g}" in str(caught[0].message)
+    (message,) = [str(w.message) for w in caught if "zero policy" in str(w.message)]
+    assert f"{numbers['error']:.4g}" in message and f"{numbers['zero_error']:.4g}" in message
+
+
+def _uniform_motion(seed, k=8, steps=100):
+    """Straight lines at one constant velocity: the potential of a constant policy (a
+    plane) has no minimum anywhere."""
+    rng = np.random.default_rng(seed)
+    t = 0.02 * np.arange(steps)
+    return [Trajectory(rng.normal(scale=0.3, size=2) + t[:, None] * np.array([1.0, 0.5]),
+                       times=t) for _ in range(k)]
+
+
+def test_a_potential_without_a_minimum_warns_and_is_recorded():
+    with pytest.warns(UserWarning) as caught:
+        model = PolicyAlign(random_state=0).fit(_uniform_motion(0))
+    summary = model.fit_summary_
+    assert summary["no_minimum"] is True and summary["worse_than_zero"] is False
+    assert summary["goal"]["minima"] == [] and summary["goal"]["n_escaped"] == 8
+    assert len(caught) == 1
+    json.dumps(summary, allow_nan=False)
 
 
 def test_the_goal_report_round_trips_and_files_without_it_load(quadratic, tmp_path):
