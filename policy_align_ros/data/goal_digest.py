@@ -27,7 +27,8 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
     if not goal:
         return None
     keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
-            "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction")
+            "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction",
+            "n_starts_elsewhere")
     out = {key: goal.get(key) for key in keys}
     out["n_minima"] = len(goal.get("minima", ()))
     out["n_demonstrated_goals"] = len(goal.get("demonstrated_goals", ()))
@@ -51,4 +52,7 @@ def goal_text(digest: dict[str, Any] | None) -> str:
         text += f" (spread over the CV folds {100 * digest['fold_spread_fraction']:.2g} %)"
     if digest["n_escaped"]:
         text += f"; {digest['n_escaped']} descents found no minimum"
+    if digest.get("n_starts_elsewhere"):
+        text += (f"; from {digest['n_starts_elsewhere']} demonstrations' starts the policy "
+                 "stops elsewhere")
     return text

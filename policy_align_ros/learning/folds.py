@@ -281,6 +281,18 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
             f"descents from where the demonstrations end left the data's box widened by "
             f"its extent {extent:.4g}; the policy would not stop at a goal (do the "
             "demonstrations end where the task ends?)", UserWarning, stacklevel=3)
+    elsewhere, escaped = goal["n_starts_elsewhere"], goal["n_starts_escaped"]
+    if elsewhere and not no_minimum:
+        far = goal["starts_elsewhere_fraction"]
+        where = [] if far is None else [
+            f"{elsewhere - escaped} at a minimum up to {100 * far:.3g} % of the data's "
+            "extent away"]
+        where += [f"{escaped} out of the data's region"] if escaped else []
+        warnings.warn(
+            f"PolicyAlign: from {elsewhere} of {len(parents)} demonstrations' starts the "
+            f"learnt policy stops where no demonstration's end leads ({', '.join(where)}):"
+            " its potential has minima or slopes on the way that the demonstrations did "
+            "not follow (a path that loops or crosses itself?)", UserWarning, stacklevel=3)
     if worse:
         warnings.warn(
             f"PolicyAlign: held-out error {heldout['error']:.4g} is no better than a zero "

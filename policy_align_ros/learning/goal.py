@@ -13,6 +13,8 @@ the learnt model only:
   analytic gradient, all starts at once) from given starts, merged when closer than a
   tolerance tied to the data's scale; a descent that leaves the box around the data found
   no minimum (the policy runs away there);
+- :func:`starts_elsewhere`: demonstrations from whose start the learnt policy stops
+  somewhere else than from their end;
 - :func:`goal_summary`: the learnt minima, each with its distance to the nearest
   *demonstrated goal* (a cluster of rest points), and the data's extent to read the
   distances as fractions. A rest where the learnt policy is far from zero is a rest under
@@ -51,6 +53,7 @@ __all__ = [
     "learnt_minima",
     "rest_points",
     "sample_speeds",
+    "starts_elsewhere",
     "typical_speed",
 ]
 
@@ -268,7 +271,8 @@ def learnt_minima(potential: Field, gradient: Field, starts: np.ndarray, *,
 
 
 def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
-             hi: np.ndarray, gtol: float, scale: float, max_iter: int) -> np.ndarray:
+             hi: np.ndarray, gtol: float, scale: float, max_iter: int,
+             max_step: float = math.inf) -> np.ndarray:
     """Projected gradient descent of every row of ``X`` (s, n) at once, inside the box
     ``[lo, hi]``; returns where the rows end (s, n).
 
@@ -277,6 +281,8 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
     decreases (Armijo); a row stops when its projected gradient is below ``gtol`` or its
     steps no longer move it. All rows share one call of ``potential`` and ``gradient``
     per iteration: a descent costs a few hundred batched evaluations, not one per row.
+    ``max_step`` (state units) caps every step's length: the descent then follows the
+    policy's flow instead of leaping into another basin of lower potential.
     """
     X = X.copy()
     f, g = potential(X), gradient(X)
@@ -286,7 +292,11 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
         idx = np.flatnonzero(active)
         if not idx.size:
             break
-        trial = np.clip(X[idx] - alpha[idx, None] * g[idx], lo, hi)
+        move = alpha[idx, None] * g[idx]
+        if math.isfinite(max_step):
+            length = np.linalg.norm(move, axis=1, keepdims=True)
+            move *= np.minimum(1.0, max_step / np.maximum(length, 1e-300))
+        trial = np.clip(X[idx] - move, lo, hi)
         step = trial - X[idx]
         f_trial = potential(trial)
         ok = f_trial <= f[idx] + 1e-4 * np.einsum("ij,ij->i", g[idx], step)
@@ -367,7 +377,8 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
         is all there is when they do not come to rest);
         ``n_escaped`` (descents that found no minimum); ``goal_error`` and
         ``goal_error_fraction``: the largest demonstrated goal's ``nearest_minimum`` (None
-        without goals or minima).
+        without goals or minima); ``n_starts_elsewhere``, ``n_starts_escaped`` and
+        ``starts_elsewhere_fraction`` (:func:`starts_elsewhere`).
     """
     trajs = as_trajectories(trajs)
     if not 0.0 < active_fraction:
@@ -413,7 +424,62 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     first = summary["demonstrated_goals"][:1]
     summary["goal_error"] = first[0]["nearest_minimum"] if first else None
     summary["goal_error_fraction"] = first[0]["fraction"] if first else None
+    summary.update(starts_elsewhere(trajs, potential, gradient, extent, speed))
     return summary
+
+
+def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Field,
+                     extent: float, speed: float) -> dict[str, Any]:
+    """Demonstrations from whose start the learnt policy stops where no demonstration's
+    end leads.
+
+    Every demonstration's first and last samples are descended (:func:`learnt_minima`'s
+    box, with steps of at most ``END_RADIUS`` of the extent, so that the descent follows
+    the policy's flow instead of leaping into another basin). A start counts when its
+    descent ends more than ``GOAL_MERGE`` of the extent from where every end's descent
+    ends, or leaves the box while some end's does not: a run of the learnt policy from
+    there stops at a minimum the demonstrations never stopped at (a path that loops or
+    crosses itself, which no potential's gradient follows), or never stops. Several
+    goals are fine (each end leads to its own minimum), and so is a rest under a
+    constraint (both descents are free).
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory
+    potential, gradient : callable
+    extent, speed : float
+        The data's extent W (state units) and typical speed (state units/s).
+
+    Returns
+    -------
+    dict
+        ``n_starts_elsewhere`` (int), ``n_starts_escaped`` (those of them whose start's
+        descent left the box), ``starts_elsewhere_fraction`` (over W, the largest distance
+        from a counted start's stop to the nearest end's stop; None when there is none).
+    """
+    X = np.concatenate([t.positions for t in trajs])
+    lo, hi = X.min(axis=0) - BOX_MARGIN * extent, X.max(axis=0) + BOX_MARGIN * extent
+    both = np.concatenate([[t.positions[0] for t in trajs], [t.positions[-1] for t in trajs]])
+    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
+    # Steps of at most END_RADIUS of the extent follow the flow a run of the policy takes.
+    out = _descend(potential, gradient, both, lo, hi, gtol, extent, 4000,
+                   max_step=END_RADIUS * extent)
+    edge = 1e-9 * extent
+    inside = ~np.any((out <= lo + edge) | (out >= hi - edge), axis=1)
+    K = len(trajs)
+    start, end = out[:K], out[K:]
+    reached = end[inside[K:]]
+    if not len(reached):
+        return {"n_starts_elsewhere": 0, "n_starts_escaped": 0,
+                "starts_elsewhere_fraction": None}
+    gap = cKDTree(reached).query(start)[0] / extent
+    gap[~inside[:K]] = math.inf
+    counted = gap > GOAL_MERGE
+    stopped = counted & np.isfinite(gap)
+    return {"n_starts_elsewhere": int(counted.sum()),
+            "n_starts_escaped": int(np.count_nonzero(counted & ~stopped)),
+            "starts_elsewhere_fraction": (float(np.max(gap[stopped])) if stopped.any()
+                                          else None)}
 
 
 def _goal_clusters(goals: list[np.ndarray], tol: float) -> tuple[np.ndarray, list[int]]:

@@ -13,7 +13,7 @@ def _goal(**changes):
     goal = {"extent": 2.0, "typical_speed": 1.0, "n_rests": 4, "n_not_at_rest": 0,
             "n_constrained_rests": 1, "n_escaped": 0, "goal_error": 0.02,
             "goal_error_fraction": 0.01, "fold_spread_max": 0.004,
-            "fold_spread_fraction": 0.002,
+            "fold_spread_fraction": 0.002, "n_starts_elsewhere": 0,
             "demonstrated_goals": [{"point": [0.0, 0.0], "n_rests": 3}],
             "minima": [{"point": [0.01, 0.0]}, {"point": [1.0, 1.0]}]}
     return {**goal, **changes}
@@ -27,6 +27,7 @@ def test_the_digest_keeps_counts_and_distances_without_points_and_is_json():
     assert "minima" not in digest and "demonstrated_goals" not in digest
     assert json.loads(json.dumps(digest, allow_nan=False)) == digest
     assert goal_digest(None) is None and goal_digest({}) is None
+    assert goal_digest(_goal(n_starts_elsewhere=2))["n_starts_elsewhere"] == 2
 
 
 def test_the_goal_in_words():

@@ -52,6 +52,7 @@ def test_the_learnt_goal_of_a_quadratic_is_its_minimum_and_where_demos_rest(quad
     assert goal["demonstrated_goals"][0]["n_rests"] == 8
     assert goal["goal_error_fraction"] < 0.005
     assert goal["n_folds"] == 8 and goal["fold_spread_fraction"] < 1e-3
+    assert goal["n_starts_elsewhere"] == 0
     assert summary["worse_than_zero"] is False and summary["no_minimum"] is False
     assert summary["heldout_vs_zero"]["ratio"] < 0.01
     json.dumps(summary, allow_nan=False)  # JSON-able as it is

@@ -10,6 +10,7 @@ from policy_align_ros.learning.goal import (
     learnt_minima,
     rest_points,
     sample_speeds,
+    starts_elsewhere,
 )
 
 
@@ -89,6 +90,36 @@ def test_two_wells_give_two_minima_and_a_falling_plane_gives_none():
     plane = learnt_minima(lambda X: X[:, 0], lambda X: np.tile([1.0, 0.0], (len(X), 1)),
                           starts, scale=2.0)
     assert len(plane.points) == 0 and plane.n_escaped == len(starts)
+
+
+def _two_wells():
+    wells = np.array([[-1.0, 0.0], [1.0, 0.0]])
+
+    def potential(X):
+        d2 = np.sum((X[:, None, :] - wells[None]) ** 2, axis=2)
+        return 0.05 * np.sum(X**2, axis=1) - np.exp(-d2 / 0.2).sum(axis=1)
+
+    def gradient(X):
+        D = X[:, None, :] - wells[None]
+        e = np.exp(-np.sum(D**2, axis=2) / 0.2)
+        return 0.1 * X + np.einsum("mk,mkn->mn", e, D) / 0.1
+
+    return potential, gradient
+
+
+def test_a_start_whose_well_no_end_reaches_is_counted():
+    potential, gradient = _two_wells()
+    t = np.linspace(0.0, 1.0, 50)
+    line = lambda a, b: Trajectory(a + t[:, None] * (np.asarray(b) - a), times=t)  # noqa: E731
+    across = line(np.array([-1.1, 0.2]), [0.95, 0.05])  # from the left well to the right
+    within = line(np.array([1.3, -0.3]), [1.02, 0.0])   # inside the right well
+    report = starts_elsewhere([across, within], potential, gradient, extent=2.5, speed=1.0)
+    assert report["n_starts_elsewhere"] == 1 and report["n_starts_escaped"] == 0
+    assert report["starts_elsewhere_fraction"] == pytest.approx(2.0 / 2.5, abs=0.02)
+    left = line(np.array([-1.3, 0.3]), [-1.0, 0.02])  # another goal, its own well
+    for trajs in ([within], [within, left], [across, within, left]):
+        assert starts_elsewhere(trajs, potential, gradient, extent=2.5,
+                                speed=1.0)["n_starts_elsewhere"] == 0
 
 
 def _flow(A, c, x0, steps=120, dt=0.05, wall=None):
