@@ -41,6 +41,7 @@ from policy_align_ros.learning.fitting import assign_folds
 from policy_align_ros.learning.global_model import fixed_copy
 from policy_align_ros.learning.goal import BOX_MARGIN, goal_summary, learnt_minima
 from policy_align_ros.learning.regressors import (
+    TrendKernelRegression,
     takes_free_groups,
     takes_motion,
 )
@@ -108,6 +109,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
         kept_free = np.intersect1d(free, groups[train])
         extra = ({"free_groups": kept_free}
                  if kept_free.size and takes_free_groups(template) else {})
+        if isinstance(template, TrendKernelRegression):
+            extra["scored"] = False  # no fold model's CV score is read
         if getattr(regressor, "goal_", None) is not None:
             extra["goal"] = regressor.goal_  # the fold model is stationary there too
             if motion is not None and takes_motion(template):

@@ -28,6 +28,7 @@ from policy_align_ros.learning.regressors.registry import (
     takes_free_groups,
     takes_goal,
     takes_motion,
+    takes_search_near,
 )
 from policy_align_ros.learning.regressors.trend_kernel import TrendKernelRegression
 
@@ -42,6 +43,7 @@ __all__ = [
     "takes_free_groups",
     "takes_goal",
     "takes_motion",
+    "takes_search_near",
 ]
 
 # The baseline lives outside this package (it imports nothing from it), so it is

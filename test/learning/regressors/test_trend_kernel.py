@@ -421,6 +421,26 @@ def test_a_fixed_kernel_penalty_keeps_the_residual():
     assert math.isfinite(model.cv_best_[3])
 
 
+def test_an_unscored_fit_of_one_candidate_is_the_scored_fit():
+    # The fold refits read no CV score: they skip it, and fit the same model.
+    rng = np.random.default_rng(4)
+    value, grad = _quadratic(2, rng)
+    X, g = _descent(grad, rng.normal(scale=1.0, size=(8, 2)), 30, 0.05)
+    fixed = dict(trend_form="quadratic", trend_ridge=1e-2, length_scale=1.0,
+                 kernel_ridge=1e-4, offset_ridge=0.0, n_folds=2, random_state=0)
+    scored = TrendKernelRegression(**fixed).fit(X, value(X), groups=g)
+    unscored = TrendKernelRegression(**fixed).fit(X, value(X), groups=g, scored=False)
+    assert scored.cv_best_ is not None and len(scored.cv_scores_) >= 1
+    assert unscored.cv_best_ is None and not unscored.cv_scores_
+    assert unscored.cv_folds_ == scored.cv_folds_
+    Q = rng.normal(size=(10, 2))
+    np.testing.assert_array_equal(unscored.gradient(Q), scored.gradient(Q))
+    # With a grid left to the CV, the CV runs whatever ``scored`` says.
+    searched = TrendKernelRegression(**{**fixed, "trend_ridge": "cv"}).fit(
+        X, value(X), groups=g, scored=False)
+    assert searched.cv_best_ is not None
+
+
 def test_state_round_trip_survives_json():
     rng = np.random.default_rng(4)
     value, grad = _quadratic(3, rng)

@@ -44,6 +44,7 @@ __all__ = [
     "OFFSET_RIDGE_GRID",
     "TREND_RIDGE_GRID",
     "CVSearch",
+    "near_grids",
 ]
 
 #: Candidate trend penalties (on standardised data); ``inf`` is the isotropic bowl.
@@ -132,6 +133,30 @@ class CVSearch:
             return index
         return quadratic
 
+    def near_search(self, cv: _CVData, pick: tuple, lengths: list[float],
+                    t_grid: list[float], k_grid: list[float], o_grid: list[float]) -> tuple:
+        """The quadratic family's search with the residual's grids restricted to the
+        neighbourhood (:func:`near_grids`) of an earlier fit's ``pick`` on nearly the same
+        data; return the pick.
+
+        The neighbourhood is centred again on each pick and the search repeated while that
+        adds candidates, so the pick is where the search stops moving, not where it started.
+        Candidates already scored are not scored again. The trend's and the offsets'
+        penalties keep their whole grids: the trend alone scores them cheaply, and the
+        residual's length scales are what cost (``docs/design/goal_anchor.md``).
+        """
+        searched: tuple[list[float], list[float]] = ([], [])
+        while True:
+            near = near_grids(pick, lengths, k_grid)
+            grids = tuple([v for v in full if v in old or v in new]
+                          for full, old, new in zip((lengths, k_grid), searched, near,
+                                                    strict=True))
+            if grids == searched:
+                return pick
+            searched = grids
+            pick = self.quadratic_pick = self.quadratic_search(cv, grids[0], t_grid, grids[1],
+                                                               o_grid)
+
     def fit_index(self, grams: _FoldGrams, Z: np.ndarray, u: np.ndarray, demo: np.ndarray,
                   t_init: float, rng: np.random.Generator) -> np.ndarray:
         """Fit the single-index trend's index on a random subset of the samples, from the
@@ -212,10 +237,15 @@ class CVSearch:
             # with it, and ties go to the simpler model.
             finite_k = []
         for ell in lengths if finite_k else ():
+            # Only the candidates a restricted search (near_search) has not scored yet.
+            todo = {(o, t): [k for k in finite_k if ("quadratic", t, ell, k, o) not in scores]
+                    for o, t in paths.items()}
+            if not any(todo.values()):
+                continue
             grams, Kcc = cv.kernel_sums(ell)
-            for o, t in paths.items():
-                self.record([("quadratic", t, ell, k, o) for k in finite_k],
-                             grams.scores([_penalty(n, t, k, Kcc) for k in finite_k], o,
+            for (o, t), ks in todo.items():
+                self.record([("quadratic", t, ell, k, o) for k in ks],
+                             grams.scores([_penalty(n, t, k, Kcc) for k in ks], o,
                                           shared=_n_trend(n)))
         # The better path, and on it the model with the fewest effective degrees of freedom
         # within one standard error of its best score (no residual only if the kernel
@@ -228,15 +258,16 @@ class CVSearch:
         best = self.fewest_dof_within(cv, keys, error if math.isfinite(error) else 0.0)
         # 3. With a residual, the trend's and the offsets' penalties again: the trend alone
         # cannot tell them apart where a quadratic does not fit.
-        if math.isfinite(best[3]) and (len(t_grid) > 1 or len(o_grid) > 1):
-            ell, k = best[2], best[3]
-            # Summed again rather than kept from stage 2: every length scale's sums held at
-            # once would multiply the peak memory.
-            grams, Kcc = cv.kernel_sums(ell)
-            for o in o_grid:
-                self.record([("quadratic", t, ell, k, o) for t in t_grid],
-                             grams.scores([_penalty(n, t, k, Kcc) for t in t_grid], o,
-                                          shared=-len(cv.C)))
+        ell, k = best[2], best[3]
+        if math.isfinite(k) and (len(t_grid) > 1 or len(o_grid) > 1):
+            if any(("quadratic", t, ell, k, o) not in scores for t in t_grid for o in o_grid):
+                # Summed again rather than kept from stage 2: every length scale's sums held
+                # at once would multiply the peak memory.
+                grams, Kcc = cv.kernel_sums(ell)
+                for o in o_grid:
+                    self.record([("quadratic", t, ell, k, o) for t in t_grid],
+                                 grams.scores([_penalty(n, t, k, Kcc) for t in t_grid], o,
+                                              shared=-len(cv.C)))
             best = _simplest_within(scores, [key for key in scores if key[2:4] == (ell, k)],
                                     0.0, _simpler_trend)
         return best
@@ -316,6 +347,48 @@ def _simpler_trend(key: tuple) -> tuple:
 
 def _grid(value: str | float, grid) -> list[float]:
     return list(grid) if value == "cv" else [float(value)]
+
+
+def near_grids(pick: tuple, lengths: list[float], k_grid: list[float]
+               ) -> tuple[list[float], list[float]]:
+    """The residual's grids within one step of an earlier pick (:meth:`CVSearch.near_search`).
+
+    Parameters
+    ----------
+    pick : tuple
+        A ``cv_best_``: ``(trend_form, trend_ridge, length_scale, kernel_ridge,
+        offset_ridge)``, the length scale in standardised units (NaN for the trend alone).
+    lengths, k_grid : list of float
+        The full grids of length scales and kernel penalties (ascending).
+
+    Returns
+    -------
+    tuple of list
+        The length scale nearest the pick's (in log scale) and its neighbours in
+        ``lengths``, all of them for a pick without a residual; the kernel penalty's and
+        its neighbours in ``k_grid``, with ``inf`` (the trend alone) whenever the grid has
+        it. A pick of another trend form keeps both grids whole.
+    """
+    _, _, length, kernel, _ = pick
+    if pick[0] != "quadratic":
+        return list(lengths), list(k_grid)
+    if math.isfinite(length) and length > 0:
+        lengths = _near([math.log(v) for v in lengths], math.log(length), lengths)
+    ks = _near(k_grid, kernel, k_grid)
+    if math.inf in k_grid and math.inf not in ks:
+        ks.append(math.inf)
+    return list(lengths), ks
+
+
+def _near(points: list[float], value: float, grid: list[float]) -> list[float]:
+    """The entries of ``grid`` at the point of ``points`` nearest ``value`` and its two
+    neighbours (an infinite value is nearest an infinite point, else the last)."""
+    if math.isinf(value):
+        i = points.index(value) if value in points else len(points) - 1
+    else:
+        i = min(range(len(points)), key=lambda j: abs(points[j] - value)
+                if math.isfinite(points[j]) else math.inf)
+    return list(grid[max(i - 1, 0):i + 2])
 
 
 def _quadratic_index(grams: _FoldGrams, n: int, penalty: np.ndarray, fold: int | None = None

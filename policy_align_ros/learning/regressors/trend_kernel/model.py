@@ -261,7 +261,8 @@ class TrendKernelRegression(BaseEstimator):
     # -- fit --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
             free_groups: np.ndarray | None = None, goal: np.ndarray | None = None,
-            motion: np.ndarray | None = None) -> TrendKernelRegression:
+            motion: np.ndarray | None = None, search_near: tuple | None = None,
+            scored: bool = True) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
@@ -277,7 +278,12 @@ class TrendKernelRegression(BaseEstimator):
         penalises the model's gradient across the motion, ``direction_weight`` times
         (:func:`direction_projectors`): the potential's values along bundled
         demonstrations leave its slope across them free, and a demonstration moves
-        downhill.
+        downhill. ``search_near``: an earlier fit's ``cv_best_`` on nearly the same data (the
+        goal anchor's refit): the CV then searches within one grid step of it
+        (:func:`~.cv.near_grids`), and still chooses by held-out score. ``scored=False``:
+        a fit of one candidate (every hyperparameter fixed, the quadratic trend) skips its
+        CV score, which only a caller comparing scores reads (``cv_best_`` is then None);
+        the model fitted is the same.
 
         Returns
         -------
@@ -306,11 +312,16 @@ class TrendKernelRegression(BaseEstimator):
             if motion.shape != X.shape or not np.all(np.isfinite(motion)):
                 raise ValueError(f"motion must be a finite {X.shape} array, got shape "
                                  f"{motion.shape}")
+        if search_near is not None and (len(search_near) != 5
+                                        or search_near[0] not in TREND_FORMS):
+            raise ValueError(f"search_near must be a cv_best_ tuple (trend_form, trend_ridge, "
+                             f"length_scale, kernel_ridge, offset_ridge), got {search_near!r}")
         with single_blas_thread():
-            return self._fit(X, y, groups, free, motion)
+            return self._fit(X, y, groups, free, motion, search_near, scored)
 
     def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray,
-             motion: np.ndarray | None = None) -> TrendKernelRegression:
+             motion: np.ndarray | None = None, search_near: tuple | None = None,
+             scored: bool = True) -> TrendKernelRegression:
         rng = np.random.default_rng(self.random_state)
         idx = thin_trajectories(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
@@ -370,7 +381,9 @@ class TrendKernelRegression(BaseEstimator):
         self.cv_standard_errors_ = search.standard_errors
         self.cv_dof_ = search.dof
         self.cv_best_ = None
-        if n_folds < 2:
+        single = forms == ["quadratic"] and all(len(g) == 1 for g in (lengths, t_grid, k_grid,
+                                                                        o_grid))
+        if n_folds < 2 or (single and not scored):
             best = search.quadratic_pick
             if forms == ["single_index"]:
                 best = ("single_index", math.nan, mid[0], math.inf, o_grid[-1])
@@ -380,7 +393,11 @@ class TrendKernelRegression(BaseEstimator):
             cv = _CVData(F, Z, u, C, demo, demo_fold,
                          _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF), pinned,
                          projectors, DF)
-            best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
+            if search_near is not None and forms == ["quadratic"]:
+                best = search.near_search(cv, search_near, lengths, t_grid, k_grid, o_grid)
+            else:
+                best = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
+            self.cv_best_ = best
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
         self._quadratic_pick, self._index = search.quadratic_pick, search.index
