@@ -6,6 +6,15 @@ import numpy as np
 import pytest
 
 from policy_align_ros.learning.regressors import TrendKernelRegression, takes_goal
+from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _kernel,
+    _kernel_directions,
+    _kernel_jacobian,
+)
+from policy_align_ros.learning.regressors.trend_kernel.grams import (
+    direction_projectors,
+    direction_rows,
+)
 
 
 def _bowl_data(goal, n_demos=8, seed=0):
@@ -129,3 +138,19 @@ def test_a_bad_search_near_is_refused():
     X, y, g = _bowl_data(np.zeros(2))
     with pytest.raises(ValueError, match="search_near"):
         TrendKernelRegression().fit(X, y, groups=g, goal=np.zeros(2), search_near=(1.0, 2.0))
+
+
+@pytest.mark.parametrize("pinned", [False, True])
+def test_kernel_direction_rows_project_the_kernel_gradients(pinned):
+    # The direction rows come from two products per feature instead of its gradient; the
+    # gradient itself matches finite differences of the features.
+    rng = np.random.default_rng(5)
+    Z, C = rng.normal(size=(30, 3)), rng.normal(size=(7, 3))
+    J = _kernel_jacobian(Z, C, 0.8, pinned)
+    h = 1e-6
+    numeric = np.stack([(_kernel(Z + h * e, C, 0.8, pinned) - _kernel(Z - h * e, C, 0.8, pinned))
+                        / (2 * h) for e in np.eye(3)], axis=1)
+    np.testing.assert_allclose(J, numeric, atol=1e-8)
+    P = direction_projectors(rng.normal(size=(30, 3)), 10.0)
+    np.testing.assert_allclose(_kernel_directions(P, Z, C, 0.8, pinned),
+                               direction_rows(P, J), rtol=1e-12, atol=1e-14)

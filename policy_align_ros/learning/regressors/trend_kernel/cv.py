@@ -133,30 +133,6 @@ class CVSearch:
             return index
         return quadratic
 
-    def near_search(self, cv: _CVData, pick: tuple, lengths: list[float],
-                    t_grid: list[float], k_grid: list[float], o_grid: list[float]) -> tuple:
-        """The quadratic family's search with the residual's grids restricted to the
-        neighbourhood (:func:`near_grids`) of an earlier fit's ``pick`` on nearly the same
-        data; return the pick.
-
-        The neighbourhood is centred again on each pick and the search repeated while that
-        adds candidates, so the pick is where the search stops moving, not where it started.
-        Candidates already scored are not scored again. The trend's and the offsets'
-        penalties keep their whole grids: the trend alone scores them cheaply, and the
-        residual's length scales are what cost (``docs/design/goal_anchor.md``).
-        """
-        searched: tuple[list[float], list[float]] = ([], [])
-        while True:
-            near = near_grids(pick, lengths, k_grid)
-            grids = tuple([v for v in full if v in old or v in new]
-                          for full, old, new in zip((lengths, k_grid), searched, near,
-                                                    strict=True))
-            if grids == searched:
-                return pick
-            searched = grids
-            pick = self.quadratic_pick = self.quadratic_search(cv, grids[0], t_grid, grids[1],
-                                                               o_grid)
-
     def fit_index(self, grams: _FoldGrams, Z: np.ndarray, u: np.ndarray, demo: np.ndarray,
                   t_init: float, rng: np.random.Generator) -> np.ndarray:
         """Fit the single-index trend's index on a random subset of the samples, from the
@@ -237,15 +213,10 @@ class CVSearch:
             # with it, and ties go to the simpler model.
             finite_k = []
         for ell in lengths if finite_k else ():
-            # Only the candidates a restricted search (near_search) has not scored yet.
-            todo = {(o, t): [k for k in finite_k if ("quadratic", t, ell, k, o) not in scores]
-                    for o, t in paths.items()}
-            if not any(todo.values()):
-                continue
             grams, Kcc = cv.kernel_sums(ell)
-            for (o, t), ks in todo.items():
-                self.record([("quadratic", t, ell, k, o) for k in ks],
-                             grams.scores([_penalty(n, t, k, Kcc) for k in ks], o,
+            for o, t in paths.items():
+                self.record([("quadratic", t, ell, k, o) for k in finite_k],
+                             grams.scores([_penalty(n, t, k, Kcc) for k in finite_k], o,
                                           shared=_n_trend(n)))
         # The better path, and on it the model with the fewest effective degrees of freedom
         # within one standard error of its best score (no residual only if the kernel
@@ -258,16 +229,15 @@ class CVSearch:
         best = self.fewest_dof_within(cv, keys, error if math.isfinite(error) else 0.0)
         # 3. With a residual, the trend's and the offsets' penalties again: the trend alone
         # cannot tell them apart where a quadratic does not fit.
-        ell, k = best[2], best[3]
-        if math.isfinite(k) and (len(t_grid) > 1 or len(o_grid) > 1):
-            if any(("quadratic", t, ell, k, o) not in scores for t in t_grid for o in o_grid):
-                # Summed again rather than kept from stage 2: every length scale's sums held
-                # at once would multiply the peak memory.
-                grams, Kcc = cv.kernel_sums(ell)
-                for o in o_grid:
-                    self.record([("quadratic", t, ell, k, o) for t in t_grid],
-                                 grams.scores([_penalty(n, t, k, Kcc) for t in t_grid], o,
-                                              shared=-len(cv.C)))
+        if math.isfinite(best[3]) and (len(t_grid) > 1 or len(o_grid) > 1):
+            ell, k = best[2], best[3]
+            # Summed again rather than kept from stage 2: every length scale's sums held at
+            # once would multiply the peak memory.
+            grams, Kcc = cv.kernel_sums(ell)
+            for o in o_grid:
+                self.record([("quadratic", t, ell, k, o) for t in t_grid],
+                             grams.scores([_penalty(n, t, k, Kcc) for t in t_grid], o,
+                                          shared=-len(cv.C)))
             best = _simplest_within(scores, [key for key in scores if key[2:4] == (ell, k)],
                                     0.0, _simpler_trend)
         return best
@@ -351,7 +321,13 @@ def _grid(value: str | float, grid) -> list[float]:
 
 def near_grids(pick: tuple, lengths: list[float], k_grid: list[float]
                ) -> tuple[list[float], list[float]]:
-    """The residual's grids within one step of an earlier pick (:meth:`CVSearch.near_search`).
+    """The residual's grids within one step of an earlier pick.
+
+    A refit of nearly the same data (the goal anchor's, ``docs/design/goal_anchor.md``)
+    searches the residual's length scales and penalties there instead of over the whole
+    grids, which is what a search costs; the trend's and the offsets' penalties keep their
+    whole grids (the trend alone scores them cheaply). Its CV still chooses among the
+    candidates by held-out score.
 
     Parameters
     ----------

@@ -12,7 +12,7 @@ import scipy.sparse
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
     _kernel,
-    _kernel_jacobian,
+    _kernel_directions,
 )
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     _convex_solve,
@@ -224,9 +224,8 @@ class _CVData:
         A = np.hstack([self.F, _kernel(self.Z, self.C, ell, self.pinned)])
         D = None
         if self.projectors is not None:
-            D = np.concatenate([self.trend_directions,
-                                direction_rows(self.projectors, _kernel_jacobian(
-                                    self.Z, self.C, ell, self.pinned))], axis=2)
+            D = np.concatenate([self.trend_directions, _kernel_directions(
+                self.projectors, self.Z, self.C, ell, self.pinned)], axis=2)
         return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
                            free=self.trend.free, D=D),
                 _gaussian(self.C, self.C, ell))

@@ -91,13 +91,14 @@ from policy_align_ros.learning.regressors.trend_kernel.cv import (
     TREND_RIDGE_GRID,
     CVSearch,
     _grid,
+    near_grids,
 )
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
     _index_design,
     _kernel,
+    _kernel_directions,
     _kernel_gradient,
-    _kernel_jacobian,
     _median_distance,
     _n_index_weights,
     _n_trend,
@@ -279,8 +280,9 @@ class TrendKernelRegression(BaseEstimator):
         (:func:`direction_projectors`): the potential's values along bundled
         demonstrations leave its slope across them free, and a demonstration moves
         downhill. ``search_near``: an earlier fit's ``cv_best_`` on nearly the same data (the
-        goal anchor's refit): the CV then searches within one grid step of it
-        (:func:`~.cv.near_grids`), and still chooses by held-out score. ``scored=False``:
+        goal anchor's refit): the CV then searches the residual's length scales and
+        penalties within one grid step of it (:func:`~.cv.near_grids`), and still chooses
+        by held-out score. ``scored=False``:
         a fit of one candidate (every hyperparameter fixed, the quadratic trend) skips its
         CV score, which only a caller comparing scores reads (``cv_best_`` is then None);
         the model fitted is the same.
@@ -371,6 +373,8 @@ class TrendKernelRegression(BaseEstimator):
         t_grid = _grid(self.trend_ridge, TREND_RIDGE_GRID)
         k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
         o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
+        if search_near is not None:
+            lengths, k_grid = near_grids(search_near, lengths, k_grid)
         forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
         if pinned:
             forms = ["quadratic"]  # the single-index trend fits a centre of its own
@@ -393,11 +397,7 @@ class TrendKernelRegression(BaseEstimator):
             cv = _CVData(F, Z, u, C, demo, demo_fold,
                          _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF), pinned,
                          projectors, DF)
-            if search_near is not None and forms == ["quadratic"]:
-                best = search.near_search(cv, search_near, lengths, t_grid, k_grid, o_grid)
-            else:
-                best = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
-            self.cv_best_ = best
+            best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
         self._quadratic_pick, self._index = search.quadratic_pick, search.index
@@ -434,11 +434,10 @@ class TrendKernelRegression(BaseEstimator):
             self.centres_ = C
         D = None
         if projectors is not None:
-            J = _trend_jacobian(Z, True)
+            D = direction_rows(projectors, _trend_jacobian(Z, True))
             if not math.isinf(self.kernel_ridge_):
-                J = np.concatenate([J, _kernel_jacobian(Z, C, self.length_scale_, True)],
-                                   axis=2)
-            D = direction_rows(projectors, J)
+                D = np.concatenate([D, _kernel_directions(projectors, Z, C, self.length_scale_,
+                                                          True)], axis=2)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
                            free=free, D=D)
         G, r, m = grams.profiled_all(self.offset_ridge_)
