@@ -79,14 +79,24 @@ def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = N
         return w
     S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
     iu, ju, scale = _upper(n)
-    quad = np.arange(1 + n, p_t)
+    quad = slice(1 + n, p_t)
     w[2 + n:p_t] = scale * S[iu, ju]
-    rest = np.setdiff1d(np.arange(len(w)), quad)
-    w_rest = _solve(M[np.ix_(rest, rest)], b[rest] - M[np.ix_(rest, quad)] @ w[quad])
+    rest = np.concatenate((np.arange(1 + n), np.arange(p_t, len(w))))
+    w_rest = _solve(_without_block(M, 1 + n, p_t), b[rest] - M[rest, quad] @ w[quad])
     if w_rest is None:
         return None
     w[rest] = w_rest
     return w
+
+
+def _without_block(M: np.ndarray, a: int, b: int) -> np.ndarray:
+    """``M`` (p, p) without its rows and columns ``a:b``: four block copies, a tenth of the
+    time of fancy indexing (this runs for most candidates of a search)."""
+    k = len(M) - (b - a)
+    out = np.empty((k, k))
+    out[:a, :a], out[:a, a:] = M[:a, :a], M[:a, b:]
+    out[a:, :a], out[a:, a:] = M[b:, :a], M[b:, b:]
+    return out
 
 
 def _solve_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: int
