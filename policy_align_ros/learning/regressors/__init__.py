@@ -15,7 +15,9 @@ PolicyAlign fitted with any registered regressor saves and loads.
 
 A regressor may also take ``fit(..., free_groups=ids)``: demonstrations whose offsets it
 re-fits freely (:func:`~.registry.takes_free_groups`); PolicyAlign then gives it the
-trajectories the alignment could not level.
+trajectories the alignment could not level. One that takes ``search_near``
+(:func:`~.registry.takes_search_near`) gets the unanchored fit's CV pick in the goal
+anchor's refit, to search around it (``docs/design/goal_anchor.md``).
 """
 
 from policy_align_ros.learning.base import NotFittedError

@@ -12,7 +12,7 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _kernel_jacobian,
 )
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
-    direction_projectors,
+    direction_bases,
     direction_rows,
 )
 
@@ -151,6 +151,23 @@ def test_kernel_direction_rows_project_the_kernel_gradients(pinned):
     numeric = np.stack([(_kernel(Z + h * e, C, 0.8, pinned) - _kernel(Z - h * e, C, 0.8, pinned))
                         / (2 * h) for e in np.eye(3)], axis=1)
     np.testing.assert_allclose(J, numeric, atol=1e-8)
-    P = direction_projectors(rng.normal(size=(30, 3)), 10.0)
-    np.testing.assert_allclose(_kernel_directions(P, Z, C, 0.8, pinned),
-                               direction_rows(P, J), rtol=1e-12, atol=1e-14)
+    B = direction_bases(rng.normal(size=(30, 3)), 10.0)
+    np.testing.assert_allclose(_kernel_directions(B, Z, C, 0.8, pinned),
+                               direction_rows(B, J), rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7])
+def test_direction_bases_penalise_the_slope_across_the_motion_as_the_projector(n):
+    # n - 1 rows per sample whose squares sum to weight |s|^2 (I - s s' / |s|^2); a step of
+    # zero gives zero rows.
+    rng = np.random.default_rng(n)
+    steps = rng.normal(size=(20, n))
+    steps[3] = 0.0
+    steps[4] = -np.abs(steps[4])  # either sign of the first coordinate
+    B = direction_bases(steps, 10.0)
+    assert B.shape == (20, n - 1, n)
+    norm2 = np.sum(steps**2, axis=1)
+    unit = steps / np.sqrt(np.maximum(norm2, 1e-300))[:, None]
+    expected = 10.0 * norm2[:, None, None] * (np.eye(n) - unit[:, :, None] * unit[:, None, :])
+    expected[3] = 0.0
+    np.testing.assert_allclose(np.einsum("mri,mrj->mij", B, B), expected, atol=1e-12)

@@ -109,7 +109,7 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
     _CVData,
     _FoldGrams,
-    direction_projectors,
+    direction_bases,
     direction_rows,
 )
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
@@ -277,7 +277,7 @@ class TrendKernelRegression(BaseEstimator):
         single-index trend is not a candidate. ``motion`` (m, n), state units: each
         sample's step along its demonstration; with a ``goal``, the fit then also
         penalises the model's gradient across the motion, ``direction_weight`` times
-        (:func:`direction_projectors`): the potential's values along bundled
+        (:func:`direction_bases`): the potential's values along bundled
         demonstrations leave its slope across them free, and a demonstration moves
         downhill. ``search_near``: an earlier fit's ``cv_best_`` on nearly the same data (the
         goal anchor's refit): the CV then searches the residual's length scales and
@@ -363,10 +363,10 @@ class TrendKernelRegression(BaseEstimator):
         pinned = self.goal_ is not None
         if pinned:
             F[:, 1:1 + n] = 0.0  # no linear term: the bowl's centre is the goal
-        projectors = DF = None
+        bases = DF = None
         if motion is not None:
-            projectors = direction_projectors(motion / self.scale_, self.direction_weight)
-            DF = direction_rows(projectors, _trend_jacobian(Z, pinned))
+            bases = direction_bases(motion / self.scale_, self.direction_weight)
+            DF = direction_rows(bases, _trend_jacobian(Z, pinned))
 
         d_med = _median_distance(C)
         lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
@@ -396,19 +396,19 @@ class TrendKernelRegression(BaseEstimator):
         else:
             cv = _CVData(F, Z, u, C, demo, demo_fold,
                          _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF), pinned,
-                         projectors, DF)
+                         bases, DF)
             best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
         self._quadratic_pick, self._index = search.quadratic_pick, search.index
-        self._final_fit(best, F, Z, u, C, n, demo, free, projectors)
+        self._final_fit(best, F, Z, u, C, n, demo, free, bases)
         return self
 
     def _final_fit(self, best: tuple, F: np.ndarray, Z: np.ndarray, u: np.ndarray,
                    C: np.ndarray, n: int, demo: np.ndarray, free: np.ndarray,
-                   projectors: np.ndarray | None = None) -> None:
+                   bases: np.ndarray | None = None) -> None:
         """Fit the hyperparameters ``best`` on all samples and set the learnt attributes;
-        ``projectors`` (m, n, n): the samples' direction projectors, or None."""
+        ``bases`` (m, n - 1, n): the samples' direction bases, or None."""
         (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
          self.offset_ridge_) = best
         self.index_matrix_, self.index_goal_, self.index_scale_ = (
@@ -433,10 +433,10 @@ class TrendKernelRegression(BaseEstimator):
                               _gaussian(C, C, self.length_scale_))
             self.centres_ = C
         D = None
-        if projectors is not None:
-            D = direction_rows(projectors, _trend_jacobian(Z, True))
+        if bases is not None:
+            D = direction_rows(bases, _trend_jacobian(Z, True))
             if not math.isinf(self.kernel_ridge_):
-                D = np.concatenate([D, _kernel_directions(projectors, Z, C, self.length_scale_,
+                D = np.concatenate([D, _kernel_directions(bases, Z, C, self.length_scale_,
                                                           True)], axis=2)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
                            free=free, D=D)
