@@ -19,10 +19,15 @@ from policy_align_ros.learning.regressors.trend_kernel.cv import (
     OFFSET_RIDGE_GRID,
     TREND_RIDGE_GRID,
 )
-from policy_align_ros.learning.regressors.trend_kernel.features import _median_distance
+from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _median_distance,
+    _trend_hessian,
+)
 from policy_align_ros.learning.regressors.trend_kernel.single_index import KNEES
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     CURVATURE_FLOOR,
+    _convex_solve,
+    _convex_solves,
     _nonneg_solve,
     _solve_shared,
 )
@@ -127,6 +132,29 @@ def test_shared_block_solves_equal_the_direct_solves():
     tail = [P[::-1, ::-1].copy() for P in penalties]
     for P, w in zip(tail, _solve_shared(M, b, tail, -q), strict=True):
         np.testing.assert_allclose(w, np.linalg.solve(M + P, b), rtol=1e-9, atol=1e-12)
+
+
+def test_convex_solves_sharing_the_kernel_block_equal_the_direct_ones():
+    # Where the trend's curvature must be raised, the re-solve of the other coefficients
+    # reuses the factored kernel block: the same coefficients as a solve of the whole system.
+    rng = np.random.default_rng(8)
+    n, m_c = 2, 25
+    p_t = 2 + n + n * (n + 1) // 2
+    A = rng.standard_normal((300, p_t + m_c))
+    M, b = A.T @ A / 300, rng.standard_normal(p_t + m_c)
+    K = rng.standard_normal((m_c, m_c))
+    penalties = []
+    for t in (1e-6, 1e-2, 1.0):
+        P = np.zeros((p_t + m_c, p_t + m_c))
+        P[:p_t, :p_t] = np.diag(np.full(p_t, t))
+        P[p_t:, p_t:] = 1e-2 * (K @ K.T + np.eye(m_c))
+        penalties.append(P)
+    direct = [_convex_solve(M + P, b, n) for P in penalties]
+    # Random data: some of the trends are saddles and get their curvature raised.
+    assert any(np.linalg.eigvalsh(_trend_hessian(np.linalg.solve(M + P, b), n))[0] <= 0
+               for P in penalties)
+    for w, v in zip(_convex_solves(M, b, penalties, -m_c, n), direct, strict=True):
+        np.testing.assert_allclose(w, v, rtol=1e-8, atol=1e-10)
 
 
 def test_gradient_matches_finite_differences():

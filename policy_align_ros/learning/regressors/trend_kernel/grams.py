@@ -15,10 +15,9 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _kernel_directions,
 )
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
-    _convex_solve,
+    _convex_solves,
     _gram,
     _nonneg_solve,
-    _solve_shared,
 )
 
 
@@ -141,9 +140,7 @@ class _FoldGrams:
         if self.nonneg:
             solved = [_nonneg_solve(M + penalty, r / m, 1) for penalty in penalties]
         else:
-            first = _solve_shared(M, r / m, penalties, shared)
-            solved = [_convex_solve(M + penalty, r / m, self.n, w)
-                      for penalty, w in zip(penalties, first, strict=True)]
+            solved = _convex_solves(M, r / m, penalties, shared, self.n)
         out = []
         for w in solved:
             ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
