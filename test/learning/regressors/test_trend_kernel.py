@@ -134,7 +134,7 @@ def test_shared_block_solves_equal_the_direct_solves():
         np.testing.assert_allclose(w, np.linalg.solve(M + P, b), rtol=1e-9, atol=1e-12)
 
 
-def test_convex_solves_sharing_the_kernel_block_equal_the_direct_ones():
+def test_convex_solves_sharing_a_block_equal_the_direct_ones():
     # Where the trend's curvature must be raised, the re-solve of the other coefficients
     # reuses the factored kernel block: the same coefficients as a solve of the whole system.
     rng = np.random.default_rng(8)
@@ -154,6 +154,19 @@ def test_convex_solves_sharing_the_kernel_block_equal_the_direct_ones():
     assert any(np.linalg.eigvalsh(_trend_hessian(np.linalg.solve(M + P, b), n))[0] <= 0
                for P in penalties)
     for w, v in zip(_convex_solves(M, b, penalties, -m_c, n), direct, strict=True):
+        np.testing.assert_allclose(w, v, rtol=1e-8, atol=1e-10)
+    # The trend's block shared instead (stage 2: the kernel's penalty varies): the re-solve
+    # updates each penalty's factored Schur complement (Woodbury).
+    penalties = []
+    for k in (1e-6, 1e-3, 1e-1):
+        P = np.zeros((p_t + m_c, p_t + m_c))
+        P[:p_t, :p_t] = np.diag(np.full(p_t, 1e-6))
+        P[p_t:, p_t:] = k * (K @ K.T + np.eye(m_c))
+        penalties.append(P)
+    direct = [_convex_solve(M + P, b, n) for P in penalties]
+    assert any(np.linalg.eigvalsh(_trend_hessian(np.linalg.solve(M + P, b), n))[0] <= 0
+               for P in penalties)
+    for w, v in zip(_convex_solves(M, b, penalties, p_t, n), direct, strict=True):
         np.testing.assert_allclose(w, v, rtol=1e-8, atol=1e-10)
 
 

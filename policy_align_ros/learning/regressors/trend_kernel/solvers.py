@@ -74,6 +74,13 @@ def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = N
         return None
     if not _floor_trend(w, n):
         return w
+    return _convex_resolve(M, b, w, n)
+
+
+def _convex_resolve(M: np.ndarray, b: np.ndarray, w: np.ndarray, n: int
+                    ) -> np.ndarray | None:
+    """The coefficients of ``M w = b`` other than the quadratic part of ``w`` (fixed), in
+    place; None if the solve fails."""
     p_t = _n_trend(n)
     quad = slice(1 + n, p_t)
     rest = np.concatenate((np.arange(1 + n), np.arange(p_t, len(w))))
@@ -170,6 +177,8 @@ def _convex_solves(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q:
     """
     p = M.shape[0]
     factor = None
+    if q == _n_trend(n) < p and len(penalties) >= 2:
+        return _convex_solves_trend_shared(M, b, penalties, n)
     if q < 0 and p + q == _n_trend(n) and len(penalties) >= 2:
         factor = _shared_factor(M, b, penalties[0], q)
     first = _solve_shared(M, b, penalties, q, factor)
@@ -182,6 +191,87 @@ def _convex_solves(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q:
             continue
         out.append(_resolve_with_factor(M + P, b, w, n, factor))
     return out
+
+
+def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray],
+                                n: int) -> list[np.ndarray | None]:
+    """:func:`_convex_solves` with the trend's block shared (the kernel's penalty varies).
+
+    The solves are :func:`_solve_shared`'s; the factor of each penalty's Schur complement
+    is kept, and a trend whose curvature is raised re-solves the other coefficients on it:
+    eliminating the constant and linear part alone rather than the whole trend changes that
+    Schur complement by a term of rank ``n (n + 1) / 2 + 1`` (the quadratic part's), which
+    the Woodbury identity absorbs with a few triangular solves.
+    """
+    p, p_t = M.shape[0], _n_trend(n)
+    factor = _shared_factor(M, b, penalties[0], p_t)
+    if factor is None:
+        return [_convex_solve(M + P, b, n, w)
+                for P, w in zip(penalties, _solve_shared(M, b, penalties, p_t), strict=True)]
+    s, o, L, W, z = factor
+    schur = M[o, o] - _gram(W)
+    rhs = b[o] - W.T @ z
+    update = None
+    out: list[np.ndarray | None] = []
+    for P in penalties:
+        try:
+            S = scipy.linalg.cho_factor(schur + P[o, o], check_finite=False)
+        except np.linalg.LinAlgError:
+            w = _solve_shared(M, b, [P, P], p_t, factor)[0]  # the general fallbacks
+            out.append(_convex_solve(M + P, b, n, w))
+            continue
+        w = np.empty(p)
+        w[o] = scipy.linalg.cho_solve(S, rhs, check_finite=False)
+        w[s] = scipy.linalg.solve_triangular(L, z - W @ w[o], lower=True, trans="T",
+                                             check_finite=False)
+        if not _floor_trend(w, n):
+            out.append(w)
+            continue
+        if update is None:
+            update = _quadratic_update(M + penalties[0], n)
+        out.append(_resolve_woodbury(M + P, b, w, n, S, update))
+    return out
+
+
+def _quadratic_update(K: np.ndarray, n: int) -> tuple | None:
+    """For the trend block of ``K`` split into ``r`` (constant and linear) and ``q`` (the
+    quadratic part): the factor of ``K_rr``, ``S_q = K_qq - K_qr K_rr^-1 K_rq`` and
+    ``X = K_qo - K_qr K_rr^-1 K_ro`` (``o`` the kernel's columns); None if ``K_rr`` is not
+    positive definite."""
+    p_t = _n_trend(n)
+    r, q, o = slice(0, 1 + n), slice(1 + n, p_t), slice(p_t, len(K))
+    try:
+        F = scipy.linalg.cho_factor(K[r, r], check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    Y = scipy.linalg.cho_solve(F, np.hstack([K[r, q], K[r, o]]), check_finite=False)
+    m_q = p_t - 1 - n
+    S_q = K[q, q] - K[q, r] @ Y[:, :m_q]
+    X = K[q, o] - K[q, r] @ Y[:, m_q:]
+    return F, S_q, X
+
+
+def _resolve_woodbury(K: np.ndarray, b: np.ndarray, w: np.ndarray, n: int, S: tuple,
+                      update: tuple | None) -> np.ndarray | None:
+    """The constant, linear and kernel coefficients of ``K w = b`` given the quadratic part
+    of ``w`` (fixed by :func:`_floor_trend`): the kernel's from the Schur complement of the
+    whole trend (factored in ``S``) updated by the quadratic part's term (``update``,
+    :func:`_quadratic_update`), then the constant and linear part."""
+    if update is None:
+        return _convex_resolve(K, b, w, n)
+    F, S_q, X = update
+    p_t = _n_trend(n)
+    r, q, o = slice(0, 1 + n), slice(1 + n, p_t), slice(p_t, len(K))
+    c = b[r] - K[r, q] @ w[q]
+    g = b[o] - K[o, q] @ w[q] - K[o, r] @ scipy.linalg.cho_solve(F, c, check_finite=False)
+    Sg = scipy.linalg.cho_solve(S, g, check_finite=False)
+    SX = scipy.linalg.cho_solve(S, X.T, check_finite=False)
+    core = _solve(S_q + X @ SX, X @ Sg)
+    if core is None:
+        return _convex_resolve(K, b, w, n)
+    w[o] = Sg - SX @ core
+    w[r] = scipy.linalg.cho_solve(F, c - K[r, o] @ w[o], check_finite=False)
+    return w
 
 
 def _resolve_with_factor(K: np.ndarray, b: np.ndarray, w: np.ndarray, n: int, factor: tuple
