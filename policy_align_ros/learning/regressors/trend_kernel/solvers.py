@@ -170,15 +170,16 @@ def _convex_solves(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q:
     """:func:`_convex_solve` of ``(M + P) w = b`` for every ``P`` in ``penalties``, solved
     by :func:`_solve_shared` with its shared block ``q``.
 
-    When the shared block is the kernel's (``q < 0``, the trend's penalty varies), a trend
-    that needs its curvature raised keeps that factor for the re-solve of the other
-    coefficients: only the trend's constant and linear part is eliminated again, at the
-    cost of two triangular solves rather than a factorisation of the whole system.
+    A trend that needs its curvature raised keeps the factorisations for the re-solve of
+    the other coefficients. When the shared block is the kernel's (``q < 0``, the trend's
+    penalty varies), only the trend's constant and linear part is eliminated again, at the
+    cost of two triangular solves rather than a factorisation of the whole system; when it
+    is the trend's, see :func:`_convex_solves_trend_shared`.
     """
     p = M.shape[0]
-    factor = None
     if q == _n_trend(n) < p and len(penalties) >= 2:
         return _convex_solves_trend_shared(M, b, penalties, n)
+    factor = None
     if q < 0 and p + q == _n_trend(n) and len(penalties) >= 2:
         factor = _shared_factor(M, b, penalties[0], q)
     first = _solve_shared(M, b, penalties, q, factor)
