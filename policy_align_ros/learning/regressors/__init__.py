@@ -30,6 +30,7 @@ from policy_align_ros.learning.regressors.registry import (
     takes_free_groups,
     takes_goal,
     takes_motion,
+    takes_scored,
     takes_search_near,
 )
 from policy_align_ros.learning.regressors.trend_kernel import TrendKernelRegression
@@ -45,6 +46,7 @@ __all__ = [
     "takes_free_groups",
     "takes_goal",
     "takes_motion",
+    "takes_scored",
     "takes_search_near",
 ]
 
