@@ -43,6 +43,7 @@ from policy_align_ros.learning.goal import BOX_MARGIN, goal_summary, learnt_mini
 from policy_align_ros.learning.regressors import (
     takes_free_groups,
     takes_motion,
+    takes_scored,
 )
 from policy_align_ros.learning.trajectory import Trajectory
 
@@ -96,7 +97,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
     if not folds or set(folds) != set(int(g) for g in ids):
         drawn = assign_folds(ids, min(N_FOLDS, len(ids)), np.random.default_rng(random_state))
         folds = {int(g): int(f) for g, f in zip(ids, drawn, strict=True)}
-    # Two folds: the fixed grid needs no search, and fewer folds cost less.
+    # The fixed grid needs no search, and no fold model's CV score is read (``scored`` below,
+    # where the regressor takes it); two folds order the samples as a two-fold fit does.
     template = fixed_copy(regressor, n_folds=2)
     free = np.zeros(0, dtype=np.int64) if free_groups is None else np.asarray(free_groups)
     out = []
@@ -108,6 +110,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
         kept_free = np.intersect1d(free, groups[train])
         extra = ({"free_groups": kept_free}
                  if kept_free.size and takes_free_groups(template) else {})
+        if takes_scored(template):
+            extra["scored"] = False
         if getattr(regressor, "goal_", None) is not None:
             extra["goal"] = regressor.goal_  # the fold model is stationary there too
             if motion is not None and takes_motion(template):

@@ -19,10 +19,15 @@ from policy_align_ros.learning.regressors.trend_kernel.cv import (
     OFFSET_RIDGE_GRID,
     TREND_RIDGE_GRID,
 )
-from policy_align_ros.learning.regressors.trend_kernel.features import _median_distance
+from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _median_distance,
+    _trend_hessian,
+)
 from policy_align_ros.learning.regressors.trend_kernel.single_index import KNEES
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     CURVATURE_FLOOR,
+    _convex_solve,
+    _convex_solves,
     _nonneg_solve,
     _solve_shared,
 )
@@ -127,6 +132,42 @@ def test_shared_block_solves_equal_the_direct_solves():
     tail = [P[::-1, ::-1].copy() for P in penalties]
     for P, w in zip(tail, _solve_shared(M, b, tail, -q), strict=True):
         np.testing.assert_allclose(w, np.linalg.solve(M + P, b), rtol=1e-9, atol=1e-12)
+
+
+def test_convex_solves_sharing_a_block_equal_the_direct_ones():
+    # Where the trend's curvature must be raised, the re-solve of the other coefficients
+    # reuses the factored kernel block: the same coefficients as a solve of the whole system.
+    rng = np.random.default_rng(8)
+    n, m_c = 2, 25
+    p_t = 2 + n + n * (n + 1) // 2
+    A = rng.standard_normal((300, p_t + m_c))
+    M, b = A.T @ A / 300, rng.standard_normal(p_t + m_c)
+    K = rng.standard_normal((m_c, m_c))
+    penalties = []
+    for t in (1e-6, 1e-2, 1.0):
+        P = np.zeros((p_t + m_c, p_t + m_c))
+        P[:p_t, :p_t] = np.diag(np.full(p_t, t))
+        P[p_t:, p_t:] = 1e-2 * (K @ K.T + np.eye(m_c))
+        penalties.append(P)
+    direct = [_convex_solve(M + P, b, n) for P in penalties]
+    # Random data: some of the trends are saddles and get their curvature raised.
+    assert any(np.linalg.eigvalsh(_trend_hessian(np.linalg.solve(M + P, b), n))[0] <= 0
+               for P in penalties)
+    for w, v in zip(_convex_solves(M, b, penalties, -m_c, n), direct, strict=True):
+        np.testing.assert_allclose(w, v, rtol=1e-8, atol=1e-10)
+    # The trend's block shared instead (stage 2: the kernel's penalty varies): the re-solve
+    # updates each penalty's factored Schur complement (Woodbury).
+    penalties = []
+    for k in (1e-6, 1e-3, 1e-1):
+        P = np.zeros((p_t + m_c, p_t + m_c))
+        P[:p_t, :p_t] = np.diag(np.full(p_t, 1e-6))
+        P[p_t:, p_t:] = k * (K @ K.T + np.eye(m_c))
+        penalties.append(P)
+    direct = [_convex_solve(M + P, b, n) for P in penalties]
+    assert any(np.linalg.eigvalsh(_trend_hessian(np.linalg.solve(M + P, b), n))[0] <= 0
+               for P in penalties)
+    for w, v in zip(_convex_solves(M, b, penalties, p_t, n), direct, strict=True):
+        np.testing.assert_allclose(w, v, rtol=1e-8, atol=1e-10)
 
 
 def test_gradient_matches_finite_differences():
@@ -419,6 +460,26 @@ def test_a_fixed_kernel_penalty_keeps_the_residual():
     assert model.kernel_ridge_ == 1e-2 and math.isfinite(model.length_scale_)
     assert len(model.alpha_) == len(model.centres_) > 0
     assert math.isfinite(model.cv_best_[3])
+
+
+def test_an_unscored_fit_of_one_candidate_is_the_scored_fit():
+    # The fold refits read no CV score: they skip it, and fit the same model.
+    rng = np.random.default_rng(4)
+    value, grad = _quadratic(2, rng)
+    X, g = _descent(grad, rng.normal(scale=1.0, size=(8, 2)), 30, 0.05)
+    fixed = dict(trend_form="quadratic", trend_ridge=1e-2, length_scale=1.0,
+                 kernel_ridge=1e-4, offset_ridge=0.0, n_folds=2, random_state=0)
+    scored = TrendKernelRegression(**fixed).fit(X, value(X), groups=g)
+    unscored = TrendKernelRegression(**fixed).fit(X, value(X), groups=g, scored=False)
+    assert scored.cv_best_ is not None and len(scored.cv_scores_) >= 1
+    assert unscored.cv_best_ is None and not unscored.cv_scores_
+    assert unscored.cv_folds_ == scored.cv_folds_
+    Q = rng.normal(size=(10, 2))
+    np.testing.assert_array_equal(unscored.gradient(Q), scored.gradient(Q))
+    # With a grid left to the CV, the CV runs whatever ``scored`` says.
+    searched = TrendKernelRegression(**{**fixed, "trend_ridge": "cv"}).fit(
+        X, value(X), groups=g, scored=False)
+    assert searched.cv_best_ is not None
 
 
 def test_state_round_trip_survives_json():

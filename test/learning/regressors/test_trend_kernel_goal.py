@@ -1,9 +1,20 @@
 """A goal-centred TrendKernelRegression: stationary exactly at the goal it is given."""
 
+import math
+
 import numpy as np
 import pytest
 
 from policy_align_ros.learning.regressors import TrendKernelRegression, takes_goal
+from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _kernel,
+    _kernel_directions,
+    _kernel_jacobian,
+)
+from policy_align_ros.learning.regressors.trend_kernel.grams import (
+    direction_bases,
+    direction_rows,
+)
 
 
 def _bowl_data(goal, n_demos=8, seed=0):
@@ -102,3 +113,61 @@ def test_motion_makes_the_gradient_follow_bundled_demonstrations():
     with pytest.raises(ValueError, match="direction_weight"):
         TrendKernelRegression(direction_weight=-1.0).fit(X, y, groups=g, goal=goal,
                                                          motion=steps)
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_a_search_near_the_first_pick_scores_fewer_candidates_and_picks_as_the_full_one(seed):
+    # The goal anchor's refit: the unanchored fit's pick locates the residual's scales, so
+    # the anchored CV searches around it; it still picks by held-out score, as the whole
+    # grid's search does on these data (seed 0 moves one length scale from the first pick).
+    goal = np.array([0.4, -0.7])
+    X, y, g = _bowl_data(goal, seed=seed)
+    first = TrendKernelRegression().fit(X, y, groups=g)
+    full = TrendKernelRegression().fit(X, y, groups=g, goal=goal)
+    near = TrendKernelRegression().fit(X, y, groups=g, goal=goal, search_near=first.cv_best_)
+    assert len(near.cv_scores_) < len(full.cv_scores_)
+    assert set(near.cv_scores_) <= set(full.cv_scores_)
+    for key, score in near.cv_scores_.items():  # the same folds score the same candidates
+        assert math.isclose(score, full.cv_scores_[key], rel_tol=1e-6, abs_tol=1e-12)
+    assert repr(near.cv_best_) == repr(full.cv_best_)  # NaN for the trend alone
+    Q = np.random.default_rng(3).normal(size=(20, 2))
+    np.testing.assert_array_equal(near.gradient(Q), full.gradient(Q))
+
+
+def test_a_bad_search_near_is_refused():
+    X, y, g = _bowl_data(np.zeros(2))
+    with pytest.raises(ValueError, match="search_near"):
+        TrendKernelRegression().fit(X, y, groups=g, goal=np.zeros(2), search_near=(1.0, 2.0))
+
+
+@pytest.mark.parametrize("pinned", [False, True])
+def test_kernel_direction_rows_project_the_kernel_gradients(pinned):
+    # The direction rows come from two products per feature instead of its gradient; the
+    # gradient itself matches finite differences of the features.
+    rng = np.random.default_rng(5)
+    Z, C = rng.normal(size=(30, 3)), rng.normal(size=(7, 3))
+    J = _kernel_jacobian(Z, C, 0.8, pinned)
+    h = 1e-6
+    numeric = np.stack([(_kernel(Z + h * e, C, 0.8, pinned) - _kernel(Z - h * e, C, 0.8, pinned))
+                        / (2 * h) for e in np.eye(3)], axis=1)
+    np.testing.assert_allclose(J, numeric, atol=1e-8)
+    B = direction_bases(rng.normal(size=(30, 3)), 10.0)
+    np.testing.assert_allclose(_kernel_directions(B, Z, C, 0.8, pinned),
+                               direction_rows(B, J), rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7])
+def test_direction_bases_penalise_the_slope_across_the_motion_as_the_projector(n):
+    # n - 1 rows per sample whose squares sum to weight |s|^2 (I - s s' / |s|^2); a step of
+    # zero gives zero rows.
+    rng = np.random.default_rng(n)
+    steps = rng.normal(size=(20, n))
+    steps[3] = 0.0
+    steps[4] = -np.abs(steps[4])  # either sign of the first coordinate
+    B = direction_bases(steps, 10.0)
+    assert B.shape == (20, n - 1, n)
+    norm2 = np.sum(steps**2, axis=1)
+    unit = steps / np.sqrt(np.maximum(norm2, 1e-300))[:, None]
+    expected = 10.0 * norm2[:, None, None] * (np.eye(n) - unit[:, :, None] * unit[:, None, :])
+    expected[3] = 0.0
+    np.testing.assert_allclose(np.einsum("mri,mrj->mij", B, B), expected, atol=1e-12)

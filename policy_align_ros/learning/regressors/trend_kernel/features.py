@@ -102,6 +102,31 @@ def _kernel_jacobian(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> 
     return J
 
 
+def _kernel_directions(bases: np.ndarray, Z: np.ndarray, C: np.ndarray, ell: float,
+                       pinned: bool) -> np.ndarray:
+    """Direction rows (m, n - 1, m_c) of the :func:`_kernel` features: ``bases``
+    (m, n - 1, n) applied to their gradients (:func:`_kernel_jacobian`), without forming
+    the gradients.
+
+    The gradient of feature ``j`` at ``z`` is ``a_j(z) c_j - b_j(z) z`` with scalars
+    ``a_j = k_j / l^2 - e k_j(0) / l^2`` and ``b_j = k_j / l^2 - e k_j(0) (z' c_j) / l^4``
+    (the terms with ``e`` for a pinned feature only), so a basis ``B`` maps it to
+    ``a_j B c_j - b_j B z``: two products instead of one per coordinate.
+    """
+    ell2 = ell**2
+    a = _gaussian(Z, C, ell) / ell2
+    b = a
+    if pinned:
+        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
+        at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2) / ell2
+        pinned_terms = envelope[:, None] * at_goal[None, :]
+        a = a - pinned_terms
+        b = b - pinned_terms * (Z @ C.T) / ell2
+    BC = bases @ C.T  # (m, n - 1, m_c)
+    Bz = np.einsum("mij,mj->mi", bases, Z)
+    return BC * a[:, None, :] - Bz[:, :, None] * b[:, None, :]
+
+
 @functools.lru_cache(maxsize=8)
 def _upper(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Indices of the upper triangle of an (n, n) matrix, and the feature scale of each

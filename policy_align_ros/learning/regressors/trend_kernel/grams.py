@@ -12,13 +12,12 @@ import scipy.sparse
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
     _kernel,
-    _kernel_jacobian,
+    _kernel_directions,
 )
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
-    _convex_solve,
+    _convex_solves,
     _gram,
     _nonneg_solve,
-    _solve_shared,
 )
 
 
@@ -42,7 +41,7 @@ class _FoldGrams:
         ``offset_ridge`` (default: none). The folds' solves: by default the first columns
         of ``A`` are :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps
         positive definite; with ``nonneg``, ``A`` is the single-index design ``[1, B]``,
-        whose profile weights :func:`_nonneg_solve` keeps >= 0. ``D`` (m, n, p), optional:
+        whose profile weights :func:`_nonneg_solve` keeps >= 0. ``D`` (m, r, p), optional:
         direction rows of every sample (:func:`direction_rows`), observations of zero
         added to the Grams of their folds only (no offsets, no targets); with ``base``,
         ``base`` holds their first columns' sums already."""
@@ -88,7 +87,7 @@ class _FoldGrams:
 
     def _add_directions(self, D: np.ndarray, rows: list[slice], q: int, has_base: bool
                         ) -> None:
-        """Add each fold's sums of its direction rows ``D`` (m, n, p) to ``G``."""
+        """Add each fold's sums of its direction rows ``D`` (m, r, p) to ``G``."""
         p = D.shape[2]
         for f, r in enumerate(rows):
             new = D[r][:, :, q:].reshape(-1, p - q)
@@ -141,9 +140,7 @@ class _FoldGrams:
         if self.nonneg:
             solved = [_nonneg_solve(M + penalty, r / m, 1) for penalty in penalties]
         else:
-            first = _solve_shared(M, r / m, penalties, shared)
-            solved = [_convex_solve(M + penalty, r / m, self.n, w)
-                      for penalty, w in zip(penalties, first, strict=True)]
+            solved = _convex_solves(M, r / m, penalties, shared, self.n)
         out = []
         for w in solved:
             ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
@@ -197,8 +194,8 @@ class _CVData:
     ``F`` (m, p_t) trend features, ``Z`` (m, n) states, ``u`` (m,) targets, ``C`` (m_c, n)
     kernel centres, ``demo`` (m,) and ``demo_fold`` (K,) as in :class:`_FoldGrams`;
     ``trend`` the fold sums of ``F``, shared by every length scale; ``pinned``: kernel
-    features flat at the goal (:func:`~.features._kernel`); ``projectors`` (m, n, n) and
-    ``trend_directions`` (m, n, p_t): the samples' direction projectors and the trend's
+    features flat at the goal (:func:`~.features._kernel`); ``bases`` (m, n - 1, n) and
+    ``trend_directions`` (m, n - 1, p_t): the samples' direction bases and the trend's
     direction rows (:func:`direction_rows`), or None.
     """
 
@@ -210,7 +207,7 @@ class _CVData:
     demo_fold: np.ndarray
     trend: _FoldGrams
     pinned: bool = False
-    projectors: np.ndarray | None = None
+    bases: np.ndarray | None = None
     trend_directions: np.ndarray | None = None
 
     @property
@@ -223,10 +220,9 @@ class _CVData:
         centres' Gram (m_c, m_c)."""
         A = np.hstack([self.F, _kernel(self.Z, self.C, ell, self.pinned)])
         D = None
-        if self.projectors is not None:
-            D = np.concatenate([self.trend_directions,
-                                direction_rows(self.projectors, _kernel_jacobian(
-                                    self.Z, self.C, ell, self.pinned))], axis=2)
+        if self.bases is not None:
+            D = np.concatenate([self.trend_directions, _kernel_directions(
+                self.bases, self.Z, self.C, ell, self.pinned)], axis=2)
         return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
                            free=self.trend.free, D=D),
                 _gaussian(self.C, self.C, ell))
@@ -243,14 +239,21 @@ def _fold_summary(err: np.ndarray, shape_ss: float) -> list[tuple[float, float]]
     return [(float(e), float(s)) for e, s in zip(err.mean(axis=1), se, strict=True)]
 
 
-def direction_rows(projectors: np.ndarray, J: np.ndarray) -> np.ndarray:
-    """Direction rows (m, n, p): ``projectors`` (m, n, n) applied to the feature gradients
-    ``J`` (m, n, p); a row is zero when the model's gradient follows the sample's motion."""
-    return np.einsum("mij,mjp->mip", projectors, J)
+def direction_rows(bases: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Direction rows (m, n - 1, p): ``bases`` (m, n - 1, n; :func:`direction_bases`) applied
+    to the feature gradients ``J`` (m, n, p); a row is zero when the model's gradient follows
+    the sample's motion."""
+    return np.einsum("mij,mjp->mip", bases, J)
 
 
-def direction_projectors(steps: np.ndarray, weight: float) -> np.ndarray:
-    """Per sample, ``sqrt(weight) |s| (I - s s' / |s|^2)`` (m, n, n) for its step ``s``.
+def direction_bases(steps: np.ndarray, weight: float) -> np.ndarray:
+    """Per sample, ``sqrt(weight) |s|`` times an orthonormal basis (rows) of the directions
+    across its step ``s``: ``R`` (m, n - 1, n) with ``R' R = weight |s|^2 (I - s s' / |s|^2)``.
+
+    A direction row ``R grad f`` then penalises the slope across the motion exactly as the
+    projector ``sqrt(weight) |s| (I - s s' / |s|^2)`` does (the same sum of squares), with
+    ``n - 1`` rows per sample instead of ``n`` (half the rows in 2-D). The basis is the
+    last ``n - 1`` rows of the Householder reflection that maps ``s / |s|`` to an axis.
 
     Parameters
     ----------
@@ -262,11 +265,14 @@ def direction_projectors(steps: np.ndarray, weight: float) -> np.ndarray:
 
     Returns
     -------
-    ndarray (m, n, n)
+    ndarray (m, n - 1, n)
         Zero for a sample that does not move.
     """
     norm = np.linalg.norm(steps, axis=1)
     unit = np.divide(steps, norm[:, None], out=np.zeros_like(steps), where=norm[:, None] > 0)
     n = steps.shape[1]
-    P = np.eye(n)[None] - unit[:, :, None] * unit[:, None, :]
-    return P * (np.sqrt(weight) * norm)[:, None, None]
+    h = unit.copy()
+    h[:, 0] += np.where(unit[:, 0] >= 0.0, 1.0, -1.0)  # |h| >= 1: no cancellation
+    H = np.eye(n)[None] - 2.0 * h[:, :, None] * h[:, None, :] / np.einsum(
+        "ij,ij->i", h, h)[:, None, None]
+    return H[:, 1:, :] * (np.sqrt(weight) * norm)[:, None, None]

@@ -91,13 +91,14 @@ from policy_align_ros.learning.regressors.trend_kernel.cv import (
     TREND_RIDGE_GRID,
     CVSearch,
     _grid,
+    near_grids,
 )
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
     _index_design,
     _kernel,
+    _kernel_directions,
     _kernel_gradient,
-    _kernel_jacobian,
     _median_distance,
     _n_index_weights,
     _n_trend,
@@ -108,7 +109,7 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
     _CVData,
     _FoldGrams,
-    direction_projectors,
+    direction_bases,
     direction_rows,
 )
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
@@ -261,7 +262,8 @@ class TrendKernelRegression(BaseEstimator):
     # -- fit --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
             free_groups: np.ndarray | None = None, goal: np.ndarray | None = None,
-            motion: np.ndarray | None = None) -> TrendKernelRegression:
+            motion: np.ndarray | None = None, search_near: tuple | None = None,
+            scored: bool = True) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
@@ -275,9 +277,15 @@ class TrendKernelRegression(BaseEstimator):
         single-index trend is not a candidate. ``motion`` (m, n), state units: each
         sample's step along its demonstration; with a ``goal``, the fit then also
         penalises the model's gradient across the motion, ``direction_weight`` times
-        (:func:`direction_projectors`): the potential's values along bundled
+        (:func:`direction_bases`): the potential's values along bundled
         demonstrations leave its slope across them free, and a demonstration moves
-        downhill.
+        downhill. ``search_near``: an earlier fit's ``cv_best_`` on nearly the same data (the
+        goal anchor's refit): the CV then searches the residual's length scales and
+        penalties within one grid step of it (:func:`~.cv.near_grids`), and still chooses
+        by held-out score. ``scored=False``:
+        a fit of one candidate (every hyperparameter fixed, the quadratic trend) skips its
+        CV score, which only a caller comparing scores reads (``cv_best_`` is then None);
+        the model fitted is the same.
 
         Returns
         -------
@@ -306,11 +314,16 @@ class TrendKernelRegression(BaseEstimator):
             if motion.shape != X.shape or not np.all(np.isfinite(motion)):
                 raise ValueError(f"motion must be a finite {X.shape} array, got shape "
                                  f"{motion.shape}")
+        if search_near is not None and (len(search_near) != 5
+                                        or search_near[0] not in TREND_FORMS):
+            raise ValueError(f"search_near must be a cv_best_ tuple (trend_form, trend_ridge, "
+                             f"length_scale, kernel_ridge, offset_ridge), got {search_near!r}")
         with single_blas_thread():
-            return self._fit(X, y, groups, free, motion)
+            return self._fit(X, y, groups, free, motion, search_near, scored)
 
     def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray,
-             motion: np.ndarray | None = None) -> TrendKernelRegression:
+             motion: np.ndarray | None = None, search_near: tuple | None = None,
+             scored: bool = True) -> TrendKernelRegression:
         rng = np.random.default_rng(self.random_state)
         idx = thin_trajectories(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
@@ -350,16 +363,18 @@ class TrendKernelRegression(BaseEstimator):
         pinned = self.goal_ is not None
         if pinned:
             F[:, 1:1 + n] = 0.0  # no linear term: the bowl's centre is the goal
-        projectors = DF = None
+        bases = DF = None
         if motion is not None:
-            projectors = direction_projectors(motion / self.scale_, self.direction_weight)
-            DF = direction_rows(projectors, _trend_jacobian(Z, pinned))
+            bases = direction_bases(motion / self.scale_, self.direction_weight)
+            DF = direction_rows(bases, _trend_jacobian(Z, pinned))
 
         d_med = _median_distance(C)
         lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
         t_grid = _grid(self.trend_ridge, TREND_RIDGE_GRID)
         k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
         o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
+        if search_near is not None:
+            lengths, k_grid = near_grids(search_near, lengths, k_grid)
         forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
         if pinned:
             forms = ["quadratic"]  # the single-index trend fits a centre of its own
@@ -370,7 +385,9 @@ class TrendKernelRegression(BaseEstimator):
         self.cv_standard_errors_ = search.standard_errors
         self.cv_dof_ = search.dof
         self.cv_best_ = None
-        if n_folds < 2:
+        single = forms == ["quadratic"] and all(len(g) == 1 for g in (lengths, t_grid, k_grid,
+                                                                        o_grid))
+        if n_folds < 2 or (single and not scored):
             best = search.quadratic_pick
             if forms == ["single_index"]:
                 best = ("single_index", math.nan, mid[0], math.inf, o_grid[-1])
@@ -379,19 +396,19 @@ class TrendKernelRegression(BaseEstimator):
         else:
             cv = _CVData(F, Z, u, C, demo, demo_fold,
                          _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF), pinned,
-                         projectors, DF)
+                         bases, DF)
             best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
         self._quadratic_pick, self._index = search.quadratic_pick, search.index
-        self._final_fit(best, F, Z, u, C, n, demo, free, projectors)
+        self._final_fit(best, F, Z, u, C, n, demo, free, bases)
         return self
 
     def _final_fit(self, best: tuple, F: np.ndarray, Z: np.ndarray, u: np.ndarray,
                    C: np.ndarray, n: int, demo: np.ndarray, free: np.ndarray,
-                   projectors: np.ndarray | None = None) -> None:
+                   bases: np.ndarray | None = None) -> None:
         """Fit the hyperparameters ``best`` on all samples and set the learnt attributes;
-        ``projectors`` (m, n, n): the samples' direction projectors, or None."""
+        ``bases`` (m, n - 1, n): the samples' direction bases, or None."""
         (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
          self.offset_ridge_) = best
         self.index_matrix_, self.index_goal_, self.index_scale_ = (
@@ -416,12 +433,11 @@ class TrendKernelRegression(BaseEstimator):
                               _gaussian(C, C, self.length_scale_))
             self.centres_ = C
         D = None
-        if projectors is not None:
-            J = _trend_jacobian(Z, True)
+        if bases is not None:
+            D = direction_rows(bases, _trend_jacobian(Z, True))
             if not math.isinf(self.kernel_ridge_):
-                J = np.concatenate([J, _kernel_jacobian(Z, C, self.length_scale_, True)],
-                                   axis=2)
-            D = direction_rows(projectors, J)
+                D = np.concatenate([D, _kernel_directions(bases, Z, C, self.length_scale_,
+                                                          True)], axis=2)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
                            free=free, D=D)
         G, r, m = grams.profiled_all(self.offset_ridge_)

@@ -72,45 +72,67 @@ def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = N
         w = _solve(M, b)
     if w is None:
         return None
-    p_t = _n_trend(n)
-    lam, V = np.linalg.eigh(_trend_hessian(w, n))
-    floor = CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0)
-    if lam[0] >= floor:
+    if not _floor_trend(w, n):
         return w
-    S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
-    iu, ju, scale = _upper(n)
-    quad = np.arange(1 + n, p_t)
-    w[2 + n:p_t] = scale * S[iu, ju]
-    rest = np.setdiff1d(np.arange(len(w)), quad)
-    w_rest = _solve(M[np.ix_(rest, rest)], b[rest] - M[np.ix_(rest, quad)] @ w[quad])
+    return _convex_resolve(M, b, w, n)
+
+
+def _convex_resolve(M: np.ndarray, b: np.ndarray, w: np.ndarray, n: int
+                    ) -> np.ndarray | None:
+    """The coefficients of ``M w = b`` other than the quadratic part of ``w`` (fixed), in
+    place; None if the solve fails."""
+    p_t = _n_trend(n)
+    quad = slice(1 + n, p_t)
+    rest = np.concatenate((np.arange(1 + n), np.arange(p_t, len(w))))
+    w_rest = _solve(_without_block(M, 1 + n, p_t), b[rest] - M[rest, quad] @ w[quad])
     if w_rest is None:
         return None
     w[rest] = w_rest
     return w
 
 
-def _solve_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: int
-                  ) -> list[np.ndarray | None]:
+def _floor_trend(w: np.ndarray, n: int) -> bool:
+    """Raise the eigenvalues of the trend's Hessian below ``CURVATURE_FLOOR`` times its
+    largest to that bound, in place in ``w``; whether any was (see :func:`_convex_solve`)."""
+    p_t = _n_trend(n)
+    lam, V = np.linalg.eigh(_trend_hessian(w, n))
+    floor = CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0)
+    if lam[0] >= floor:
+        return False
+    S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
+    iu, ju, scale = _upper(n)
+    w[2 + n:p_t] = scale * S[iu, ju]
+    return True
+
+
+def _without_block(M: np.ndarray, a: int, b: int) -> np.ndarray:
+    """``M`` (p, p) without its rows and columns ``a:b``: four block copies, a tenth of the
+    time of fancy indexing (this runs for most candidates of a search)."""
+    k = len(M) - (b - a)
+    out = np.empty((k, k))
+    out[:a, :a], out[:a, a:] = M[:a, :a], M[:a, b:]
+    out[a:, :a], out[a:, a:] = M[b:, :a], M[b:, b:]
+    return out
+
+
+def _solve_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: int,
+                  factor: tuple | None = None) -> list[np.ndarray | None]:
     """Solve ``(M + P) w = b`` for every ``P`` in ``penalties``.
 
     When the penalties are block diagonal with the same leading ``q x q`` block (the
     trend's, while the kernel's penalty varies; ``q < 0``: the same trailing ``-q x -q``
     block, the kernel's, while the trend's varies), that block is factored once and every
     penalty costs one factorisation of the other block's Schur complement, a fraction of
-    the work of factoring each full system.
+    the work of factoring each full system. ``factor``: :func:`_shared_factor`'s, if known.
     """
     p = M.shape[0]
     if q == 0 or abs(q) >= p or len(penalties) < 2:
         return [_solve(M + P, b) for P in penalties]
-    # Slices, not a permuted copy: copying the large blocks costs more than the solves.
-    s, o = (slice(0, q), slice(q, p)) if q > 0 else (slice(p + q, p), slice(0, p + q))
-    try:
-        L = scipy.linalg.cholesky(M[s, s] + penalties[0][s, s], lower=True,
-                                  check_finite=False)
-    except np.linalg.LinAlgError:
+    if factor is None:
+        factor = _shared_factor(M, b, penalties[0], q)
+    if factor is None:
         return [_solve(M + P, b) for P in penalties]
-    W = scipy.linalg.solve_triangular(L, M[s, o], lower=True, check_finite=False)
-    z = scipy.linalg.solve_triangular(L, b[s], lower=True, check_finite=False)
+    s, o, L, W, z = factor
     schur = M[o, o] - _gram(W)
     rhs = b[o] - W.T @ z
     out: list[np.ndarray | None] = []
@@ -125,6 +147,154 @@ def _solve_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: 
                                              check_finite=False)
         out.append(w)
     return out
+
+
+def _shared_factor(M: np.ndarray, b: np.ndarray, P: np.ndarray, q: int) -> tuple | None:
+    """The shared block of :func:`_solve_shared` factored: its slice ``s``, the other
+    block's ``o``, the Cholesky factor ``L`` of ``(M + P)[s, s]``, ``W = L^-1 M[s, o]`` and
+    ``z = L^-1 b[s]``; None if the block is not positive definite."""
+    p = M.shape[0]
+    # Slices, not a permuted copy: copying the large blocks costs more than the solves.
+    s, o = (slice(0, q), slice(q, p)) if q > 0 else (slice(p + q, p), slice(0, p + q))
+    try:
+        L = scipy.linalg.cholesky(M[s, s] + P[s, s], lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    W = scipy.linalg.solve_triangular(L, M[s, o], lower=True, check_finite=False)
+    z = scipy.linalg.solve_triangular(L, b[s], lower=True, check_finite=False)
+    return s, o, L, W, z
+
+
+def _convex_solves(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: int,
+                   n: int) -> list[np.ndarray | None]:
+    """:func:`_convex_solve` of ``(M + P) w = b`` for every ``P`` in ``penalties``, solved
+    by :func:`_solve_shared` with its shared block ``q``.
+
+    A trend that needs its curvature raised keeps the factorisations for the re-solve of
+    the other coefficients. When the shared block is the kernel's (``q < 0``, the trend's
+    penalty varies), only the trend's constant and linear part is eliminated again, at the
+    cost of two triangular solves rather than a factorisation of the whole system; when it
+    is the trend's, see :func:`_convex_solves_trend_shared`.
+    """
+    p = M.shape[0]
+    if q == _n_trend(n) < p and len(penalties) >= 2:
+        return _convex_solves_trend_shared(M, b, penalties, n)
+    factor = None
+    if q < 0 and p + q == _n_trend(n) and len(penalties) >= 2:
+        factor = _shared_factor(M, b, penalties[0], q)
+    first = _solve_shared(M, b, penalties, q, factor)
+    if factor is None:
+        return [_convex_solve(M + P, b, n, w) for P, w in zip(penalties, first, strict=True)]
+    out = []
+    for P, w in zip(penalties, first, strict=True):
+        if w is None or not _floor_trend(w, n):
+            out.append(w)
+            continue
+        out.append(_resolve_with_factor(M + P, b, w, n, factor))
+    return out
+
+
+def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray],
+                                n: int) -> list[np.ndarray | None]:
+    """:func:`_convex_solves` with the trend's block shared (the kernel's penalty varies).
+
+    The solves are :func:`_solve_shared`'s; the factor of each penalty's Schur complement
+    is kept, and a trend whose curvature is raised re-solves the other coefficients on it:
+    eliminating the constant and linear part alone rather than the whole trend changes that
+    Schur complement by a term of rank ``n (n + 1) / 2 + 1`` (the quadratic part's), which
+    the Woodbury identity absorbs with a few triangular solves.
+    """
+    p, p_t = M.shape[0], _n_trend(n)
+    factor = _shared_factor(M, b, penalties[0], p_t)
+    if factor is None:
+        return [_convex_solve(M + P, b, n, w)
+                for P, w in zip(penalties, _solve_shared(M, b, penalties, p_t), strict=True)]
+    s, o, L, W, z = factor
+    schur = M[o, o] - _gram(W)
+    rhs = b[o] - W.T @ z
+    update = None
+    out: list[np.ndarray | None] = []
+    for P in penalties:
+        try:
+            S = scipy.linalg.cho_factor(schur + P[o, o], check_finite=False)
+        except np.linalg.LinAlgError:
+            w = _solve_shared(M, b, [P, P], p_t, factor)[0]  # the general fallbacks
+            out.append(_convex_solve(M + P, b, n, w))
+            continue
+        w = np.empty(p)
+        w[o] = scipy.linalg.cho_solve(S, rhs, check_finite=False)
+        w[s] = scipy.linalg.solve_triangular(L, z - W @ w[o], lower=True, trans="T",
+                                             check_finite=False)
+        if not _floor_trend(w, n):
+            out.append(w)
+            continue
+        if update is None:
+            update = _quadratic_update(M + penalties[0], n)
+        out.append(_resolve_woodbury(M + P, b, w, n, S, update))
+    return out
+
+
+def _quadratic_update(K: np.ndarray, n: int) -> tuple | None:
+    """For the trend block of ``K`` split into ``r`` (constant and linear) and ``q`` (the
+    quadratic part): the factor of ``K_rr``, ``S_q = K_qq - K_qr K_rr^-1 K_rq`` and
+    ``X = K_qo - K_qr K_rr^-1 K_ro`` (``o`` the kernel's columns); None if ``K_rr`` is not
+    positive definite."""
+    p_t = _n_trend(n)
+    r, q, o = slice(0, 1 + n), slice(1 + n, p_t), slice(p_t, len(K))
+    try:
+        F = scipy.linalg.cho_factor(K[r, r], check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    Y = scipy.linalg.cho_solve(F, np.hstack([K[r, q], K[r, o]]), check_finite=False)
+    m_q = p_t - 1 - n
+    S_q = K[q, q] - K[q, r] @ Y[:, :m_q]
+    X = K[q, o] - K[q, r] @ Y[:, m_q:]
+    return F, S_q, X
+
+
+def _resolve_woodbury(K: np.ndarray, b: np.ndarray, w: np.ndarray, n: int, S: tuple,
+                      update: tuple | None) -> np.ndarray | None:
+    """The constant, linear and kernel coefficients of ``K w = b`` given the quadratic part
+    of ``w`` (fixed by :func:`_floor_trend`): the kernel's from the Schur complement of the
+    whole trend (factored in ``S``) updated by the quadratic part's term (``update``,
+    :func:`_quadratic_update`), then the constant and linear part."""
+    if update is None:
+        return _convex_resolve(K, b, w, n)
+    F, S_q, X = update
+    p_t = _n_trend(n)
+    r, q, o = slice(0, 1 + n), slice(1 + n, p_t), slice(p_t, len(K))
+    c = b[r] - K[r, q] @ w[q]
+    g = b[o] - K[o, q] @ w[q] - K[o, r] @ scipy.linalg.cho_solve(F, c, check_finite=False)
+    Sg = scipy.linalg.cho_solve(S, g, check_finite=False)
+    SX = scipy.linalg.cho_solve(S, X.T, check_finite=False)
+    core = _solve(S_q + X @ SX, X @ Sg)
+    if core is None:
+        return _convex_resolve(K, b, w, n)
+    w[o] = Sg - SX @ core
+    w[r] = scipy.linalg.cho_solve(F, c - K[r, o] @ w[o], check_finite=False)
+    return w
+
+
+def _resolve_with_factor(K: np.ndarray, b: np.ndarray, w: np.ndarray, n: int, factor: tuple
+                         ) -> np.ndarray | None:
+    """The constant, linear and kernel coefficients of ``K w = b`` given the quadratic part
+    of ``w`` (fixed by :func:`_floor_trend`), with the kernel block factored in ``factor``
+    (:func:`_shared_factor` with ``q < 0``): block elimination of the constant and linear
+    part, whose ``1 + n`` columns of ``W`` it reuses."""
+    s, _, L, W, _ = factor
+    p_t = _n_trend(n)
+    r, quad = slice(0, 1 + n), slice(1 + n, p_t)
+    c = b[r] - K[r, quad] @ w[quad]
+    d = scipy.linalg.solve_triangular(L, b[s] - K[s, quad] @ w[quad], lower=True,
+                                      check_finite=False)
+    Wr = W[:, r]
+    x = _solve(K[r, r] - Wr.T @ Wr, c - Wr.T @ d)
+    if x is None:
+        return None
+    w[r] = x
+    w[s] = scipy.linalg.solve_triangular(L, d - Wr @ x, lower=True, trans="T",
+                                         check_finite=False)
+    return w
 
 
 def _nonneg_solve(M: np.ndarray, b: np.ndarray, free: int) -> np.ndarray | None:
