@@ -292,11 +292,13 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
         idx = np.flatnonzero(active)
         if not idx.size:
             break
-        move = alpha[idx, None] * g[idx]
+        step_size = alpha[idx, None]
         if math.isfinite(max_step):
-            length = np.linalg.norm(move, axis=1, keepdims=True)
-            move *= np.minimum(1.0, max_step / np.maximum(length, 1e-300))
-        trial = np.clip(X[idx] - move, lo, hi)
+            # On the gradient's norm, not the step's: a Barzilai-Borwein step can overflow.
+            norm = np.linalg.norm(g[idx], axis=1, keepdims=True)
+            step_size = np.where(step_size * norm > max_step,
+                                 max_step / np.maximum(norm, 1e-300), step_size)
+        trial = np.clip(X[idx] - step_size * g[idx], lo, hi)
         step = trial - X[idx]
         f_trial = potential(trial)
         ok = f_trial <= f[idx] + 1e-4 * np.einsum("ij,ij->i", g[idx], step)
