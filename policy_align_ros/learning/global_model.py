@@ -18,7 +18,6 @@ from policy_align_ros.learning.regressors import (
     TrendKernelRegression,
     takes_goal,
     takes_motion,
-    takes_search_near,
 )
 from policy_align_ros.learning.trajectory import Trajectory
 
@@ -27,7 +26,7 @@ __all__ = ["cv_error", "cv_score", "fixed_copy", "level_free", "training_set"]
 
 def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndarray,
                  potentials: list[np.ndarray], free: np.ndarray, template,
-                 goal: np.ndarray | None = None, near=None
+                 goal: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The global model's training samples.
 
@@ -45,14 +44,11 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
         Decides which keyword arguments the fit takes (``goal``, ``motion``).
     goal : ndarray, shape (n,), optional
         The demonstrated goal of an anchored fit.
-    near : fitted regressor, optional
-        The unanchored fit of the same samples: an anchored fit's CV searches around its
-        pick (``search_near``, where the template takes it), rather than the whole grid.
 
     Returns
     -------
     X (m, n), y (m,), groups (m,), and the fit's keyword arguments (``free_groups``,
-    ``goal``, the samples' ``motion`` and ``search_near`` where the template takes them).
+    ``goal`` and the samples' ``motion`` where the template takes them).
     """
     X = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
@@ -64,11 +60,6 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
         # Timing-free evidence beside where the demonstrations end: which way they move.
         extra["motion"] = np.concatenate([motion_steps(trajs[k].positions)[masks[k]]
                                           for k in keep])
-    pick = getattr(near, "cv_best_", None)
-    if "goal" in extra and pick is not None and takes_search_near(template):
-        # Anchoring moves the minimum, not the scales of the potential: the first fit's
-        # search has located them (docs/design/goal_anchor.md, "Cost").
-        extra["search_near"] = pick
     return X, y, groups, extra
 
 

@@ -327,9 +327,8 @@ class PolicyAlign(BaseEstimator):
         anchor = anchor_decision(self.regressor_, trajs, takes_goal(template),
                                  cv_score(self.regressor_))
         if anchor["anchored"]:
-            # Its CV searches around the unanchored fit's pick (global_model.training_set).
             scores, n_fitted = self._fit_global(est, template, free, aligned,
-                                                np.asarray(anchor["goal"]), self.regressor_)
+                                                np.asarray(anchor["goal"]))
         timings["regression"] = time.perf_counter() - t2
         self._log(f"global model fitted on {n_fitted} samples with the {self.integration_} "
                   f"potentials ({timings['regression']:.2f} s)")
@@ -466,17 +465,15 @@ class PolicyAlign(BaseEstimator):
         return scores
 
     def _fit_global(self, est: _Estimates, template, free: np.ndarray,
-                    aligned: dict[str, tuple], goal: np.ndarray | None = None,
-                    near=None) -> tuple[dict[str, float | None], int]:
+                    aligned: dict[str, tuple], goal: np.ndarray | None = None
+                    ) -> tuple[dict[str, float | None], int]:
         """Stage 4: a copy of ``template`` fitted on every rule's aligned potentials; the
         rule whose fit has the better CV score is kept (``integration_``, ``regressor_``,
-        ``offsets_``, ``aligned_potentials_``); ``near``: the unanchored fit an anchored
-        fit's CV searches around. Returns the scores and the samples fitted."""
+        ``offsets_``, ``aligned_potentials_``). Returns the scores and the samples fitted."""
         fits, scores = {}, {}
         for rule in est.rules:
             Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
-                                                aligned[rule][1], free, template, goal,
-                                                near)
+                                                aligned[rule][1], free, template, goal)
             fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr, **extra)
             scores[rule] = cv_score(fits[rule])
             if len(est.rules) > 1 and scores[rule] is None:

@@ -61,20 +61,6 @@ def test_training_set_stacks_the_training_samples_of_the_kept_trajectories():
     assert extra == {}
 
 
-def test_an_anchored_training_set_searches_near_the_unanchored_pick():
-    X, y, g = _bowl_data()
-    first = TrendKernelRegression(n_folds=3).fit(X, y, groups=g)
-    trajs = [Trajectory(positions=X[g == k]) for k in range(6)]
-    masks = [np.ones(40, dtype=bool)] * 6
-    potentials = [y[g == k] for k in range(6)]
-    args = (trajs, masks, np.arange(6), potentials, np.zeros(0, dtype=int),
-            TrendKernelRegression())
-    extra = training_set(*args, goal=np.zeros(2), near=first)[3]
-    assert extra["search_near"] == first.cv_best_ and "motion" in extra
-    # Without a goal there is no anchored refit, and no pick to search near.
-    assert "search_near" not in training_set(*args, near=first)[3]
-
-
 def test_level_free_moves_free_trajectories_to_the_model():
     class Flat:
         def predict(self, X):

@@ -8,7 +8,7 @@ import policy_align_ros.learning.policy_align as pa_module
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory, metrics
-from policy_align_ros.learning.regressors import LocalLinearRegression, TrendKernelRegression
+from policy_align_ros.learning.regressors import LocalLinearRegression
 from policy_align_ros.sim.demonstrations import rollout
 from policy_align_ros.sim.experts import QuadraticPotential
 
@@ -513,24 +513,3 @@ def test_learnt_minimum_is_the_demonstrated_goal_and_does_not_move_when_retimed(
     retimed = [Trajectory(positions=warped, times=d0.times * 1.7), *demos[1:]]
     again = _descend(PolicyAlign().fit(retimed), demos[0].positions[0])
     assert np.linalg.norm(again - first) < 0.01 * extent
-
-
-class _RecordingRegression(TrendKernelRegression):
-    """Keeps the arguments of its last fit."""
-
-    def fit(self, X, y, groups=None, free_groups=None, goal=None, motion=None,
-            search_near=None, scored=True):
-        self.recorded_ = (X, y, groups, {"free_groups": free_groups, "goal": goal,
-                                         "motion": motion}, search_near)
-        return super().fit(X, y, groups, free_groups, goal, motion, search_near, scored)
-
-
-def test_the_anchored_refit_searches_near_the_first_pick_and_picks_as_the_full_search():
-    demos = _human_timed_demos(np.array([0.5, -1.0]))
-    model = PolicyAlign(regressor=_RecordingRegression()).fit(demos)
-    assert model.fit_summary_["anchor"]["anchored"]
-    X, y, groups, kwargs, near = model.regressor_.recorded_
-    assert near is not None and kwargs["goal"] is not None
-    full = TrendKernelRegression().fit(X, y, groups=groups, **kwargs)
-    assert len(model.regressor_.cv_scores_) < len(full.cv_scores_)
-    assert repr(model.regressor_.cv_best_) == repr(full.cv_best_)

@@ -15,9 +15,7 @@ PolicyAlign fitted with any registered regressor saves and loads.
 
 A regressor may also take ``fit(..., free_groups=ids)``: demonstrations whose offsets it
 re-fits freely (:func:`~.registry.takes_free_groups`); PolicyAlign then gives it the
-trajectories the alignment could not level. One that takes ``search_near``
-(:func:`~.registry.takes_search_near`) gets the unanchored fit's CV pick in the goal
-anchor's refit, to search around it (``docs/design/goal_anchor.md``).
+trajectories the alignment could not level.
 """
 
 from policy_align_ros.learning.base import NotFittedError
@@ -31,7 +29,6 @@ from policy_align_ros.learning.regressors.registry import (
     takes_goal,
     takes_motion,
     takes_scored,
-    takes_search_near,
 )
 from policy_align_ros.learning.regressors.trend_kernel import TrendKernelRegression
 
@@ -47,7 +44,6 @@ __all__ = [
     "takes_goal",
     "takes_motion",
     "takes_scored",
-    "takes_search_near",
 ]
 
 # The baseline lives outside this package (it imports nothing from it), so it is

@@ -10,7 +10,7 @@ from __future__ import annotations
 import inspect
 
 __all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups", "takes_goal",
-           "takes_motion", "takes_scored", "takes_search_near"]
+           "takes_motion", "takes_scored"]
 
 REGISTRY: dict[str, type] = {}
 
@@ -52,12 +52,6 @@ def takes_motion(regressor) -> bool:
 def takes_scored(regressor) -> bool:
     """Whether ``regressor.fit`` accepts ``scored`` (False: skip a CV score nobody reads)."""
     return _takes(regressor, "scored")
-
-
-def takes_search_near(regressor) -> bool:
-    """Whether ``regressor.fit`` accepts ``search_near`` (an earlier fit's CV pick to search
-    around)."""
-    return _takes(regressor, "search_near")
 
 
 def _takes(regressor, argument: str) -> bool:
