@@ -80,6 +80,7 @@ from policy_align_ros.learning.potential import (
 from policy_align_ros.learning.regressors import (
     Regressor,
     TrendKernelRegression,
+    takes_final,
     takes_free_groups,
     takes_goal,
 )
@@ -453,6 +454,8 @@ class PolicyAlign(BaseEstimator):
             potentials = self._offsets(lagged, table)[rule][1]
             Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
                                                 potentials, free, fixed)
+            if takes_final(fixed):
+                extra["final"] = False  # the scores are all a lag is chosen by
             fit = copy.deepcopy(fixed).fit(Xtr, ytr, groups=gtr, **extra)
             return cv_score(fit), cv_error(fit)
 

@@ -25,6 +25,7 @@ from policy_align_ros.learning.regressors.registry import (
     REGISTRY,
     register,
     regressor_class,
+    takes_final,
     takes_free_groups,
     takes_goal,
     takes_motion,
@@ -43,6 +44,7 @@ __all__ = [
     "takes_free_groups",
     "takes_goal",
     "takes_motion",
+    "takes_final",
     "takes_scored",
 ]
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import inspect
 
 __all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups", "takes_goal",
-           "takes_motion", "takes_scored"]
+           "takes_final", "takes_motion", "takes_scored"]
 
 REGISTRY: dict[str, type] = {}
 
@@ -52,6 +52,12 @@ def takes_motion(regressor) -> bool:
 def takes_scored(regressor) -> bool:
     """Whether ``regressor.fit`` accepts ``scored`` (False: skip a CV score nobody reads)."""
     return _takes(regressor, "scored")
+
+
+def takes_final(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``final`` (False: the CV's scores without the
+    model fitted on all data)."""
+    return _takes(regressor, "final")
 
 
 def _takes(regressor, argument: str) -> bool:

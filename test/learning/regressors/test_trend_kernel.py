@@ -482,6 +482,22 @@ def test_an_unscored_fit_of_one_candidate_is_the_scored_fit():
     assert searched.cv_best_ is not None
 
 
+def test_a_fit_without_its_final_model_has_the_full_fits_scores_and_does_not_predict():
+    # The tracking lag's choice reads CV scores only.
+    rng = np.random.default_rng(5)
+    value, grad = _quadratic(2, rng)
+    X, g = _descent(grad, rng.normal(scale=1.0, size=(8, 2)), 30, 0.05)
+    y = value(X) + 0.01 * rng.normal(size=len(X))
+    params = dict(trend_form="quadratic", random_state=0)
+    full = TrendKernelRegression(**params).fit(X, y, groups=g)
+    scores_only = TrendKernelRegression(**params).fit(X, y, groups=g, final=False)
+    assert repr(scores_only.cv_best_) == repr(full.cv_best_) and len(full.cv_scores_) > 1
+    assert repr(scores_only.cv_scores_) == repr(full.cv_scores_)
+    assert repr(scores_only.cv_standard_errors_) == repr(full.cv_standard_errors_)
+    with pytest.raises(NotFittedError):
+        scores_only.predict(X[:3])
+
+
 def test_state_round_trip_survives_json():
     rng = np.random.default_rng(4)
     value, grad = _quadratic(3, rng)

@@ -263,7 +263,7 @@ class TrendKernelRegression(BaseEstimator):
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
             free_groups: np.ndarray | None = None, goal: np.ndarray | None = None,
             motion: np.ndarray | None = None, search_near: tuple | None = None,
-            scored: bool = True) -> TrendKernelRegression:
+            scored: bool = True, final: bool = True) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
@@ -279,13 +279,17 @@ class TrendKernelRegression(BaseEstimator):
         penalises the model's gradient across the motion, ``direction_weight`` times
         (:func:`direction_bases`): the potential's values along bundled
         demonstrations leave its slope across them free, and a demonstration moves
-        downhill. ``search_near``: an earlier fit's ``cv_best_`` on nearly the same data (the
-        goal anchor's refit): the CV then searches the residual's length scales and
-        penalties within one grid step of it (:func:`~.cv.near_grids`), and still chooses
-        by held-out score. ``scored=False``:
+        downhill. ``search_near``: an earlier fit's ``cv_best_`` on nearly the same data:
+        the CV then searches the residual's length scales and penalties within one grid
+        step of it (:func:`~.cv.near_grids`), and still chooses by held-out score (faster;
+        it can miss the whole grid's pick, ``docs/design/goal_anchor.md``). ``scored=False``:
         a fit of one candidate (every hyperparameter fixed, the quadratic trend) skips its
         CV score, which only a caller comparing scores reads (``cv_best_`` is then None);
-        the model fitted is the same.
+        the model fitted is the same. ``final=False``: the reverse, the CV's scores and pick
+        (``cv_scores_``, ``cv_standard_errors_``, ``cv_best_``) without the model fitted on
+        all data, for a caller that compares scores only (the tracking lag's choice);
+        ``predict`` then raises ``NotFittedError``. A single-index pick, whose final fit
+        may fall back to the quadratic, is fitted anyway.
 
         Returns
         -------
@@ -319,11 +323,11 @@ class TrendKernelRegression(BaseEstimator):
             raise ValueError(f"search_near must be a cv_best_ tuple (trend_form, trend_ridge, "
                              f"length_scale, kernel_ridge, offset_ridge), got {search_near!r}")
         with single_blas_thread():
-            return self._fit(X, y, groups, free, motion, search_near, scored)
+            return self._fit(X, y, groups, free, motion, search_near, scored, final)
 
     def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray,
              motion: np.ndarray | None = None, search_near: tuple | None = None,
-             scored: bool = True) -> TrendKernelRegression:
+             scored: bool = True, final: bool = True) -> TrendKernelRegression:
         rng = np.random.default_rng(self.random_state)
         idx = thin_trajectories(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
@@ -401,7 +405,8 @@ class TrendKernelRegression(BaseEstimator):
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
         self._quadratic_pick, self._index = search.quadratic_pick, search.index
-        self._final_fit(best, F, Z, u, C, n, demo, free, bases)
+        if final or best[0] != "quadratic" or self.cv_best_ is None:
+            self._final_fit(best, F, Z, u, C, n, demo, free, bases)
         return self
 
     def _final_fit(self, best: tuple, F: np.ndarray, Z: np.ndarray, u: np.ndarray,
