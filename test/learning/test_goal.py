@@ -71,27 +71,6 @@ def test_minimum_of_a_known_quadratic_is_found_where_it_is():
     assert minima.values[0] == pytest.approx(0.0, abs=1e-8)
 
 
-def test_two_wells_give_two_minima_and_a_falling_plane_gives_none():
-    wells = np.array([[-1.0, 0.0], [1.0, 0.0]])
-
-    def potential(X):
-        d2 = np.sum((X[:, None, :] - wells[None]) ** 2, axis=2)
-        return 0.05 * np.sum(X**2, axis=1) - np.exp(-d2 / 0.2).sum(axis=1)
-
-    def gradient(X):
-        D = X[:, None, :] - wells[None]
-        e = np.exp(-np.sum(D**2, axis=2) / 0.2)
-        return 0.1 * X + np.einsum("mk,mkn->mn", e, D) / 0.1
-
-    starts = np.array([[-1.2, 0.3], [-0.8, -0.2], [1.1, 0.2], [0.9, -0.3]])
-    minima = learnt_minima(potential, gradient, starts, scale=2.0)
-    assert len(minima.points) == 2
-    np.testing.assert_allclose(np.sort(minima.points[:, 0]), [-1.0, 1.0], atol=0.02)
-    plane = learnt_minima(lambda X: X[:, 0], lambda X: np.tile([1.0, 0.0], (len(X), 1)),
-                          starts, scale=2.0)
-    assert len(plane.points) == 0 and plane.n_escaped == len(starts)
-
-
 def _two_wells():
     wells = np.array([[-1.0, 0.0], [1.0, 0.0]])
 
@@ -105,6 +84,17 @@ def _two_wells():
         return 0.1 * X + np.einsum("mk,mkn->mn", e, D) / 0.1
 
     return potential, gradient
+
+
+def test_two_wells_give_two_minima_and_a_falling_plane_gives_none():
+    potential, gradient = _two_wells()
+    starts = np.array([[-1.2, 0.3], [-0.8, -0.2], [1.1, 0.2], [0.9, -0.3]])
+    minima = learnt_minima(potential, gradient, starts, scale=2.0)
+    assert len(minima.points) == 2
+    np.testing.assert_allclose(np.sort(minima.points[:, 0]), [-1.0, 1.0], atol=0.02)
+    plane = learnt_minima(lambda X: X[:, 0], lambda X: np.tile([1.0, 0.0], (len(X), 1)),
+                          starts, scale=2.0)
+    assert len(plane.points) == 0 and plane.n_escaped == len(starts)
 
 
 def test_a_start_whose_well_no_end_reaches_is_counted():
