@@ -443,7 +443,8 @@ def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Fi
     there stops at a minimum the demonstrations never stopped at (a path that loops or
     crosses itself, which no potential's gradient follows), or never stops. Several
     goals are fine (each end leads to its own minimum), and so is a rest under a
-    constraint (both descents are free).
+    constraint (both descents are free). Where most demonstrations end together
+    (:func:`demonstrated_goal`), that place is the only one a start may lead to.
 
     Parameters
     ----------
@@ -471,6 +472,11 @@ def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Fi
     K = len(trajs)
     start, end = out[:K], out[K:]
     reached = end[inside[K:]]
+    goal = demonstrated_goal(trajs)
+    if goal is not None:
+        # Most demonstrations end together: runs should stop there, not wherever an end
+        # next to it slides (the goal anchor makes the goal stationary, not a minimum).
+        reached = goal[None]
     if not len(reached):
         return {"n_starts_elsewhere": 0, "n_starts_escaped": 0,
                 "starts_elsewhere_fraction": None}

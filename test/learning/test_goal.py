@@ -112,6 +112,18 @@ def test_a_start_whose_well_no_end_reaches_is_counted():
                                 speed=1.0)["n_starts_elsewhere"] == 0
 
 
+def test_where_demonstrations_end_together_runs_must_stop_there():
+    # A bowl whose minimum is not where all the demonstrations end: every end slides to
+    # the bowl's minimum, and so does every start, but none stops at the goal.
+    potential, gradient = _bowl(np.eye(2), np.array([1.0, 0.0]))
+    t = np.linspace(0.0, 1.0, 40)
+    demos = [Trajectory(np.outer(1.0 - t, start), times=t)
+             for start in ([-1.0, 1.0], [-1.0, -1.0], [-1.5, 0.2])]
+    report = starts_elsewhere(demos, potential, gradient, extent=2.0, speed=1.0)
+    assert report["n_starts_elsewhere"] == 3
+    assert report["starts_elsewhere_fraction"] == pytest.approx(0.5, abs=1e-3)
+
+
 def _flow(A, c, x0, steps=120, dt=0.05, wall=None):
     """Euler steps of xdot = -A (x - c); ``wall`` (x1 <= wall) blocks the first coordinate."""
     x, X = np.array(x0, dtype=float), []
