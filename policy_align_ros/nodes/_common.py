@@ -6,6 +6,7 @@ Only this subpackage, ``client/`` and ``cli.py`` may import rclpy and ROS messag
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -307,6 +308,10 @@ def run_node(
         watchdog = threading.Timer(TEARDOWN_TIMEOUT_S, _exit_stuck, (code,))
         watchdog.daemon = True
         watchdog.start()
+        # The timer is a Python thread: a teardown stuck in C++ that holds the GIL (Fast
+        # DDS spinning in DomainParticipant::set_listener) starves it. faulthandler's
+        # watchdog is a C thread: it dumps where every thread is and exits with status 1.
+        faulthandler.dump_traceback_later(2 * TEARDOWN_TIMEOUT_S, exit=True)
         # The executor goes before the node and the context: left to the garbage
         # collector, it destroys its signal guard condition after the context shut down
         # (or after the collector finalised the condition itself), printing "Exception
@@ -317,6 +322,7 @@ def run_node(
             node.destroy_node()
         rclpy.try_shutdown()
         watchdog.cancel()
+        faulthandler.cancel_dump_traceback_later()
     return code
 
 

@@ -69,6 +69,19 @@ def test_a_teardown_that_never_returns_still_ends_the_process():
     assert done.returncode == 0, done.stderr  # ended by the watchdog, with the loop's code
 
 
+# The same in C++ that holds the GIL (Fast DDS spinning in DomainParticipant::set_listener
+# while it destroys a participant), so no Python thread runs: here a regular expression
+# that backtracks forever. The C watchdog ends the process (status 1, tracebacks on stderr).
+_STUCK_HOLDING_THE_GIL = _STUCK_IN_TEARDOWN.replace(
+    "threading.Event().wait()", "__import__('re').match(r'(a+)+$', 'a' * 64 + 'b')")
+
+
+def test_a_teardown_stuck_holding_the_gil_still_ends_the_process():
+    done = subprocess.run([sys.executable, "-c", _STUCK_HOLDING_THE_GIL], env=ENV,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1, done.stderr
+
+
 # A node that stops itself: run_node's normal way out. Then the garbage collector's worst
 # order is forced: it may finalise an executor's signal guard condition before the executor
 # itself (both unreachable together), and an executor that still holds it then prints
