@@ -1,6 +1,5 @@
 """A goal-centred TrendKernelRegression: stationary exactly at the goal it is given."""
 
-import math
 
 import numpy as np
 import pytest
@@ -113,31 +112,6 @@ def test_motion_makes_the_gradient_follow_bundled_demonstrations():
     with pytest.raises(ValueError, match="direction_weight"):
         TrendKernelRegression(direction_weight=-1.0).fit(X, y, groups=g, goal=goal,
                                                          motion=steps)
-
-
-@pytest.mark.parametrize("seed", [0, 2])
-def test_a_search_near_the_first_pick_scores_fewer_candidates_and_picks_as_the_full_one(seed):
-    # The goal anchor's refit: the unanchored fit's pick locates the residual's scales, so
-    # the anchored CV searches around it; it still picks by held-out score, as the whole
-    # grid's search does on these data (seed 0 moves one length scale from the first pick).
-    goal = np.array([0.4, -0.7])
-    X, y, g = _bowl_data(goal, seed=seed)
-    first = TrendKernelRegression().fit(X, y, groups=g)
-    full = TrendKernelRegression().fit(X, y, groups=g, goal=goal)
-    near = TrendKernelRegression().fit(X, y, groups=g, goal=goal, search_near=first.cv_best_)
-    assert len(near.cv_scores_) < len(full.cv_scores_)
-    assert set(near.cv_scores_) <= set(full.cv_scores_)
-    for key, score in near.cv_scores_.items():  # the same folds score the same candidates
-        assert math.isclose(score, full.cv_scores_[key], rel_tol=1e-6, abs_tol=1e-12)
-    assert repr(near.cv_best_) == repr(full.cv_best_)  # NaN for the trend alone
-    Q = np.random.default_rng(3).normal(size=(20, 2))
-    np.testing.assert_array_equal(near.gradient(Q), full.gradient(Q))
-
-
-def test_a_bad_search_near_is_refused():
-    X, y, g = _bowl_data(np.zeros(2))
-    with pytest.raises(ValueError, match="search_near"):
-        TrendKernelRegression().fit(X, y, groups=g, goal=np.zeros(2), search_near=(1.0, 2.0))
 
 
 @pytest.mark.parametrize("pinned", [False, True])

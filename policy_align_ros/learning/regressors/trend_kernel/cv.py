@@ -44,7 +44,6 @@ __all__ = [
     "OFFSET_RIDGE_GRID",
     "TREND_RIDGE_GRID",
     "CVSearch",
-    "near_grids",
 ]
 
 #: Candidate trend penalties (on standardised data); ``inf`` is the isotropic bowl.
@@ -317,54 +316,6 @@ def _simpler_trend(key: tuple) -> tuple:
 
 def _grid(value: str | float, grid) -> list[float]:
     return list(grid) if value == "cv" else [float(value)]
-
-
-def near_grids(pick: tuple, lengths: list[float], k_grid: list[float]
-               ) -> tuple[list[float], list[float]]:
-    """The residual's grids within one step of an earlier pick.
-
-    A refit of nearly the same data (the goal anchor's, ``docs/design/goal_anchor.md``)
-    searches the residual's length scales and penalties there instead of over the whole
-    grids, which is what a search costs; the trend's and the offsets' penalties keep their
-    whole grids (the trend alone scores them cheaply). Its CV still chooses among the
-    candidates by held-out score.
-
-    Parameters
-    ----------
-    pick : tuple
-        A ``cv_best_``: ``(trend_form, trend_ridge, length_scale, kernel_ridge,
-        offset_ridge)``, the length scale in standardised units (NaN for the trend alone).
-    lengths, k_grid : list of float
-        The full grids of length scales and kernel penalties (ascending).
-
-    Returns
-    -------
-    tuple of list
-        The length scale nearest the pick's (in log scale) and its neighbours in
-        ``lengths``, all of them for a pick without a residual; the kernel penalty's and
-        its neighbours in ``k_grid``, with ``inf`` (the trend alone) whenever the grid has
-        it. A pick of another trend form keeps both grids whole.
-    """
-    _, _, length, kernel, _ = pick
-    if pick[0] != "quadratic":
-        return list(lengths), list(k_grid)
-    if math.isfinite(length) and length > 0:
-        lengths = _near([math.log(v) for v in lengths], math.log(length), lengths)
-    ks = _near(k_grid, kernel, k_grid)
-    if math.inf in k_grid and math.inf not in ks:
-        ks.append(math.inf)
-    return list(lengths), ks
-
-
-def _near(points: list[float], value: float, grid: list[float]) -> list[float]:
-    """The entries of ``grid`` at the point of ``points`` nearest ``value`` and its two
-    neighbours (an infinite value is nearest an infinite point, else the last)."""
-    if math.isinf(value):
-        i = points.index(value) if value in points else len(points) - 1
-    else:
-        i = min(range(len(points)), key=lambda j: abs(points[j] - value)
-                if math.isfinite(points[j]) else math.inf)
-    return list(grid[max(i - 1, 0):i + 2])
 
 
 def _quadratic_index(grams: _FoldGrams, n: int, penalty: np.ndarray, fold: int | None = None

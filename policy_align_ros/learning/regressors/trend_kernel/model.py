@@ -91,7 +91,6 @@ from policy_align_ros.learning.regressors.trend_kernel.cv import (
     TREND_RIDGE_GRID,
     CVSearch,
     _grid,
-    near_grids,
 )
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
@@ -262,8 +261,8 @@ class TrendKernelRegression(BaseEstimator):
     # -- fit --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
             free_groups: np.ndarray | None = None, goal: np.ndarray | None = None,
-            motion: np.ndarray | None = None, search_near: tuple | None = None,
-            scored: bool = True, final: bool = True) -> TrendKernelRegression:
+            motion: np.ndarray | None = None, scored: bool = True,
+            final: bool = True) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
@@ -279,10 +278,7 @@ class TrendKernelRegression(BaseEstimator):
         penalises the model's gradient across the motion, ``direction_weight`` times
         (:func:`direction_bases`): the potential's values along bundled
         demonstrations leave its slope across them free, and a demonstration moves
-        downhill. ``search_near``: an earlier fit's ``cv_best_`` on nearly the same data:
-        the CV then searches the residual's length scales and penalties within one grid
-        step of it (:func:`~.cv.near_grids`), and still chooses by held-out score (faster;
-        it can miss the whole grid's pick, ``docs/design/goal_anchor.md``). ``scored=False``:
+        downhill. ``scored=False``:
         a fit of one candidate (every hyperparameter fixed, the quadratic trend) skips its
         CV score, which only a caller comparing scores reads (``cv_best_`` is then None);
         the model fitted is the same. ``final=False``: the reverse, the CV's scores and pick
@@ -318,16 +314,12 @@ class TrendKernelRegression(BaseEstimator):
             if motion.shape != X.shape or not np.all(np.isfinite(motion)):
                 raise ValueError(f"motion must be a finite {X.shape} array, got shape "
                                  f"{motion.shape}")
-        if search_near is not None and (len(search_near) != 5
-                                        or search_near[0] not in TREND_FORMS):
-            raise ValueError(f"search_near must be a cv_best_ tuple (trend_form, trend_ridge, "
-                             f"length_scale, kernel_ridge, offset_ridge), got {search_near!r}")
         with single_blas_thread():
-            return self._fit(X, y, groups, free, motion, search_near, scored, final)
+            return self._fit(X, y, groups, free, motion, scored, final)
 
     def _fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, free_groups: np.ndarray,
-             motion: np.ndarray | None = None, search_near: tuple | None = None,
-             scored: bool = True, final: bool = True) -> TrendKernelRegression:
+             motion: np.ndarray | None = None, scored: bool = True,
+             final: bool = True) -> TrendKernelRegression:
         rng = np.random.default_rng(self.random_state)
         idx = thin_trajectories(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
@@ -377,8 +369,6 @@ class TrendKernelRegression(BaseEstimator):
         t_grid = _grid(self.trend_ridge, TREND_RIDGE_GRID)
         k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
         o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
-        if search_near is not None:
-            lengths, k_grid = near_grids(search_near, lengths, k_grid)
         forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
         if pinned:
             forms = ["quadratic"]  # the single-index trend fits a centre of its own
