@@ -39,7 +39,7 @@ import numpy as np
 from policy_align_ros.learning.anchor import motion_steps
 from policy_align_ros.learning.fitting import assign_folds
 from policy_align_ros.learning.global_model import fixed_copy
-from policy_align_ros.learning.goal import BOX_MARGIN, goal_summary, learnt_minima
+from policy_align_ros.learning.goal import data_box, goal_summary, learnt_minima
 from policy_align_ros.learning.regressors import (
     takes_free_groups,
     takes_motion,
@@ -266,8 +266,7 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
     Xall = np.concatenate([t.positions for t in parents])
     extent = goal["extent"]
     spread = fold_spread(folds, minima, scale=extent, speed=goal["typical_speed"],
-                         bounds=(Xall.min(axis=0) - BOX_MARGIN * extent,
-                                 Xall.max(axis=0) + BOX_MARGIN * extent))
+                         bounds=data_box(Xall, extent))
     for entry, d in zip(goal["minima"], spread, strict=True):
         entry["fold_spread"] = d
     known = [d for d in spread if d is not None]

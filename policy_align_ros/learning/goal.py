@@ -47,6 +47,7 @@ __all__ = [
     "MINIMA_MERGE",
     "REST_FRACTION",
     "Minima",
+    "data_box",
     "data_extent",
     "demonstrated_goal",
     "goal_summary",
@@ -257,17 +258,27 @@ def learnt_minima(potential: Field, gradient: Field, starts: np.ndarray, *,
         speed = float(np.max(np.linalg.norm(gradient(starts), axis=1)))
     gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
     if bounds is None:
-        bounds = (starts.min(axis=0) - BOX_MARGIN * scale,
-                  starts.max(axis=0) + BOX_MARGIN * scale)
+        bounds = data_box(starts, scale)
     lo, hi = (np.asarray(b, dtype=float).reshape(n) for b in bounds)
     X = _descend(potential, gradient, np.clip(starts, lo, hi), lo, hi, gtol, scale,
                  max_iter)
-    edge = 1e-9 * scale
-    inside = ~np.any((X <= lo + edge) | (X >= hi - edge), axis=1)
+    inside = _inside(X, lo, hi, scale)
     if not inside.any():
         return Minima(np.zeros((0, n)), np.zeros(0), int(len(X)))
     P, v = _merge(X[inside], potential(X[inside]), merge_tol * scale)
     return Minima(P, v, int(np.count_nonzero(~inside)))
+
+
+def data_box(X: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding box of the states ``X`` (m, n) widened by ``BOX_MARGIN * scale`` on
+    each side (state units): where descents of a learnt potential look for minima."""
+    return X.min(axis=0) - BOX_MARGIN * scale, X.max(axis=0) + BOX_MARGIN * scale
+
+
+def _inside(X: np.ndarray, lo: np.ndarray, hi: np.ndarray, scale: float) -> np.ndarray:
+    """Rows of ``X`` (s, n) that ended off the box's boundary: descents that stopped."""
+    edge = 1e-9 * scale
+    return ~np.any((X <= lo + edge) | (X >= hi - edge), axis=1)
 
 
 def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
@@ -396,8 +407,7 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     ends = np.array([t.positions[-1] for t in trajs])
     starts = np.concatenate([np.array(found).reshape(-1, X.shape[1]), ends])
     minima = learnt_minima(potential, gradient, starts, scale=extent, speed=speed,
-                           bounds=(X.min(axis=0) - BOX_MARGIN * extent,
-                                   X.max(axis=0) + BOX_MARGIN * extent))
+                           bounds=data_box(X, extent))
     goal_points, goal_sizes = _goal_clusters(goals, GOAL_MERGE * extent)
     summary: dict[str, Any] = {
         "extent": extent,
@@ -461,14 +471,13 @@ def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Fi
         from a counted start's stop to the nearest end's stop; None when there is none).
     """
     X = np.concatenate([t.positions for t in trajs])
-    lo, hi = X.min(axis=0) - BOX_MARGIN * extent, X.max(axis=0) + BOX_MARGIN * extent
+    lo, hi = data_box(X, extent)
     both = np.concatenate([[t.positions[0] for t in trajs], [t.positions[-1] for t in trajs]])
     gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
     # Steps of at most END_RADIUS of the extent follow the flow a run of the policy takes.
     out = _descend(potential, gradient, both, lo, hi, gtol, extent, 4000,
                    max_step=END_RADIUS * extent)
-    edge = 1e-9 * extent
-    inside = ~np.any((out <= lo + edge) | (out >= hi - edge), axis=1)
+    inside = _inside(out, lo, hi, extent)
     K = len(trajs)
     start, end = out[:K], out[K:]
     reached = end[inside[K:]]
