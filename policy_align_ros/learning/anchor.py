@@ -7,13 +7,16 @@ demonstrations to round-off (their timing is one potential's, so a rest away fro
 minimum is a rest under a constraint, not a goal); otherwise (a teacher's timing, a
 lagging robot, a potential its family cannot hold) it refits the global model stationary
 there, with the direction of the demonstrations' motion (:func:`motion_steps`) as
-timing-free evidence of the slope across them (``docs/design/goal_anchor.md``).
+timing-free evidence of the slope across them (``docs/design/goal_anchor.md``). How much
+that evidence weighs against the timed potential values is chosen by whether the
+demonstrations' starts reach the goal (:func:`choose_direction_weight`).
 """
 
 from __future__ import annotations
 
+import copy
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -21,12 +24,15 @@ from policy_align_ros.learning.goal import (
     data_extent,
     demonstrated_goal,
     learnt_minima,
+    starts_elsewhere,
     typical_speed,
 )
 from policy_align_ros.learning.model_io import json_float
+from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision", "motion_steps"]
+__all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision",
+           "choose_direction_weight", "direction_candidates", "motion_steps"]
 
 #: The paper's potential is kept when one of its minima lies within this fraction of the
 #: data's extent of where the demonstrations end; farther, the model is made stationary
@@ -84,3 +90,62 @@ def motion_steps(positions: np.ndarray) -> np.ndarray:
     if len(positions) < 2:
         return np.zeros_like(positions)
     return np.gradient(positions, axis=0)
+
+
+def direction_candidates(template) -> list:
+    """The regressors an anchored fit tries, in order: copies of ``template`` with each of
+    :data:`DIRECTION_WEIGHTS`, largest first, when its ``direction_weight`` is
+    ``"auto"``; otherwise ``template`` alone."""
+    params = template.get_params(deep=False) if hasattr(template, "get_params") else {}
+    if params.get("direction_weight") != "auto":
+        return [template]
+    return [copy.deepcopy(template).set_params(direction_weight=w) for w in DIRECTION_WEIGHTS]
+
+
+def choose_direction_weight(fit: Callable[[object], object], candidates: Sequence,
+                            trajs: Sequence[Trajectory]) -> dict:
+    """Fit the candidates in turn and keep the first from whose every demonstration's start
+    the learnt policy reaches the goal.
+
+    A demonstration shows a path from its start to the goal, whatever its timing. The
+    direction of motion is the timing-free part of that evidence, the potential's values
+    the timed part: the more the fit trusts the directions, the less a teacher's
+    changing speed bends the field across the paths, until too little of the values is
+    left to keep every start in the goal's basin. The largest weight whose policy still
+    takes every start to the goal (:func:`~policy_align_ros.learning.goal.
+    starts_elsewhere`) is kept; if none does, the last candidate's fit.
+
+    Parameters
+    ----------
+    fit : callable
+        ``fit(candidate)`` fits the global model with that regressor template and returns
+        the fitted regressor (``predict`` (m,), ``gradient`` (m, n)); the last call's fit
+        is the one kept.
+    candidates : sequence of regressors
+        From :func:`direction_candidates`.
+    trajs : sequence of Trajectory
+        The demonstrations (state units).
+
+    Returns
+    -------
+    dict
+        ``direction_weight`` (the kept candidate's, None for a regressor without one) and
+        ``direction_weights_tried``: per candidate fitted, its ``direction_weight`` and
+        ``n_starts_elsewhere``.
+    """
+    extent, speed = data_extent(trajs), typical_speed(trajs)
+    tried: list[dict] = []
+    for i, candidate in enumerate(candidates):
+        regressor = fit(candidate)
+        weight = candidate.get_params(deep=False).get("direction_weight") if hasattr(
+            candidate, "get_params") else None
+        if i == len(candidates) - 1:
+            tried.append({"direction_weight": weight, "n_starts_elsewhere": None})
+            break
+        found = starts_elsewhere(trajs, regressor.predict, regressor.gradient, extent, speed)
+        tried.append({"direction_weight": weight,
+                      "n_starts_elsewhere": found["n_starts_elsewhere"]})
+        if found["n_starts_elsewhere"] == 0:
+            break
+    return {"direction_weight": tried[-1]["direction_weight"],
+            "direction_weights_tried": tried}

@@ -50,7 +50,11 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_chained_offsets,
 )
-from policy_align_ros.learning.anchor import anchor_decision
+from policy_align_ros.learning.anchor import (
+    anchor_decision,
+    choose_direction_weight,
+    direction_candidates,
+)
 from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
     closest_approach_matrix,
@@ -328,8 +332,15 @@ class PolicyAlign(BaseEstimator):
         anchor = anchor_decision(self.regressor_, trajs, takes_goal(template),
                                  cv_score(self.regressor_))
         if anchor["anchored"]:
-            scores, n_fitted = self._fit_global(est, template, free, aligned,
-                                                np.asarray(anchor["goal"]))
+            goal, fitted = np.asarray(anchor["goal"]), {}
+
+            def fit_anchored(candidate):
+                fitted["out"] = self._fit_global(est, candidate, free, aligned, goal)
+                return self.regressor_
+
+            anchor.update(choose_direction_weight(fit_anchored, direction_candidates(template),
+                                                  trajs))
+            scores, n_fitted = fitted["out"]
         timings["regression"] = time.perf_counter() - t2
         self._log(f"global model fitted on {n_fitted} samples with the {self.integration_} "
                   f"potentials ({timings['regression']:.2f} s)")

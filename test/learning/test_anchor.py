@@ -5,8 +5,12 @@ import numpy as np
 from policy_align_ros.learning.anchor import (
     CONSISTENT_SCORE,
     anchor_decision,
+    choose_direction_weight,
+    direction_candidates,
     motion_steps,
 )
+from policy_align_ros.learning.regressors import TrendKernelRegression
+from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 from policy_align_ros.learning.trajectory import Trajectory
 
 
@@ -68,3 +72,50 @@ def test_motion_steps_are_central_differences():
     X = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 1.0]])
     np.testing.assert_allclose(motion_steps(X), [[1.0, 0.0], [1.5, 0.5], [2.0, 1.0]])
     assert motion_steps(X[:1]).shape == (1, 2)
+
+
+class _Tilted(_Bowl):
+    """A bowl at the goal plus a steep downhill slope along +x: every descent leaves."""
+
+    def predict(self, X):
+        return super().predict(X) - 50.0 * X[:, 0]
+
+    def gradient(self, X):
+        return super().gradient(X) - [50.0, 0.0]
+
+
+def test_auto_direction_weight_tries_every_weight_largest_first():
+    weights = [c.direction_weight for c in direction_candidates(TrendKernelRegression())]
+    assert weights == sorted(DIRECTION_WEIGHTS, reverse=True)
+    fixed = TrendKernelRegression(direction_weight=3.0)
+    assert direction_candidates(fixed) == [fixed]
+
+
+def test_the_largest_weight_whose_starts_all_reach_the_goal_is_kept():
+    goal = np.array([0.2, -0.1])
+    demos = _demos_resting_at(goal)
+    models = {1000.0: _Tilted(goal), 100.0: _Bowl(goal), 10.0: _Bowl(goal)}
+    fitted = []
+
+    def fit(candidate):
+        fitted.append(candidate.direction_weight)
+        return models[candidate.direction_weight]
+
+    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos)
+    assert fitted == [1000.0, 100.0] and out["direction_weight"] == 100.0
+    first, kept = out["direction_weights_tried"]
+    assert first["n_starts_elsewhere"] == len(demos) and kept["n_starts_elsewhere"] == 0
+
+
+def test_when_no_weight_takes_the_starts_to_the_goal_the_last_is_fitted_last():
+    goal = np.array([0.2, -0.1])
+    fitted = []
+
+    def fit(candidate):
+        fitted.append(candidate.direction_weight)
+        return _Tilted(goal)
+
+    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()),
+                                  _demos_resting_at(goal))
+    assert fitted == sorted(DIRECTION_WEIGHTS, reverse=True)
+    assert out["direction_weight"] == min(DIRECTION_WEIGHTS)

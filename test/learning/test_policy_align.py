@@ -503,6 +503,9 @@ def test_learnt_minimum_is_the_demonstrated_goal_and_does_not_move_when_retimed(
     model = PolicyAlign().fit(demos)
     anchor = model.fit_summary_["anchor"]
     assert anchor["anchored"] and np.allclose(anchor["goal"], goal, atol=1e-3 * extent)
+    # The direction weight kept is one whose policy takes every start to the goal.
+    assert anchor["direction_weight"] == model.regressor_.direction_weight
+    assert model.fit_summary_["goal"]["n_starts_elsewhere"] == 0
     first = _descend(model, demos[0].positions[0])
     assert np.linalg.norm(first - goal) < 0.01 * extent
     # The same path walked with another timing: slow in the middle, fast at the ends.

@@ -112,6 +112,21 @@ def test_motion_makes_the_gradient_follow_bundled_demonstrations():
     with pytest.raises(ValueError, match="direction_weight"):
         TrendKernelRegression(direction_weight=-1.0).fit(X, y, groups=g, goal=goal,
                                                          motion=steps)
+    with pytest.raises(ValueError, match="direction_weight"):
+        TrendKernelRegression(direction_weight="large").fit(X, y, groups=g, goal=goal,
+                                                            motion=steps)
+
+
+def test_auto_direction_weight_outside_policy_align_is_the_smallest():
+    X, y, g, steps = _bundle()
+    goal = np.zeros(2)
+    auto = TrendKernelRegression().fit(X, y, groups=g, goal=goal, motion=steps)
+    fixed = TrendKernelRegression(direction_weight=10.0).fit(X, y, groups=g, goal=goal,
+                                                             motion=steps)
+    strong = TrendKernelRegression(direction_weight=1000.0).fit(X, y, groups=g, goal=goal,
+                                                                motion=steps)
+    np.testing.assert_array_equal(auto.gradient(X), fixed.gradient(X))
+    assert not np.allclose(strong.gradient(X), fixed.gradient(X))
 
 
 @pytest.mark.parametrize("pinned", [False, True])

@@ -120,7 +120,7 @@ from policy_align_ros.learning.regressors.trend_kernel.solvers import (
 )
 from policy_align_ros.learning.thinning import thin_trajectories
 
-__all__ = ["TREND_FORMS", "TrendKernelRegression"]
+__all__ = ["DIRECTION_WEIGHTS", "TREND_FORMS", "TrendKernelRegression"]
 
 #: Rows per block when evaluating kernels (bounds memory on large queries).
 CHUNK = 8192
@@ -129,6 +129,12 @@ CHUNK = 8192
 TREND_FORMS = ("quadratic", "single_index")
 _STATE_VERSION = 3
 _HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
+#: The direction weights ``direction_weight="auto"`` stands for, largest first: PolicyAlign
+#: fits them in turn and keeps the first whose policy takes every demonstration's start to
+#: the goal (:func:`~policy_align_ros.learning.anchor.choose_direction_weight`); a fit
+#: outside PolicyAlign takes the last. A decade apart, chosen on the LASA tuning shapes
+#: (``docs/design/goal_anchor.md``).
+DIRECTION_WEIGHTS = (1000.0, 100.0, 10.0)
 
 
 @register
@@ -164,11 +170,12 @@ class TrendKernelRegression(BaseEstimator):
         Cross-validation folds, each of whole demonstrations (``groups``); at most one
         per demonstration. Ten: with fewer, which demonstrations share a fold can decide
         the fit.
-    direction_weight : float
+    direction_weight : "auto" or float
         Used only by a fit given a ``goal`` and the samples' ``motion``: how much a slope
         of the potential across a demonstration's motion over one step costs, against an
-        error of the same size in its values. Ten, chosen on the LASA tuning shapes
-        (``docs/design/goal_anchor.md``).
+        error of the same size in its values. ``"auto"``: PolicyAlign chooses among
+        :data:`DIRECTION_WEIGHTS` by whether the demonstrations' starts reach the goal; a
+        fit outside PolicyAlign takes the smallest, 10.
     random_state : int, numpy.random.Generator or None
         Seeds the choice of centres and folds.
 
@@ -221,7 +228,7 @@ class TrendKernelRegression(BaseEstimator):
         n_centres: int = 300,
         max_fit_points: int = 6000,
         n_folds: int = 10,
-        direction_weight: float = 10.0,
+        direction_weight: str | float = "auto",
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         self.trend_form = trend_form
@@ -251,12 +258,19 @@ class TrendKernelRegression(BaseEstimator):
         if o != "cv" and (not isinstance(o, (int, float)) or not o >= 0):
             raise ValueError(f"offset_ridge must be 'cv' or a float >= 0, got {o!r}")
         w = self.direction_weight
-        if not isinstance(w, (int, float)) or not 0 <= w < math.inf:
-            raise ValueError(f"direction_weight must be a finite float >= 0, got {w!r}")
+        if w != "auto" and (not isinstance(w, (int, float)) or not 0 <= w < math.inf):
+            raise ValueError(f"direction_weight must be 'auto' or a finite float >= 0, got "
+                             f"{w!r}")
         for name, low in (("n_centres", 1), ("max_fit_points", 10), ("n_folds", 2)):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+
+    def _direction_weight(self) -> float:
+        """The direction weight a fit uses (``"auto"`` outside PolicyAlign: the last, the
+        smallest, of :data:`DIRECTION_WEIGHTS`)."""
+        w = self.direction_weight
+        return DIRECTION_WEIGHTS[-1] if w == "auto" else float(w)
 
     # -- fit --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
@@ -323,7 +337,8 @@ class TrendKernelRegression(BaseEstimator):
         rng = np.random.default_rng(self.random_state)
         idx = thin_trajectories(X, groups, self.max_fit_points)
         X, y, groups = X[idx], y[idx], groups[idx]
-        use_motion = motion is not None and self.goal_ is not None and self.direction_weight
+        use_motion = (motion is not None and self.goal_ is not None
+                      and self._direction_weight() > 0)
         motion = motion[idx] if use_motion else None
         m, n = X.shape
         self.n_features_in_ = n
@@ -361,7 +376,7 @@ class TrendKernelRegression(BaseEstimator):
             F[:, 1:1 + n] = 0.0  # no linear term: the bowl's centre is the goal
         bases = DF = None
         if motion is not None:
-            bases = direction_bases(motion / self.scale_, self.direction_weight)
+            bases = direction_bases(motion / self.scale_, self._direction_weight())
             DF = direction_rows(bases, _trend_jacobian(Z, pinned))
 
         d_med = _median_distance(C)
