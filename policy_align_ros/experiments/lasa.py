@@ -33,6 +33,7 @@ import numpy as np
 
 from policy_align_ros.experiments.lasa_methods import METHODS, fit_method
 from policy_align_ros.experiments.lasa_metrics import (
+    across_error,
     converged,
     dtw_mean_cost,
     euler_rollout,
@@ -131,9 +132,12 @@ def _evaluate(policy, demo: dict, width: float, max_steps: int | None
     final = path[-1]
     goal = np.zeros(2)
     with np.errstate(all="ignore"):
-        nv = velocity_error(policy(demo["positions"]), demo["velocities"])
+        predicted = policy(demo["positions"])
+        nv = velocity_error(predicted, demo["velocities"])
+        across = across_error(predicted, demo["velocities"])
     record = {
         "nV": nv,
+        "nV_across": across,
         "dtw_mm": dtw_mean_cost(demo["positions"][::SUBSAMPLE], path[:n_dtw:SUBSAMPLE]),
         "converged": converged(final, goal, width),
         "final_mm": float(np.linalg.norm(final - goal)) if np.all(np.isfinite(final))

@@ -10,8 +10,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["workspace_size", "euler_rollout", "velocity_error", "dtw_mean_cost",
-           "converged", "CONVERGED_FRACTION"]
+__all__ = ["workspace_size", "euler_rollout", "velocity_error", "across_error",
+           "dtw_mean_cost", "converged", "CONVERGED_FRACTION"]
 
 #: A rollout has converged when it ends closer to the goal than this fraction of W.
 CONVERGED_FRACTION = 0.01
@@ -88,14 +88,44 @@ def velocity_error(predicted: np.ndarray, velocities: np.ndarray) -> float:
     float
         0 for a perfect field, 1 for the zero policy.
     """
+    predicted, velocities, scale = _checked(predicted, velocities)
+    return float(np.sqrt(np.mean(np.sum((predicted - velocities) ** 2, axis=1))) / scale)
+
+
+def _checked(predicted, velocities) -> tuple[np.ndarray, np.ndarray, float]:
+    """Both as float arrays of one (N, d) shape, and ``RMS |v_i|`` (> 0)."""
     predicted, velocities = np.asarray(predicted, float), np.asarray(velocities, float)
     if predicted.shape != velocities.shape or predicted.ndim != 2:
         raise ValueError(f"predicted {predicted.shape} and velocities {velocities.shape}: "
                          "must be equal (N, d) arrays")
-    scale = np.sqrt(np.mean(np.sum(velocities**2, axis=1)))
+    scale = float(np.sqrt(np.mean(np.sum(velocities**2, axis=1))))
     if scale == 0.0:
         raise ValueError("velocities: all zero, nV is undefined")
-    return float(np.sqrt(np.mean(np.sum((predicted - velocities) ** 2, axis=1))) / scale)
+    return predicted, velocities, scale
+
+
+def across_error(predicted: np.ndarray, velocities: np.ndarray) -> float:
+    """The part of nV across the demonstrated motion: ``RMS |(I - u_i u_i') f(x_i)| /
+    RMS |v_i|``, ``u_i = v_i / |v_i|`` (samples at rest count with ``|f(x_i)|``).
+
+    A gradient field that follows the demonstrations' paths scores 0 whatever its speed
+    along them; a field bent across the paths scores its bend.
+
+    Parameters
+    ----------
+    predicted, velocities : ndarray, shape (N, d)
+        As :func:`velocity_error` (mm/s).
+
+    Returns
+    -------
+    float
+    """
+    predicted, velocities, scale = _checked(predicted, velocities)
+    speed = np.linalg.norm(velocities, axis=1)
+    unit = np.divide(velocities, speed[:, None], out=np.zeros_like(velocities),
+                     where=speed[:, None] > 0)
+    across = predicted - np.sum(predicted * unit, axis=1)[:, None] * unit
+    return float(np.sqrt(np.mean(np.sum(across**2, axis=1))) / scale)
 
 
 def _dtw_cumulative(cost: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from policy_align_ros.experiments.lasa_methods import (
     parse_policy_settings,
 )
 from policy_align_ros.experiments.lasa_metrics import (
+    across_error,
     converged,
     dtw_mean_cost,
     euler_rollout,
@@ -56,6 +57,16 @@ def test_velocity_error_is_zero_for_the_true_velocities_and_one_for_zero():
     assert velocity_error(np.zeros_like(v), v) == pytest.approx(1.0)
     with pytest.raises(ValueError, match="velocities"):
         velocity_error(v[:10], v)
+
+
+def test_across_error_ignores_the_speed_along_the_motion_and_measures_the_bend():
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(50, 2))
+    assert across_error(3.0 * v, v) == pytest.approx(0.0, abs=1e-12)
+    normal = v[:, ::-1] * [1.0, -1.0]  # v turned by 90 degrees: as fast, all across
+    assert across_error(v + normal, v) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="velocities"):
+        across_error(v[:10], v)
 
 
 def test_convergence_rule_is_one_percent_of_the_workspace():
@@ -149,6 +160,7 @@ def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
         (p, k) for p in ("all", "loo") for k in range(3)}
     assert all(r["method"] == "grad_field" and r["set"] == "reporting" for r in records)
     assert all(np.isfinite(r["nV"]) and r["fit_s"] >= 0 for r in records)
+    assert all(0 <= r["nV_across"] <= r["nV"] + 1 for r in records)
     table = (tmp_path / "lasa.md").read_text()
     assert "| reporting | loo | LSQ gradient field |" in table
     assert "### Per shape, protocol `loo`" in table
