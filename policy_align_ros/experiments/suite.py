@@ -234,13 +234,15 @@ def parse_settings(items: list[str]) -> dict[str, str | float]:
         if not sep or name not in known:
             raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME one of "
                              f"{sorted(known)}")
-        if value == "cv" or name == "trend_form":
+        if value == "cv" or name == "trend_form" or (name, value) == ("direction_weight",
+                                                                         "auto"):
             out[name] = value
             continue
         try:
             number = float(value)
         except ValueError:
-            raise ValueError(f"--set {item!r}: {value!r} is neither 'cv' nor a number") from None
+            raise ValueError(f"--set {item!r}: {value!r} is neither 'cv' (or 'auto' for "
+                             "direction_weight) nor a number") from None
         out[name] = int(number) if name in ("n_centres", "max_fit_points", "n_folds") else number
     return out
 

@@ -144,6 +144,11 @@ def test_policy_settings_split_between_policy_align_and_its_regressor():
     assert kwargs["regressor"] == {"offset_ridge": float("inf")}
     with pytest.raises(ValueError, match="no_such"):
         parse_policy_settings(["no_such=1"])
+    weights = [parse_policy_settings([f"direction_weight={v}"])["regressor"]
+               for v in ("auto", "100")]
+    assert weights == [{"direction_weight": "auto"}, {"direction_weight": 100.0}]
+    with pytest.raises(ValueError, match="offset_ridge"):
+        parse_policy_settings(["offset_ridge=auto"])
 
 
 # -- end to end -------------------------------------------------------------------------
