@@ -131,7 +131,8 @@ def choose_direction_weight(fit: Callable[[object], object], candidates: Sequenc
     dict
         ``direction_weight`` (the kept candidate's, None for a regressor without one) and
         ``direction_weights_tried``: per candidate fitted, its ``direction_weight`` and
-        ``n_starts_elsewhere``.
+        ``n_starts_elsewhere`` (None for the last candidate, which is kept unchecked: the
+        goal report counts its starts, ``fit_summary_["goal"]``).
     """
     extent, speed = data_extent(trajs), typical_speed(trajs)
     tried: list[dict] = []
