@@ -129,19 +129,24 @@ def choose_direction_weight(fit: Callable[[object], object], candidates: Sequenc
     Returns
     -------
     dict
-        ``direction_weight`` (the kept candidate's, None for a regressor without one) and
+        ``direction_weight`` (the kept candidate's, None for a regressor without one),
         ``direction_weights_tried``: per candidate fitted, its ``direction_weight`` and
         ``n_starts_elsewhere`` (None for the last candidate, which is kept unchecked: the
-        goal report counts its starts, ``fit_summary_["goal"]``).
+        goal report counts its starts, ``fit_summary_["goal"]``), and ``starts``: the kept
+        candidate's :func:`~policy_align_ros.learning.goal.starts_elsewhere` (None when
+        unchecked), which the goal report then need not compute again.
     """
-    extent, speed = data_extent(trajs), typical_speed(trajs)
+    # As goal_summary measures them, so that ``starts`` is the goal report's own result.
+    extent, speed = data_extent(trajs) or 1.0, typical_speed(trajs)
     tried: list[dict] = []
+    found = None
     for i, candidate in enumerate(candidates):
         regressor = fit(candidate)
         weight = candidate.get_params(deep=False).get("direction_weight") if hasattr(
             candidate, "get_params") else None
         if i == len(candidates) - 1:
             tried.append({"direction_weight": weight, "n_starts_elsewhere": None})
+            found = None
             break
         found = starts_elsewhere(trajs, regressor.predict, regressor.gradient, extent, speed)
         tried.append({"direction_weight": weight,
@@ -149,4 +154,4 @@ def choose_direction_weight(fit: Callable[[object], object], candidates: Sequenc
         if found["n_starts_elsewhere"] == 0:
             break
     return {"direction_weight": tried[-1]["direction_weight"],
-            "direction_weights_tried": tried}
+            "direction_weights_tried": tried, "starts": found}

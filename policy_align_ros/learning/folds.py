@@ -226,8 +226,8 @@ def fold_spread(folds: Sequence[FoldModel], minima: np.ndarray, *, scale: float,
 
 def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarray],
                keep: np.ndarray, potentials: Sequence[np.ndarray], free: np.ndarray,
-               parents: Sequence[Trajectory], *, random_state: int | None = 0
-               ) -> dict[str, Any]:
+               parents: Sequence[Trajectory], *, random_state: int | None = 0,
+               starts_check: dict[str, Any] | None = None) -> dict[str, Any]:
     """The goal report and the zero-policy comparison of a fitted global model.
 
     Parameters
@@ -244,6 +244,9 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
         The whole demonstrations (their ends are where they rest).
     random_state : int or None
         Seeds the folds of a regressor that keeps none.
+    starts_check : dict, optional
+        :func:`~policy_align_ros.learning.goal.starts_elsewhere` of ``parents`` and this
+        regressor, if already computed.
 
     Returns
     -------
@@ -261,7 +264,8 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
               if getattr(regressor, "goal_", None) is not None else None)
     folds = fold_refits(regressor, X, y, g, free, random_state=random_state, motion=motion)
     heldout = heldout_vs_zero(folds, pieces)
-    goal = goal_summary(parents, regressor.predict, regressor.gradient)
+    goal = goal_summary(parents, regressor.predict, regressor.gradient,
+                        starts_check=starts_check)
     minima = np.array([m["point"] for m in goal["minima"]]).reshape(-1, X.shape[1])
     Xall = np.concatenate([t.positions for t in parents])
     extent = goal["extent"]

@@ -359,7 +359,8 @@ def _clusters(points: np.ndarray, tol: float) -> np.ndarray:
 
 def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
                  gradient: Field, *, fraction: float = REST_FRACTION,
-                 active_fraction: float = ACTIVE_FRACTION) -> dict[str, Any]:
+                 active_fraction: float = ACTIVE_FRACTION,
+                 starts_check: dict[str, Any] | None = None) -> dict[str, Any]:
     """The learnt minima beside the demonstrated goals, as JSON-able numbers.
 
     Parameters
@@ -374,6 +375,9 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
         A rest where the learnt speed ``|grad f|`` exceeds ``active_fraction`` times the
         typical speed (the median of the demonstrations' peak speeds) is a rest under an
         active constraint: not a demonstrated goal.
+    starts_check : dict, optional
+        :func:`starts_elsewhere` of these demonstrations and this potential, when the
+        caller has computed it already (the goal anchor's choice of direction weight).
 
     Returns
     -------
@@ -436,7 +440,8 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     first = summary["demonstrated_goals"][:1]
     summary["goal_error"] = first[0]["nearest_minimum"] if first else None
     summary["goal_error_fraction"] = first[0]["fraction"] if first else None
-    summary.update(starts_elsewhere(trajs, potential, gradient, extent, speed))
+    summary.update(starts_elsewhere(trajs, potential, gradient, extent, speed)
+                   if starts_check is None else starts_check)
     return summary
 
 

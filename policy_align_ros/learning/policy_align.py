@@ -331,6 +331,7 @@ class PolicyAlign(BaseEstimator):
         # has no minimum there (learning/anchor.py).
         anchor = anchor_decision(self.regressor_, trajs, takes_goal(template),
                                  cv_score(self.regressor_))
+        starts = None
         if anchor["anchored"]:
             goal, fitted = np.asarray(anchor["goal"]), {}
 
@@ -338,8 +339,10 @@ class PolicyAlign(BaseEstimator):
                 fitted["out"] = self._fit_global(est, candidate, free, aligned, goal)
                 return self.regressor_
 
-            anchor.update(choose_direction_weight(fit_anchored, direction_candidates(template),
-                                                  trajs))
+            choice = choose_direction_weight(fit_anchored, direction_candidates(template),
+                                             trajs)
+            starts = choice.pop("starts")
+            anchor.update(choice)
             scores, n_fitted = fitted["out"]
         timings["regression"] = time.perf_counter() - t2
         self._log(f"global model fitted on {n_fitted} samples with the {self.integration_} "
@@ -348,7 +351,7 @@ class PolicyAlign(BaseEstimator):
         # The learnt goal and the held-out error against a zero policy (warns when no better).
         checks = fit_checks(self.regressor_, est.trajs, est.masks, self.inliers_,
                             self.aligned_potentials_, free, est.parents,
-                            random_state=self.random_state)
+                            random_state=self.random_state, starts_check=starts)
         timings["checks"] = time.perf_counter() - t3
         timings["total"] = time.perf_counter() - t0
 

@@ -9,6 +9,7 @@ from policy_align_ros.learning.anchor import (
     direction_candidates,
     motion_steps,
 )
+from policy_align_ros.learning.goal import data_extent, starts_elsewhere, typical_speed
 from policy_align_ros.learning.regressors import TrendKernelRegression
 from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 from policy_align_ros.learning.trajectory import Trajectory
@@ -105,6 +106,10 @@ def test_the_largest_weight_whose_starts_all_reach_the_goal_is_kept():
     assert fitted == [1000.0, 100.0] and out["direction_weight"] == 100.0
     first, kept = out["direction_weights_tried"]
     assert first["n_starts_elsewhere"] == len(demos) and kept["n_starts_elsewhere"] == 0
+    # The kept fit's check, handed to the goal report instead of being run again.
+    assert out["starts"] == starts_elsewhere(demos, models[100.0].predict,
+                                             models[100.0].gradient, data_extent(demos),
+                                             typical_speed(demos))
 
 
 def test_when_no_weight_takes_the_starts_to_the_goal_the_last_is_fitted_last():
@@ -119,3 +124,4 @@ def test_when_no_weight_takes_the_starts_to_the_goal_the_last_is_fitted_last():
                                   _demos_resting_at(goal))
     assert fitted == sorted(DIRECTION_WEIGHTS, reverse=True)
     assert out["direction_weight"] == min(DIRECTION_WEIGHTS)
+    assert out["starts"] is None  # the last fit is kept unchecked
