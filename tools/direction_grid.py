@@ -3,10 +3,11 @@ shapes (leave one out), and each grid's rule applied afterwards.
 
 For every tuning shape and held-out demonstration, ``PolicyAlign`` is fitted once per
 weight of ``--weights`` (``TrendKernelRegression(direction_weight=w)``), and the fit's
-``n_starts_elsewhere`` (its training starts that do not reach the goal), the held-out nV
-and whether the held-out rollout converged (the bench's measures) are recorded. A grid's
-rule, the one ``direction_weight="auto"`` applies, takes the largest weight of the grid
-with no start elsewhere, else the smallest; its nV (median over shapes) and converged
+``n_starts_elsewhere`` (its training starts that do not reach the goal), whether the goal
+is a strict minimum of its potential, the held-out nV and whether the held-out rollout
+converged (the bench's measures) are recorded. A grid's rule, the one
+``direction_weight="auto"`` applies, takes the largest weight of the grid with no start
+elsewhere and a minimum at the goal, else the smallest; its nV (median over shapes) and converged
 share are printed per grid (``docs/design/goal_anchor.md``).
 
     python tools/direction_grid.py --jobs 2                       # about 5 min on 2 cores
@@ -52,16 +53,18 @@ def _task(task: tuple[str, int, tuple[float, ...]]) -> list[dict]:
         end = euler_rollout(model.policy, held["positions"][0], dt, steps)[-1]
         rows.append({"shape": name, "demo": k, "weight": w,
                      "elsewhere": model.fit_summary_["goal"]["n_starts_elsewhere"],
+                     # An unanchored fit keeps the paper's potential, whose minimum is there.
+                     "minimum": model.fit_summary_["anchor"].get("goal_is_minimum", True),
                      "nV": velocity_error(model.policy(held["positions"]), held["velocities"]),
                      "converged": converged(end, np.zeros(2), width)})
     return rows
 
 
 def _rule(rows: list[dict], grid: tuple[float, ...]) -> dict:
-    """The row the grid's rule keeps: the largest weight with no start elsewhere, else the
-    smallest."""
+    """The row the grid's rule keeps: the largest weight with no start elsewhere and a
+    minimum at the goal, else the smallest."""
     tried = sorted((r for r in rows if r["weight"] in grid), key=lambda r: -r["weight"])
-    return next((r for r in tried if r["elsewhere"] == 0), tried[-1])
+    return next((r for r in tried if r["elsewhere"] == 0 and r["minimum"]), tried[-1])
 
 
 def _summary(kept: list[dict]) -> str:

@@ -9,13 +9,15 @@ lagging robot, a potential its family cannot hold) it refits the global model st
 there, with the direction of the demonstrations' motion (:func:`motion_steps`) as
 timing-free evidence of the slope across them (``docs/design/goal_anchor.md``). How much
 that evidence weighs against the timed potential values is chosen by whether the
-demonstrations' starts reach the goal (:func:`choose_direction_weight`).
+demonstrations' starts reach the goal and the goal is a strict minimum
+(:func:`choose_direction_weight`, :func:`goal_curvature`).
 """
 
 from __future__ import annotations
 
 import copy
 import math
+import warnings
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -32,7 +34,8 @@ from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WE
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision",
-           "choose_direction_weight", "direction_candidates", "motion_steps"]
+           "choose_direction_weight", "direction_candidates", "goal_curvature",
+           "motion_steps"]
 
 #: The paper's potential is kept when one of its minima lies within this fraction of the
 #: data's extent of where the demonstrations end; farther, the model is made stationary
@@ -41,6 +44,8 @@ ANCHOR_TOL = 0.01
 #: A CV score (held-out error over the within-demonstration spread) at or below this is
 #: round-off: the demonstrations are exact flows of the fitted potential.
 CONSISTENT_SCORE = 1e-10
+#: Step of the central differences of :func:`goal_curvature`, as a fraction of the extent.
+CURVATURE_STEP = 1e-4
 
 
 def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = True,
@@ -92,6 +97,38 @@ def motion_steps(positions: np.ndarray) -> np.ndarray:
     return np.gradient(positions, axis=0)
 
 
+def goal_curvature(gradient: Callable[[np.ndarray], np.ndarray], goal: np.ndarray,
+                   extent: float) -> float:
+    """The smallest eigenvalue of the potential's Hessian at ``goal``.
+
+    The anchored fit makes the goal stationary, which a saddle is too: a residual that
+    bends the potential near the goal can leave a minimum beside it, where runs then stop.
+    Positive: the goal is a strict minimum.
+
+    Parameters
+    ----------
+    gradient : callable
+        ``gradient(X)`` (m, n) of the potential at states ``X`` (m, n).
+    goal : ndarray (n,)
+        State units.
+    extent : float
+        The data's extent (state units); the central differences step
+        :data:`CURVATURE_STEP` of it.
+
+    Returns
+    -------
+    float
+        Potential units per squared state unit (the symmetric part of the
+        central-difference Hessian).
+    """
+    goal = np.asarray(goal, dtype=float)
+    step = CURVATURE_STEP * (extent if extent > 0 else 1.0)
+    probes = goal + step * np.concatenate([np.eye(len(goal)), -np.eye(len(goal))])
+    g = np.asarray(gradient(probes), dtype=float)
+    H = (g[:len(goal)] - g[len(goal):]) / (2.0 * step)
+    return float(np.linalg.eigvalsh(0.5 * (H + H.T))[0])
+
+
 def direction_candidates(template) -> list:
     """The regressors an anchored fit tries, in order: copies of ``template`` with each of
     :data:`DIRECTION_WEIGHTS`, largest first, when its ``direction_weight`` is
@@ -105,7 +142,7 @@ def direction_candidates(template) -> list:
 def choose_direction_weight(fit: Callable[[object], object], candidates: Sequence,
                             trajs: Sequence[Trajectory]) -> dict:
     """Fit the candidates in turn and keep the first from whose every demonstration's start
-    the learnt policy reaches the goal.
+    the learnt policy reaches the goal, and whose goal is a strict minimum.
 
     A demonstration shows a path from its start to the goal, whatever its timing. The
     direction of motion is the timing-free part of that evidence, the potential's values
@@ -113,7 +150,10 @@ def choose_direction_weight(fit: Callable[[object], object], candidates: Sequenc
     changing speed bends the field across the paths, until too little of the values is
     left to keep every start in the goal's basin. The largest weight whose policy still
     takes every start to the goal (:func:`~policy_align_ros.learning.goal.
-    starts_elsewhere`) is kept; if none does, the last candidate's fit.
+    starts_elsewhere`) and stops there (:func:`goal_curvature` positive: the descent from
+    a start counts a stop within a few percent of the extent as the goal, a held-out
+    start may take the other side of a saddle) is kept; if none does, the last
+    candidate's fit.
 
     Parameters
     ----------
@@ -130,28 +170,43 @@ def choose_direction_weight(fit: Callable[[object], object], candidates: Sequenc
     -------
     dict
         ``direction_weight`` (the kept candidate's, None for a regressor without one),
-        ``direction_weights_tried``: per candidate fitted, its ``direction_weight`` and
+        ``direction_weights_tried``: per candidate fitted, its ``direction_weight``,
         ``n_starts_elsewhere`` (None for the last candidate, which is kept unchecked: the
-        goal report counts its starts, ``fit_summary_["goal"]``), and ``starts``: the kept
-        candidate's :func:`~policy_align_ros.learning.goal.starts_elsewhere` (None when
-        unchecked), which the goal report then need not compute again.
+        goal report counts its starts, ``fit_summary_["goal"]``) and ``goal_curvature``,
+        ``goal_is_minimum`` (the kept candidate's; a warning names it when False) and
+        ``starts``: the kept candidate's :func:`~policy_align_ros.learning.goal.
+        starts_elsewhere` (None when unchecked), which the goal report then need not
+        compute again.
     """
     # As goal_summary measures them, so that ``starts`` is the goal report's own result.
     extent, speed = data_extent(trajs) or 1.0, typical_speed(trajs)
+    goal = demonstrated_goal(trajs)
+    if goal is None:
+        raise ValueError("choose_direction_weight: the demonstrations do not end together, "
+                         "so there is no goal to anchor a fit at (anchor_decision decides)")
     tried: list[dict] = []
     found = None
     for i, candidate in enumerate(candidates):
         regressor = fit(candidate)
         weight = candidate.get_params(deep=False).get("direction_weight") if hasattr(
             candidate, "get_params") else None
+        curvature = goal_curvature(regressor.gradient, goal, extent)
+        entry = {"direction_weight": weight, "n_starts_elsewhere": None,
+                 "goal_curvature": json_float(curvature, "null")}
+        tried.append(entry)
         if i == len(candidates) - 1:
-            tried.append({"direction_weight": weight, "n_starts_elsewhere": None})
             found = None
             break
         found = starts_elsewhere(trajs, regressor.predict, regressor.gradient, extent, speed)
-        tried.append({"direction_weight": weight,
-                      "n_starts_elsewhere": found["n_starts_elsewhere"]})
-        if found["n_starts_elsewhere"] == 0:
+        entry["n_starts_elsewhere"] = found["n_starts_elsewhere"]
+        if found["n_starts_elsewhere"] == 0 and curvature > 0.0:
             break
+    minimum = bool(curvature > 0.0)
+    if not minimum:
+        warnings.warn(
+            f"PolicyAlign: where the demonstrations end, {np.round(goal, 6).tolist()}, the "
+            f"learnt potential is stationary but not a minimum (smallest curvature "
+            f"{curvature:.3g}): runs stop beside it (fit_summary_['goal'] lists the minima)",
+            UserWarning, stacklevel=3)
     return {"direction_weight": tried[-1]["direction_weight"],
-            "direction_weights_tried": tried, "starts": found}
+            "direction_weights_tried": tried, "goal_is_minimum": minimum, "starts": found}

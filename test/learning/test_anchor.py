@@ -1,12 +1,14 @@
 """Tests of the goal anchor's decision (policy_align_ros.learning.anchor)."""
 
 import numpy as np
+import pytest
 
 from policy_align_ros.learning.anchor import (
     CONSISTENT_SCORE,
     anchor_decision,
     choose_direction_weight,
     direction_candidates,
+    goal_curvature,
     motion_steps,
 )
 from policy_align_ros.learning.goal import data_extent, starts_elsewhere, typical_speed
@@ -83,6 +85,58 @@ class _Tilted(_Bowl):
 
     def gradient(self, X):
         return super().gradient(X) - [50.0, 0.0]
+
+
+class _Saddle(_Bowl):
+    """Stationary at the centre, a saddle there (curvature -2 along y), with minima at
+    ``y = +-0.05`` beside it: descents from the demonstrations' starts stop within a few
+    percent of the extent of the centre, and count as at the goal."""
+
+    def predict(self, X):
+        d = X - self.centre
+        return d[:, 0] ** 2 - d[:, 1] ** 2 + 200.0 * d[:, 1] ** 4
+
+    def gradient(self, X):
+        d = X - self.centre
+        return np.stack([2.0 * d[:, 0], -2.0 * d[:, 1] + 800.0 * d[:, 1] ** 3], axis=1)
+
+
+def test_goal_curvature_is_the_smallest_eigenvalue_of_the_hessian():
+    A = np.array([[3.0, 1.0], [1.0, 2.0]])  # potential x' A x / 2 about c
+
+    def gradient(X):
+        return (X - [0.5, 0.2]) @ A
+
+    curvature = goal_curvature(gradient, np.array([0.5, 0.2]), extent=2.0)
+    assert abs(curvature - np.linalg.eigvalsh(A)[0]) < 1e-8
+    assert abs(goal_curvature(_Saddle([0.0, 0.0]).gradient, np.zeros(2), 2.0) + 2.0) < 1e-4
+
+
+def test_a_weight_whose_goal_is_a_saddle_is_passed_over():
+    goal = np.array([0.2, -0.1])
+    demos = _demos_resting_at(goal)
+    saddle = _Saddle(goal)
+    # The saddle's starts count as reaching the goal: only the curvature rejects it.
+    assert starts_elsewhere(demos, saddle.predict, saddle.gradient, data_extent(demos),
+                            typical_speed(demos))["n_starts_elsewhere"] == 0
+    models = {1000.0: saddle, 100.0: _Bowl(goal), 10.0: _Bowl(goal)}
+
+    def fit(candidate):
+        return models[candidate.direction_weight]
+
+    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos)
+    assert out["direction_weight"] == 100.0 and out["goal_is_minimum"]
+    first, kept = out["direction_weights_tried"]
+    assert first["goal_curvature"] < 0.0 < kept["goal_curvature"]
+
+
+def test_a_kept_fit_whose_goal_is_not_a_minimum_is_flagged():
+    goal = np.array([0.2, -0.1])
+    with pytest.warns(UserWarning):
+        out = choose_direction_weight(lambda candidate: _Saddle(goal),
+                                      direction_candidates(TrendKernelRegression()),
+                                      _demos_resting_at(goal))
+    assert out["direction_weight"] == min(DIRECTION_WEIGHTS) and not out["goal_is_minimum"]
 
 
 def test_auto_direction_weight_tries_every_weight_largest_first():
