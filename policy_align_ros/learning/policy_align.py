@@ -61,6 +61,7 @@ from policy_align_ros.learning.bandwidth import (
     resolve_sigma2,
 )
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
+from policy_align_ros.learning.estimates import Estimates, estimate_potentials
 from policy_align_ros.learning.fitting import check_query
 from policy_align_ros.learning.folds import fit_checks
 from policy_align_ros.learning.global_model import (
@@ -73,14 +74,8 @@ from policy_align_ros.learning.global_model import (
 from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
-from policy_align_ros.learning.pieces import merge_pieces, split_pieces, switch_junctions
-from policy_align_ros.learning.potential import (
-    METHODS,
-    choose_method,
-    estimate_potential,
-    euler_scale,
-    position_noise,
-)
+from policy_align_ros.learning.pieces import merge_pieces, switch_junctions
+from policy_align_ros.learning.potential import METHODS, estimate_potential
 from policy_align_ros.learning.regressors import (
     Regressor,
     TrendKernelRegression,
@@ -97,34 +92,6 @@ from policy_align_ros.learning.thinning import thin_each
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["PolicyAlign"]
-
-
-@dataclasses.dataclass
-class _Estimates:
-    """The potential estimates of a fit, handed from stage to stage.
-
-    ``parents`` and ``parent_masks`` are the trajectories and their training masks as
-    given; ``trajs`` and ``masks`` the pieces they were split into (the same lists when
-    nothing was cut), ``spans`` (P, 3) and ``switch_end`` (P,) as returned by
-    :meth:`PolicyAlign._split`; ``closest`` the pieces' closest-approach matrix; ``rules``
-    the potential rules tried (the first is the fallback) and ``phi`` each rule's
-    estimate along every piece.
-    """
-
-    parents: list[Trajectory]
-    parent_masks: list[np.ndarray]
-    trajs: list[Trajectory]
-    masks: list[np.ndarray]
-    spans: np.ndarray
-    switch_end: np.ndarray
-    closest: np.ndarray
-    rules: list[str]
-    phi: dict[str, list[np.ndarray]]
-
-    @property
-    def split(self) -> bool:
-        """Whether any trajectory was cut into pieces."""
-        return self.trajs is not self.parents
 
 
 class PolicyAlign(BaseEstimator):
@@ -308,7 +275,8 @@ class PolicyAlign(BaseEstimator):
                   f"sigma^2 = {self.sigma2_:.4g}")
 
         t1 = time.perf_counter()
-        est = self._estimate_potentials(trajs, masks, closest)
+        est, self.position_noise_, self.euler_scale_, self.tracking_lag_ = (
+            estimate_potentials(trajs, masks, closest, self.integration, self.tracking_lag))
         template = (TrendKernelRegression(random_state=self.random_state)
                     if self.regressor is None else self.regressor)
         table, free, aligned = self._align(est, template)
@@ -381,35 +349,7 @@ class PolicyAlign(BaseEstimator):
             raise ValueError("trajectories: none of them moves (every step is zero)")
         return trajs, masks
 
-    def _estimate_potentials(self, trajs: list[Trajectory], masks: list[np.ndarray],
-                             closest: np.ndarray) -> _Estimates:
-        """Stage 1: the position noise, the pieces (:meth:`_split`) and every rule's
-        potential estimate along them; sets ``position_noise_`` and ``euler_scale_``."""
-        self.position_noise_ = position_noise([t.positions for t in trajs])
-        pieces, piece_masks, spans, switch_end = self._split(trajs, masks)
-        if pieces is not trajs:
-            closest = closest_approach_matrix(
-                thin_each([t.positions for t in pieces], HEURISTIC_POINTS))
-        rules = [self.integration]
-        if self.integration == "auto":
-            rules = list(dict.fromkeys(["euler", choose_method(pieces, self.position_noise_)]))
-        phi = {rule: [estimate_potential(t, rule, self.position_noise_) for t in pieces]
-               for rule in rules}
-        self.euler_scale_ = 1.0
-        if len(rules) > 1:
-            # Trusted velocities measure the Euler rule's bias: a rescaling, to first order.
-            self.euler_scale_ = euler_scale(phi["euler"], phi[rules[1]])
-            phi["euler"] = [self.euler_scale_ * p for p in phi["euler"]]
-        self.tracking_lag_ = 0.0
-        if self.tracking_lag != "auto" and self.tracking_lag > 0.0 and pieces[0].times is not None:
-            self.tracking_lag_ = float(self.tracking_lag)
-            kinetic = [kinetic_term(t) for t in pieces]
-            phi = {rule: lagged_potentials(p, kinetic, self.tracking_lag_)
-                   for rule, p in phi.items()}
-        return _Estimates(trajs, masks, pieces, piece_masks, spans, switch_end, closest,
-                          rules, phi)
-
-    def _align(self, est: _Estimates, template
+    def _align(self, est: Estimates, template
                ) -> tuple[LocalModelTable, np.ndarray, dict[str, tuple]]:
         """Stages 2-3: the alignment system, its weakly connected groups (``groups_``),
         the trajectories fitted (``inliers_``) and, per rule, the offsets and aligned
@@ -432,7 +372,7 @@ class PolicyAlign(BaseEstimator):
         self.inliers_ = np.union1d(largest_group(self.groups_), free)
         return table, free, self._offsets(est, table)
 
-    def _offsets(self, est: _Estimates, table: LocalModelTable) -> dict[str, tuple]:
+    def _offsets(self, est: Estimates, table: LocalModelTable) -> dict[str, tuple]:
         """Stage 3: per rule of ``est``, the offsets and aligned potentials of every piece
         on the responsibilities of ``table`` and the groups ``groups_``."""
         aligned = {}
@@ -446,7 +386,7 @@ class PolicyAlign(BaseEstimator):
                                                               strict=True)])
         return aligned
 
-    def _fit_lag(self, est: _Estimates, table: LocalModelTable, free: np.ndarray
+    def _fit_lag(self, est: Estimates, table: LocalModelTable, free: np.ndarray
                  ) -> dict[float, float]:
         """Stage 4a: with ``tracking_lag="auto"``, the lag whose potentials the fitted
         regressor predicts best across held-out demonstrations, its hyperparameters fixed
@@ -481,7 +421,7 @@ class PolicyAlign(BaseEstimator):
             est.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
         return scores
 
-    def _fit_global(self, est: _Estimates, template, free: np.ndarray,
+    def _fit_global(self, est: Estimates, template, free: np.ndarray,
                     aligned: dict[str, tuple], goal: np.ndarray | None = None
                     ) -> tuple[dict[str, float | None], int]:
         """Stage 4: a copy of ``template`` fitted on every rule's aligned potentials; the
@@ -505,7 +445,7 @@ class PolicyAlign(BaseEstimator):
             *aligned[self.integration_], free, self.regressor_, est.trajs, est.masks)
         return scores, len(Xtr)
 
-    def _merge_and_support(self, est: _Estimates, n: int,
+    def _merge_and_support(self, est: Estimates, n: int,
                            joint_names: Sequence[str] | None) -> None:
         """Stage 5: the pieces' attributes merged back per trajectory
         (:meth:`_merge_pieces`), the support of the fitted trajectories and the
@@ -525,7 +465,7 @@ class PolicyAlign(BaseEstimator):
         self.robot_ = None
         self.timed_ = trajs[0].times is not None
 
-    def _summary(self, est: _Estimates, table: LocalModelTable,
+    def _summary(self, est: Estimates, table: LocalModelTable,
                  scores: dict[str, float | None], timings: dict[str, float]) -> dict:
         """Stage 6: ``fit_summary_``, the fit's counts and measures (saved with the
         model)."""
@@ -553,12 +493,6 @@ class PolicyAlign(BaseEstimator):
                                             self.position_noise_),
             "timings_s": timings,
         }
-
-    def _split(self, trajs: list[Trajectory], masks: list[np.ndarray]
-               ) -> tuple[list[Trajectory], list[np.ndarray], np.ndarray, np.ndarray]:
-        """The pieces fitted apart (:func:`~policy_align_ros.learning.pieces.split_pieces`
-        under ``integration`` and ``position_noise_``)."""
-        return split_pieces(trajs, masks, self.integration, self.position_noise_)
 
     def _merge_pieces(self, spans: np.ndarray, parents: list[Trajectory]) -> None:
         """Learnt per-piece attributes back to the trajectories

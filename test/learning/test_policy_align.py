@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+import policy_align_ros.learning.estimates as estimates_module
 import policy_align_ros.learning.pieces as pieces_module
-import policy_align_ros.learning.policy_align as pa_module
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory, metrics
@@ -64,8 +64,8 @@ def test_policy_is_invariant_to_constants_added_to_trajectory_potentials(monkeyp
     data = make_toy_dataset("parabola", 25, 30, np.random.default_rng(4))
     reference = PolicyAlign(sigma="medium").fit(data.trajectories)
     shifts = iter(np.random.default_rng(9).normal(scale=50.0, size=25))
-    original = pa_module.estimate_potential
-    monkeypatch.setattr(pa_module, "estimate_potential",
+    original = estimates_module.estimate_potential
+    monkeypatch.setattr(estimates_module, "estimate_potential",
                         lambda traj, *args: original(traj, *args) + next(shifts))
     shifted = PolicyAlign(sigma="medium").fit(data.trajectories)
     X = np.random.default_rng(1).uniform(-1.5, 1.5, size=(50, 2))
@@ -223,7 +223,7 @@ def test_noisy_recordings_without_velocities_still_give_the_policy(monkeypatch):
     corrected = metrics.nupe(pot.policy(X), model.policy(X))
     assert corrected < 0.01
     # The same fit without the correction: the noise's drift swamps the potential.
-    monkeypatch.setattr(pa_module, "position_noise", lambda positions: 0.0)
+    monkeypatch.setattr(estimates_module, "position_noise", lambda positions: 0.0)
     uncorrected = PolicyAlign(random_state=0).fit(noisy)
     assert metrics.nupe(pot.policy(X), uncorrected.policy(X)) > 5 * corrected
 
