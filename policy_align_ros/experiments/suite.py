@@ -234,15 +234,15 @@ def parse_settings(items: list[str]) -> dict[str, str | float]:
         if not sep or name not in known:
             raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME one of "
                              f"{sorted(known)}")
-        if value == "cv" or name == "trend_form" or (name, value) == ("direction_weight",
-                                                                         "auto"):
+        if value == "cv" or name == "trend_form" or (
+                value == "auto" and name in ("direction_weight", "n_centres")):
             out[name] = value
             continue
         try:
             number = float(value)
         except ValueError:
             raise ValueError(f"--set {item!r}: {value!r} is neither 'cv' (or 'auto' for "
-                             "direction_weight) nor a number") from None
+                             "direction_weight and n_centres) nor a number") from None
         out[name] = int(number) if name in ("n_centres", "max_fit_points", "n_folds") else number
     return out
 

@@ -84,10 +84,10 @@ def cv_error(regressor) -> float:
 def fixed_copy(regressor, n_folds: int | None = None):
     """An unfitted copy of ``regressor`` with its CV's choice (``cv_best_``) fixed.
 
-    A ``TrendKernelRegression`` with a CV gets the hyperparameters it chose; NaN marks
-    what a candidate has none of (the single-index trend's index starts from the
-    quadratic its own CV picks, as in the full fit). Any other regressor is a fresh copy
-    of its parameters.
+    A ``TrendKernelRegression`` with a CV gets the hyperparameters it chose and the
+    number of centres it drew; NaN marks what a candidate has none of (the single-index
+    trend's index starts from the quadratic its own CV picks, as in the full fit). Any
+    other regressor is a fresh copy of its parameters.
 
     Parameters
     ----------
@@ -105,6 +105,10 @@ def fixed_copy(regressor, n_folds: int | None = None):
                       kernel_ridge=kernel, offset_ridge=offset)
         if n_folds is not None:
             params["n_folds"] = n_folds
+        if hasattr(regressor, "n_centres_"):
+            # As many centres as the fit drew: a refit on fewer demonstrations is the
+            # same model on less data.
+            params["n_centres"] = regressor.n_centres_
     return type(regressor)(**params)
 
 

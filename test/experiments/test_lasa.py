@@ -147,6 +147,8 @@ def test_policy_settings_split_between_policy_align_and_its_regressor():
     weights = [parse_policy_settings([f"direction_weight={v}"])["regressor"]
                for v in ("auto", "100")]
     assert weights == [{"direction_weight": "auto"}, {"direction_weight": 100.0}]
+    centres = [parse_policy_settings([f"n_centres={v}"])["regressor"] for v in ("auto", "300")]
+    assert centres == [{"n_centres": "auto"}, {"n_centres": 300}]
     with pytest.raises(ValueError, match="offset_ridge"):
         parse_policy_settings(["offset_ridge=auto"])
 

@@ -8,6 +8,7 @@ import pytest
 import scipy.optimize
 
 from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.global_model import fixed_copy
 from policy_align_ros.learning.regressors import (
     REGISTRY,
     NotFittedError,
@@ -22,6 +23,10 @@ from policy_align_ros.learning.regressors.trend_kernel.cv import (
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _median_distance,
     _trend_hessian,
+)
+from policy_align_ros.learning.regressors.trend_kernel.model import (
+    CENTRES_PER_DEMONSTRATION,
+    MAX_CENTRES,
 )
 from policy_align_ros.learning.regressors.trend_kernel.single_index import KNEES
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
@@ -586,3 +591,21 @@ def test_trend_keeps_a_minimum_when_the_data_suggest_a_saddle():
     assert lam[0] >= 0.99 * CURVATURE_FLOOR * lam[-1] > 0
     # The curvature the data do support is kept.
     assert lam[-1] == pytest.approx(2.0 * model.scale_**2 / model.y_scale_, rel=0.05)
+
+
+def test_auto_centres_grow_with_the_demonstrations_up_to_the_cap():
+    rng = np.random.default_rng(3)
+    X = rng.uniform(-1.0, 1.0, (2000, 2))
+    y = np.sum(X**2, axis=1)
+
+    def fitted(n_demos, **params):
+        groups = np.repeat(np.arange(n_demos), len(X) // n_demos)
+        return TrendKernelRegression(trend_ridge=1e-3, length_scale=0.5, kernel_ridge=1e-4,
+                                     offset_ridge=math.inf, **params).fit(X, y, groups)
+
+    assert fitted(4).n_centres_ == 4 * CENTRES_PER_DEMONSTRATION
+    assert len(fitted(4).centres_) == 4 * CENTRES_PER_DEMONSTRATION
+    assert fitted(40).n_centres_ == MAX_CENTRES
+    assert len(fitted(4, n_centres=60).centres_) == 60
+    # A refit with the choice fixed keeps as many centres, on any number of demonstrations.
+    assert fixed_copy(fitted(4)).n_centres == 4 * CENTRES_PER_DEMONSTRATION
