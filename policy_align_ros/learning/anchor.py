@@ -140,7 +140,7 @@ def direction_candidates(template) -> list:
 
 
 def choose_direction_weight(fit: Callable[[object], object], candidates: Sequence,
-                            trajs: Sequence[Trajectory]) -> dict:
+                            trajs: Sequence[Trajectory], goal: np.ndarray) -> dict:
     """Fit the candidates in turn and keep the first from whose every demonstration's start
     the learnt policy reaches the goal, and whose goal is a strict minimum.
 
@@ -165,6 +165,8 @@ def choose_direction_weight(fit: Callable[[object], object], candidates: Sequenc
         From :func:`direction_candidates`.
     trajs : sequence of Trajectory
         The demonstrations (state units).
+    goal : ndarray (n,)
+        Where they end together (:func:`anchor_decision`'s ``goal``), state units.
 
     Returns
     -------
@@ -180,10 +182,7 @@ def choose_direction_weight(fit: Callable[[object], object], candidates: Sequenc
     """
     # As goal_summary measures them, so that ``starts`` is the goal report's own result.
     extent, speed = data_extent(trajs) or 1.0, typical_speed(trajs)
-    goal = demonstrated_goal(trajs)
-    if goal is None:
-        raise ValueError("choose_direction_weight: the demonstrations do not end together, "
-                         "so there is no goal to anchor a fit at (anchor_decision decides)")
+    goal = np.asarray(goal, dtype=float)
     tried: list[dict] = []
     found = None
     for i, candidate in enumerate(candidates):

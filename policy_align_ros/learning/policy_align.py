@@ -308,7 +308,7 @@ class PolicyAlign(BaseEstimator):
                 return self.regressor_
 
             choice = choose_direction_weight(fit_anchored, direction_candidates(template),
-                                             trajs)
+                                             trajs, goal)
             starts = choice.pop("starts")
             anchor.update(choice)
             scores, n_fitted = fitted["out"]

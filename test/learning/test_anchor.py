@@ -11,7 +11,12 @@ from policy_align_ros.learning.anchor import (
     goal_curvature,
     motion_steps,
 )
-from policy_align_ros.learning.goal import data_extent, starts_elsewhere, typical_speed
+from policy_align_ros.learning.goal import (
+    data_extent,
+    demonstrated_goal,
+    starts_elsewhere,
+    typical_speed,
+)
 from policy_align_ros.learning.regressors import TrendKernelRegression
 from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 from policy_align_ros.learning.trajectory import Trajectory
@@ -124,7 +129,8 @@ def test_a_weight_whose_goal_is_a_saddle_is_passed_over():
     def fit(candidate):
         return models[candidate.direction_weight]
 
-    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos)
+    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos,
+                                  demonstrated_goal(demos))
     assert out["direction_weight"] == 100.0 and out["goal_is_minimum"]
     first, kept = out["direction_weights_tried"]
     assert first["goal_curvature"] < 0.0 < kept["goal_curvature"]
@@ -133,9 +139,10 @@ def test_a_weight_whose_goal_is_a_saddle_is_passed_over():
 def test_a_kept_fit_whose_goal_is_not_a_minimum_is_flagged():
     goal = np.array([0.2, -0.1])
     with pytest.warns(UserWarning):
+        demos = _demos_resting_at(goal)
         out = choose_direction_weight(lambda candidate: _Saddle(goal),
                                       direction_candidates(TrendKernelRegression()),
-                                      _demos_resting_at(goal))
+                                      demos, demonstrated_goal(demos))
     assert out["direction_weight"] == min(DIRECTION_WEIGHTS) and not out["goal_is_minimum"]
 
 
@@ -156,7 +163,8 @@ def test_the_largest_weight_whose_starts_all_reach_the_goal_is_kept():
         fitted.append(candidate.direction_weight)
         return models[candidate.direction_weight]
 
-    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos)
+    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos,
+                                  demonstrated_goal(demos))
     assert fitted == [1000.0, 100.0] and out["direction_weight"] == 100.0
     first, kept = out["direction_weights_tried"]
     assert first["n_starts_elsewhere"] == len(demos) and kept["n_starts_elsewhere"] == 0
@@ -174,8 +182,9 @@ def test_when_no_weight_takes_the_starts_to_the_goal_the_last_is_fitted_last():
         fitted.append(candidate.direction_weight)
         return _Tilted(goal)
 
-    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()),
-                                  _demos_resting_at(goal))
+    demos = _demos_resting_at(goal)
+    out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos,
+                                  demonstrated_goal(demos))
     assert fitted == sorted(DIRECTION_WEIGHTS, reverse=True)
     assert out["direction_weight"] == min(DIRECTION_WEIGHTS)
     assert out["starts"] is None  # the last fit is kept unchecked

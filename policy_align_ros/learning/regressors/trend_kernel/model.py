@@ -224,8 +224,8 @@ class TrendKernelRegression(BaseEstimator):
     centres_ : ndarray (m, n)
         Kernel centres, standardised; ``alpha_`` (m,) their weights.
     n_centres_ : int
-        The centres drawn (``n_centres`` resolved; fewer when there are fewer samples),
-        also for a trend without residual; absent on a loaded model.
+        The centres drawn (``n_centres`` resolved, at most the samples), also for a trend
+        without residual; absent on a loaded model.
     n_features_in_ : int
     """
 
@@ -273,13 +273,13 @@ class TrendKernelRegression(BaseEstimator):
         if w != "auto" and (not isinstance(w, (int, float)) or not 0 <= w < math.inf):
             raise ValueError(f"direction_weight must be 'auto' or a finite float >= 0, got "
                              f"{w!r}")
-        for name, low in (("n_centres", 1), ("max_fit_points", 10), ("n_folds", 2)):
+        c = self.n_centres
+        if c != "auto" and (not isinstance(c, (int, np.integer)) or c < 1):
+            raise ValueError(f"n_centres must be 'auto' or an int >= 1, got {c!r}")
+        for name, low in (("max_fit_points", 10), ("n_folds", 2)):
             value = getattr(self, name)
-            if name == "n_centres" and value == "auto":
-                continue
             if not isinstance(value, (int, np.integer)) or value < low:
-                either = "'auto' or " if name == "n_centres" else ""
-                raise ValueError(f"{name} must be {either}an int >= {low}, got {value!r}")
+                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
 
     def _direction_weight(self) -> float:
         """The direction weight a fit uses (``"auto"`` outside PolicyAlign: the last, the
@@ -371,10 +371,10 @@ class TrendKernelRegression(BaseEstimator):
         u = (y - self.y_mean_) / self.y_scale_
 
         demo_ids, demo = np.unique(groups, return_inverse=True)
-        self.n_centres_ = (min(MAX_CENTRES, CENTRES_PER_DEMONSTRATION * len(demo_ids))
-                           if self.n_centres == "auto" else int(self.n_centres))
-        centre_idx = np.sort(rng.choice(m, size=min(self.n_centres_, m), replace=False))
-        C = Z[centre_idx]
+        wanted = (min(MAX_CENTRES, CENTRES_PER_DEMONSTRATION * len(demo_ids))
+                  if self.n_centres == "auto" else int(self.n_centres))
+        self.n_centres_ = min(wanted, m)
+        C = Z[np.sort(rng.choice(m, size=self.n_centres_, replace=False))]
         free = np.isin(demo_ids, free_groups)
         n_folds = min(self.n_folds, len(demo_ids))
         demo_fold = np.zeros(len(demo_ids), dtype=np.int64)
