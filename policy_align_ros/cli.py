@@ -11,7 +11,7 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
         [--seed S] [--out DIR] [--cases a,b] [--set NAME=VALUE]
     policy-align bench lasa [--protocol loo|all|both] [--shapes tuning|reporting|all|A,B]
-        [--methods a,b] [--jobs J] [--out DIR] [--set NAME=VALUE]
+        [--methods a,b] [--demos K] [--recorded] [--jobs J] [--out DIR] [--set NAME=VALUE]
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ def _add_bench(sub) -> None:
                        help="suite only: white noise on the recorded positions of the "
                             "training demonstrations, of RMS norm F median steps per sample")
     bench.add_argument("--demos", type=int, default=None, metavar="K",
-                       help="suite only: K training demonstrations per data set instead of "
-                            "the case's own number")
+                       help="suite: K training demonstrations per data set instead of "
+                            "the case's own number; lasa: the first K of each shape's 7")
     bench.add_argument("--protocol", default="both", choices=("loo", "all", "both"),
                        help="lasa only: leave one demonstration out, train on all 7, or both")
     bench.add_argument("--shapes", default="all",
@@ -50,6 +50,9 @@ def _add_bench(sub) -> None:
     bench.add_argument("--methods", default=None, type=lambda s: s.split(","),
                        help="lasa only: comma-separated subset of policy_align,naive,gmr,"
                             "grad_field (default: all four)")
+    bench.add_argument("--recorded", action="store_true",
+                       help="lasa only: train on the demonstrations as a recorder stores "
+                            "them: at rest before and after the motion, with position noise")
 
 
 def _build_parser() -> argparse.ArgumentParser:

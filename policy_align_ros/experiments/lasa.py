@@ -15,6 +15,15 @@ Training data: every 5th sample of a demonstration with its times,
 the 7, evaluate on each of the 7) and ``loo`` (train on 6, evaluate on the held-out one,
 for each of the 7). The measures are in :mod:`lasa_metrics`; the methods in
 :mod:`lasa_methods`.
+
+``--demos K`` uses the first K demonstrations of each shape (``loo`` trains on K - 1):
+a user who records a few. ``--recorded`` trains on the demonstrations as the recorder
+node stores them when a user calls ``start_demo`` before moving and ``stop_demo`` after:
+each training demonstration at rest for :data:`RECORDED_REST_BEFORE` s before its motion
+and :data:`RECORDED_REST_AFTER` s after it, with white position noise of
+:data:`RECORDED_NOISE` of the workspace on every sample (a tracker's noise floor), seeded
+per shape and demonstration. Rollouts and metrics stay on the data set's own
+demonstrations.
 """
 
 from __future__ import annotations
@@ -42,6 +51,7 @@ from policy_align_ros.experiments.lasa_metrics import (
 )
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.learning import Trajectory
+from policy_align_ros.sim.recording import pad_with_rest
 
 __all__ = ["ALL_SHAPES", "TUNING_SHAPES", "REPORTING_SHAPES", "PROTOCOLS", "load_shape",
            "select_shapes", "run_task", "run_lasa", "main"]
@@ -68,6 +78,11 @@ FIGURE_STRIDE = 10
 FIGURE_GRID = 40
 #: Methods whose rollouts the figure draws.
 FIGURE_METHODS = ("policy_align", "gmr")
+#: ``--recorded``: ranges (s) of the rest before and after each demonstration's motion, and
+#: the RMS position noise per coordinate as a fraction of the workspace W.
+RECORDED_REST_BEFORE = (0.2, 1.0)
+RECORDED_REST_AFTER = (0.5, 2.0)
+RECORDED_NOISE = 5e-4
 
 
 def load_shape(name: str) -> list[dict[str, np.ndarray]]:
@@ -113,9 +128,21 @@ def shape_set(name: str) -> str:
     return "tuning" if name in TUNING_SHAPES else "reporting"
 
 
-def _training(demos: list[dict], keep: list[int], subsample: int) -> list[Trajectory]:
-    return [Trajectory(demos[k]["positions"][::subsample], demos[k]["times"][::subsample],
-                       name=str(k)) for k in keep]
+def _training(demos: list[dict], keep: list[int], subsample: int,
+              recorded: tuple[str, float] | None = None) -> list[Trajectory]:
+    """Every ``subsample``-th sample of the demonstrations ``keep``; with ``recorded``
+    (shape name, workspace W in mm) as the recorder stores them (module docstring)."""
+    out = []
+    for k in keep:
+        X, t = demos[k]["positions"][::subsample], demos[k]["times"][::subsample]
+        if recorded is not None:
+            shape, width = recorded
+            rng = np.random.default_rng([ALL_SHAPES.index(shape), k])
+            X, t = pad_with_rest(X, t, rng.uniform(*RECORDED_REST_BEFORE),
+                                 rng.uniform(*RECORDED_REST_AFTER))
+            X = X + RECORDED_NOISE * width * rng.standard_normal(X.shape)
+        out.append(Trajectory(X, t, name=str(k)))
+    return out
 
 
 def _evaluate(policy, demo: dict, width: float, max_steps: int | None
@@ -168,7 +195,8 @@ def run_task(task: tuple) -> dict[str, Any]:
         ``(shape, protocol, fold, methods, settings, want_field, options)``: ``fold`` is
         the held-out demonstration (``loo``) or None (``all``); ``options`` may hold
         ``demos`` (use only the first so many demonstrations), ``subsample`` and
-        ``max_steps`` (a cap on rollout steps), for quick tests.
+        ``max_steps`` (a cap on rollout steps), for quick tests, and ``recorded``
+        (train on the demonstrations as recorded, module docstring).
 
     Returns
     -------
@@ -182,7 +210,8 @@ def run_task(task: tuple) -> dict[str, Any]:
     width = workspace_size([d["positions"] for d in demos])
     keep = [k for k in range(len(demos)) if k != fold]
     evaluated = list(range(len(demos))) if fold is None else [fold]
-    trajs = _training(demos, keep, options.get("subsample", SUBSAMPLE))
+    trajs = _training(demos, keep, options.get("subsample", SUBSAMPLE),
+                      (shape, width) if options.get("recorded") else None)
     records, figure = [], {"rollouts": {}, "field": None}
     for method in methods:
         with warnings.catch_warnings(record=True) as caught:
@@ -257,11 +286,19 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"methods {unknown}: unknown; known: {list(METHODS)}")
     settings = parse_policy_settings(getattr(args, "set", None) or [])
     options = dict(getattr(args, "lasa_options", None) or {})
+    options.setdefault("recorded", bool(getattr(args, "recorded", False)))
+    if getattr(args, "demos", None) is not None:
+        if not 2 <= args.demos <= 7:
+            raise ValueError(f"--demos {args.demos}: a LASA shape has 7 demonstrations; "
+                             "give 2 to 7")
+        options["demos"] = args.demos
     results, elapsed = run_lasa(shapes, protocols, methods, settings, args.jobs, options)
     records = [r for res in results for r in res["records"]]
     widths = {res["shape"]: res["width"] for res in results}
     command = (f"policy-align bench lasa --protocol {protocol} --shapes "
                f"{getattr(args, 'shapes', None) or 'all'} --jobs {args.jobs}"
+               + (f" --demos {options['demos']}" if "demos" in options else "")
+               + (" --recorded" if options["recorded"] else "")
                + "".join(f" --set {s}" for s in getattr(args, "set", None) or []))
     text = format_report(records, methods, protocols, elapsed, command)
     print(text)

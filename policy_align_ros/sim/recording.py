@@ -13,7 +13,10 @@ The demonstrations of :mod:`policy_align_ros.sim.demonstrations` are exact Euler
   unilateral plane it pushes into) and Coulomb friction slows its tangential motion, which
   is then not a projection of the expert's policy;
 * :func:`encoder_noise` and :func:`stamp_jitter`: quantised, noisy positions and stamps
-  taken off the sampling instants.
+  taken off the sampling instants;
+* :func:`pad_with_rest`: a recorder started before the motion and stopped after it (the
+  recorder node's ``start_demo`` and ``stop_demo``), so the robot stands still at both
+  ends.
 
 Every function returns arrays the suite wraps as a
 :class:`~policy_align_ros.sim.demonstrations.Demonstration` with the expert's ground
@@ -30,7 +33,7 @@ from policy_align_ros.kinematics import nullspace_projector
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.sim.demonstrations import ConstraintFn, Demonstration
 
-__all__ = ["encoder_noise", "friction_slowdown", "minimum_jerk", "retime_path",
+__all__ = ["encoder_noise", "friction_slowdown", "minimum_jerk", "pad_with_rest", "retime_path",
            "stamp_jitter", "table_contact_rollout", "track_velocity", "with_ground_truth"]
 
 #: Distance above the table top (m) at which the hand counts as touching it.
@@ -302,6 +305,41 @@ def encoder_noise(X: np.ndarray, resolution: float, sd: float, rng: np.random.Ge
         raise ValueError(f"sd: must be >= 0, got {sd}")
     X = np.asarray(X, dtype=float)
     return resolution * np.round(X / resolution) + sd * rng.standard_normal(X.shape)
+
+
+def pad_with_rest(X: np.ndarray, times: np.ndarray, rest_before: float, rest_after: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """A recording that starts ``rest_before`` s before the motion and ends ``rest_after``
+    s after it: the first and last positions held, at the median sample period.
+
+    Parameters
+    ----------
+    X : numpy.ndarray, shape (N, n)
+        Positions of the motion (state units), N >= 2.
+    times : numpy.ndarray, shape (N,)
+        Increasing stamps, s.
+    rest_before, rest_after : float
+        Rests added at the start and at the end, s (>= 0; rounded to whole periods).
+
+    Returns
+    -------
+    X : numpy.ndarray, shape (N + a + b, n)
+    times : numpy.ndarray, shape (N + a + b,)
+        Still increasing, with the motion's stamps unchanged.
+    """
+    X, times = np.asarray(X, dtype=float), np.asarray(times, dtype=float)
+    if X.ndim != 2 or len(X) < 2 or times.shape != (len(X),):
+        raise ValueError(f"X, times: must have shapes (N >= 2, n) and (N,), got {X.shape} "
+                         f"and {times.shape}")
+    if not (rest_before >= 0 and rest_after >= 0):
+        raise ValueError(f"rest_before, rest_after: must be >= 0 s, got {rest_before}, "
+                         f"{rest_after}")
+    dt = float(np.median(np.diff(times)))
+    before, after = int(round(rest_before / dt)), int(round(rest_after / dt))
+    X = np.vstack([np.repeat(X[:1], before, axis=0), X, np.repeat(X[-1:], after, axis=0)])
+    times = np.concatenate([times[0] - dt * np.arange(before, 0, -1), times,
+                            times[-1] + dt * np.arange(1, after + 1)])
+    return X, times
 
 
 def stamp_jitter(times: np.ndarray, sd: float, rng: np.random.Generator) -> np.ndarray:

@@ -175,6 +175,37 @@ def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
     assert table.strip() in capsys.readouterr().out
 
 
+def test_a_recorded_run_of_a_few_demonstrations_says_so_in_its_command(tmp_path):
+    args = argparse.Namespace(
+        protocol="loo", shapes="Line", methods=["grad_field"], set=[], jobs=1, demos=3,
+        recorded=True, out=str(tmp_path), lasa_options={"subsample": 20, "max_steps": 200})
+    assert lasa.main(args) == 0
+    raw = json.loads((tmp_path / "lasa.json").read_text())
+    assert raw["command"].endswith("--demos 3 --recorded")
+    assert sorted(r["demo"] for r in raw["records"]) == [0, 1, 2]
+
+
+def test_recorded_training_demonstrations_rest_at_both_ends_and_are_noisy():
+    demos = lasa.load_shape("Line")
+    width = workspace_size([d["positions"] for d in demos])
+    clean = lasa._training(demos, [0, 1], 5)
+    recorded = lasa._training(demos, [0, 1], 5, ("Line", width))
+    again = lasa._training(demos, [1], 5, ("Line", width))
+    for c, r in zip(clean, recorded, strict=True):
+        extra = len(r.positions) - len(c.positions)
+        dt = np.median(np.diff(c.times))
+        low = sum(lo for lo, _ in (lasa.RECORDED_REST_BEFORE, lasa.RECORDED_REST_AFTER))
+        high = sum(hi for _, hi in (lasa.RECORDED_REST_BEFORE, lasa.RECORDED_REST_AFTER))
+        assert low / dt - 2 <= extra <= high / dt + 2
+        # The rests stay where the motion starts and ends, within the noise.
+        noise = lasa.RECORDED_NOISE * width
+        assert np.linalg.norm(r.positions[0] - c.positions[0]) < 6 * noise
+        assert np.linalg.norm(r.positions[-1] - c.positions[-1]) < 6 * noise
+        assert np.all(np.diff(r.times) > 0)
+    # Seeded per shape and demonstration: a demonstration is recorded alike in every fold.
+    np.testing.assert_array_equal(again[0].positions, recorded[1].positions)
+
+
 def test_bad_lasa_arguments_raise_value_errors(tmp_path):
     base = dict(protocol="loo", shapes="Line", methods=None, set=[], jobs=1,
                 out=str(tmp_path))
@@ -184,4 +215,7 @@ def test_bad_lasa_arguments_raise_value_errors(tmp_path):
         lasa.main(argparse.Namespace(**{**base, "methods": ["lwpr"]}))
     with pytest.raises(ValueError, match="--set"):
         lasa.main(argparse.Namespace(**{**base, "set": ["bogus=1"]}))
+    for k in (1, 8):
+        with pytest.raises(ValueError, match="--demos"):
+            lasa.main(argparse.Namespace(**{**base, "demos": k}))
     assert list(tmp_path.iterdir()) == []

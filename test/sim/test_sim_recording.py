@@ -9,6 +9,7 @@ from policy_align_ros.sim.recording import (
     encoder_noise,
     friction_slowdown,
     minimum_jerk,
+    pad_with_rest,
     retime_path,
     stamp_jitter,
     track_velocity,
@@ -100,3 +101,19 @@ def test_stamp_jitter_has_the_stated_rms_and_keeps_order():
     assert np.sqrt(np.mean((out - times) ** 2)) == pytest.approx(1e-3, rel=0.05)
     with pytest.raises(ValueError, match="times"):
         stamp_jitter(times[::-1], 1e-3, np.random.default_rng(0))
+
+
+def test_padding_holds_the_ends_for_the_rests_and_keeps_the_motion():
+    t = 0.02 * np.arange(50) + 3.0
+    X = np.stack([np.linspace(0, 1, 50), np.linspace(2, 0, 50)], axis=1)
+    Xp, tp = pad_with_rest(X, t, 0.2, 0.5)
+    assert len(Xp) == 50 + 10 + 25
+    assert np.all(np.diff(tp) > 0)
+    np.testing.assert_array_equal(Xp[10:60], X)
+    np.testing.assert_array_equal(tp[10:60], t)
+    assert np.all(Xp[:10] == X[0]) and np.all(Xp[60:] == X[-1])
+    assert tp[0] == pytest.approx(2.8) and tp[-1] == pytest.approx(t[-1] + 0.5)
+    with pytest.raises(ValueError, match="rest_before"):
+        pad_with_rest(X, t, -0.1, 0.5)
+    with pytest.raises(ValueError, match="shapes"):
+        pad_with_rest(X[:1], t[:1], 0.1, 0.5)
