@@ -520,3 +520,18 @@ def test_learnt_minimum_is_the_demonstrated_goal_and_does_not_move_when_retimed(
     retimed = [Trajectory(positions=warped, times=d0.times * 1.7), *demos[1:]]
     again = _descend(PolicyAlign().fit(retimed), demos[0].positions[0])
     assert np.linalg.norm(again - first) < 0.01 * extent
+
+
+def test_a_fit_in_metres_is_the_fit_in_millimetres_rescaled():
+    # The same teacher recorded in mm and in m: no threshold of the fit may depend on the
+    # unit (LASA's 26 shapes give the same rollouts in both, `docs/design/lasa.md`).
+    goal = np.array([0.5, -1.0])
+    mm = _human_timed_demos(goal, n_demos=5)
+    metres = [Trajectory(positions=d.positions * 1e-3, times=d.times) for d in mm]
+    in_mm, in_m = PolicyAlign().fit(mm), PolicyAlign().fit(metres)
+    X = np.concatenate([d.positions[::10] for d in mm])
+    expected = in_mm.policy(X)
+    np.testing.assert_allclose(in_m.policy(X * 1e-3) * 1e3, expected,
+                               atol=1e-6 * np.abs(expected).max())
+    assert (in_m.fit_summary_["anchor"]["direction_weight"]
+            == in_mm.fit_summary_["anchor"]["direction_weight"])
