@@ -190,6 +190,8 @@ class PipelineResult:
             text += f"position noise {100 * noisy:.0f} % of the mean squared step (corrected); "
         text += (f"fit {s['fit_time_s']:.2f} s; held-out nCPE "
                  + ("n/a" if ncpe is None else f"{ncpe:.4f}") + " (along observed motion)")
+        if s.get("poor_fit"):
+            text += "; poor fit: it explains at most half of the held-out motion"
         goal = goal_text(s.get("goal"))
         if goal:
             text += f"; {goal}"
@@ -535,6 +537,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
                             "held_out": json_floats(zero)},
         "worse_than_zero": bool(model.fit_summary_.get("worse_than_zero"))
         or bool(zero and zero["ratio"] >= 1.0),
+        "poor_fit": bool(model.fit_summary_.get("poor_fit")),
         "no_minimum": bool(model.fit_summary_.get("no_minimum")),
         "goal": goal_digest(model.fit_summary_.get("goal")),
         "state": states.state,

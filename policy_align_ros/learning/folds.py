@@ -19,8 +19,9 @@ saw:
   the full model (:mod:`~policy_align_ros.learning.goal`).
 
 :func:`fit_checks` runs both with :func:`~policy_align_ros.learning.goal.goal_summary` and
-warns when the model is no better than a zero policy, or when its potential has no minimum
-near the data. The held-out demonstrations took part
+warns when the model is no better than a zero policy, when it explains at most half of the
+held-out motion (:data:`POOR_FIT_RATIO`), or when its potential has no minimum near the
+data. The held-out demonstrations took part
 in the alignment of the potentials the fold models are trained on (as in the regressor's
 own CV): the estimate is leave-demonstrations-out for the global model, not for the
 alignment. Notation as in :mod:`~policy_align_ros.learning.goal`.
@@ -47,14 +48,17 @@ from policy_align_ros.learning.regressors import (
 )
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["FoldModel", "fit_checks", "fold_refits", "fold_spread", "heldout_vs_zero",
-           "along_motion_errors"]
+__all__ = ["POOR_FIT_RATIO", "FoldModel", "fit_checks", "fold_refits", "fold_spread",
+           "heldout_vs_zero", "along_motion_errors"]
 
 #: Folds drawn for a regressor that keeps none (as many as TrendKernelRegression's CV).
 N_FOLDS = 10
 #: Held-out samples scored per fold at most (evenly strided): the estimate needs a few
 #: thousand, a 10^6-sample fit would otherwise spend seconds on it.
 MAX_SCORED = 2000
+#: A held-out error at or above this share of a zero policy's (the model explains at most
+#: half of the held-out motion along its direction) is a poor fit: it warns, and is kept.
+POOR_FIT_RATIO = 0.5
 
 
 @dataclasses.dataclass
@@ -254,8 +258,9 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
         ``goal`` (:func:`~policy_align_ros.learning.goal.goal_summary`, with
         ``fold_spread`` per minimum, ``fold_spread_max`` and its ``fold_spread_fraction``
         of the extent), ``heldout_vs_zero`` (:func:`heldout_vs_zero`) and
-        ``worse_than_zero`` and ``no_minimum`` (no descent found a minimum); a
-        ``UserWarning`` names the numbers when either is True.
+        ``worse_than_zero``, ``poor_fit`` (held-out error at least :data:`POOR_FIT_RATIO`
+        of a zero policy's, but below it) and ``no_minimum`` (no descent found a
+        minimum); a ``UserWarning`` names the numbers when any is True.
     """
     X = np.concatenate([pieces[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
@@ -279,6 +284,7 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
                                     else goal["fold_spread_max"] / extent)
     goal["n_folds"] = len(folds)
     worse = heldout is not None and heldout["error"] >= heldout["zero_error"]
+    poor = heldout is not None and not worse and heldout["ratio"] >= POOR_FIT_RATIO
     # Every descent from where the demonstrations end left the data's box widened by its
     # extent: the policy has no goal to stop at (it would run to the executor's guard).
     no_minimum = not goal["minima"]
@@ -307,5 +313,16 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
             f"squared error along the observed motion of {heldout['n_samples']} held-out "
             f"samples over {heldout['n_folds']} CV folds): the learnt policy predicts the "
             "demonstrations no better than standing still", UserWarning, stacklevel=3)
+    if poor:
+        # A teacher's timing under changing constraints, or paths no potential follows:
+        # the policy's speeds and directions then differ from the demonstrations'.
+        warnings.warn(
+            f"PolicyAlign: held-out error {heldout['error']:.4g} is {heldout['ratio']:.2g} of "
+            f"a zero policy's {heldout['zero_error']:.4g} (mean squared error along the "
+            f"observed motion of {heldout['n_samples']} held-out samples over "
+            f"{heldout['n_folds']} CV folds): the learnt policy explains at most half of "
+            "the demonstrated motion, so where it leads may not be where they went (do "
+            "they follow one potential? a teacher's own timing, paths that loop)",
+            UserWarning, stacklevel=3)
     return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),
-            "no_minimum": bool(no_minimum)}
+            "poor_fit": bool(poor), "no_minimum": bool(no_minimum)}

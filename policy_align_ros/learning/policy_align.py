@@ -173,8 +173,9 @@ class PolicyAlign(BaseEstimator):
         explains: near 1, the recording's steps are mostly noise.
     fit_summary_ : dict
         The fit's counts and measures, saved with the model; with ``goal``,
-        ``heldout_vs_zero`` and ``worse_than_zero`` (:func:`~policy_align_ros.learning.
-        folds.fit_checks`: a ``UserWarning`` when no better than a zero policy).
+        ``heldout_vs_zero``, ``worse_than_zero`` and ``poor_fit``
+        (:func:`~policy_align_ros.learning.folds.fit_checks`: a ``UserWarning`` when no
+        better than a zero policy, or at most half as good).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,

@@ -348,11 +348,32 @@ def test_a_model_whose_potential_has_no_minimum_is_refused(tmp_path):
     assert result.summary["no_minimum"] is True and result.summary["worse_than_zero"] is False
 
 
+def test_a_poor_fit_is_written_and_says_so(tmp_path):
+    # Flows of a bowl pushed about by a random walk as large as their own steps: better
+    # than standing still, but at most half of the held-out motion is the policy's.
+    rng = np.random.default_rng(0)
+    A, centre, demos = np.array([[2.0, 0.5], [0.5, 1.0]]), np.array([0.3, -0.2]), []
+    for _ in range(8):
+        x, X = rng.uniform(-2.0, 2.0, 2), []
+        for _ in range(80):
+            X.append(x.copy())
+            x = x - 0.05 * A @ (x - centre) + 0.02 * rng.normal(size=2)
+        demos.append(np.array(X))
+    path = tmp_path / "model.npz"
+    with pytest.warns(UserWarning):
+        result = learn_pipeline([_write(tmp_path / "noisy", demos)], path,
+                                holdout_fraction=0.0)
+    assert result.written and not result.refusals
+    assert result.summary["poor_fit"] is True and result.summary["worse_than_zero"] is False
+    assert PolicyAlign.load(path).fit_summary_["pipeline"]["poor_fit"] is True
+
+
 def test_the_learn_summary_reports_the_learnt_goal(clean):
     result, path = clean
     goal = result.summary["goal"]
     assert goal["n_minima"] >= 1 and goal["extent"] > 0
     assert result.summary["worse_than_zero"] is False and result.summary["no_minimum"] is False
+    assert result.summary["poor_fit"] is False
     model = PolicyAlign.load(path)
     assert len(model.fit_summary_["goal"]["minima"]) == goal["n_minima"]
     assert model.fit_summary_["pipeline"]["goal"] == goal

@@ -54,6 +54,7 @@ def test_the_learnt_goal_of_a_quadratic_is_its_minimum_and_where_demos_rest(quad
     assert goal["n_folds"] == 8 and goal["fold_spread_fraction"] < 1e-3
     assert goal["n_starts_elsewhere"] == 0
     assert summary["worse_than_zero"] is False and summary["no_minimum"] is False
+    assert summary["poor_fit"] is False
     assert summary["heldout_vs_zero"]["ratio"] < 0.01
     json.dumps(summary, allow_nan=False)  # JSON-able as it is
 
@@ -67,6 +68,39 @@ def test_pure_noise_demonstrations_warn_no_better_than_a_zero_policy():
     assert numbers["error"] >= numbers["zero_error"] > 0
     (message,) = [str(w.message) for w in caught if "zero policy" in str(w.message)]
     assert f"{numbers['error']:.4g}" in message and f"{numbers['zero_error']:.4g}" in message
+
+
+def _noisy_flows(seed, scale, k=8, steps=80):
+    """Flows of the quadratic pushed about by a random walk of ``scale`` per step."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(k):
+        x, X = rng.uniform(-2.0, 2.0, 2), []
+        for _ in range(steps):
+            X.append(x.copy())
+            x = x - DT * A @ (x - CENTRE) + scale * rng.normal(size=2)
+        out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
+    return out
+
+
+def test_a_fit_that_explains_at_most_half_of_the_held_out_motion_warns_and_is_kept():
+    # About as much random walk as flow: the policy is right on average, but the held-out
+    # motion along its own direction is mostly not the policy's.
+    with pytest.warns(UserWarning) as caught:
+        model = PolicyAlign(random_state=0).fit(_noisy_flows(0, 0.02))
+    summary = model.fit_summary_
+    ratio = summary["heldout_vs_zero"]["ratio"]
+    assert 0.5 <= ratio < 1.0
+    assert summary["poor_fit"] is True and summary["worse_than_zero"] is False
+    numbers = summary["heldout_vs_zero"]
+    assert any(f"{numbers['error']:.4g}" in str(w.message)
+               and f"{numbers['zero_error']:.4g}" in str(w.message) for w in caught)
+    # Half as much walk: a fair fit, no warning.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fair = PolicyAlign(random_state=0).fit(_noisy_flows(0, 0.01))
+    assert fair.fit_summary_["poor_fit"] is False
+    assert fair.fit_summary_["heldout_vs_zero"]["ratio"] < 0.5
 
 
 def _uniform_motion(seed, k=8, steps=100):
