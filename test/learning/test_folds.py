@@ -16,8 +16,9 @@ CENTRE = np.array([0.3, -0.2])
 DT = 0.05
 
 
-def _quadratic_demos(seed, k=8, steps=120):
-    """Unconstrained Euler flows of xdot = -A (x - c), at rest at their ends."""
+def _quadratic_demos(seed, k=8, steps=120, walk=0.0):
+    """Unconstrained Euler flows of xdot = -A (x - c), at rest at their ends; ``walk``:
+    each step also pushed about by white noise of that standard deviation."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(k):
@@ -25,6 +26,8 @@ def _quadratic_demos(seed, k=8, steps=120):
         for _ in range(steps):
             X.append(x.copy())
             x = x - DT * A @ (x - CENTRE)
+            if walk:
+                x = x + walk * rng.normal(size=2)
         out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
     return out
 
@@ -70,24 +73,11 @@ def test_pure_noise_demonstrations_warn_no_better_than_a_zero_policy():
     assert f"{numbers['error']:.4g}" in message and f"{numbers['zero_error']:.4g}" in message
 
 
-def _noisy_flows(seed, scale, k=8, steps=80):
-    """Flows of the quadratic pushed about by a random walk of ``scale`` per step."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(k):
-        x, X = rng.uniform(-2.0, 2.0, 2), []
-        for _ in range(steps):
-            X.append(x.copy())
-            x = x - DT * A @ (x - CENTRE) + scale * rng.normal(size=2)
-        out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
-    return out
-
-
 def test_a_fit_that_explains_at_most_half_of_the_held_out_motion_warns_and_is_kept():
     # About as much random walk as flow: the policy is right on average, but the held-out
     # motion along its own direction is mostly not the policy's.
     with pytest.warns(UserWarning) as caught:
-        model = PolicyAlign(random_state=0).fit(_noisy_flows(0, 0.02))
+        model = PolicyAlign(random_state=0).fit(_quadratic_demos(0, steps=80, walk=0.02))
     summary = model.fit_summary_
     ratio = summary["heldout_vs_zero"]["ratio"]
     assert 0.5 <= ratio < 1.0
@@ -98,7 +88,7 @@ def test_a_fit_that_explains_at_most_half_of_the_held_out_motion_warns_and_is_ke
     # Half as much walk: a fair fit, no warning.
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        fair = PolicyAlign(random_state=0).fit(_noisy_flows(0, 0.01))
+        fair = PolicyAlign(random_state=0).fit(_quadratic_demos(0, steps=80, walk=0.01))
     assert fair.fit_summary_["poor_fit"] is False
     assert fair.fit_summary_["heldout_vs_zero"]["ratio"] < 0.5
 
