@@ -306,23 +306,25 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
             f"learnt policy stops where no demonstration's end leads ({', '.join(where)}):"
             " its potential has minima or slopes on the way that the demonstrations did "
             "not follow (a path that loops or crosses itself?)", UserWarning, stacklevel=3)
-    if worse:
-        warnings.warn(
-            f"PolicyAlign: held-out error {heldout['error']:.4g} is no better than a zero "
-            f"policy's {heldout['zero_error']:.4g} (ratio {heldout['ratio']:.3g}, mean "
-            f"squared error along the observed motion of {heldout['n_samples']} held-out "
-            f"samples over {heldout['n_folds']} CV folds): the learnt policy predicts the "
-            "demonstrations no better than standing still", UserWarning, stacklevel=3)
-    if poor:
-        # A teacher's timing under changing constraints, or paths no potential follows:
-        # the policy's speeds and directions then differ from the demonstrations'.
-        warnings.warn(
-            f"PolicyAlign: held-out error {heldout['error']:.4g} is {heldout['ratio']:.2g} of "
-            f"a zero policy's {heldout['zero_error']:.4g} (mean squared error along the "
-            f"observed motion of {heldout['n_samples']} held-out samples over "
-            f"{heldout['n_folds']} CV folds): the learnt policy explains at most half of "
-            "the demonstrated motion, so where it leads may not be where they went (do "
-            "they follow one potential? a teacher's own timing, paths that loop)",
-            UserWarning, stacklevel=3)
+    if worse or poor:
+        warnings.warn(_heldout_message(heldout, worse), UserWarning, stacklevel=3)
     return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),
             "poor_fit": bool(poor), "no_minimum": bool(no_minimum)}
+
+
+def _heldout_message(heldout: dict[str, Any], worse: bool) -> str:
+    """The warning of a fit no better than a zero policy (``worse``), or of a poor fit."""
+    numbers = (f"mean squared error along the observed motion of {heldout['n_samples']} "
+               f"held-out samples over {heldout['n_folds']} CV folds")
+    if worse:
+        return (f"PolicyAlign: held-out error {heldout['error']:.4g} is no better than a zero "
+                f"policy's {heldout['zero_error']:.4g} (ratio {heldout['ratio']:.3g}, "
+                f"{numbers}): the learnt policy predicts the demonstrations no better than "
+                "standing still")
+    # A teacher's timing under changing constraints, or paths no potential follows: the
+    # policy's speeds and directions then differ from the demonstrations'.
+    return (f"PolicyAlign: held-out error {heldout['error']:.4g} is {heldout['ratio']:.2g} of a "
+            f"zero policy's {heldout['zero_error']:.4g} ({numbers}): the learnt policy "
+            "explains at most half of the demonstrated motion, so where it leads may not be "
+            "where they went (do they follow one potential? a teacher's own timing, paths "
+            "that loop)")

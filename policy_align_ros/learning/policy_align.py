@@ -174,8 +174,8 @@ class PolicyAlign(BaseEstimator):
     fit_summary_ : dict
         The fit's counts and measures, saved with the model; with ``goal``,
         ``heldout_vs_zero``, ``worse_than_zero`` and ``poor_fit``
-        (:func:`~policy_align_ros.learning.folds.fit_checks`: a ``UserWarning`` when no
-        better than a zero policy, or at most half as good).
+        (:func:`~policy_align_ros.learning.folds.fit_checks`: a ``UserWarning`` when the
+        held-out error is at least half of a zero policy's).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,
