@@ -77,7 +77,7 @@ def split_pieces(trajs: list[Trajectory], masks: list[np.ndarray], integration: 
 
 def merge_pieces(spans: np.ndarray, parents: list[Trajectory], offsets: np.ndarray,
                  groups: np.ndarray, inliers: np.ndarray, potentials: list[np.ndarray],
-                 estimate: Callable[[Trajectory], np.ndarray]
+                 estimate: Callable[[int, Trajectory], np.ndarray]
                  ) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]:
     """Learnt per-piece attributes back to the trajectories: offsets of each first
     piece, aligned potentials joined, a trajectory kept if any piece is, its group the
@@ -101,8 +101,8 @@ def merge_pieces(spans: np.ndarray, parents: list[Trajectory], offsets: np.ndarr
     potentials : list of ndarray
         The pieces' aligned potentials.
     estimate : callable
-        ``estimate(trajectory)`` (N,): the chosen rule's potential estimate along a whole
-        trajectory (called only where samples were left out).
+        ``estimate(k, trajectory)`` (N,): the chosen rule's potential estimate along the
+        whole ``k``-th trajectory (called only where samples were left out).
 
     Returns
     -------
@@ -124,7 +124,7 @@ def merge_pieces(spans: np.ndarray, parents: list[Trajectory], offsets: np.ndarr
             values[spans[j, 1]:spans[j, 2]] = potentials[j]
         known = np.flatnonzero(~np.isnan(values))
         if len(known) < t.n_samples:
-            whole = estimate(t)
+            whole = estimate(k, t)
             gaps = np.flatnonzero(np.isnan(values))
             near = known[np.abs(gaps[:, None] - known[None, :]).argmin(axis=1)]
             values[gaps] = values[near] + whole[gaps] - whole[near]

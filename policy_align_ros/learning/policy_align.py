@@ -37,6 +37,7 @@ import math
 import numbers
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -89,6 +90,7 @@ from policy_align_ros.learning.support import (
     support_states,
 )
 from policy_align_ros.learning.thinning import thin_each
+from policy_align_ros.learning.timing import TIME_UNITS, TIMING_RESOLUTION, timing_scales
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["PolicyAlign"]
@@ -118,6 +120,15 @@ class PolicyAlign(BaseEstimator):
         unless a lag predicts held-out demonstrations better by more than two standard
         errors (lags below one sample period are not scored); untimed trajectories and
         regressors without a CV score use 0.
+    time_units : {"per_demonstration", "shared"}
+        ``"per_demonstration"`` (default): each demonstration's potential estimates are
+        multiplied by the least-squares slope of the fitted model on them (which undoes
+        the teacher's speed on that demonstration) and the model is fitted again
+        (:mod:`policy_align_ros.learning.timing`); the fit that strands fewer
+        demonstrated starts, then predicts held-out demonstrations' motion better, is
+        kept. Factors within 1 % of 1 keep the paper's estimate without a second fit.
+        ``"shared"``: every demonstration on the paper's one clock. Untimed
+        trajectories share the sample index.
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
         Kept well below ``eigen_tol``: many tiny weights add up to a link that decides
@@ -161,6 +172,11 @@ class PolicyAlign(BaseEstimator):
     tracking_lag_ : float
         The lag used (s; also ``fit_summary_["tracking_lag"]``, with the scores it was
         chosen by in ``fit_summary_["tracking_lag_cv"]``).
+    timing_scales_ : ndarray, shape (K,)
+        The factor each demonstration's potential estimates were multiplied by: below 1
+        for one moved faster than the others, 1 everywhere where the paper's shared clock
+        was kept (also ``fit_summary_["timing_scales"]``; ``fit_summary_["timing_heldout"]``
+        holds both fits' held-out error ratios when both were made, else None).
     euler_scale_ : float
         Factor applied to the Euler potentials with ``integration="auto"`` where
         velocities are trusted (:func:`~policy_align_ros.learning.potential.euler_scale`;
@@ -195,6 +211,7 @@ class PolicyAlign(BaseEstimator):
         *,
         integration: str = "auto",
         tracking_lag: str | float = "auto",
+        time_units: str = "per_demonstration",
         weight_tol: float = 1e-12,
         merge_tol: float = 0.1,
         eigen_tol: float = 1e-8,
@@ -206,6 +223,7 @@ class PolicyAlign(BaseEstimator):
         self.sigma = sigma
         self.integration = integration
         self.tracking_lag = tracking_lag
+        self.time_units = time_units
         self.weight_tol = weight_tol
         self.merge_tol = merge_tol
         self.eigen_tol = eigen_tol
@@ -224,6 +242,9 @@ class PolicyAlign(BaseEstimator):
         if lag != "auto" and not (isinstance(lag, numbers.Real) and 0 <= lag < math.inf):
             raise ValueError(f"tracking_lag must be 'auto' or a finite float >= 0 (s), "
                              f"got {lag!r}")
+        if self.time_units not in TIME_UNITS:
+            raise ValueError(f"time_units must be one of {TIME_UNITS}, got "
+                             f"{self.time_units!r}")
         for name in ("weight_tol", "eigen_tol"):
             value = getattr(self, name)
             if not (isinstance(value, numbers.Real) and 0 < value < 1):
@@ -300,33 +321,32 @@ class PolicyAlign(BaseEstimator):
         # has no minimum there (learning/anchor.py).
         anchor = anchor_decision(self.regressor_, trajs, takes_goal(template),
                                  cv_score(self.regressor_))
-        starts = None
-        if anchor["anchored"]:
-            goal, fitted = np.asarray(anchor["goal"]), {}
-
-            def fit_anchored(candidate):
-                fitted["out"] = self._fit_global(est, candidate, free, aligned, goal)
-                return self.regressor_
-
-            choice = choose_direction_weight(fit_anchored, direction_candidates(template),
-                                             trajs, goal)
-            starts = choice.pop("starts")
-            anchor.update(choice)
-            scores, n_fitted = fitted["out"]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")  # held back until this fit is the one kept
+            starts, out = self._fit_anchored(est, template, free, aligned, anchor)
+        scores, n_fitted = out if out is not None else (scores, n_fitted)
         timings["regression"] = time.perf_counter() - t2
         self._log(f"global model fitted on {n_fitted} samples with the {self.integration_} "
                   f"potentials ({timings['regression']:.2f} s)")
         t3 = time.perf_counter()
         # The learnt goal and the held-out error against a zero policy (warns when no better).
-        checks = fit_checks(self.regressor_, est.trajs, est.masks, self.inliers_,
-                            self.aligned_potentials_, free, est.parents,
-                            random_state=self.random_state, starts_check=starts)
+        self.timing_scales_ = np.ones(len(trajs))
+        fit = self._choose_clocks(est, table, template, free, anchor,
+                                  self._checked_fit(est, free, starts, scores, anchor,
+                                                    caught))
+        self._restore(fit)
+        scores, anchor = fit["scores"], fit["anchor"]
+        for caught in fit["warnings"]:
+            warnings.warn_explicit(caught.message, caught.category, caught.filename,
+                                   caught.lineno)
         timings["checks"] = time.perf_counter() - t3
         timings["total"] = time.perf_counter() - t0
 
         self._merge_and_support(est, trajs[0].n_dims, joint_names)
-        self.fit_summary_ = {**self._summary(est, table, scores, timings), **checks,
+        self.fit_summary_ = {**self._summary(est, table, scores, timings), **fit["checks"],
                              "anchor": anchor, "tracking_lag": self.tracking_lag_,
+                             "timing_scales": self.timing_scales_.tolist(),
+                             "timing_heldout": fit["timing_heldout"],
                              "tracking_lag_cv": {f"{t:g}": json_float(v)
                                                  for t, v in lag_scores.items()}}
         return self
@@ -422,6 +442,106 @@ class PolicyAlign(BaseEstimator):
             est.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
         return scores
 
+    def _fit_anchored(self, est: Estimates, template, free: np.ndarray,
+                      aligned: dict[str, tuple], anchor: dict
+                      ) -> tuple[dict | None, tuple | None]:
+        """Stage 4b: the global model made stationary at ``anchor["goal"]`` when
+        ``anchor["anchored"]`` (:func:`~policy_align_ros.learning.anchor.anchor_decision`),
+        with the direction weight chosen from the starts (recorded in ``anchor``). Returns
+        the starts check of the kept fit and its scores and sample count (None, None
+        unanchored)."""
+        if not anchor["anchored"]:
+            return None, None
+        goal, fitted = np.asarray(anchor["goal"]), {}
+
+        def fit_anchored(candidate):
+            fitted["out"] = self._fit_global(est, candidate, free, aligned, goal)
+            return self.regressor_
+
+        choice = choose_direction_weight(fit_anchored, direction_candidates(template),
+                                         est.parents, goal)
+        starts = choice.pop("starts")
+        anchor.update(choice)
+        return starts, fitted["out"]
+
+    def _checked_fit(self, est: Estimates, free: np.ndarray, starts: dict | None,
+                     scores: dict, anchor: dict, caught: list) -> dict:
+        """The fitted global model's checks (:func:`~policy_align_ros.learning.folds.
+        fit_checks`) with what :meth:`_restore` sets again and the warnings of its fit
+        (``caught``) and checks, held back until the fit is kept."""
+        caught = list(caught)
+        with warnings.catch_warnings(record=True) as checked:
+            warnings.simplefilter("always")
+            checks = fit_checks(self.regressor_, est.trajs, est.masks, self.inliers_,
+                                self.aligned_potentials_, free, est.parents,
+                                random_state=self.random_state, starts_check=starts)
+        return {"regressor_": self.regressor_, "integration_": self.integration_,
+                "offsets_": self.offsets_, "aligned_potentials_": self.aligned_potentials_,
+                "timing_scales_": getattr(self, "timing_scales_", None),
+                "phi": est.phi, "est": est, "scores": scores, "anchor": anchor,
+                "checks": checks, "warnings": caught + list(checked),
+                "timing_heldout": None}
+
+    def _restore(self, fit: dict) -> None:
+        """The attributes of a fit recorded by :meth:`_checked_fit`."""
+        for name in ("regressor_", "integration_", "offsets_", "aligned_potentials_"):
+            setattr(self, name, fit[name])
+        if fit["timing_scales_"] is not None:
+            self.timing_scales_ = fit["timing_scales_"]
+        fit["est"].phi = fit["phi"]
+
+    def _choose_clocks(self, est: Estimates, table: LocalModelTable, template,
+                       free: np.ndarray, anchor: dict, fit: dict) -> dict:
+        """Stage 4c: each demonstration on its own clock (:mod:`~policy_align_ros.learning.
+        timing`). Where the factors differ from 1, stages 3-4b run again on the rescaled
+        estimates, and the fit that strands fewer demonstrated starts, then predicts the
+        held-out demonstrations' motion better (:func:`_fit_rank`), is kept. Returns the
+        kept fit's record, with both held-out ratios in ``timing_heldout``."""
+        scales = self._timing_scales(est)
+        if scales is None:
+            return fit
+        timed = self._fit_timed(est, table, template, free, anchor, scales)
+        ratios = {"shared": _heldout_ratio(fit), "per_demonstration": _heldout_ratio(timed)}
+        kept = timed if _fit_rank(timed) < _fit_rank(fit) else fit
+        kept["timing_heldout"] = {k: json_float(v) for k, v in ratios.items()}
+        return kept
+
+    def _timing_scales(self, est: Estimates) -> np.ndarray | None:
+        """With ``time_units="per_demonstration"``, each demonstration's speed factor
+        against the fitted global model (:func:`~policy_align_ros.learning.timing.
+        timing_scales`); None where every factor is within :data:`~policy_align_ros.
+        learning.timing.TIMING_RESOLUTION` of 1, or the samples are untimed (they share
+        one clock, the sample index)."""
+        if self.time_units == "shared" or est.trajs[0].times is None:
+            return None
+        keep = self.inliers_
+        fitted = [self.regressor_.predict(est.trajs[k].positions[est.masks[k]]) for k in keep]
+        values = [self.aligned_potentials_[k][est.masks[k]] for k in keep]
+        scales = timing_scales(fitted, values, est.spans[keep, 0], len(est.parents))
+        return None if np.all(np.abs(scales - 1.0) <= TIMING_RESOLUTION) else scales
+
+    def _fit_timed(self, est: Estimates, table: LocalModelTable, template,
+                   free: np.ndarray, anchor: dict, scales: np.ndarray) -> dict:
+        """Stages 3-4b again on the estimates multiplied by each demonstration's factor
+        ``scales`` (K,): aligned, fitted, and anchored at the goal of the first fit when
+        it was (the direction weight chosen again). Returns :meth:`_checked_fit`'s
+        record."""
+        piece_scale = scales[est.spans[:, 0]]
+        est.phi = {rule: [s * p for s, p in zip(piece_scale, phi, strict=True)]
+                   for rule, phi in est.phi.items()}
+        self.timing_scales_ = scales
+        aligned = self._offsets(est, table)
+        anchor = copy.deepcopy(anchor)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            if anchor["anchored"]:
+                starts, out = self._fit_anchored(est, template, free, aligned, anchor)
+                scores = out[0]
+            else:
+                scores, _ = self._fit_global(est, template, free, aligned)
+                starts = None
+        return self._checked_fit(est, free, starts, scores, anchor, caught)
+
     def _fit_global(self, est: Estimates, template, free: np.ndarray,
                     aligned: dict[str, tuple], goal: np.ndarray | None = None
                     ) -> tuple[dict[str, float | None], int]:
@@ -502,12 +622,14 @@ class PolicyAlign(BaseEstimator):
             spans, parents, self.offsets_, self.groups_, self.inliers_,
             self.aligned_potentials_, self._whole_potential)
 
-    def _whole_potential(self, trajectory: Trajectory) -> np.ndarray:
-        """The chosen rule's potential estimate (N,) along a whole ``trajectory``."""
+    def _whole_potential(self, k: int, trajectory: Trajectory) -> np.ndarray:
+        """The chosen rule's potential estimate (N,) along a whole ``trajectory``, the
+        ``k``-th, in its own time unit (``timing_scales_``)."""
         whole = estimate_potential(trajectory, self.integration_, self.position_noise_)
         if self.integration_ == "euler":
             whole = self.euler_scale_ * whole
-        return whole
+        scales = getattr(self, "timing_scales_", None)
+        return whole if scales is None else scales[k] * whole
 
     @staticmethod
     def _check_masks(
@@ -615,6 +737,20 @@ class PolicyAlign(BaseEstimator):
             or inconsistent with each other; the message names the file and the problem.
         """
         return policy_file.read_model(cls, path)
+
+
+def _heldout_ratio(fit: dict) -> float:
+    """A checked fit's held-out error along the observed motion over a zero policy's
+    (infinite when it has none)."""
+    heldout = fit["checks"].get("heldout_vs_zero")
+    return math.inf if heldout is None else float(heldout["ratio"])
+
+
+def _fit_rank(fit: dict) -> tuple[int, float]:
+    """How a checked fit ranks, lower first: the demonstrated starts from which its policy
+    stops elsewhere (each start is a task the demonstrations say reaches the goal), then
+    its held-out error ratio (:func:`_heldout_ratio`)."""
+    return int(fit["checks"]["goal"].get("n_starts_elsewhere") or 0), _heldout_ratio(fit)
 
 
 def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:

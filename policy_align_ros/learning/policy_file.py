@@ -172,6 +172,11 @@ def _read_arrays(model, header: dict, arrays: dict[str, np.ndarray]) -> None:
     expected = model.fit_summary_.get("n_trajectories", K)
     if expected != K:
         raise ValueError(f"{K} offsets for n_trajectories = {expected!r}")
+    # Files written before per-demonstration time units shared one clock.
+    scales = model.fit_summary_.get("timing_scales", [1.0] * K)
+    model.timing_scales_ = np.asarray(scales, dtype=float).reshape(-1)
+    if len(model.timing_scales_) != K or not np.all(model.timing_scales_ > 0):
+        raise ValueError(f"timing_scales must hold {K} positive numbers")
     model.groups_ = _array(arrays, "groups", "iu", 1, K)
     model.inliers_ = _array(arrays, "inliers", "iu", 1)
     if np.any(model.inliers_ < 0) or np.any(model.inliers_ >= K):

@@ -1,0 +1,143 @@
+"""Tests of each demonstration's time unit (policy_align_ros.learning.timing)."""
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning.policy_align import _fit_rank
+from policy_align_ros.learning.timing import timing_scales
+
+A = np.array([[1.0, 0.4], [0.4, 0.6]])
+CENTRE = np.array([0.3, -0.2])
+DT = 0.05
+
+
+def _policy(X):
+    return -(X - CENTRE) @ A.T
+
+
+def _flows(seed, k=8, steps=120):
+    """Unconstrained Euler flows of xdot = -A (x - c) from random starts."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(k):
+        x, X = rng.uniform(-2.0, 2.0, 2), []
+        for _ in range(steps):
+            X.append(x.copy())
+            x = x + DT * _policy(x)
+        out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
+    return out
+
+
+def _on_another_clock(traj, factor):
+    """The same path, each step taking ``factor`` times as long."""
+    return Trajectory(traj.positions, times=traj.times[0] + factor * (traj.times
+                                                                       - traj.times[0]))
+
+
+def _policy_error(model, demos):
+    X = np.concatenate([d.positions for d in demos])
+    true = _policy(X)
+    return float(np.sqrt(np.mean(np.sum((model.policy(X) - true) ** 2, axis=1))
+                         / np.mean(np.sum(true**2, axis=1))))
+
+
+def test_factors_are_the_slopes_of_the_model_on_each_demonstrations_estimates():
+    rng = np.random.default_rng(0)
+    f = [rng.normal(size=50) for _ in range(4)]
+    # Demonstration 1 (two pieces) ran twice as fast: its estimates are twice the drop.
+    values = [f[0] + 3.0, 2.0 * f[1] - 1.0, 2.0 * f[2] + 5.0, 0.5 * f[3]]
+    scales = timing_scales(f, values, np.array([0, 1, 1, 2]), 3)
+    np.testing.assert_allclose(scales[1] / scales[0], 0.5, rtol=1e-12)
+    np.testing.assert_allclose(scales[2] / scales[0], 2.0, rtol=1e-12)
+    np.testing.assert_allclose(np.prod(scales), 1.0, rtol=1e-12)
+
+
+def test_a_demonstration_that_says_nothing_of_its_speed_keeps_one():
+    rng = np.random.default_rng(1)
+    f = [rng.normal(size=30) for _ in range(4)]
+    values = [f[0], np.full(30, 2.0), -f[2], 2.0 * f[3]]  # flat; against the model
+    scales = timing_scales(f, values, np.arange(4), 5)  # demonstration 4 has no piece
+    assert scales[1] == scales[2] == scales[4] == 1.0
+    np.testing.assert_allclose(scales[3] / scales[0], 0.5, rtol=1e-12)
+
+
+def test_mismatched_pieces_are_a_value_error():
+    with pytest.raises(ValueError, match="pieces"):
+        timing_scales([np.zeros(3)], [np.zeros(3), np.zeros(3)], np.array([0, 1]), 2)
+    with pytest.raises(ValueError, match="demonstration 0"):
+        timing_scales([np.zeros(3)], [np.zeros(4)], np.array([0]), 1)
+
+
+def test_flows_of_one_potential_on_one_clock_keep_the_papers_estimate():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a clean fit warns about nothing
+        model = PolicyAlign(random_state=0).fit(_flows(0))
+    np.testing.assert_array_equal(model.timing_scales_, np.ones(8))
+    assert model.fit_summary_["timing_scales"] == [1.0] * 8
+
+
+def _bundles(seed, starts=3, per=3, steps=120):
+    """``per`` flows from each of ``starts`` places, their starts 0.05 apart: repeated
+    demonstrations of one task, as a teacher gives them."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(starts):
+        start = rng.uniform(-2.0, 2.0, 2)
+        for _ in range(per):
+            x, X = start + rng.normal(scale=0.05, size=2), []
+            for _ in range(steps):
+                X.append(x.copy())
+                x = x + DT * _policy(x)
+            out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
+    return out
+
+
+def _direction_error(model, demos):
+    """The policy's error from the true one along the demonstrations, its overall speed
+    factor left out (the demonstrations' clocks fix no common time unit)."""
+    X = np.concatenate([d.positions for d in demos])
+    learnt, true = model.policy(X), _policy(X)
+    factor = np.sum(learnt * true) / np.sum(learnt * learnt)
+    return float(np.sqrt(np.mean(np.sum((factor * learnt - true) ** 2, axis=1))
+                         / np.mean(np.sum(true**2, axis=1))))
+
+
+def test_repeated_demonstrations_at_different_speeds_teach_one_policy():
+    demos = _bundles(2)
+    factors = np.tile([0.7, 1.0, 1.4], 3)  # slow, as demonstrated, fast in every bundle
+    timed = [_on_another_clock(d, f) for d, f in zip(demos, factors, strict=True)]
+    own = PolicyAlign(random_state=0).fit(timed)
+    shared = PolicyAlign(random_state=0, time_units="shared").fit(timed)
+    # Each demonstration's factor is its clock's (up to the common unit).
+    recovered = own.timing_scales_ / factors
+    np.testing.assert_allclose(recovered / np.exp(np.mean(np.log(recovered))), 1.0,
+                               atol=0.05)
+    heldout = own.fit_summary_["timing_heldout"]
+    assert heldout["per_demonstration"] < 0.8 * heldout["shared"], heldout
+    np.testing.assert_array_equal(shared.timing_scales_, np.ones(9))
+    assert shared.fit_summary_["timing_heldout"] is None
+    assert _direction_error(own, demos) < 0.8 * _direction_error(shared, demos)
+
+
+def test_the_fit_kept_strands_fewer_starts_then_predicts_held_out_motion_better():
+    def fit(elsewhere, ratio):
+        heldout = None if ratio is None else {"ratio": ratio}
+        return {"checks": {"goal": {"n_starts_elsewhere": elsewhere},
+                           "heldout_vs_zero": heldout}}
+
+    ranked = sorted([fit(1, 0.05), fit(0, 0.3), fit(0, 0.1), fit(0, None)], key=_fit_rank)
+    assert [_fit_rank(f) for f in ranked] == [(0, 0.1), (0, 0.3), (0, math.inf),
+                                              (1, 0.05)]
+
+
+def test_time_units_round_trip_and_bad_values_are_refused(tmp_path):
+    demos = _flows(0)
+    model = PolicyAlign(random_state=0).fit([_on_another_clock(demos[0], 2.0), *demos[1:]])
+    loaded = PolicyAlign.load(model.save(tmp_path / "m.npz"))
+    np.testing.assert_array_equal(loaded.timing_scales_, model.timing_scales_)
+    with pytest.raises(ValueError, match="time_units"):
+        PolicyAlign(time_units="fast").fit(demos)
