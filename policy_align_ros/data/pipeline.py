@@ -192,6 +192,10 @@ class PipelineResult:
                  + ("n/a" if ncpe is None else f"{ncpe:.4f}") + " (along observed motion)")
         if s.get("poor_fit"):
             text += "; poor fit: it explains at most half of the held-out motion"
+        scales = s.get("timing_scales") or []
+        if any(f != 1.0 for f in scales):
+            text += (f"; demonstrations on their own clocks (factors {min(scales):.2f}-"
+                     f"{max(scales):.2f}, docs/design/timing.md)")
         goal = goal_text(s.get("goal"))
         if goal:
             text += f"; {goal}"
@@ -538,6 +542,8 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "worse_than_zero": bool(model.fit_summary_.get("worse_than_zero"))
         or bool(zero and zero["ratio"] >= 1.0),
         "poor_fit": bool(model.fit_summary_.get("poor_fit")),
+        # Files of models fitted before per-demonstration clocks hold none: one clock.
+        "timing_scales": json_floats(model.fit_summary_.get("timing_scales")),
         "no_minimum": bool(model.fit_summary_.get("no_minimum")),
         "goal": goal_digest(model.fit_summary_.get("goal")),
         "state": states.state,

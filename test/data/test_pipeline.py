@@ -377,6 +377,10 @@ def test_the_learn_summary_reports_the_learnt_goal(clean):
     model = PolicyAlign.load(path)
     assert len(model.fit_summary_["goal"]["minima"]) == goal["n_minima"]
     assert model.fit_summary_["pipeline"]["goal"] == goal
+    # Each training demonstration's clock factor, as the model holds it.
+    scales = result.summary["timing_scales"]
+    assert scales == model.fit_summary_["timing_scales"] == model.timing_scales_.tolist()
+    assert len(scales) == model.fit_summary_["n_trajectories"] and min(scales) > 0
 
 
 def _write_joints(root, demos, joints):
