@@ -193,17 +193,19 @@ def heldout_vs_zero(folds: Sequence[FoldModel], trajs: Sequence[Trajectory]
         constrained the motion; under a constraint even the true policy scores above 0);
         ``n_samples``; ``n_folds``. None when nothing held out moves.
     """
-    sums, count = np.zeros(3), 0
+    sums, count, per_fold = np.zeros(3), 0, []
     for fold in folds:
         held = [trajs[int(g)] for g in fold.held_out]
         s, c = along_motion_errors(lambda X, r=fold.regressor: -r.gradient(X), held)
         sums, count = sums + s, count + c
+        if s[1] > 0.0:
+            per_fold.append(float(s[0] / s[1]))
     err, zero, whole = sums
     if count == 0 or zero <= 0.0:
         return None
     return {"error": float(err / count), "zero_error": float(zero / count),
             "ratio": float(err / zero), "whole_velocity_ratio": float(whole / zero),
-            "n_samples": int(count), "n_folds": len(folds)}
+            "fold_ratios": per_fold, "n_samples": int(count), "n_folds": len(folds)}
 
 
 def fold_spread(folds: Sequence[FoldModel], minima: np.ndarray, *, scale: float,

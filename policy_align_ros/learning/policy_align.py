@@ -124,9 +124,9 @@ class PolicyAlign(BaseEstimator):
         ``"per_demonstration"`` (default): each demonstration's potential estimates are
         multiplied by the least-squares slope of the fitted model on them (which undoes
         the teacher's speed on that demonstration) and the model is fitted again
-        (:mod:`policy_align_ros.learning.timing`); the fit that strands fewer
-        demonstrated starts, then predicts held-out demonstrations' motion better, is
-        kept. Factors within 1 % of 1 keep the paper's estimate without a second fit.
+        (:mod:`policy_align_ros.learning.timing`); that fit is kept when it strands
+        fewer demonstrated starts or, as many, predicts held-out demonstrations' motion
+        better by more than two standard errors over the CV folds. Factors within 1 % of 1 keep the paper's estimate without a second fit.
         ``"shared"``: every demonstration on the paper's one clock. Untimed
         trajectories share the sample index.
     weight_tol : float
@@ -494,15 +494,14 @@ class PolicyAlign(BaseEstimator):
                        free: np.ndarray, anchor: dict, fit: dict) -> dict:
         """Stage 4c: each demonstration on its own clock (:mod:`~policy_align_ros.learning.
         timing`). Where the factors differ from 1, stages 3-4b run again on the rescaled
-        estimates, and the fit that strands fewer demonstrated starts, then predicts the
-        held-out demonstrations' motion better (:func:`_fit_rank`), is kept. Returns the
-        kept fit's record, with both held-out ratios in ``timing_heldout``."""
+        estimates, and that fit is kept when :func:`_timed_is_better`. Returns the kept
+        fit's record, with both held-out ratios in ``timing_heldout``."""
         scales = self._timing_scales(est)
         if scales is None:
             return fit
         timed = self._fit_timed(est, table, template, free, anchor, scales)
         ratios = {"shared": _heldout_ratio(fit), "per_demonstration": _heldout_ratio(timed)}
-        kept = timed if _fit_rank(timed) < _fit_rank(fit) else fit
+        kept = timed if _timed_is_better(timed, fit) else fit
         kept["timing_heldout"] = {k: json_float(v) for k, v in ratios.items()}
         return kept
 
@@ -746,11 +745,20 @@ def _heldout_ratio(fit: dict) -> float:
     return math.inf if heldout is None else float(heldout["ratio"])
 
 
-def _fit_rank(fit: dict) -> tuple[int, float]:
-    """How a checked fit ranks, lower first: the demonstrated starts from which its policy
-    stops elsewhere (each start is a task the demonstrations say reaches the goal), then
-    its held-out error ratio (:func:`_heldout_ratio`)."""
-    return int(fit["checks"]["goal"].get("n_starts_elsewhere") or 0), _heldout_ratio(fit)
+def _timed_is_better(timed: dict, shared: dict) -> bool:
+    """Whether the fit with per-demonstration clocks is kept over the shared clock's: it
+    strands fewer demonstrated starts or, as many, its held-out error ratio is lower on
+    the same CV folds by more than two standard errors of their paired differences."""
+    stranded = [int(f["checks"]["goal"].get("n_starts_elsewhere") or 0)
+                for f in (timed, shared)]
+    if stranded[0] != stranded[1]:
+        return stranded[0] < stranded[1]
+    held = [f["checks"].get("heldout_vs_zero") or {} for f in (timed, shared)]
+    a, b = (np.asarray(h.get("fold_ratios", []), dtype=float) for h in held)
+    if len(a) != len(b) or len(a) < 2:
+        return False
+    d = a - b
+    return bool(d.mean() + 2.0 * d.std(ddof=1) / math.sqrt(len(d)) < 0.0)
 
 
 def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:

@@ -58,7 +58,11 @@ def test_the_learnt_goal_of_a_quadratic_is_its_minimum_and_where_demos_rest(quad
     assert goal["n_starts_elsewhere"] == 0
     assert summary["worse_than_zero"] is False and summary["no_minimum"] is False
     assert summary["poor_fit"] is False
-    assert summary["heldout_vs_zero"]["ratio"] < 0.01
+    heldout = summary["heldout_vs_zero"]
+    assert heldout["ratio"] < 0.01
+    # One ratio per fold; the pooled ratio is their average weighted by the zero error.
+    folds = heldout["fold_ratios"]
+    assert len(folds) == heldout["n_folds"] and min(folds) <= heldout["ratio"] <= max(folds)
     json.dumps(summary, allow_nan=False)  # JSON-able as it is
 
 

@@ -1,13 +1,12 @@
 """Tests of each demonstration's time unit (policy_align_ros.learning.timing)."""
 
-import math
 import warnings
 
 import numpy as np
 import pytest
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
-from policy_align_ros.learning.policy_align import _fit_rank
+from policy_align_ros.learning.policy_align import _timed_is_better
 from policy_align_ros.learning.timing import timing_scales
 
 A = np.array([[1.0, 0.4], [0.4, 0.6]])
@@ -123,15 +122,25 @@ def test_repeated_demonstrations_at_different_speeds_teach_one_policy():
     assert _direction_error(own, demos) < 0.8 * _direction_error(shared, demos)
 
 
-def test_the_fit_kept_strands_fewer_starts_then_predicts_held_out_motion_better():
-    def fit(elsewhere, ratio):
-        heldout = None if ratio is None else {"ratio": ratio}
-        return {"checks": {"goal": {"n_starts_elsewhere": elsewhere},
-                           "heldout_vs_zero": heldout}}
+def _checked(elsewhere, fold_ratios):
+    return {"checks": {"goal": {"n_starts_elsewhere": elsewhere},
+                       "heldout_vs_zero": {"fold_ratios": fold_ratios}}}
 
-    ranked = sorted([fit(1, 0.05), fit(0, 0.3), fit(0, 0.1), fit(0, None)], key=_fit_rank)
-    assert [_fit_rank(f) for f in ranked] == [(0, 0.1), (0, 0.3), (0, math.inf),
-                                              (1, 0.05)]
+
+def test_the_clocks_are_kept_when_they_strand_fewer_starts_or_predict_clearly_better():
+    better = [0.10, 0.12, 0.09, 0.11, 0.10]
+    worse = [0.20, 0.21, 0.19, 0.22, 0.20]
+    # Fewer stranded starts decide first, whatever the held-out error.
+    assert _timed_is_better(_checked(0, worse), _checked(1, better))
+    assert not _timed_is_better(_checked(2, better), _checked(1, worse))
+    # As many: lower on the same folds by more than two standard errors of the paired
+    # differences.
+    assert _timed_is_better(_checked(0, better), _checked(0, worse))
+    assert not _timed_is_better(_checked(0, worse), _checked(0, better))
+    noisy = [0.10, 0.30, 0.05, 0.25, 0.10]  # lower on average, not consistently
+    assert not _timed_is_better(_checked(0, noisy), _checked(0, [0.2] * 5))
+    # Nothing held out to compare: the paper's shared clock.
+    assert not _timed_is_better(_checked(0, []), _checked(0, []))
 
 
 def test_time_units_round_trip_and_bad_values_are_refused(tmp_path):
