@@ -126,9 +126,10 @@ class PolicyAlign(BaseEstimator):
         the teacher's speed on that demonstration) and the model is fitted again
         (:mod:`policy_align_ros.learning.timing`); that fit is kept when it strands
         fewer demonstrated starts or, as many, predicts held-out demonstrations' motion
-        better by more than two standard errors over the CV folds. Factors within 1 % of 1 keep the paper's estimate without a second fit.
-        ``"shared"``: every demonstration on the paper's one clock. Untimed
-        trajectories share the sample index.
+        better by more than two standard errors over the CV folds. Factors within 1 % of
+        1 keep the paper's estimate without a second fit. ``"shared"``: every
+        demonstration on the paper's one clock. Untimed trajectories share the sample
+        index.
     weight_tol : float
         Responsibility weights below this are treated as zero (sets the neighbour cut-off).
         Kept well below ``eigen_tol``: many tiny weights add up to a link that decides
