@@ -8,6 +8,7 @@ order.
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -17,7 +18,7 @@ except ImportError:  # pragma: no cover - depends on the environment
     ThreadpoolController = None
 _CONTROLLER = None  # built once: inspecting the loaded BLAS libraries takes ~10 ms
 
-__all__ = ["assign_folds", "check_Xy", "check_query", "single_blas_thread"]
+__all__ = ["assign_folds", "check_Xy", "check_masks", "check_query", "single_blas_thread"]
 
 
 def single_blas_thread() -> contextlib.AbstractContextManager:
@@ -75,6 +76,27 @@ def check_query(X: np.ndarray, n: int) -> np.ndarray:
         bad = int(np.argwhere(~np.isfinite(X))[0, 0])
         raise ValueError(f"X contains NaN or inf (first at row {bad})")
     return X
+
+
+def check_masks(train_mask: Sequence[np.ndarray] | None, trajs: Sequence
+                ) -> list[np.ndarray]:
+    """The training masks of ``trajs`` (Trajectory), all True when ``train_mask`` is None;
+    ValueError naming the mask that is not a bool array of its trajectory's length."""
+    if train_mask is None:
+        return [np.ones(t.n_samples, dtype=bool) for t in trajs]
+    masks = list(train_mask)
+    if len(masks) != len(trajs):
+        raise ValueError(f"train_mask has {len(masks)} entries for {len(trajs)} trajectories")
+    out = []
+    for k, (m, t) in enumerate(zip(masks, trajs, strict=True)):
+        m = np.asarray(m)
+        if m.shape != (t.n_samples,) or m.dtype != bool:
+            raise ValueError(
+                f"train_mask {k}: must be a bool array of shape ({t.n_samples},), "
+                f"got {m.dtype} {m.shape}"
+            )
+        out.append(m)
+    return out
 
 
 def assign_folds(groups: np.ndarray, n_folds: int, rng: np.random.Generator) -> np.ndarray:

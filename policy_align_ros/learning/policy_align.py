@@ -63,7 +63,7 @@ from policy_align_ros.learning.bandwidth import (
 )
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.estimates import Estimates, estimate_potentials
-from policy_align_ros.learning.fitting import check_query
+from policy_align_ros.learning.fitting import check_masks, check_query
 from policy_align_ros.learning.folds import fit_checks
 from policy_align_ros.learning.global_model import (
     cv_error,
@@ -76,7 +76,7 @@ from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_poten
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.pieces import merge_pieces, switch_junctions
-from policy_align_ros.learning.potential import METHODS, estimate_potential
+from policy_align_ros.learning.potential import METHODS, estimate_potential, noise_to_step
 from policy_align_ros.learning.regressors import (
     Regressor,
     TrendKernelRegression,
@@ -90,7 +90,13 @@ from policy_align_ros.learning.support import (
     support_states,
 )
 from policy_align_ros.learning.thinning import thin_each
-from policy_align_ros.learning.timing import TIME_UNITS, TIMING_RESOLUTION, timing_scales
+from policy_align_ros.learning.timing import (
+    TIME_UNITS,
+    TIMING_RESOLUTION,
+    heldout_ratio,
+    timed_is_better,
+    timing_scales,
+)
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["PolicyAlign"]
@@ -364,7 +370,7 @@ class PolicyAlign(BaseEstimator):
         n = trajs[0].n_dims
         if joint_names is not None and len(joint_names) != n:
             raise ValueError(f"joint_names has {len(joint_names)} names for a {n}-D state")
-        masks = self._check_masks(train_mask, trajs)
+        masks = check_masks(train_mask, trajs)
         if all(not np.any(np.diff(t.positions, axis=0)) for t in trajs):
             # Nothing to learn from (a robot that never moved, a frozen driver): the fit
             # would otherwise end in a bowl of arbitrary scale fitted to zeros.
@@ -495,14 +501,16 @@ class PolicyAlign(BaseEstimator):
                        free: np.ndarray, anchor: dict, fit: dict) -> dict:
         """Stage 4c: each demonstration on its own clock (:mod:`~policy_align_ros.learning.
         timing`). Where the factors differ from 1, stages 3-4b run again on the rescaled
-        estimates, and that fit is kept when :func:`_timed_is_better`. Returns the kept
+        estimates, and that fit is kept when :func:`~policy_align_ros.learning.timing.
+        timed_is_better`. Returns the kept
         fit's record, with both held-out ratios in ``timing_heldout``."""
         scales = self._timing_scales(est)
         if scales is None:
             return fit
         timed = self._fit_timed(est, table, template, free, anchor, scales)
-        ratios = {"shared": _heldout_ratio(fit), "per_demonstration": _heldout_ratio(timed)}
-        kept = timed if _timed_is_better(timed, fit) else fit
+        ratios = {"shared": heldout_ratio(fit["checks"]),
+                  "per_demonstration": heldout_ratio(timed["checks"])}
+        kept = timed if timed_is_better(timed["checks"], fit["checks"]) else fit
         kept["timing_heldout"] = {k: json_float(v) for k, v in ratios.items()}
         return kept
 
@@ -610,7 +618,7 @@ class PolicyAlign(BaseEstimator):
                                if score is not None},
             "euler_scale": self.euler_scale_,
             "position_noise_rms": math.sqrt(self.position_noise_),
-            "noise_to_step": _noise_to_step([t.positions for t in trajs],
+            "noise_to_step": noise_to_step([t.positions for t in trajs],
                                             self.position_noise_),
             "timings_s": timings,
         }
@@ -631,25 +639,6 @@ class PolicyAlign(BaseEstimator):
         scales = getattr(self, "timing_scales_", None)
         return whole if scales is None else scales[k] * whole
 
-    @staticmethod
-    def _check_masks(
-        train_mask: Sequence[np.ndarray] | None, trajs: list[Trajectory]
-    ) -> list[np.ndarray]:
-        if train_mask is None:
-            return [np.ones(t.n_samples, dtype=bool) for t in trajs]
-        masks = list(train_mask)
-        if len(masks) != len(trajs):
-            raise ValueError(f"train_mask has {len(masks)} entries for {len(trajs)} trajectories")
-        out = []
-        for k, (m, t) in enumerate(zip(masks, trajs, strict=True)):
-            m = np.asarray(m)
-            if m.shape != (t.n_samples,) or m.dtype != bool:
-                raise ValueError(
-                    f"train_mask {k}: must be a bool array of shape ({t.n_samples},), "
-                    f"got {m.dtype} {m.shape}"
-                )
-            out.append(m)
-        return out
     # -- prediction -------------------------------------------------------------------
     def _check_X(self, X: np.ndarray) -> np.ndarray:
         check_is_fitted(self, "regressor_")
@@ -737,33 +726,3 @@ class PolicyAlign(BaseEstimator):
             or inconsistent with each other; the message names the file and the problem.
         """
         return policy_file.read_model(cls, path)
-
-
-def _heldout_ratio(fit: dict) -> float:
-    """A checked fit's held-out error along the observed motion over a zero policy's
-    (infinite when it has none)."""
-    heldout = fit["checks"].get("heldout_vs_zero")
-    return math.inf if heldout is None else float(heldout["ratio"])
-
-
-def _timed_is_better(timed: dict, shared: dict) -> bool:
-    """Whether the fit with per-demonstration clocks is kept over the shared clock's: it
-    strands fewer demonstrated starts or, as many, its held-out error ratio is lower on
-    the same CV folds by more than two standard errors of their paired differences."""
-    stranded = [int(f["checks"]["goal"].get("n_starts_elsewhere") or 0)
-                for f in (timed, shared)]
-    if stranded[0] != stranded[1]:
-        return stranded[0] < stranded[1]
-    held = [f["checks"].get("heldout_vs_zero") or {} for f in (timed, shared)]
-    a, b = (np.asarray(h.get("fold_ratios", []), dtype=float) for h in held)
-    if len(a) != len(b) or len(a) < 2:
-        return False
-    d = a - b
-    return bool(d.mean() + 2.0 * d.std(ddof=1) / math.sqrt(len(d)) < 0.0)
-
-
-def _noise_to_step(positions: list[np.ndarray], noise: float) -> float:
-    """``2 noise`` over the mean squared step: the share of the steps that is noise."""
-    squared = [np.einsum("ij,ij->i", d, d) for d in (np.diff(p, axis=0) for p in positions)]
-    mean = float(np.mean(np.concatenate(squared)))
-    return 2.0 * noise / mean if mean > 0 else math.inf

@@ -49,7 +49,8 @@ from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["euler_potential", "trapezoid_potential", "estimate_potential", "METHODS",
            "best_timing", "switch_cuts", "sampling_gaps", "GAP_RATIO",
-           "velocity_disagreement", "choose_method", "position_noise", "euler_scale",
+           "velocity_disagreement", "choose_method", "position_noise", "noise_to_step",
+           "euler_scale",
            "VELOCITY_AGREEMENT", "TIMINGS", "step_curvatures", "SWITCH_RATIO", "leading_rest",
            "REST_FALSE_ALARM"]
 
@@ -72,6 +73,15 @@ REST_FALSE_ALARM = 1e-6
 #: A step longer than this many times its trajectory's median step spans lost samples
 #: (:func:`sampling_gaps`): halfway between an even step (1) and one lost sample (2).
 GAP_RATIO = 1.5
+
+
+def noise_to_step(positions: list[np.ndarray], noise: float) -> float:
+    """``2 noise`` over the mean squared step of ``positions`` (each (N_k, n)): the share
+    of the steps that is white position noise of variance ``noise`` (squared state
+    units, summed over the coordinates)."""
+    squared = [np.einsum("ij,ij->i", d, d) for d in (np.diff(p, axis=0) for p in positions)]
+    mean = float(np.mean(np.concatenate(squared)))
+    return 2.0 * noise / mean if mean > 0 else math.inf
 
 
 def position_noise(positions: list[np.ndarray]) -> float:

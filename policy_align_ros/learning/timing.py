@@ -14,9 +14,12 @@ potential on one clock get factors of 1, and the paper's estimate is kept
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["TIME_UNITS", "TIMING_RESOLUTION", "timing_scales"]
+__all__ = ["TIME_UNITS", "TIMING_RESOLUTION", "heldout_ratio", "timed_is_better",
+           "timing_scales"]
 
 #: PolicyAlign's ``time_units``: a factor per demonstration, or the paper's shared clock.
 TIME_UNITS = ("per_demonstration", "shared")
@@ -75,3 +78,39 @@ def timing_scales(fitted: list[np.ndarray], values: list[np.ndarray], owner: np.
     # A demonstration twice as fast and one twice as slow cancel: the geometric mean.
     scales[determined] /= np.exp(np.mean(np.log(scales[determined])))
     return scales
+
+
+def heldout_ratio(checks: dict) -> float:
+    """A fit's held-out error along the observed motion over a zero policy's, from its
+    checks (:func:`~policy_align_ros.learning.folds.fit_checks`); infinite without one."""
+    heldout = checks.get("heldout_vs_zero")
+    return math.inf if heldout is None else float(heldout["ratio"])
+
+
+def timed_is_better(timed: dict, shared: dict) -> bool:
+    """Whether the fit on per-demonstration clocks is kept over the shared clock's.
+
+    It is when it strands fewer demonstrated starts or, with as many stranded, when its
+    held-out error ratio is lower on the same CV folds by more than two standard errors
+    of the paired per-fold differences (the rule the tracking lag is kept by).
+
+    Parameters
+    ----------
+    timed, shared : dict
+        The two fits' checks (:func:`~policy_align_ros.learning.folds.fit_checks`):
+        ``goal["n_starts_elsewhere"]`` and ``heldout_vs_zero["fold_ratios"]``.
+
+    Returns
+    -------
+    bool
+        False too when fewer than two folds can be paired.
+    """
+    stranded = [int(c["goal"].get("n_starts_elsewhere") or 0) for c in (timed, shared)]
+    if stranded[0] != stranded[1]:
+        return stranded[0] < stranded[1]
+    held = [c.get("heldout_vs_zero") or {} for c in (timed, shared)]
+    a, b = (np.asarray(h.get("fold_ratios", []), dtype=float) for h in held)
+    if len(a) != len(b) or len(a) < 2:
+        return False
+    d = a - b
+    return bool(d.mean() + 2.0 * d.std(ddof=1) / math.sqrt(len(d)) < 0.0)

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
-from policy_align_ros.learning.policy_align import _timed_is_better
-from policy_align_ros.learning.timing import timing_scales
+from policy_align_ros.learning.timing import timed_is_better, timing_scales
 
 A = np.array([[1.0, 0.4], [0.4, 0.6]])
 CENTRE = np.array([0.3, -0.2])
@@ -123,24 +122,24 @@ def test_repeated_demonstrations_at_different_speeds_teach_one_policy():
 
 
 def _checked(elsewhere, fold_ratios):
-    return {"checks": {"goal": {"n_starts_elsewhere": elsewhere},
-                       "heldout_vs_zero": {"fold_ratios": fold_ratios}}}
+    return {"goal": {"n_starts_elsewhere": elsewhere},
+            "heldout_vs_zero": {"fold_ratios": fold_ratios}}
 
 
 def test_the_clocks_are_kept_when_they_strand_fewer_starts_or_predict_clearly_better():
     better = [0.10, 0.12, 0.09, 0.11, 0.10]
     worse = [0.20, 0.21, 0.19, 0.22, 0.20]
     # Fewer stranded starts decide first, whatever the held-out error.
-    assert _timed_is_better(_checked(0, worse), _checked(1, better))
-    assert not _timed_is_better(_checked(2, better), _checked(1, worse))
+    assert timed_is_better(_checked(0, worse), _checked(1, better))
+    assert not timed_is_better(_checked(2, better), _checked(1, worse))
     # As many: lower on the same folds by more than two standard errors of the paired
     # differences.
-    assert _timed_is_better(_checked(0, better), _checked(0, worse))
-    assert not _timed_is_better(_checked(0, worse), _checked(0, better))
+    assert timed_is_better(_checked(0, better), _checked(0, worse))
+    assert not timed_is_better(_checked(0, worse), _checked(0, better))
     noisy = [0.10, 0.30, 0.05, 0.25, 0.10]  # lower on average, not consistently
-    assert not _timed_is_better(_checked(0, noisy), _checked(0, [0.2] * 5))
+    assert not timed_is_better(_checked(0, noisy), _checked(0, [0.2] * 5))
     # Nothing held out to compare: the paper's shared clock.
-    assert not _timed_is_better(_checked(0, []), _checked(0, []))
+    assert not timed_is_better(_checked(0, []), _checked(0, []))
 
 
 def test_time_units_round_trip_and_bad_values_are_refused(tmp_path):
