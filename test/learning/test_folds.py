@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
+from flows import quadratic_flow
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.folds import along_motion_errors, fold_refits
@@ -20,16 +21,8 @@ def _quadratic_demos(seed, k=8, steps=120, walk=0.0):
     """Unconstrained Euler flows of xdot = -A (x - c), at rest at their ends; ``walk``:
     each step also pushed about by white noise of that standard deviation."""
     rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(k):
-        x, X = rng.uniform(-2.0, 2.0, 2), []
-        for _ in range(steps):
-            X.append(x.copy())
-            x = x - DT * A @ (x - CENTRE)
-            if walk:
-                x = x + walk * rng.normal(size=2)
-        out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
-    return out
+    return [quadratic_flow(A, CENTRE, rng.uniform(-2.0, 2.0, 2), steps, DT, walk, rng)
+            for _ in range(k)]
 
 
 def _random_walks(seed, k=6, steps=60):

@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
+from flows import quadratic_flow
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.timing import timed_is_better, timing_scales
@@ -20,14 +21,8 @@ def _policy(X):
 def _flows(seed, k=8, steps=120):
     """Unconstrained Euler flows of xdot = -A (x - c) from random starts."""
     rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(k):
-        x, X = rng.uniform(-2.0, 2.0, 2), []
-        for _ in range(steps):
-            X.append(x.copy())
-            x = x + DT * _policy(x)
-        out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
-    return out
+    return [quadratic_flow(A, CENTRE, rng.uniform(-2.0, 2.0, 2), steps, DT)
+            for _ in range(k)]
 
 
 def _on_another_clock(traj, factor):
@@ -85,12 +80,8 @@ def _bundles(seed, starts=3, per=3, steps=120):
     out = []
     for _ in range(starts):
         start = rng.uniform(-2.0, 2.0, 2)
-        for _ in range(per):
-            x, X = start + rng.normal(scale=0.05, size=2), []
-            for _ in range(steps):
-                X.append(x.copy())
-                x = x + DT * _policy(x)
-            out.append(Trajectory(np.array(X), times=DT * np.arange(steps)))
+        out += [quadratic_flow(A, CENTRE, start + rng.normal(scale=0.05, size=2), steps, DT)
+                for _ in range(per)]
     return out
 
 
