@@ -502,8 +502,8 @@ class PolicyAlign(BaseEstimator):
         """Stage 4c: each demonstration on its own clock (:mod:`~policy_align_ros.learning.
         timing`). Where the factors differ from 1, stages 3-4b run again on the rescaled
         estimates, and that fit is kept when :func:`~policy_align_ros.learning.timing.
-        timed_is_better`. Returns the kept
-        fit's record, with both held-out ratios in ``timing_heldout``."""
+        timed_is_better`. Returns the kept fit's record, with both held-out ratios in
+        ``timing_heldout``."""
         scales = self._timing_scales(est)
         if scales is None:
             return fit
