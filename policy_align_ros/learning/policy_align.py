@@ -341,11 +341,10 @@ class PolicyAlign(BaseEstimator):
         fit = self._choose_clocks(est, table, template, free, anchor,
                                   self._checked_fit(est, free, starts, scores, anchor,
                                                     caught))
-        self._restore(fit)
+        self._restore(fit, est)
         scores, anchor = fit["scores"], fit["anchor"]
-        for caught in fit["warnings"]:
-            warnings.warn_explicit(caught.message, caught.category, caught.filename,
-                                   caught.lineno)
+        for held in fit["warnings"]:
+            warnings.warn_explicit(held.message, held.category, held.filename, held.lineno)
         timings["checks"] = time.perf_counter() - t3
         timings["total"] = time.perf_counter() - t0
 
@@ -484,18 +483,18 @@ class PolicyAlign(BaseEstimator):
                                 random_state=self.random_state, starts_check=starts)
         return {"regressor_": self.regressor_, "integration_": self.integration_,
                 "offsets_": self.offsets_, "aligned_potentials_": self.aligned_potentials_,
-                "timing_scales_": getattr(self, "timing_scales_", None),
-                "phi": est.phi, "est": est, "scores": scores, "anchor": anchor,
+                "timing_scales_": self.timing_scales_, "phi": est.phi, "scores": scores,
+                "anchor": anchor,
                 "checks": checks, "warnings": caught + list(checked),
                 "timing_heldout": None}
 
-    def _restore(self, fit: dict) -> None:
-        """The attributes of a fit recorded by :meth:`_checked_fit`."""
-        for name in ("regressor_", "integration_", "offsets_", "aligned_potentials_"):
+    def _restore(self, fit: dict, est: Estimates) -> None:
+        """The attributes of a fit recorded by :meth:`_checked_fit`, and the estimates it
+        was fitted on in ``est``."""
+        for name in ("regressor_", "integration_", "offsets_", "aligned_potentials_",
+                     "timing_scales_"):
             setattr(self, name, fit[name])
-        if fit["timing_scales_"] is not None:
-            self.timing_scales_ = fit["timing_scales_"]
-        fit["est"].phi = fit["phi"]
+        est.phi = fit["phi"]
 
     def _choose_clocks(self, est: Estimates, table: LocalModelTable, template,
                        free: np.ndarray, anchor: dict, fit: dict) -> dict:
