@@ -35,8 +35,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg
 import scipy.optimize
+
+from policy_align_ros.learning.regressors.trend_kernel.lapack import cho_factor, cho_solve
 
 __all__ = ["KNEES", "centred", "fit_index", "increasing", "index_form", "levenberg_marquardt",
            "profile_basis", "profile_gradient", "profile_weights"]
@@ -232,11 +233,11 @@ def levenberg_marquardt(residual, jacobian, theta: np.ndarray, max_nfev: int,
         A, g = J.T @ J, J.T @ r
         diag = np.maximum(np.diag(A), 1e-12 * max(float(np.max(np.diag(A))), 1e-300))
         try:
-            factor = scipy.linalg.cho_factor(A + damping * np.diag(diag), check_finite=False)
+            factor = cho_factor(A + damping * np.diag(diag))
         except np.linalg.LinAlgError:
             damping *= 10.0
             continue
-        trial = theta - scipy.linalg.cho_solve(factor, g, check_finite=False)
+        trial = theta - cho_solve(factor, g)
         r_trial = residual(trial)
         cost_trial = float(r_trial @ r_trial)
         if not (math.isfinite(cost_trial) and cost_trial < cost):

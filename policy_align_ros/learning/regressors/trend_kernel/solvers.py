@@ -16,6 +16,12 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _trend_hessian,
     _upper,
 )
+from policy_align_ros.learning.regressors.trend_kernel.lapack import (
+    cho_factor,
+    cho_solve,
+    cholesky,
+    solve_triangular,
+)
 
 __all__ = ["CURVATURE_FLOOR", "JITTER", "effective_dof"]
 
@@ -51,10 +57,10 @@ def effective_dof(M: np.ndarray, P: np.ndarray) -> float:
         ``inf`` if ``M + P`` is singular.
     """
     try:
-        factor = scipy.linalg.cho_factor(M + P, check_finite=False)
+        factor = cho_factor(M + P)
     except np.linalg.LinAlgError:
         return math.inf
-    return float(np.trace(scipy.linalg.cho_solve(factor, M, check_finite=False)))
+    return float(np.trace(cho_solve(factor, M)))
 
 
 def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = None
@@ -143,8 +149,7 @@ def _solve_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: 
             continue
         w = np.empty(p)
         w[o] = w_other
-        w[s] = scipy.linalg.solve_triangular(L, z - W @ w_other, lower=True, trans="T",
-                                             check_finite=False)
+        w[s] = solve_triangular(L, z - W @ w_other, lower=True, trans=1)
         out.append(w)
     return out
 
@@ -157,11 +162,11 @@ def _shared_factor(M: np.ndarray, b: np.ndarray, P: np.ndarray, q: int) -> tuple
     # Slices, not a permuted copy: copying the large blocks costs more than the solves.
     s, o = (slice(0, q), slice(q, p)) if q > 0 else (slice(p + q, p), slice(0, p + q))
     try:
-        L = scipy.linalg.cholesky(M[s, s] + P[s, s], lower=True, check_finite=False)
+        L = cholesky(M[s, s] + P[s, s], lower=True)
     except np.linalg.LinAlgError:
         return None
-    W = scipy.linalg.solve_triangular(L, M[s, o], lower=True, check_finite=False)
-    z = scipy.linalg.solve_triangular(L, b[s], lower=True, check_finite=False)
+    W = solve_triangular(L, M[s, o], lower=True)
+    z = solve_triangular(L, b[s], lower=True)
     return s, o, L, W, z
 
 
@@ -216,15 +221,14 @@ def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np
     out: list[np.ndarray | None] = []
     for P in penalties:
         try:
-            S = scipy.linalg.cho_factor(schur + P[o, o], check_finite=False)
+            S = cho_factor(schur + P[o, o])
         except np.linalg.LinAlgError:
             w = _solve_shared(M, b, [P, P], p_t, factor)[0]  # the general fallbacks
             out.append(_convex_solve(M + P, b, n, w))
             continue
         w = np.empty(p)
-        w[o] = scipy.linalg.cho_solve(S, rhs, check_finite=False)
-        w[s] = scipy.linalg.solve_triangular(L, z - W @ w[o], lower=True, trans="T",
-                                             check_finite=False)
+        w[o] = cho_solve(S, rhs)
+        w[s] = solve_triangular(L, z - W @ w[o], lower=True, trans=1)
         if not _floor_trend(w, n):
             out.append(w)
             continue
@@ -242,10 +246,10 @@ def _quadratic_update(K: np.ndarray, n: int) -> tuple | None:
     p_t = _n_trend(n)
     r, q, o = slice(0, 1 + n), slice(1 + n, p_t), slice(p_t, len(K))
     try:
-        F = scipy.linalg.cho_factor(K[r, r], check_finite=False)
+        F = cho_factor(K[r, r])
     except np.linalg.LinAlgError:
         return None
-    Y = scipy.linalg.cho_solve(F, np.hstack([K[r, q], K[r, o]]), check_finite=False)
+    Y = cho_solve(F, np.hstack([K[r, q], K[r, o]]))
     m_q = p_t - 1 - n
     S_q = K[q, q] - K[q, r] @ Y[:, :m_q]
     X = K[q, o] - K[q, r] @ Y[:, m_q:]
@@ -264,14 +268,14 @@ def _resolve_woodbury(K: np.ndarray, b: np.ndarray, w: np.ndarray, n: int, S: tu
     p_t = _n_trend(n)
     r, q, o = slice(0, 1 + n), slice(1 + n, p_t), slice(p_t, len(K))
     c = b[r] - K[r, q] @ w[q]
-    g = b[o] - K[o, q] @ w[q] - K[o, r] @ scipy.linalg.cho_solve(F, c, check_finite=False)
-    Sg = scipy.linalg.cho_solve(S, g, check_finite=False)
-    SX = scipy.linalg.cho_solve(S, X.T, check_finite=False)
+    g = b[o] - K[o, q] @ w[q] - K[o, r] @ cho_solve(F, c)
+    Sg = cho_solve(S, g)
+    SX = cho_solve(S, X.T)
     core = _solve(S_q + X @ SX, X @ Sg)
     if core is None:
         return _convex_resolve(K, b, w, n)
     w[o] = Sg - SX @ core
-    w[r] = scipy.linalg.cho_solve(F, c - K[r, o] @ w[o], check_finite=False)
+    w[r] = cho_solve(F, c - K[r, o] @ w[o])
     return w
 
 
@@ -285,15 +289,13 @@ def _resolve_with_factor(K: np.ndarray, b: np.ndarray, w: np.ndarray, n: int, fa
     p_t = _n_trend(n)
     r, quad = slice(0, 1 + n), slice(1 + n, p_t)
     c = b[r] - K[r, quad] @ w[quad]
-    d = scipy.linalg.solve_triangular(L, b[s] - K[s, quad] @ w[quad], lower=True,
-                                      check_finite=False)
+    d = solve_triangular(L, b[s] - K[s, quad] @ w[quad], lower=True)
     Wr = W[:, r]
     x = _solve(K[r, r] - Wr.T @ Wr, c - Wr.T @ d)
     if x is None:
         return None
     w[r] = x
-    w[s] = scipy.linalg.solve_triangular(L, d - Wr @ x, lower=True, trans="T",
-                                         check_finite=False)
+    w[s] = solve_triangular(L, d - Wr @ x, lower=True, trans=1)
     return w
 
 
@@ -306,13 +308,11 @@ def _nonneg_solve(M: np.ndarray, b: np.ndarray, free: int) -> np.ndarray | None:
     ``min ||R w - R^-T c||`` on the Cholesky factor ``R`` of their Schur complement.
     """
     try:
-        F = scipy.linalg.cho_factor(M[:free, :free], check_finite=False)
-        X = scipy.linalg.cho_solve(F, np.column_stack([M[:free, free:], b[:free]]),
-                                   check_finite=False)
-        R = scipy.linalg.cholesky(M[free:, free:] - M[free:, :free] @ X[:, :-1],
-                                  check_finite=False)
+        F = cho_factor(M[:free, :free])
+        X = cho_solve(F, np.column_stack([M[:free, free:], b[:free]]))
+        R = cholesky(M[free:, free:] - M[free:, :free] @ X[:, :-1], lower=False)
         c = b[free:] - M[free:, :free] @ X[:, -1]
-        t = scipy.linalg.solve_triangular(R, c, trans="T", check_finite=False)
+        t = solve_triangular(R, c, lower=False, trans=1)
         beta = scipy.optimize.nnls(R, t, maxiter=50 * len(t))[0]
     except (np.linalg.LinAlgError, ValueError, RuntimeError):
         return None
@@ -321,8 +321,7 @@ def _nonneg_solve(M: np.ndarray, b: np.ndarray, free: int) -> np.ndarray | None:
 
 def _solve(M: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     try:
-        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(M, check_finite=False), b,
-                                      check_finite=False)
+        return cho_solve(cho_factor(M), b)
     except np.linalg.LinAlgError:
         try:
             return scipy.linalg.solve(M, b, assume_a="sym", check_finite=False)
