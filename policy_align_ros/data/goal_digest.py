@@ -28,7 +28,7 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
         return None
     keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
             "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction",
-            "n_starts_elsewhere")
+            "n_starts_elsewhere", "n_starts_late")
     out = {key: goal.get(key) for key in keys}
     out["n_minima"] = len(goal.get("minima", ()))
     out["n_demonstrated_goals"] = len(goal.get("demonstrated_goals", ()))
@@ -55,4 +55,8 @@ def goal_text(digest: dict[str, Any] | None) -> str:
     if digest.get("n_starts_elsewhere"):
         text += (f"; from {digest['n_starts_elsewhere']} demonstrations' starts the policy "
                  "stops elsewhere")
+    late = (digest.get("n_starts_late") or 0) - (digest.get("n_starts_elsewhere") or 0)
+    if late > 0:
+        text += (f"; from {late} demonstrations' starts it is still on its way after 3 times "
+                 "their duration")
     return text

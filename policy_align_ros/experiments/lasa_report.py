@@ -44,8 +44,9 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
     -------
     dict or None
         ``nV``, ``nV_across``, ``dtw_mm``, ``converged_pct``, ``final_mm`` (median over
-        rollouts of the final distance to the goal), ``fit_s``, ``n_shapes``, ``n_rollouts``;
-        None when no record matches.
+        rollouts of the final distance to the goal), ``fit_s``, ``n_shapes``, ``n_rollouts``
+        and ``n_missed_silently`` (rollouts that did not converge although their fit
+        raised no warning); None when no record matches.
     """
     rows = [r for r in records if r["method"] == method and r["protocol"] == protocol
             and (shape_set is None or r["set"] == shape_set)]
@@ -62,6 +63,8 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
         "fit_s": float(np.median(list(fits.values()))),
         "n_shapes": len({r["shape"] for r in rows}),
         "n_rollouts": len(rows),
+        "n_missed_silently": sum(1 for r in rows
+                                 if not r["converged"] and not r.get("fit_warnings")),
     }
 
 
@@ -107,6 +110,18 @@ def _targets(records, methods) -> list[str]:
     return lines
 
 
+def _silent(records, protocols) -> list[str]:
+    """PolicyAlign's rollouts that missed the goal although its fit did not warn."""
+    lines = []
+    for protocol in protocols:
+        s = summarise(records, "policy_align", protocol)
+        if s is not None:
+            missed = round(s["n_rollouts"] * (1.0 - s["converged_pct"] / 100.0))
+            lines.append(f"- `{protocol}`: {s['n_missed_silently']} of {s['n_rollouts']} "
+                         f"rollouts ({missed} missed the goal)")
+    return lines
+
+
 def _shape_table(records, methods, protocol) -> list[str]:
     rows = [r for r in records if r["protocol"] == protocol]
     shapes = {r["shape"]: r["set"] for r in rows}
@@ -142,6 +157,9 @@ def format_report(records: Sequence[dict], methods: Sequence[str],
     if "loo" in protocols:
         parts += ["Targets (leave one out, reporting shapes: median nV <= 0.5, median DTW "
                   "<= 10 mm, >= 95 % converged):", "", *_targets(records, methods), ""]
+    if "policy_align" in methods:
+        parts += ["`PolicyAlign()`'s rollouts that missed the goal although the fit raised "
+                  "no warning (all shapes):", "", *_silent(records, protocols), ""]
     for protocol in protocols:
         parts += [f"### Per shape, protocol `{protocol}` (nV / DTW mm / converged)", "",
                   *_shape_table(records, methods, protocol), ""]

@@ -40,7 +40,13 @@ import numpy as np
 from policy_align_ros.learning.anchor import motion_steps
 from policy_align_ros.learning.fitting import assign_folds
 from policy_align_ros.learning.global_model import fixed_copy
-from policy_align_ros.learning.goal import data_box, goal_summary, learnt_minima
+from policy_align_ros.learning.goal import (
+    data_box,
+    demonstrated_goal,
+    goal_summary,
+    learnt_minima,
+)
+from policy_align_ros.learning.reach import REACH_TIME, starts_reach
 from policy_align_ros.learning.regressors import (
     takes_free_groups,
     takes_motion,
@@ -259,10 +265,12 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
     dict
         ``goal`` (:func:`~policy_align_ros.learning.goal.goal_summary`, with
         ``fold_spread`` per minimum, ``fold_spread_max`` and its ``fold_spread_fraction``
-        of the extent), ``heldout_vs_zero`` (:func:`heldout_vs_zero`) and
-        ``worse_than_zero``, ``poor_fit`` (held-out error at least :data:`POOR_FIT_RATIO`
-        of a zero policy's, but below it) and ``no_minimum`` (no descent found a
-        minimum); a ``UserWarning`` names the numbers when any is True.
+        of the extent, and :func:`~policy_align_ros.learning.reach.starts_reach`'s
+        ``start_reach_ratios`` and ``n_starts_late``), ``heldout_vs_zero``
+        (:func:`heldout_vs_zero`) and ``worse_than_zero``, ``poor_fit`` (held-out error at
+        least :data:`POOR_FIT_RATIO` of a zero policy's, but below it) and ``no_minimum``
+        (no descent found a minimum); a ``UserWarning`` names the numbers when any is
+        True, and when starts are late beyond those stranded.
     """
     X = np.concatenate([pieces[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
@@ -285,6 +293,7 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
     goal["fold_spread_fraction"] = (None if goal["fold_spread_max"] is None
                                     else goal["fold_spread_max"] / extent)
     goal["n_folds"] = len(folds)
+    goal.update(starts_reach(parents, regressor.gradient, demonstrated_goal(parents), extent))
     worse = heldout is not None and heldout["error"] >= heldout["zero_error"]
     poor = heldout is not None and not worse and heldout["ratio"] >= POOR_FIT_RATIO
     # Every descent from where the demonstrations end left the data's box widened by its
@@ -308,6 +317,14 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
             f"learnt policy stops where no demonstration's end leads ({', '.join(where)}):"
             " its potential has minima or slopes on the way that the demonstrations did "
             "not follow (a path that loops or crosses itself?)", UserWarning, stacklevel=3)
+    late = goal["n_starts_late"] - elsewhere
+    if late > 0 and not no_minimum:
+        warnings.warn(
+            f"PolicyAlign: from {late} of {len(parents)} demonstrations' starts a run of the "
+            f"learnt policy is still on its way to the goal after {REACH_TIME:g} times the "
+            "demonstration's duration: its potential is nearly flat on the way (a teacher "
+            "who set off slowly?), where a robot would stall (fit_summary_['goal']"
+            "['start_reach_ratios'])", UserWarning, stacklevel=3)
     if worse or poor:
         warnings.warn(_heldout_message(heldout, worse), UserWarning, stacklevel=3)
     return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),

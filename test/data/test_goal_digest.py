@@ -28,6 +28,14 @@ def test_the_digest_keeps_counts_and_distances_without_points_and_is_json():
     assert json.loads(json.dumps(digest, allow_nan=False)) == digest
     assert goal_digest(None) is None and goal_digest({}) is None
     assert goal_digest(_goal(n_starts_elsewhere=2))["n_starts_elsewhere"] == 2
+    assert goal_digest(_goal(n_starts_late=3))["n_starts_late"] == 3
+    assert goal_digest(_goal())["n_starts_late"] is None  # reports written before the count
+
+
+def test_late_starts_are_said_only_beyond_the_stranded_ones():
+    base = goal_text(goal_digest(_goal(n_starts_elsewhere=1)))
+    assert goal_text(goal_digest(_goal(n_starts_elsewhere=1, n_starts_late=1))) == base
+    assert goal_text(goal_digest(_goal(n_starts_elsewhere=1, n_starts_late=2))) != base
 
 
 def test_the_goal_in_words():

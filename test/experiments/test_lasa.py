@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from policy_align_ros.experiments import lasa
+from policy_align_ros.experiments import lasa, lasa_report
 from policy_align_ros.experiments.lasa_methods import (
     GmrField,
     fit_gradient_field,
@@ -154,6 +154,19 @@ def test_policy_settings_split_between_policy_align_and_its_regressor():
 
 
 # -- end to end -------------------------------------------------------------------------
+
+
+def test_a_miss_counts_as_silent_only_when_its_fit_did_not_warn():
+    def record(shape, converged, warned):
+        return {"shape": shape, "set": "tuning", "method": "policy_align", "protocol": "loo",
+                "demo": 0, "nV": 0.5, "nV_across": 0.2, "dtw_mm": 3.0, "final_mm": 0.1,
+                "converged": converged, "fit_s": 0.5,
+                "fit_warnings": ["a warning"] if warned else []}
+
+    records = [record("Angle", False, False), record("CShape", False, True),
+               record("GShape", True, False), record("JShape", True, True)]
+    summary = lasa_report.summarise(records, "policy_align", "loo")
+    assert summary["n_missed_silently"] == 1 and summary["converged_pct"] == 50.0
 
 
 def test_small_run_writes_json_table_and_figure(tmp_path, capsys):

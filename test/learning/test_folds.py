@@ -49,6 +49,9 @@ def test_the_learnt_goal_of_a_quadratic_is_its_minimum_and_where_demos_rest(quad
     assert goal["goal_error_fraction"] < 0.005
     assert goal["n_folds"] == 8 and goal["fold_spread_fraction"] < 1e-3
     assert goal["n_starts_elsewhere"] == 0
+    # Every run from a demonstrated start is home well within 3 of its durations.
+    assert goal["n_starts_late"] == 0 and len(goal["start_reach_ratios"]) == 8
+    assert all(0.0 < r < 1.0 for r in goal["start_reach_ratios"])
     assert summary["worse_than_zero"] is False and summary["no_minimum"] is False
     assert summary["poor_fit"] is False
     heldout = summary["heldout_vs_zero"]
@@ -107,6 +110,16 @@ def test_a_potential_without_a_minimum_warns_and_is_recorded():
     assert summary["goal"]["minima"] == [] and summary["goal"]["n_escaped"] == 8
     assert len(caught) == 1
     json.dumps(summary, allow_nan=False)
+
+
+def test_runs_still_on_their_way_after_the_allowed_time_warn_and_are_counted(monkeypatch):
+    # Allow each run a thousandth of its demonstration's duration: none is home by then.
+    monkeypatch.setattr("policy_align_ros.learning.reach.REACH_TIME", 1e-3)
+    with pytest.warns(UserWarning) as caught:
+        model = PolicyAlign(random_state=0).fit(_quadratic_demos(0))
+    goal = model.fit_summary_["goal"]
+    assert goal["n_starts_late"] == 8 and goal["start_reach_ratios"] == [None] * 8
+    assert goal["n_starts_elsewhere"] == 0 and len(caught) == 1
 
 
 def test_the_goal_report_round_trips_and_files_without_it_load(quadratic, tmp_path):
