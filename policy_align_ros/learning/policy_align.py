@@ -27,12 +27,15 @@ times (per step otherwise).
    alignment, but their shape is data all the same
    (``docs/design/alignment_and_outliers.md``). Their ``offsets_`` are then the levels the
    global model gives them.
+
+The stages that refit the global model (4a, the tracking lag; 4b, the goal anchor; 4c,
+each demonstration's clock) are the methods of
+:class:`~policy_align_ros.learning.fit_stages.FitStages`.
 """
 
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 import numbers
 import sys
@@ -51,11 +54,7 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_chained_offsets,
 )
-from policy_align_ros.learning.anchor import (
-    anchor_decision,
-    choose_direction_weight,
-    direction_candidates,
-)
+from policy_align_ros.learning.anchor import anchor_decision
 from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
     closest_approach_matrix,
@@ -63,16 +62,9 @@ from policy_align_ros.learning.bandwidth import (
 )
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.estimates import Estimates, estimate_potentials
+from policy_align_ros.learning.fit_stages import FitStages
 from policy_align_ros.learning.fitting import check_masks, check_query
-from policy_align_ros.learning.folds import fit_checks
-from policy_align_ros.learning.global_model import (
-    cv_error,
-    cv_score,
-    fixed_copy,
-    level_free,
-    training_set,
-)
-from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
+from policy_align_ros.learning.global_model import cv_score, level_free, training_set
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.outliers import largest_group, weakly_connected_groups
 from policy_align_ros.learning.pieces import merge_pieces, switch_junctions
@@ -80,7 +72,6 @@ from policy_align_ros.learning.potential import METHODS, estimate_potential, noi
 from policy_align_ros.learning.regressors import (
     Regressor,
     TrendKernelRegression,
-    takes_final,
     takes_free_groups,
     takes_goal,
 )
@@ -90,19 +81,13 @@ from policy_align_ros.learning.support import (
     support_states,
 )
 from policy_align_ros.learning.thinning import thin_each
-from policy_align_ros.learning.timing import (
-    TIME_UNITS,
-    TIMING_RESOLUTION,
-    heldout_ratio,
-    timed_is_better,
-    timing_scales,
-)
+from policy_align_ros.learning.timing import TIME_UNITS
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = ["PolicyAlign"]
 
 
-class PolicyAlign(BaseEstimator):
+class PolicyAlign(FitStages, BaseEstimator):
     """Learn a potential-based policy from trajectories observed under unknown constraints.
 
     Parameters
@@ -412,142 +397,6 @@ class PolicyAlign(BaseEstimator):
             aligned[rule] = (offsets, [p + b for p, b in zip(est.phi[rule], offsets,
                                                               strict=True)])
         return aligned
-
-    def _fit_lag(self, est: Estimates, table: LocalModelTable, free: np.ndarray
-                 ) -> dict[float, float]:
-        """Stage 4a: with ``tracking_lag="auto"``, the lag whose potentials the fitted
-        regressor predicts best across held-out demonstrations, its hyperparameters fixed
-        (:func:`~policy_align_ros.learning.lag.choose_lag`). A lag found replaces the
-        potentials of the rule chosen in ``est`` (the caller aligns and fits again); sets
-        ``tracking_lag_``. Returns the scores."""
-        if (self.tracking_lag != "auto" or cv_score(self.regressor_) is None
-                or est.trajs[0].times is None):
-            return {}
-        fixed = fixed_copy(self.regressor_)
-        rule = self.integration_
-        kinetic = [kinetic_term(t) for t in est.trajs]
-        lagged = dataclasses.replace(est, rules=[rule])
-
-        def score(tau: float) -> tuple[float | None, float]:
-            if tau == 0.0:
-                return cv_score(self.regressor_), cv_error(self.regressor_)
-            lagged.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
-            potentials = self._offsets(lagged, table)[rule][1]
-            Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
-                                                potentials, free, fixed)
-            if takes_final(fixed):
-                extra["final"] = False  # the scores are all a lag is chosen by
-            fit = copy.deepcopy(fixed).fit(Xtr, ytr, groups=gtr, **extra)
-            return cv_score(fit), cv_error(fit)
-
-        period = float(np.median(np.concatenate([t.dt for t in est.trajs])))
-        tau, scores = choose_lag(score, period)
-        self.tracking_lag_ = tau
-        if tau > 0.0:
-            est.rules = [rule]
-            est.phi = {rule: lagged_potentials(est.phi[rule], kinetic, tau)}
-        return scores
-
-    def _fit_anchored(self, est: Estimates, template, free: np.ndarray,
-                      aligned: dict[str, tuple], anchor: dict
-                      ) -> tuple[dict | None, tuple | None]:
-        """Stage 4b: the global model made stationary at ``anchor["goal"]`` when
-        ``anchor["anchored"]`` (:func:`~policy_align_ros.learning.anchor.anchor_decision`),
-        with the direction weight chosen from the starts (recorded in ``anchor``). Returns
-        the starts check of the kept fit and its scores and sample count (None, None
-        unanchored)."""
-        if not anchor["anchored"]:
-            return None, None
-        goal, fitted = np.asarray(anchor["goal"]), {}
-
-        def fit_anchored(candidate):
-            fitted["out"] = self._fit_global(est, candidate, free, aligned, goal)
-            return self.regressor_
-
-        choice = choose_direction_weight(fit_anchored, direction_candidates(template),
-                                         est.parents, goal)
-        starts = choice.pop("starts")
-        anchor.update(choice)
-        return starts, fitted["out"]
-
-    def _checked_fit(self, est: Estimates, free: np.ndarray, starts: dict | None,
-                     scores: dict, anchor: dict, caught: list) -> dict:
-        """The fitted global model's checks (:func:`~policy_align_ros.learning.folds.
-        fit_checks`) with what :meth:`_restore` sets again and the warnings of its fit
-        (``caught``) and checks, held back until the fit is kept."""
-        caught = list(caught)
-        with warnings.catch_warnings(record=True) as checked:
-            warnings.simplefilter("always")
-            checks = fit_checks(self.regressor_, est.trajs, est.masks, self.inliers_,
-                                self.aligned_potentials_, free, est.parents,
-                                random_state=self.random_state, starts_check=starts)
-        return {"regressor_": self.regressor_, "integration_": self.integration_,
-                "offsets_": self.offsets_, "aligned_potentials_": self.aligned_potentials_,
-                "timing_scales_": self.timing_scales_, "phi": est.phi, "scores": scores,
-                "anchor": anchor,
-                "checks": checks, "warnings": caught + list(checked),
-                "timing_heldout": None}
-
-    def _restore(self, fit: dict, est: Estimates) -> None:
-        """The attributes of a fit recorded by :meth:`_checked_fit`, and the estimates it
-        was fitted on in ``est``."""
-        for name in ("regressor_", "integration_", "offsets_", "aligned_potentials_",
-                     "timing_scales_"):
-            setattr(self, name, fit[name])
-        est.phi = fit["phi"]
-
-    def _choose_clocks(self, est: Estimates, table: LocalModelTable, template,
-                       free: np.ndarray, anchor: dict, fit: dict) -> dict:
-        """Stage 4c: each demonstration on its own clock (:mod:`~policy_align_ros.learning.
-        timing`). Where the factors differ from 1, stages 3-4b run again on the rescaled
-        estimates, and that fit is kept when :func:`~policy_align_ros.learning.timing.
-        timed_is_better`. Returns the kept fit's record, with both held-out ratios in
-        ``timing_heldout``."""
-        scales = self._timing_scales(est)
-        if scales is None:
-            return fit
-        timed = self._fit_timed(est, table, template, free, anchor, scales)
-        ratios = {"shared": heldout_ratio(fit["checks"]),
-                  "per_demonstration": heldout_ratio(timed["checks"])}
-        kept = timed if timed_is_better(timed["checks"], fit["checks"]) else fit
-        kept["timing_heldout"] = {k: json_float(v) for k, v in ratios.items()}
-        return kept
-
-    def _timing_scales(self, est: Estimates) -> np.ndarray | None:
-        """With ``time_units="per_demonstration"``, each demonstration's speed factor
-        against the fitted global model (:func:`~policy_align_ros.learning.timing.
-        timing_scales`); None where every factor is within :data:`~policy_align_ros.
-        learning.timing.TIMING_RESOLUTION` of 1, or the samples are untimed (they share
-        one clock, the sample index)."""
-        if self.time_units == "shared" or est.trajs[0].times is None:
-            return None
-        keep = self.inliers_
-        fitted = [self.regressor_.predict(est.trajs[k].positions[est.masks[k]]) for k in keep]
-        values = [self.aligned_potentials_[k][est.masks[k]] for k in keep]
-        scales = timing_scales(fitted, values, est.spans[keep, 0], len(est.parents))
-        return None if np.all(np.abs(scales - 1.0) <= TIMING_RESOLUTION) else scales
-
-    def _fit_timed(self, est: Estimates, table: LocalModelTable, template,
-                   free: np.ndarray, anchor: dict, scales: np.ndarray) -> dict:
-        """Stages 3-4b again on the estimates multiplied by each demonstration's factor
-        ``scales`` (K,): aligned, fitted, and anchored at the goal of the first fit when
-        it was (the direction weight chosen again). Returns :meth:`_checked_fit`'s
-        record."""
-        piece_scale = scales[est.spans[:, 0]]
-        est.phi = {rule: [s * p for s, p in zip(piece_scale, phi, strict=True)]
-                   for rule, phi in est.phi.items()}
-        self.timing_scales_ = scales
-        aligned = self._offsets(est, table)
-        anchor = copy.deepcopy(anchor)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            if anchor["anchored"]:
-                starts, out = self._fit_anchored(est, template, free, aligned, anchor)
-                scores = out[0]
-            else:
-                scores, _ = self._fit_global(est, template, free, aligned)
-                starts = None
-        return self._checked_fit(est, free, starts, scores, anchor, caught)
 
     def _fit_global(self, est: Estimates, template, free: np.ndarray,
                     aligned: dict[str, tuple], goal: np.ndarray | None = None
