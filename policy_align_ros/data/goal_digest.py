@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from policy_align_ros.learning.model_io import json_floats
+from policy_align_ros.learning.reach import REACH_TIME
 
 __all__ = ["goal_digest", "goal_text"]
 
@@ -57,6 +58,6 @@ def goal_text(digest: dict[str, Any] | None) -> str:
                  "stops elsewhere")
     late = (digest.get("n_starts_late") or 0) - (digest.get("n_starts_elsewhere") or 0)
     if late > 0:
-        text += (f"; from {late} demonstrations' starts it is still on its way after 3 times "
-                 "their duration")
+        text += (f"; from {late} demonstrations' starts it is still on its way after "
+                 f"{REACH_TIME:g} times their duration")
     return text

@@ -296,39 +296,48 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
     goal.update(starts_reach(parents, regressor.gradient, demonstrated_goal(parents), extent))
     worse = heldout is not None and heldout["error"] >= heldout["zero_error"]
     poor = heldout is not None and not worse and heldout["ratio"] >= POOR_FIT_RATIO
+    no_minimum = not goal["minima"]
+    for message in _goal_messages(goal, len(parents)):
+        warnings.warn(message, UserWarning, stacklevel=3)
+    if worse or poor:
+        warnings.warn(_heldout_message(heldout, worse), UserWarning, stacklevel=3)
+    return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),
+            "poor_fit": bool(poor), "no_minimum": bool(no_minimum)}
+
+
+def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
+    """The goal report's warnings: no minimum, starts that stop elsewhere, starts still on
+    their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` durations."""
+    extent = goal["extent"]
     # Every descent from where the demonstrations end left the data's box widened by its
     # extent: the policy has no goal to stop at (it would run to the executor's guard).
-    no_minimum = not goal["minima"]
-    if no_minimum:
-        warnings.warn(
-            f"PolicyAlign: the learnt potential has no minimum: all {goal['n_escaped']} "
-            f"descents from where the demonstrations end left the data's box widened by "
-            f"its extent {extent:.4g}; the policy would not stop at a goal (do the "
-            "demonstrations end where the task ends?)", UserWarning, stacklevel=3)
+    if not goal["minima"]:
+        return [f"PolicyAlign: the learnt potential has no minimum: all {goal['n_escaped']} "
+                f"descents from where the demonstrations end left the data's box widened by "
+                f"its extent {extent:.4g}; the policy would not stop at a goal (do the "
+                "demonstrations end where the task ends?)"]
+    messages = []
     elsewhere, escaped = goal["n_starts_elsewhere"], goal["n_starts_escaped"]
-    if elsewhere and not no_minimum:
+    if elsewhere:
         far = goal["starts_elsewhere_fraction"]
         where = [] if far is None else [
             f"{elsewhere - escaped} at a minimum up to {100 * far:.3g} % of the data's "
             "extent away"]
         where += [f"{escaped} out of the data's region"] if escaped else []
-        warnings.warn(
-            f"PolicyAlign: from {elsewhere} of {len(parents)} demonstrations' starts the "
+        messages.append(
+            f"PolicyAlign: from {elsewhere} of {n_demos} demonstrations' starts the "
             f"learnt policy stops where no demonstration's end leads ({', '.join(where)}):"
             " its potential has minima or slopes on the way that the demonstrations did "
-            "not follow (a path that loops or crosses itself?)", UserWarning, stacklevel=3)
+            "not follow (a path that loops or crosses itself?)")
     late = goal["n_starts_late"] - elsewhere
-    if late > 0 and not no_minimum:
-        warnings.warn(
-            f"PolicyAlign: from {late} of {len(parents)} demonstrations' starts a run of the "
+    if late > 0:
+        messages.append(
+            f"PolicyAlign: from {late} of {n_demos} demonstrations' starts a run of the "
             f"learnt policy is still on its way to the goal after {REACH_TIME:g} times the "
             "demonstration's duration: its potential is nearly flat on the way (a teacher "
             "who set off slowly?), where a robot would stall (fit_summary_['goal']"
-            "['start_reach_ratios'])", UserWarning, stacklevel=3)
-    if worse or poor:
-        warnings.warn(_heldout_message(heldout, worse), UserWarning, stacklevel=3)
-    return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),
-            "poor_fit": bool(poor), "no_minimum": bool(no_minimum)}
+            "['start_reach_ratios'])")
+    return messages
 
 
 def _heldout_message(heldout: dict[str, Any], worse: bool) -> str:
