@@ -2,6 +2,7 @@
 (policy_align_ros.learning.reach)."""
 
 import math
+import warnings
 
 import numpy as np
 
@@ -52,3 +53,11 @@ def test_no_common_goal_runs_nothing_and_untimed_data_count_steps():
     # Per step the flow is 100 times slower: ln(10) * 100 steps, over 400 steps.
     np.testing.assert_allclose(out["start_reach_ratios"], math.log(10.0) * 100 / 400,
                                atol=0.01)
+
+
+def test_a_run_thrown_off_to_infinity_is_late_without_a_warning():
+    demos = [_line([1.0, 0.0], 4.0), _line([0.0, 1.0], 4.0)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow warning escapes
+        out = starts_reach(demos, lambda X: -np.exp(np.abs(X)) * X, np.zeros(2), 2.0)
+    assert out["n_starts_late"] == 2 and out["start_reach_ratios"] == [None, None]
