@@ -320,7 +320,12 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
             g_new = gradient(trial[ok])
             s, y = step[ok], g_new - g[acc]
             sy, ss = np.einsum("ij,ij->i", s, y), np.einsum("ij,ij->i", s, s)
-            alpha[acc] = np.where(sy > 0, ss / np.where(sy > 0, sy, 1.0), 4.0 * alpha[acc])
+            # On a nearly flat potential the secant step overflows to inf; the next step is
+            # then capped (max_step, the box) and shrunk by the Armijo test, so the overflow
+            # is not a warning the fit should pass on.
+            with np.errstate(over="ignore"):
+                alpha[acc] = np.where(sy > 0, ss / np.where(sy > 0, sy, 1.0),
+                                      4.0 * alpha[acc])
             X[acc], f[acc], g[acc] = trial[ok], f_trial[ok], g_new
             done[ok] |= np.linalg.norm(_projected(g_new, X[acc], lo, hi), axis=1) <= gtol
         active[idx[done]] = False
