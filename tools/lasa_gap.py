@@ -26,34 +26,24 @@ from policy_align_ros.experiments.lasa import (
     _training,
     load_shape,
 )
-from policy_align_ros.experiments.lasa_methods import _field_design
-from policy_align_ros.experiments.lasa_metrics import velocity_error, workspace_size
+from policy_align_ros.experiments.lasa_methods import fit_gradient_field
+from policy_align_ros.experiments.lasa_metrics import velocity_error
 from policy_align_ros.learning import PolicyAlign
 
 PHASES = ((0.0, 0.1), (0.1, 0.3), (0.3, 0.7), (0.7, 0.9), (0.9, 1.01))
 
 
-def in_sample_nv(shape: str, centres: int = 600, width: float = 0.05,
+def in_sample_nv(shape: str, n_centres: int = 600, width: float = 0.05,
                  ridge: float = 1e-8) -> float:
-    """Mean over a shape's demonstrations of the nV of a gradient field fitted to them all
-    (``centres`` samples as centres, length ``width`` W, ridge relative to the Gram)."""
+    """Mean over a shape's demonstrations of the nV of a gradient field
+    (:func:`~policy_align_ros.experiments.lasa_methods.fit_gradient_field` with these
+    constants) fitted to them all."""
     demos = load_shape(shape)
-    X = np.concatenate([d["positions"][::5] for d in demos])
-    V = np.concatenate([d["velocities"][::5] for d in demos])
-    length = width * workspace_size([d["positions"] for d in demos])
-    C = X[np.unique(np.linspace(0, len(X) - 1, min(centres, len(X))).astype(int))]
-    G = _field_design(X, C, length)
-    gram = G.T @ G
-    penalty = np.zeros(len(gram))
-    penalty[5:] = ridge * np.mean(np.diag(gram)[5:])
-    theta = np.linalg.solve(gram + np.diag(penalty) + 1e-12 * np.eye(len(gram)),
-                            G.T @ np.concatenate([V[:, 0], V[:, 1]]))
-    errors = []
-    for d in demos:
-        out = _field_design(d["positions"], C, length) @ theta
-        m = len(d["positions"])
-        errors.append(velocity_error(np.stack([out[:m], out[m:]], axis=1), d["velocities"]))
-    return float(np.mean(errors))
+    policy = fit_gradient_field(np.concatenate([d["positions"][::5] for d in demos]),
+                                np.concatenate([d["velocities"][::5] for d in demos]),
+                                n_centres=n_centres, width=width, ridge=ridge)
+    return float(np.mean([velocity_error(policy(d["positions"]), d["velocities"])
+                          for d in demos]))
 
 
 def phases(shape: str) -> None:

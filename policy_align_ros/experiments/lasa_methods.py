@@ -145,14 +145,16 @@ def _field_design(X: np.ndarray, centres: np.ndarray, length: float) -> np.ndarr
     return np.vstack([np.hstack([quad_x, rbf_x]), np.hstack([quad_y, rbf_y])])
 
 
-def fit_gradient_field(X: np.ndarray, V: np.ndarray) -> Policy:
+def fit_gradient_field(X: np.ndarray, V: np.ndarray, *, n_centres: int = GRAD_FIELD_CENTRES,
+                       width: float = GRAD_FIELD_WIDTH, ridge: float = GRAD_FIELD_RIDGE
+                       ) -> Policy:
     """Least-squares gradient field fitted to velocities, by a fixed rule.
 
-    Centres: ``GRAD_FIELD_CENTRES`` training samples evenly spaced in the stacked sample
-    order (all if fewer). Length scale ``l = GRAD_FIELD_WIDTH * W`` with ``W`` the largest
-    side of the training samples' bounding box. Ridge ``GRAD_FIELD_RIDGE`` times the mean
-    diagonal of the RBF columns' Gram, on the RBF weights only (the quadratic is free).
-    The rule is fixed a priori; no LASA score chose it.
+    Centres: ``n_centres`` training samples evenly spaced in the stacked sample order (all
+    if fewer). Length scale ``l = width * W`` with ``W`` the largest side of the training
+    samples' bounding box. Ridge ``ridge`` times the mean diagonal of the RBF columns'
+    Gram, on the RBF weights only (the quadratic is free). The bench's rule
+    (the defaults) is fixed a priori; no LASA score chose it.
 
     Parameters
     ----------
@@ -160,6 +162,9 @@ def fit_gradient_field(X: np.ndarray, V: np.ndarray) -> Policy:
         Positions (mm).
     V : ndarray, shape (m, 2)
         Velocities (mm/s).
+    n_centres, width, ridge : int, float, float
+        The rule's constants (defaults: ``GRAD_FIELD_CENTRES``, ``GRAD_FIELD_WIDTH``,
+        ``GRAD_FIELD_RIDGE``).
 
     Returns
     -------
@@ -169,16 +174,15 @@ def fit_gradient_field(X: np.ndarray, V: np.ndarray) -> Policy:
     X, V = np.asarray(X, float), np.asarray(V, float)
     if X.ndim != 2 or X.shape[1] != 2 or V.shape != X.shape:
         raise ValueError(f"X {X.shape} and V {V.shape}: must be equal (m, 2) arrays")
-    pick = np.unique(np.linspace(0, len(X) - 1, min(GRAD_FIELD_CENTRES, len(X))).astype(int))
+    pick = np.unique(np.linspace(0, len(X) - 1, min(n_centres, len(X))).astype(int))
     centres = X[pick]
-    width = float(np.max(X.max(axis=0) - X.min(axis=0)))
-    length = GRAD_FIELD_WIDTH * max(width, 1e-12)
+    length = width * max(float(np.max(X.max(axis=0) - X.min(axis=0))), 1e-12)
     G = _field_design(X, centres, length)
     y = np.concatenate([V[:, 0], V[:, 1]])
     gram = G.T @ G
-    ridge = np.zeros(G.shape[1])
-    ridge[5:] = GRAD_FIELD_RIDGE * np.mean(np.diag(gram)[5:])
-    theta = np.linalg.solve(gram + np.diag(ridge) + 1e-12 * np.eye(len(ridge)), G.T @ y)
+    penalty = np.zeros(G.shape[1])
+    penalty[5:] = ridge * np.mean(np.diag(gram)[5:])
+    theta = np.linalg.solve(gram + np.diag(penalty) + 1e-12 * np.eye(len(penalty)), G.T @ y)
 
     def policy(Q: np.ndarray) -> np.ndarray:
         Q = np.asarray(Q, float)

@@ -45,8 +45,8 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
     dict or None
         ``nV``, ``nV_across``, ``dtw_mm``, ``converged_pct``, ``final_mm`` (median over
         rollouts of the final distance to the goal), ``fit_s``, ``n_shapes``, ``n_rollouts``
-        and ``n_missed_silently`` (rollouts that did not converge although their fit
-        raised no warning); None when no record matches.
+        ``n_missed`` (rollouts that did not converge) and ``n_missed_silently`` (those of
+        them whose fit raised no warning); None when no record matches.
     """
     rows = [r for r in records if r["method"] == method and r["protocol"] == protocol
             and (shape_set is None or r["set"] == shape_set)]
@@ -63,6 +63,7 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
         "fit_s": float(np.median(list(fits.values()))),
         "n_shapes": len({r["shape"] for r in rows}),
         "n_rollouts": len(rows),
+        "n_missed": sum(1 for r in rows if not r["converged"]),
         "n_missed_silently": sum(1 for r in rows
                                  if not r["converged"] and not r.get("fit_warnings")),
     }
@@ -116,9 +117,8 @@ def _silent(records, protocols) -> list[str]:
     for protocol in protocols:
         s = summarise(records, "policy_align", protocol)
         if s is not None:
-            missed = round(s["n_rollouts"] * (1.0 - s["converged_pct"] / 100.0))
             lines.append(f"- `{protocol}`: {s['n_missed_silently']} of {s['n_rollouts']} "
-                         f"rollouts ({missed} missed the goal)")
+                         f"rollouts ({s['n_missed']} missed the goal)")
     return lines
 
 

@@ -32,6 +32,7 @@ from policy_align_ros.learning.timing import (
     timed_is_better,
     timing_scales,
 )
+from policy_align_ros.learning.trajectory import sample_period
 
 __all__ = ["FitStages"]
 
@@ -66,8 +67,7 @@ class FitStages:
             fit = copy.deepcopy(fixed).fit(Xtr, ytr, groups=gtr, **extra)
             return cv_score(fit), cv_error(fit)
 
-        period = float(np.median(np.concatenate([t.dt for t in est.trajs])))
-        tau, scores = choose_lag(score, period)
+        tau, scores = choose_lag(score, sample_period(est.trajs))
         self.tracking_lag_ = tau
         if tau > 0.0:
             est.rules = [rule]

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.learning.goal import GOAL_MERGE
-from policy_align_ros.learning.trajectory import Trajectory
+from policy_align_ros.learning.trajectory import Trajectory, sample_period
 
 __all__ = ["MAX_REACH_STEPS", "REACH_TIME", "reach_times", "starts_reach"]
 
@@ -113,21 +113,14 @@ def starts_reach(trajs: Sequence[Trajectory], gradient: Field, goal: np.ndarray 
     starts = np.array([t.positions[0] for t in trajs])
     durations = np.array([_duration(t) for t in trajs])
     arrival = reach_times(gradient, starts, np.asarray(goal, dtype=float),
-                          REACH_TIME * durations, _period(trajs), GOAL_MERGE * extent)
+                          REACH_TIME * durations, sample_period(trajs), GOAL_MERGE * extent)
     ratios = arrival / durations
     return {"start_reach_ratios": [float(r) if math.isfinite(r) else None for r in ratios],
             "n_starts_late": int(np.count_nonzero(~np.isfinite(ratios)))}
 
 
 def _duration(traj: Trajectory) -> float:
-    """A demonstration's duration (s; samples without times), at least one step."""
+    """A demonstration's duration (s; steps without times)."""
     if traj.times is None:
-        return float(max(traj.n_samples - 1, 1))
-    return max(float(traj.times[-1] - traj.times[0]), float(np.median(traj.dt)))
-
-
-def _period(trajs: Sequence[Trajectory]) -> float:
-    """The demonstrations' median sample period (s; 1 without times)."""
-    if trajs[0].times is None:
-        return 1.0
-    return float(np.median(np.concatenate([t.dt for t in trajs])))
+        return float(traj.n_samples - 1)
+    return float(traj.times[-1] - traj.times[0])

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["Trajectory", "as_trajectories"]
+__all__ = ["Trajectory", "as_trajectories", "sample_period"]
 
 
 class Trajectory:
@@ -170,6 +170,11 @@ def as_trajectories(data: Sequence[Trajectory | np.ndarray]) -> list[Trajectory]
             f"{'has' if timed[0] else 'has no'} times); give times for all or none"
         )
     return out
+
+
+def sample_period(trajs: Sequence[Trajectory]) -> float:
+    """The median time step over all samples of ``trajs`` (s; 1 without times)."""
+    return float(np.median(np.concatenate([t.dt for t in trajs])))
 
 
 def _strip_label(err: ValueError) -> str:

@@ -166,7 +166,8 @@ def test_a_miss_counts_as_silent_only_when_its_fit_did_not_warn():
     records = [record("Angle", False, False), record("CShape", False, True),
                record("GShape", True, False), record("JShape", True, True)]
     summary = lasa_report.summarise(records, "policy_align", "loo")
-    assert summary["n_missed_silently"] == 1 and summary["converged_pct"] == 50.0
+    assert summary["n_missed_silently"] == 1 and summary["n_missed"] == 2
+    assert summary["converged_pct"] == 50.0
 
 
 def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
