@@ -35,7 +35,7 @@ from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision",
            "choose_direction_weight", "direction_candidates", "goal_curvature",
-           "motion_steps"]
+           "motion_drops", "motion_steps"]
 
 #: The paper's potential is kept when one of its minima lies within this fraction of the
 #: data's extent of where the demonstrations end; farther, the model is made stationary
@@ -95,6 +95,14 @@ def motion_steps(positions: np.ndarray) -> np.ndarray:
     if len(positions) < 2:
         return np.zeros_like(positions)
     return np.gradient(positions, axis=0)
+
+
+def motion_drops(potential: np.ndarray) -> np.ndarray:
+    """Each sample's change of a potential estimate (N,) over its :func:`motion_steps`
+    step (N,), potential units: central differences, one-sided at the ends."""
+    if len(potential) < 2:
+        return np.zeros_like(potential)
+    return np.gradient(potential)
 
 
 def goal_curvature(gradient: Callable[[np.ndarray], np.ndarray], goal: np.ndarray,

@@ -18,7 +18,8 @@ except ImportError:  # pragma: no cover - depends on the environment
     ThreadpoolController = None
 _CONTROLLER = None  # built once: inspecting the loaded BLAS libraries takes ~10 ms
 
-__all__ = ["assign_folds", "check_Xy", "check_masks", "check_query", "single_blas_thread"]
+__all__ = ["assign_folds", "check_Xy", "check_finite", "check_masks", "check_query",
+           "single_blas_thread"]
 
 
 def single_blas_thread() -> contextlib.AbstractContextManager:
@@ -63,6 +64,15 @@ def check_Xy(X: np.ndarray, y: np.ndarray, groups: np.ndarray | None
         raise ValueError(f"groups must be an int array of shape ({len(X)},), got "
                          f"{groups.dtype} {groups.shape}")
     return X, y, groups
+
+
+def check_finite(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a float array of ``shape`` with finite entries (a ``ValueError`` naming
+    ``name`` otherwise)."""
+    array = np.asarray(value, dtype=float)
+    if array.shape != shape or not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be a finite {shape} array, got shape {array.shape}")
+    return array
 
 
 def check_query(X: np.ndarray, n: int) -> np.ndarray:

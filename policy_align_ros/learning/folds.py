@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from policy_align_ros.learning.anchor import motion_steps
+from policy_align_ros.learning.anchor import motion_drops, motion_steps
 from policy_align_ros.learning.fitting import assign_folds
 from policy_align_ros.learning.global_model import fixed_copy
 from policy_align_ros.learning.goal import (
@@ -48,6 +48,7 @@ from policy_align_ros.learning.goal import (
 )
 from policy_align_ros.learning.reach import REACH_TIME, starts_reach
 from policy_align_ros.learning.regressors import (
+    takes_drops,
     takes_free_groups,
     takes_motion,
     takes_scored,
@@ -77,7 +78,8 @@ class FoldModel:
 
 def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
                 free_groups: np.ndarray | None = None, *, random_state: int | None = 0,
-                motion: np.ndarray | None = None) -> list[FoldModel]:
+                motion: np.ndarray | None = None, drops: np.ndarray | None = None
+                ) -> list[FoldModel]:
     """The fitted ``regressor`` refitted once per CV fold, without that fold's groups.
 
     Parameters
@@ -96,6 +98,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
     motion : ndarray (m, n), optional
         Each sample's step: a regressor stationary at a goal was fitted with it, and
         each fold model is fitted the same way.
+    drops : ndarray (m,), optional
+        With ``motion``: the potential's change over each sample's step, likewise.
 
     Returns
     -------
@@ -126,6 +130,8 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
             extra["goal"] = regressor.goal_  # the fold model is stationary there too
             if motion is not None and takes_motion(template):
                 extra["motion"] = motion[train]
+                if drops is not None and takes_drops(template):
+                    extra["drops"] = drops[train]
         try:
             model = copy.deepcopy(template).fit(X[train], y[train], groups=groups[train],
                                                 **extra)
@@ -275,9 +281,12 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
     X = np.concatenate([pieces[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
     g = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
-    motion = (np.concatenate([motion_steps(pieces[k].positions)[masks[k]] for k in keep])
-              if getattr(regressor, "goal_", None) is not None else None)
-    folds = fold_refits(regressor, X, y, g, free, random_state=random_state, motion=motion)
+    motion = drops = None
+    if getattr(regressor, "goal_", None) is not None:
+        motion = np.concatenate([motion_steps(pieces[k].positions)[masks[k]] for k in keep])
+        drops = np.concatenate([motion_drops(potentials[k])[masks[k]] for k in keep])
+    folds = fold_refits(regressor, X, y, g, free, random_state=random_state, motion=motion,
+                        drops=drops)
     heldout = heldout_vs_zero(folds, pieces)
     goal = goal_summary(parents, regressor.predict, regressor.gradient,
                         starts_check=starts_check)

@@ -13,9 +13,10 @@ import math
 
 import numpy as np
 
-from policy_align_ros.learning.anchor import motion_steps
+from policy_align_ros.learning.anchor import motion_drops, motion_steps
 from policy_align_ros.learning.regressors import (
     TrendKernelRegression,
+    takes_drops,
     takes_goal,
     takes_motion,
 )
@@ -48,7 +49,7 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
     Returns
     -------
     X (m, n), y (m,), groups (m,), and the fit's keyword arguments (``free_groups``,
-    ``goal`` and the samples' ``motion`` where the template takes them).
+    ``goal`` and the samples' ``motion`` and ``drops`` where the template takes them).
     """
     X = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
@@ -60,6 +61,10 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
         # Timing-free evidence beside where the demonstrations end: which way they move.
         extra["motion"] = np.concatenate([motion_steps(trajs[k].positions)[masks[k]]
                                           for k in keep])
+        if takes_drops(template):
+            # And how steeply the potential falls along it, sample by sample.
+            extra["drops"] = np.concatenate([motion_drops(potentials[k])[masks[k]]
+                                             for k in keep])
     return X, y, groups, extra
 
 

@@ -9,6 +9,7 @@ from policy_align_ros.learning.anchor import (
     choose_direction_weight,
     direction_candidates,
     goal_curvature,
+    motion_drops,
     motion_steps,
 )
 from policy_align_ros.learning.goal import (
@@ -80,6 +81,15 @@ def test_motion_steps_are_central_differences():
     X = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 1.0]])
     np.testing.assert_allclose(motion_steps(X), [[1.0, 0.0], [1.5, 0.5], [2.0, 1.0]])
     assert motion_steps(X[:1]).shape == (1, 2)
+
+
+def test_motion_drops_are_the_potential_over_the_same_steps():
+    # The change of a potential over each sample's step: for values linear in the
+    # positions, the slope times the step.
+    X = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 1.0], [5.0, 2.0]])
+    values = X @ np.array([-2.0, 0.5])
+    np.testing.assert_allclose(motion_drops(values), motion_steps(X) @ np.array([-2.0, 0.5]))
+    np.testing.assert_array_equal(motion_drops(values[:1]), [0.0])
 
 
 class _Tilted(_Bowl):

@@ -61,6 +61,21 @@ def test_training_set_stacks_the_training_samples_of_the_kept_trajectories():
     assert extra == {}
 
 
+def test_an_anchored_training_set_carries_each_samples_step_and_drop():
+    # With a goal, the regressor is given each training sample's step and the potential's
+    # change over it, from the whole trajectory (the masked sample's neighbours count).
+    trajs = [Trajectory(positions=np.column_stack([np.arange(4.0) * (k + 1), np.zeros(4)]))
+             for k in range(2)]
+    masks = [np.array([True, False, True, True])] * 2
+    potentials = [np.array([9.0, 5.0, 2.0, 1.0]) * (k + 1) for k in range(2)]
+    _, _, _, extra = training_set(trajs, masks, np.array([0, 1]), potentials,
+                                  np.zeros(0, dtype=int), TrendKernelRegression(),
+                                  goal=np.zeros(2))
+    np.testing.assert_array_equal(extra["goal"], np.zeros(2))
+    np.testing.assert_allclose(extra["motion"][:, 0], [1, 1, 1, 2, 2, 2])
+    np.testing.assert_allclose(extra["drops"], [-4, -2, -1, -8, -4, -2])
+
+
 def test_level_free_moves_free_trajectories_to_the_model():
     class Flat:
         def predict(self, X):

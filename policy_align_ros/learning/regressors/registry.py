@@ -10,7 +10,7 @@ from __future__ import annotations
 import inspect
 
 __all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups", "takes_goal",
-           "takes_final", "takes_motion", "takes_scored"]
+           "takes_drops", "takes_final", "takes_motion", "takes_scored"]
 
 REGISTRY: dict[str, type] = {}
 
@@ -47,6 +47,12 @@ def takes_goal(regressor) -> bool:
 def takes_motion(regressor) -> bool:
     """Whether ``regressor.fit`` accepts ``motion`` (each sample's step, state units)."""
     return _takes(regressor, "motion")
+
+
+def takes_drops(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``drops`` (each sample's potential change over
+    its ``motion`` step)."""
+    return _takes(regressor, "drops")
 
 
 def takes_scored(regressor) -> bool:

@@ -1,16 +1,19 @@
 """A goal-centred TrendKernelRegression: stationary exactly at the goal it is given."""
 
 
+import copy
+
 import numpy as np
 import pytest
 
-from policy_align_ros.learning.regressors import TrendKernelRegression, takes_goal
+from policy_align_ros.learning.regressors import TrendKernelRegression, takes_drops, takes_goal
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _kernel,
     _kernel_directions,
     _kernel_jacobian,
 )
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
+    along_motion,
     direction_bases,
     direction_rows,
 )
@@ -163,3 +166,73 @@ def test_direction_bases_penalise_the_slope_across_the_motion_as_the_projector(n
     expected = 10.0 * norm2[:, None, None] * (np.eye(n) - unit[:, :, None] * unit[:, None, :])
     expected[3] = 0.0
     np.testing.assert_allclose(np.einsum("mri,mrj->mij", B, B), expected, atol=1e-12)
+
+
+def _lines(goal, n_demos=6, seed=3):
+    # Straight demonstrations into the goal of the bowl |x - goal|^2, with its values, each
+    # sample's central step and the values' change over it.
+    rng = np.random.default_rng(seed)
+    X, y, g, steps, drops = [], [], [], [], []
+    for k in range(n_demos):
+        angle = 2 * np.pi * k / n_demos + rng.uniform(-0.2, 0.2)
+        start = goal + rng.uniform(1.5, 2.5) * np.array([np.cos(angle), np.sin(angle)])
+        P = start + np.linspace(0.0, 1.0, 60)[:, None] ** 0.7 * (goal - start)
+        values = np.sum((P - goal) ** 2, axis=1)
+        X.append(P)
+        y.append(values)
+        g.append(np.full(len(P), k))
+        steps.append(np.gradient(P, axis=0))
+        drops.append(np.gradient(values))
+    return (np.concatenate(X), np.concatenate(y), np.concatenate(g), np.concatenate(steps),
+            np.concatenate(drops))
+
+
+def test_along_motion_rows_observe_the_slope_along_and_zero_across():
+    # For a linear potential g'z, each sample's rows minus their targets vanish when the
+    # drops are g's, and a step too short to have a direction gets no row along.
+    rng = np.random.default_rng(7)
+    steps = rng.normal(size=(25, 3))
+    steps[5] *= 1e-3
+    grad = rng.normal(size=3)
+    for k in range(25):  # every step along the gradient, to be downhill-consistent
+        steps[k] = np.linalg.norm(steps[k]) * grad / np.linalg.norm(grad)
+    across = direction_bases(steps, 10.0)
+    bases, targets = along_motion(steps, steps @ grad, across, 30.0)
+    assert bases.shape == (25, 3, 3) and targets.shape == (25, 3)
+    np.testing.assert_allclose(bases @ grad, targets, atol=1e-9)
+    assert np.all(bases[5, 0] == 0.0) and targets[5, 0] == 0.0
+    np.testing.assert_array_equal(bases[:, 1:], across)
+    # Every moving sample's row along weighs the same whatever its speed.
+    moving = np.delete(np.arange(25), 5)
+    np.testing.assert_allclose(np.linalg.norm(bases[moving, 0], axis=1),
+                               np.sqrt(30.0) * np.median(np.linalg.norm(steps, axis=1)))
+
+
+def test_drops_consistent_with_the_values_keep_the_bowl():
+    goal = np.array([0.3, -0.2])
+    X, y, g, steps, drops = _lines(goal)
+    model = TrendKernelRegression().fit(X, y, groups=g, goal=goal, motion=steps, drops=drops)
+    assert takes_drops(model)
+    np.testing.assert_allclose(model.gradient(X), 2 * (X - goal), atol=1e-3)
+
+
+def test_drops_set_the_slope_along_the_motion():
+    # The values are the bowl's, but the drops say it falls twice as steeply: with a
+    # strong weight, the fit with them is steeper along the motion than the fit on the
+    # values alone, and still stationary at the goal.
+    goal = np.array([0.3, -0.2])
+    X, y, g, steps, drops = _lines(goal)
+    strong = TrendKernelRegression(direction_weight=1000.0)
+    steep = copy.deepcopy(strong).fit(X, y, groups=g, goal=goal, motion=steps, drops=2.0 * drops)
+    without = copy.deepcopy(strong).fit(X, y, groups=g, goal=goal, motion=steps)
+
+    def slope(model):
+        return np.median(np.abs(np.sum(model.gradient(X) * steps, axis=1) / drops))
+
+    assert slope(without) == pytest.approx(1.0, abs=0.01)
+    assert slope(steep) > 1.2
+    assert np.allclose(steep.gradient(goal[None]), 0.0, atol=1e-9)
+    with pytest.raises(ValueError, match="drops"):
+        TrendKernelRegression().fit(X, y, groups=g, goal=goal, drops=drops)
+    with pytest.raises(ValueError, match="drops"):
+        TrendKernelRegression().fit(X, y, groups=g, goal=goal, motion=steps, drops=drops[:-1])

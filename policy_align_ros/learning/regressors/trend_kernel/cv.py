@@ -1,9 +1,27 @@
 """The cross-validated choice of the trend-kernel model's hyperparameters.
 
-The search and its selection rules are described in :mod:`.model` ("Choosing the
-hyperparameters"): every fold holds out whole demonstrations, a held-out demonstration is
-scored by its shape, and among candidates within the folds' noise of the best the simplest
-is kept.
+``trend_ridge``, ``length_scale``, ``kernel_ridge`` and ``offset_ridge`` (an infinite
+``kernel_ridge`` drops the residual, an infinite ``trend_ridge`` keeps the isotropic bowl
+only) are chosen by 10-fold cross-validation in which every fold holds out *whole
+demonstrations*. A held-out demonstration is scored by its *shape*: the squared error of
+the model's values along it after the best constant shift, over the spread of its values.
+That is the error of every potential difference between its samples (start to end as
+well as step to step), which is what a policy must get right along a path from a new
+start, and it does not charge the model for the alignment's error in the held-out
+demonstration's offset. The trend's penalty and the offsets' are scored first with the
+trend alone; the residual's length scale and penalty are searched at the best of those
+and at the best trend penalty with free offsets (the trend alone can rank the offset
+penalties wrongly where a quadratic does not fit). The better of the two paths is kept,
+and on it the candidate with the fewest effective degrees of freedom
+(:func:`effective_dof`) among those scored within one standard error of its best (the
+trend alone among them). When a residual is kept, the trend's and the offsets' penalties
+are scored again with it. Scores closer than :data:`CV_RESOLUTION` are ties, settled
+toward the simpler model; a trend alone that fits to that resolution skips the residual's
+search. All fold errors come from per-fold sums (one pass over the data per length
+scale), so the search costs a few small Cholesky solves per candidate
+(``docs/design/cv_selection.md``). The data are thinned evenly in arc
+length along each demonstration first (a robot at rest adds samples but no information),
+to at most ``max_fit_points`` samples.
 """
 
 from __future__ import annotations

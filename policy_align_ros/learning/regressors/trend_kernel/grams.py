@@ -20,6 +20,10 @@ from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     _nonneg_solve,
 )
 
+#: Steps shorter than this fraction of the median step get no row along the motion
+#: (:func:`along_motion`).
+MIN_STEP = 0.05
+
 
 class _FoldGrams:
     """Per-fold and per-demonstration sums of a design, for CV with per-demo offsets.
@@ -34,7 +38,8 @@ class _FoldGrams:
 
     def __init__(self, A: np.ndarray, u: np.ndarray, demo: np.ndarray, demo_fold: np.ndarray,
                  n: int, base: _FoldGrams | None = None, free: np.ndarray | None = None,
-                 nonneg: bool = False, D: np.ndarray | None = None):
+                 nonneg: bool = False, D: np.ndarray | None = None,
+                 Dt: np.ndarray | None = None):
         """``base``, when given, holds the sums of the first columns of ``A`` (the trend,
         shared by every length scale), so only the blocks of the new columns are summed.
         ``free`` (K,) bool: demonstrations whose offsets are free at every
@@ -42,9 +47,11 @@ class _FoldGrams:
         of ``A`` are :func:`quadratic_features`, whose Hessian :func:`_convex_solve` keeps
         positive definite; with ``nonneg``, ``A`` is the single-index design ``[1, B]``,
         whose profile weights :func:`_nonneg_solve` keeps >= 0. ``D`` (m, r, p), optional:
-        direction rows of every sample (:func:`direction_rows`), observations of zero
-        added to the Grams of their folds only (no offsets, no targets); with ``base``,
-        ``base`` holds their first columns' sums already."""
+        direction rows of every sample (:func:`direction_rows`), observations added to the
+        Grams of their folds only (no offsets), of ``Dt`` (m, r) where given (the slope
+        along the motion, :func:`along_motion`), else of zero; with ``base``, ``base``
+        holds their first columns' sums already. The held-out scores are of the values
+        only."""
         self.n = n
         self.nonneg = nonneg
         self.free = (np.zeros(len(demo_fold), dtype=bool) if free is None
@@ -79,6 +86,9 @@ class _FoldGrams:
         # near-perfect fit the expanded sums (u'u - 2 w'r + w'Gw) cancel to round-off.
         self.A, self.u, self.demo, self.rows = A, u, demo, rows
         self.r = np.stack([A[r].T @ u[r] for r in rows])
+        if D is not None and Dt is not None:
+            for f, r in enumerate(rows):
+                self.r[f] += np.einsum("mip,mi->p", D[r], Dt[r])
         self.uu = np.array([u[r] @ u[r] for r in rows])
         self.G_all, self.r_all = self.G.sum(axis=0), self.r.sum(axis=0)
         self._free: tuple[np.ndarray, ...] | None = None
@@ -196,7 +206,8 @@ class _CVData:
     ``trend`` the fold sums of ``F``, shared by every length scale; ``pinned``: kernel
     features flat at the goal (:func:`~.features._kernel`); ``bases`` (m, n - 1, n) and
     ``trend_directions`` (m, n - 1, p_t): the samples' direction bases and the trend's
-    direction rows (:func:`direction_rows`), or None.
+    direction rows (:func:`direction_rows`), or None; ``direction_targets`` (m, n - 1 or n)
+    what the direction rows observe (:func:`along_motion`), or None for zero.
     """
 
     F: np.ndarray
@@ -209,6 +220,7 @@ class _CVData:
     pinned: bool = False
     bases: np.ndarray | None = None
     trend_directions: np.ndarray | None = None
+    direction_targets: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -224,7 +236,7 @@ class _CVData:
             D = np.concatenate([self.trend_directions, _kernel_directions(
                 self.bases, self.Z, self.C, ell, self.pinned)], axis=2)
         return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
-                           free=self.trend.free, D=D),
+                           free=self.trend.free, D=D, Dt=self.direction_targets),
                 _gaussian(self.C, self.C, ell))
 
 
@@ -276,3 +288,45 @@ def direction_bases(steps: np.ndarray, weight: float) -> np.ndarray:
     H = np.eye(n)[None] - 2.0 * h[:, :, None] * h[:, None, :] / np.einsum(
         "ij,ij->i", h, h)[:, None, None]
     return H[:, 1:, :] * (np.sqrt(weight) * norm)[:, None, None]
+
+
+def along_motion(steps: np.ndarray, drops: np.ndarray, bases: np.ndarray, weight: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The direction ``bases`` (m, n - 1, n; :func:`direction_bases`) with a first row along
+    each sample's motion, and what the rows observe: the potential's slope along the step
+    ``s`` is its estimate's drop over the step per unit length, ``d / |s|`` (under a
+    constraint too: along a motion ``N pi`` the slope of ``phi`` is ``-|N pi|``), and across
+    it zero.
+
+    The row along is ``sqrt(weight) s_ref s' / |s|``: every sample weighs the same, as in
+    the values, whatever its speed, so where a teacher sets off slowly or comes to rest
+    the potential is as flat as the demonstration. ``s_ref`` is the median step, which
+    keeps the weight's meaning that of the rows across at a typical step. Steps shorter
+    than :data:`MIN_STEP` of it (a rest, whose direction is noise) get no row along.
+
+    Parameters
+    ----------
+    steps : ndarray (m, n)
+        Each sample's step (standardised state units).
+    drops : ndarray (m,)
+        The potential estimate's change over that step (standardised potential units;
+        negative downhill).
+    bases : ndarray (m, n - 1, n)
+        The samples' rows across their motion.
+    weight : float
+        The weight of the rows along against an error of the same size in the values.
+
+    Returns
+    -------
+    bases : ndarray (m, n, n)
+    targets : ndarray (m, n)
+        Zero but in the first column.
+    """
+    norm = np.linalg.norm(steps, axis=1)
+    ref = float(np.median(norm)) if len(norm) else 0.0
+    moving = norm > MIN_STEP * ref
+    gain = np.divide(math.sqrt(weight) * ref, norm, out=np.zeros_like(norm), where=moving)
+    along = (gain[:, None] * steps)[:, None, :]
+    targets = np.zeros((len(steps), steps.shape[1]))
+    targets[:, 0] = gain * drops
+    return np.concatenate([along, bases], axis=1), targets

@@ -38,28 +38,8 @@ connected trajectories), so only their shape is data
 
 Choosing the hyperparameters
 ----------------------------
-``trend_ridge``, ``length_scale``, ``kernel_ridge`` and ``offset_ridge`` (an infinite
-``kernel_ridge`` drops the residual, an infinite ``trend_ridge`` keeps the isotropic bowl
-only) are chosen by 10-fold cross-validation in which every fold holds out *whole
-demonstrations*. A held-out demonstration is scored by its *shape*: the squared error of
-the model's values along it after the best constant shift, over the spread of its values.
-That is the error of every potential difference between its samples (start to end as
-well as step to step), which is what a policy must get right along a path from a new
-start, and it does not charge the model for the alignment's error in the held-out
-demonstration's offset. The trend's penalty and the offsets' are scored first with the
-trend alone; the residual's length scale and penalty are searched at the best of those
-and at the best trend penalty with free offsets (the trend alone can rank the offset
-penalties wrongly where a quadratic does not fit). The better of the two paths is kept,
-and on it the candidate with the fewest effective degrees of freedom
-(:func:`effective_dof`) among those scored within one standard error of its best (the
-trend alone among them). When a residual is kept, the trend's and the offsets' penalties
-are scored again with it. Scores closer than :data:`CV_RESOLUTION` are ties, settled
-toward the simpler model; a trend alone that fits to that resolution skips the residual's
-search. All fold errors come from per-fold sums (one pass over the data per length
-scale), so the search costs a few small Cholesky solves per candidate
-(``docs/design/cv_selection.md``). The data are thinned evenly in arc
-length along each demonstration first (a robot at rest adds samples but no information),
-to at most ``max_fit_points`` samples.
+By 10-fold cross-validation over whole demonstrations, each scored by its shape
+(:mod:`.cv`).
 
 By default (``trend_form="cv"``) the CV also scores the single-index trend of
 :mod:`.single_index` (a rising profile of one fitted quadratic form, for potentials that
@@ -77,6 +57,7 @@ import numpy as np
 from policy_align_ros.learning.base import BaseEstimator, check_is_fitted
 from policy_align_ros.learning.fitting import (
     assign_folds,
+    check_finite,
     check_query,
     check_Xy,
     single_blas_thread,
@@ -108,6 +89,7 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
     _CVData,
     _FoldGrams,
+    along_motion,
     direction_bases,
     direction_rows,
 )
@@ -136,6 +118,9 @@ _HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
 #: outside PolicyAlign takes the last. A decade apart, chosen on the LASA tuning shapes
 #: (``docs/design/goal_anchor.md``).
 DIRECTION_WEIGHTS = (1000.0, 100.0, 10.0)
+#: The weight of the rows along the motion (a fit given ``drops``) over the direction
+#: weight: chosen on the LASA tuning shapes among 1, 3 and 10 (``docs/design/goal_anchor.md``).
+ALONG_WEIGHT = 3.0
 #: ``n_centres="auto"``: kernel centres per demonstration, and at most this many in all.
 CENTRES_PER_DEMONSTRATION = 25
 MAX_CENTRES = 300
@@ -291,7 +276,7 @@ class TrendKernelRegression(BaseEstimator):
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
             free_groups: np.ndarray | None = None, goal: np.ndarray | None = None,
             motion: np.ndarray | None = None, scored: bool = True,
-            final: bool = True) -> TrendKernelRegression:
+            final: bool = True, drops: np.ndarray | None = None) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
@@ -307,7 +292,11 @@ class TrendKernelRegression(BaseEstimator):
         penalises the model's gradient across the motion, ``direction_weight`` times
         (:func:`direction_bases`): the potential's values along bundled
         demonstrations leave its slope across them free, and a demonstration moves
-        downhill. ``scored=False``:
+        downhill. ``drops`` (m,), potential units: the change of ``y``'s estimate over
+        each sample's step in ``motion``; the fit then also matches the model's slope
+        along the motion to it, :data:`ALONG_WEIGHT` times the direction weight
+        (:func:`along_motion`): the values say where a demonstration's potential lies,
+        the drops how steeply it falls at each sample. ``scored=False``:
         a fit of one candidate (every hyperparameter fixed, the quadratic trend) skips its
         CV score, which only a caller comparing scores reads (``cv_best_`` is then None);
         the model fitted is the same. ``final=False``: the reverse, the CV's scores and pick
@@ -330,19 +319,17 @@ class TrendKernelRegression(BaseEstimator):
         unknown = np.setdiff1d(free, groups)
         if unknown.size:
             raise ValueError(f"free_groups names ids not in groups: {unknown[:5].tolist()}")
+        self.goal_ = None if goal is None else check_finite("goal", goal, (X.shape[1],))
+        if motion is not None:
+            motion = check_finite("motion", motion, X.shape)
+        if drops is not None:
+            if motion is None:
+                raise ValueError("drops are the potential's changes over the steps in "
+                                 "motion: give motion too")
+            # Thinned and ordered with the steps, as their last column.
+            motion = np.column_stack([motion, check_finite("drops", drops, y.shape)])
         # Hundreds of factorisations of a few hundred unknowns: OpenBLAS's threads cost
         # more than they bring there.
-        if goal is not None:
-            goal = np.asarray(goal, dtype=float)
-            if goal.shape != (X.shape[1],) or not np.all(np.isfinite(goal)):
-                raise ValueError(f"goal must be a finite ({X.shape[1]},) array, got shape "
-                                 f"{goal.shape}")
-        self.goal_ = goal
-        if motion is not None:
-            motion = np.asarray(motion, dtype=float)
-            if motion.shape != X.shape or not np.all(np.isfinite(motion)):
-                raise ValueError(f"motion must be a finite {X.shape} array, got shape "
-                                 f"{motion.shape}")
         with single_blas_thread():
             return self._fit(X, y, groups, free, motion, scored, final)
 
@@ -391,9 +378,9 @@ class TrendKernelRegression(BaseEstimator):
         pinned = self.goal_ is not None
         if pinned:
             F[:, 1:1 + n] = 0.0  # no linear term: the bowl's centre is the goal
-        bases = DF = None
+        bases = DF = targets = None
         if motion is not None:
-            bases = direction_bases(motion / self.scale_, self._direction_weight())
+            bases, targets = self._motion_rows(motion)
             DF = direction_rows(bases, _trend_jacobian(Z, pinned))
 
         d_med = _median_distance(C)
@@ -421,21 +408,34 @@ class TrendKernelRegression(BaseEstimator):
                                  t_grid[len(t_grid) // 2], rng)
         else:
             cv = _CVData(F, Z, u, C, demo, demo_fold,
-                         _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF), pinned,
-                         bases, DF)
+                         _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF, Dt=targets),
+                         pinned, bases, DF, targets)
             best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
         self._quadratic_pick, self._index = search.quadratic_pick, search.index
         if final or best[0] != "quadratic" or self.cv_best_ is None:
-            self._final_fit(best, F, Z, u, C, n, demo, free, bases)
+            self._final_fit(best, F, Z, u, C, n, demo, free, bases, targets)
         return self
+
+    def _motion_rows(self, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The samples' direction bases (m, r, n) and what they observe (m, r; None:
+        zero) from ``motion`` (m, n), with the drops as a last column when given."""
+        n = self.n_features_in_
+        steps = motion[:, :n] / self.scale_
+        bases = direction_bases(steps, self._direction_weight())
+        if motion.shape[1] == n:
+            return bases, None
+        return along_motion(steps, motion[:, n] / self.y_scale_, bases,
+                            ALONG_WEIGHT * self._direction_weight())
 
     def _final_fit(self, best: tuple, F: np.ndarray, Z: np.ndarray, u: np.ndarray,
                    C: np.ndarray, n: int, demo: np.ndarray, free: np.ndarray,
-                   bases: np.ndarray | None = None) -> None:
+                   bases: np.ndarray | None = None, targets: np.ndarray | None = None
+                   ) -> None:
         """Fit the hyperparameters ``best`` on all samples and set the learnt attributes;
-        ``bases`` (m, n - 1, n): the samples' direction bases, or None."""
+        ``bases`` (m, r, n): the samples' direction bases, or None, and ``targets`` (m, r)
+        what they observe (None: zero)."""
         (self.trend_form_, self.trend_ridge_, self.length_scale_, self.kernel_ridge_,
          self.offset_ridge_) = best
         self.index_matrix_, self.index_goal_, self.index_scale_ = (
@@ -466,7 +466,7 @@ class TrendKernelRegression(BaseEstimator):
                 D = np.concatenate([D, _kernel_directions(bases, Z, C, self.length_scale_,
                                                           True)], axis=2)
         grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
-                           free=free, D=D)
+                           free=free, D=D, Dt=targets)
         G, r, m = grams.profiled_all(self.offset_ridge_)
         w = _convex_solve(G / m + P, r / m, n)
         if w is None or not np.all(np.isfinite(w)):
