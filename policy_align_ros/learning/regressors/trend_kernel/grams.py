@@ -204,10 +204,11 @@ class _CVData:
     ``F`` (m, p_t) trend features, ``Z`` (m, n) states, ``u`` (m,) targets, ``C`` (m_c, n)
     kernel centres, ``demo`` (m,) and ``demo_fold`` (K,) as in :class:`_FoldGrams`;
     ``trend`` the fold sums of ``F``, shared by every length scale; ``pinned``: kernel
-    features flat at the goal (:func:`~.features._kernel`); ``bases`` (m, n - 1, n) and
-    ``trend_directions`` (m, n - 1, p_t): the samples' direction bases and the trend's
-    direction rows (:func:`direction_rows`), or None; ``direction_targets`` (m, n - 1 or n)
-    what the direction rows observe (:func:`along_motion`), or None for zero.
+    features flat at the goal (:func:`~.features._kernel`); ``bases`` (m, r, n) and
+    ``trend_directions`` (m, r, p_t): the samples' direction bases (``r = n - 1`` rows
+    across the motion, ``n`` with the row along it) and the trend's direction rows
+    (:func:`direction_rows`), or None; ``direction_targets`` (m, r): what the direction
+    rows observe (:func:`along_motion`), or None for zero.
     """
 
     F: np.ndarray
