@@ -43,15 +43,21 @@ HELDOUT_GRID = tuple(itertools.product((100, 300, 600), (0.05, 0.1, 0.2),
                                        (1e-8, 1e-5, 1e-3, 1e-1)))
 
 
+def _field(demos: list[dict], **constants):
+    """:func:`~policy_align_ros.experiments.lasa_methods.fit_gradient_field` with
+    ``constants``, fitted to every 5th sample of ``demos`` and the data set's velocities."""
+    return fit_gradient_field(np.concatenate([d["positions"][::5] for d in demos]),
+                              np.concatenate([d["velocities"][::5] for d in demos]),
+                              **constants)
+
+
 def in_sample_nv(shape: str, n_centres: int = 600, width: float = 0.05,
                  ridge: float = 1e-8) -> float:
     """Mean over a shape's demonstrations of the nV of a gradient field
     (:func:`~policy_align_ros.experiments.lasa_methods.fit_gradient_field` with these
     constants) fitted to them all."""
     demos = load_shape(shape)
-    policy = fit_gradient_field(np.concatenate([d["positions"][::5] for d in demos]),
-                                np.concatenate([d["velocities"][::5] for d in demos]),
-                                n_centres=n_centres, width=width, ridge=ridge)
+    policy = _field(demos, n_centres=n_centres, width=width, ridge=ridge)
     return float(np.mean([velocity_error(policy(d["positions"]), d["velocities"])
                           for d in demos]))
 
@@ -65,10 +71,7 @@ def heldout_nv(shape: str) -> np.ndarray:
         errors = []
         for k, held in enumerate(demos):
             train = [d for i, d in enumerate(demos) if i != k]
-            policy = fit_gradient_field(
-                np.concatenate([d["positions"][::5] for d in train]),
-                np.concatenate([d["velocities"][::5] for d in train]),
-                n_centres=n_centres, width=width, ridge=ridge)
+            policy = _field(train, n_centres=n_centres, width=width, ridge=ridge)
             errors.append(velocity_error(policy(held["positions"]), held["velocities"]))
         out[j] = np.median(errors)
     return out

@@ -37,9 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from policy_align_ros.learning.anchor import motion_drops, motion_steps
 from policy_align_ros.learning.fitting import assign_folds
-from policy_align_ros.learning.global_model import fixed_copy
+from policy_align_ros.learning.global_model import fixed_copy, training_set
 from policy_align_ros.learning.goal import (
     data_box,
     demonstrated_goal,
@@ -278,15 +277,11 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
         (no descent found a minimum); a ``UserWarning`` names the numbers when any is
         True, and when starts are late beyond those stranded.
     """
-    X = np.concatenate([pieces[k].positions[masks[k]] for k in keep])
-    y = np.concatenate([potentials[k][masks[k]] for k in keep])
-    g = np.concatenate([np.full(int(masks[k].sum()), k) for k in keep])
-    motion = drops = None
-    if getattr(regressor, "goal_", None) is not None:
-        motion = np.concatenate([motion_steps(pieces[k].positions)[masks[k]] for k in keep])
-        drops = np.concatenate([motion_drops(potentials[k])[masks[k]] for k in keep])
-    folds = fold_refits(regressor, X, y, g, free, random_state=random_state, motion=motion,
-                        drops=drops)
+    # What the regressor was fitted on, with the steps and drops of an anchored fit.
+    X, y, g, extra = training_set(pieces, masks, keep, potentials, free, regressor,
+                                  getattr(regressor, "goal_", None))
+    folds = fold_refits(regressor, X, y, g, free, random_state=random_state,
+                        motion=extra.get("motion"), drops=extra.get("drops"))
     heldout = heldout_vs_zero(folds, pieces)
     goal = goal_summary(parents, regressor.predict, regressor.gradient,
                         starts_check=starts_check)
