@@ -75,6 +75,7 @@ from policy_align_ros.learning.regressors import (
     takes_free_groups,
     takes_goal,
 )
+from policy_align_ros.learning.regressors.trend_kernel import shared_sums
 from policy_align_ros.learning.support import (
     query_support,
     support_spacing,
@@ -279,6 +280,14 @@ class PolicyAlign(FitStages, BaseEstimator):
         """
         self._validate_params()
         trajs, masks = self._check_data(trajectories, train_mask, joint_names)
+        # The global model is refitted on the same samples (lag, anchor, clocks): their
+        # CV searches share the sums of equal designs (docs/design/scaling.md).
+        with shared_sums():
+            return self._fit(trajs, masks, joint_names)
+
+    def _fit(self, trajs: list[Trajectory], masks: list[np.ndarray],
+             joint_names: Sequence[str] | None) -> PolicyAlign:
+        """:meth:`fit` on checked data."""
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         positions = [t.positions for t in trajs]

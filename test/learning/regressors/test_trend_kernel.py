@@ -33,6 +33,8 @@ from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     CURVATURE_FLOOR,
     _convex_solve,
     _convex_solves,
+    _floor_trend,
+    _floor_trends,
     _nonneg_solve,
     _solve_shared,
 )
@@ -173,6 +175,20 @@ def test_convex_solves_sharing_a_block_equal_the_direct_ones():
                for P in penalties)
     for w, v in zip(_convex_solves(M, b, penalties, p_t, n), direct, strict=True):
         np.testing.assert_allclose(w, v, rtol=1e-8, atol=1e-10)
+
+
+def test_batched_curvature_floors_equal_the_single_ones_to_the_last_bit():
+    # Bowls, saddles and a None (a failed solve) in 3-D: the batch raises the same trends
+    # as one call per solution, to the same coefficients.
+    rng = np.random.default_rng(4)
+    n = 3
+    ws = [rng.normal(size=2 + n + n * (n + 1) // 2 + 5) for _ in range(40)] + [None]
+    single = [None if w is None else w.copy() for w in ws]
+    raised = _floor_trends(ws, n)
+    expected = [False if w is None else _floor_trend(w, n) for w in single]
+    assert raised == expected and 0 < sum(raised) < 40
+    for w, s in zip(ws, single):
+        assert (w is None and s is None) or np.array_equal(w, s)
 
 
 def test_gradient_matches_finite_differences():

@@ -13,9 +13,11 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _kernel_jacobian,
 )
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
+    _MEMO,
     along_motion,
     direction_bases,
     direction_rows,
+    shared_sums,
 )
 
 
@@ -236,3 +238,34 @@ def test_drops_set_the_slope_along_the_motion():
         TrendKernelRegression().fit(X, y, groups=g, goal=goal, drops=drops)
     with pytest.raises(ValueError, match="drops"):
         TrendKernelRegression().fit(X, y, groups=g, goal=goal, motion=steps, drops=drops[:-1])
+
+
+def test_a_refit_on_other_targets_sharing_the_sums_equals_a_fresh_fit():
+    # Within shared_sums a second fit on the same samples with other values and drops (each
+    # demonstration on another clock) reuses the first fit's Grams, and its model is the
+    # fresh fit's to the last bit; outside the context nothing is kept.
+    goal = np.array([0.3, -0.2])
+    X, y, g, steps, drops = _lines(goal)
+    factor = np.linspace(0.7, 1.4, g.max() + 1)[g]
+    template = TrendKernelRegression(direction_weight=100.0, random_state=0)
+    fresh = copy.deepcopy(template).fit(X, factor * y, groups=g, goal=goal, motion=steps,
+                                        drops=factor * drops)
+    with shared_sums() as memo:
+        copy.deepcopy(template).fit(X, y, groups=g, goal=goal, motion=steps, drops=drops)
+        misses = memo.misses
+        shared = copy.deepcopy(template).fit(X, factor * y, groups=g, goal=goal,
+                                             motion=steps, drops=factor * drops)
+    assert memo.hits > 0 and memo.misses == misses  # every sum of the refit was shared
+    assert shared.cv_best_ == fresh.cv_best_
+    np.testing.assert_array_equal(shared.trend_, fresh.trend_)
+    np.testing.assert_array_equal(shared.alpha_, fresh.alpha_)
+    assert _MEMO.get() is None
+
+
+def test_the_memo_keeps_at_most_its_bytes():
+    goal = np.array([0.3, -0.2])
+    X, y, g, steps, drops = _lines(goal)
+    with shared_sums(max_bytes=1) as memo:  # no design fits: every sum is built afresh
+        TrendKernelRegression(direction_weight=100.0, random_state=0).fit(
+            X, y, groups=g, goal=goal, motion=steps, drops=drops)
+    assert memo.hits == 0 and memo.misses > 0 and not memo._entries

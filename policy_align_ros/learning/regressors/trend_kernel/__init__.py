@@ -10,7 +10,8 @@ hyperparameters chosen by cross-validation over whole demonstrations.
 """
 
 from policy_align_ros.learning.regressors.trend_kernel.features import quadratic_features
+from policy_align_ros.learning.regressors.trend_kernel.grams import shared_sums
 from policy_align_ros.learning.regressors.trend_kernel.model import TrendKernelRegression
 from policy_align_ros.learning.regressors.trend_kernel.solvers import effective_dof
 
-__all__ = ["TrendKernelRegression", "effective_dof", "quadratic_features"]
+__all__ = ["TrendKernelRegression", "effective_dof", "quadratic_features", "shared_sums"]

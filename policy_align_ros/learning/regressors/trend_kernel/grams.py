@@ -3,8 +3,15 @@ demonstrations' offsets eliminated in closed form (see :mod:`.model`, "Offsets")
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import copy
 import dataclasses
+import hashlib
 import math
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import scipy.sparse
@@ -59,7 +66,6 @@ class _FoldGrams:
         n_demos = len(demo_fold)
         onehot = scipy.sparse.csr_matrix(
             (np.ones(len(u)), (demo, np.arange(len(u)))), shape=(n_demos, len(u)))
-        self.sk = onehot @ u                          # (K,)
         self.nk = np.bincount(demo, minlength=n_demos).astype(float)
         self.demo_fold = demo_fold
         n_folds = int(demo_fold.max()) + 1
@@ -84,16 +90,36 @@ class _FoldGrams:
             self._add_directions(D, rows, q, base is not None)
         # The design itself is kept to score held-out folds from their residuals: at a
         # near-perfect fit the expanded sums (u'u - 2 w'r + w'Gw) cancel to round-off.
-        self.A, self.u, self.demo, self.rows = A, u, demo, rows
-        self.r = np.stack([A[r].T @ u[r] for r in rows])
-        if D is not None and Dt is not None:
-            for f, r in enumerate(rows):
-                self.r[f] += np.einsum("mip,mi->p", D[r], Dt[r])
-        self.uu = np.array([u[r] @ u[r] for r in rows])
-        self.G_all, self.r_all = self.G.sum(axis=0), self.r.sum(axis=0)
+        self.A, self.D, self.demo, self.rows = A, D, demo, rows
+        self.G_all = self.G.sum(axis=0)
+        self._set_targets(u, Dt, onehot)
+
+    def _set_targets(self, u: np.ndarray, Dt: np.ndarray | None,
+                     onehot: scipy.sparse.csr_matrix | None = None) -> None:
+        """The sums that depend on the targets ``u`` (m,) and ``Dt`` (m, r) (None: zero)."""
+        if onehot is None:
+            onehot = scipy.sparse.csr_matrix(
+                (np.ones(len(u)), (self.demo, np.arange(len(u)))),
+                shape=(len(self.demo_fold), len(u)))
+        self.u, self.sk = u, onehot @ u
+        self.r = np.stack([self.A[r].T @ u[r] for r in self.rows])
+        if self.D is not None and Dt is not None:
+            for f, r in enumerate(self.rows):
+                self.r[f] += np.einsum("mip,mi->p", self.D[r], Dt[r])
+        self.uu = np.array([u[r] @ u[r] for r in self.rows])
+        self.r_all = self.r.sum(axis=0)
         self._free: tuple[np.ndarray, ...] | None = None
         # Held-out error is scored against the within-demonstration spread of u.
         self.shape_ss = max(float(self.uu.sum() - np.sum(self.sk**2 / self.nk)), 1e-300)
+
+    def with_targets(self, u: np.ndarray, Dt: np.ndarray | None, free: np.ndarray
+                     ) -> _FoldGrams:
+        """These sums for other targets ``u`` (m,), ``Dt`` (m, r) and free offsets ``free``
+        (K,) on the same design: the Grams, the costly part, are shared, not copied."""
+        out = copy.copy(self)
+        out.free = np.asarray(free, dtype=bool)
+        out._set_targets(u, Dt)
+        return out
 
     def _add_directions(self, D: np.ndarray, rows: list[slice], q: int, has_base: bool
                         ) -> None:
@@ -231,14 +257,119 @@ class _CVData:
     def kernel_sums(self, ell: float) -> tuple[_FoldGrams, np.ndarray]:
         """Fold sums of the trend and kernel features at length scale ``ell``, and the
         centres' Gram (m_c, m_c)."""
-        A = np.hstack([self.F, _kernel(self.Z, self.C, ell, self.pinned)])
-        D = None
-        if self.bases is not None:
-            D = np.concatenate([self.trend_directions, _kernel_directions(
-                self.bases, self.Z, self.C, ell, self.pinned)], axis=2)
-        return (_FoldGrams(A, self.u, self.demo, self.demo_fold, self.n, base=self.trend,
-                           free=self.trend.free, D=D, Dt=self.direction_targets),
+
+        def build() -> _FoldGrams:
+            A = np.hstack([self.F, _kernel(self.Z, self.C, ell, self.pinned)])
+            D = None
+            if self.bases is not None:
+                D = np.concatenate([self.trend_directions, _kernel_directions(
+                    self.bases, self.Z, self.C, ell, self.pinned)], axis=2)
+            return _FoldGrams(A, self.u, self.demo, self.demo_fold, self.n,
+                              base=self.trend, free=self.trend.free, D=D,
+                              Dt=self.direction_targets)
+
+        # The trend's features and direction rows follow from the states, the pinning and
+        # the bases, so the key need not hold them.
+        design = ("folds", self.Z, self.C, self.demo, self.demo_fold, self.bases, ell,
+                  self.pinned)
+        return (memo_sums(design, build, self.u, self.direction_targets, self.trend.free),
                 _gaussian(self.C, self.C, ell))
+
+
+def memo_sums(design: tuple, build: Callable[[], _FoldGrams], u: np.ndarray,
+              Dt: np.ndarray | None, free: np.ndarray) -> _FoldGrams:
+    """``build()``, or within :func:`shared_sums` the sums of the same ``design`` built
+    before, for the targets ``u`` (m,), ``Dt`` (m, r) (None: zero) and free offsets
+    ``free`` (K,).
+
+    ``design``: everything the design (features and direction rows) and its folds follow
+    from, as arrays, numbers, strings or None; not the targets.
+    """
+    memo = _MEMO.get()
+    if memo is None:
+        return build()
+    key = _digest(design)
+    grams = memo.get(key)
+    if grams is None:
+        grams = build()
+        memo.put(key, grams)
+        return grams
+    return grams.with_targets(u, Dt, free)
+
+
+def _digest(parts: tuple) -> bytes:
+    """A digest of ``parts``: arrays by shape, type and bytes, the rest by ``repr``."""
+    h = hashlib.blake2b(digest_size=20)
+    for part in parts:
+        if isinstance(part, np.ndarray):
+            a = np.ascontiguousarray(part)
+            h.update(repr(("array", a.shape, a.dtype.str)).encode())
+            h.update(a.tobytes())
+        else:
+            h.update(repr(part).encode())
+    return h.digest()
+
+
+class _GramMemo:
+    """The fold sums of the last designs, by :func:`_digest` of what they follow from, up
+    to ``max_bytes`` of arrays (least recently used dropped first)."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self._entries: OrderedDict[bytes, tuple[_FoldGrams, int]] = OrderedDict()
+        self._lock = threading.Lock()
+        self.hits = self.misses = 0
+
+    def get(self, key: bytes) -> _FoldGrams | None:
+        with self._lock:
+            entry = self._entries.get(key)
+            if entry is None:
+                self.misses += 1
+                return None
+            self._entries.move_to_end(key)
+            self.hits += 1
+            return entry[0]
+
+    def put(self, key: bytes, grams: _FoldGrams) -> None:
+        size = sum(a.nbytes for a in (grams.A, grams.G, grams.Ak)
+                   if a is not None) + (0 if grams.D is None else grams.D.nbytes)
+        if size > self.max_bytes:
+            return
+        with self._lock:
+            self._entries[key] = (grams, size)
+            while sum(s for _, s in self._entries.values()) > self.max_bytes:
+                self._entries.popitem(last=False)
+
+
+_MEMO: contextvars.ContextVar[_GramMemo | None] = contextvars.ContextVar(
+    "trend_kernel_gram_memo", default=None)
+#: What :func:`shared_sums` keeps at most: a few length scales' sums of a LASA-sized fit.
+MEMO_BYTES = 64 * 2**20
+
+
+@contextlib.contextmanager
+def shared_sums(max_bytes: int = MEMO_BYTES) -> Iterator[_GramMemo]:
+    """Within this context, the trend-kernel CV searches of equal designs share their fold
+    sums (:meth:`_CVData.kernel_sums`), whatever their targets.
+
+    A fit that refits its global model on the same samples with other potentials (a
+    tracking lag, each demonstration on its own clock, the models without each fold)
+    or that scores one length scale twice sums its Grams, most of a search's cost
+    outside the solves, once (:func:`memo_sums`). The results
+    are the same to the last bit: the sums of a design do not depend on the targets. The
+    memo lives as long as the context (nested contexts share the outer one's) and is
+    local to the thread.
+    """
+    memo = _MEMO.get()
+    if memo is not None:
+        yield memo
+        return
+    memo = _GramMemo(max_bytes)
+    token = _MEMO.set(memo)
+    try:
+        yield memo
+    finally:
+        _MEMO.reset(token)
 
 
 def _fold_summary(err: np.ndarray, shape_ss: float) -> list[tuple[float, float]]:

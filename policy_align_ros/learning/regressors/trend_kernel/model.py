@@ -92,6 +92,7 @@ from policy_align_ros.learning.regressors.trend_kernel.grams import (
     along_motion,
     direction_bases,
     direction_rows,
+    memo_sums,
 )
 from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     JITTER,
@@ -451,22 +452,30 @@ class TrendKernelRegression(BaseEstimator):
             if self.cv_best_ is not None:
                 self.cv_best_ = best
         p_t = _n_trend(n)
-        if math.isinf(self.kernel_ridge_):
-            A, P = F, _trend_penalty(n, self.trend_ridge_)
-            self.centres_ = np.zeros((0, n))
-        else:
-            A = np.hstack([F, _kernel(Z, C, self.length_scale_, self.goal_ is not None)])
-            P = _penalty(n, self.trend_ridge_, self.kernel_ridge_,
-                              _gaussian(C, C, self.length_scale_))
+        kernel = not math.isinf(self.kernel_ridge_)
+        ell, pinned = self.length_scale_, self.goal_ is not None
+        if kernel:
+            P = _penalty(n, self.trend_ridge_, self.kernel_ridge_, _gaussian(C, C, ell))
             self.centres_ = C
-        D = None
-        if bases is not None:
-            D = direction_rows(bases, _trend_jacobian(Z, True))
-            if not math.isinf(self.kernel_ridge_):
-                D = np.concatenate([D, _kernel_directions(bases, Z, C, self.length_scale_,
-                                                          True)], axis=2)
-        grams = _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
-                           free=free, D=D, Dt=targets)
+        else:
+            P = _trend_penalty(n, self.trend_ridge_)
+            self.centres_ = np.zeros((0, n))
+
+        def build() -> _FoldGrams:
+            A = np.hstack([F, _kernel(Z, C, ell, pinned)]) if kernel else F
+            D = None
+            if bases is not None:
+                D = direction_rows(bases, _trend_jacobian(Z, True))
+                if kernel:
+                    D = np.concatenate([D, _kernel_directions(bases, Z, C, ell, True)],
+                                       axis=2)
+            return _FoldGrams(A, u, demo, np.zeros(demo.max() + 1, dtype=np.int64), n,
+                              free=free, D=D, Dt=targets)
+
+        # F follows from Z and the pinning; without a kernel the centres play no part.
+        design = ("all", Z, C if kernel else None, ell if kernel else None, pinned, bases,
+                  demo)
+        grams = memo_sums(design, build, u, targets, free)
         G, r, m = grams.profiled_all(self.offset_ridge_)
         w = _convex_solve(G / m + P, r / m, n)
         if w is None or not np.all(np.isfinite(w)):

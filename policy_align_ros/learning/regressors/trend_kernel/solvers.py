@@ -100,14 +100,41 @@ def _convex_resolve(M: np.ndarray, b: np.ndarray, w: np.ndarray, n: int
 def _floor_trend(w: np.ndarray, n: int) -> bool:
     """Raise the eigenvalues of the trend's Hessian below ``CURVATURE_FLOOR`` times its
     largest to that bound, in place in ``w``; whether any was (see :func:`_convex_solve`)."""
-    p_t = _n_trend(n)
     lam, V = np.linalg.eigh(_trend_hessian(w, n))
+    return _raise_curvature(w, n, lam, V)
+
+
+def _floor_trends(ws: list[np.ndarray | None], n: int) -> list[bool]:
+    """:func:`_floor_trend` of every solution of ``ws`` (None: False), with one batched
+    eigendecomposition: most solutions of a search need none raised, and a call per
+    solution cost more than the solves' factorisations of small systems. The same LAPACK
+    routine runs on each matrix, so the result is the same to the last bit."""
+    idx = [i for i, w in enumerate(ws) if w is not None]
+    out = [False] * len(ws)
+    if not idx:
+        return out
+    iu, ju, scale = _upper(n)
+    W = np.stack([ws[i] for i in idx])
+    coef = W[:, 2 + n:_n_trend(n)] / scale
+    S = np.zeros((len(idx), n, n))
+    S[:, iu, ju] = coef
+    S[:, ju, iu] = coef
+    H = W[:, 1 + n, None, None] * np.eye(n) + 2.0 * S
+    lam, V = np.linalg.eigh(H)
+    for j, i in enumerate(idx):
+        out[i] = _raise_curvature(ws[i], n, lam[j], V[j])
+    return out
+
+
+def _raise_curvature(w: np.ndarray, n: int, lam: np.ndarray, V: np.ndarray) -> bool:
+    """:func:`_floor_trend` given the eigenvalues ``lam`` (n,) and vectors ``V`` (n, n) of
+    the trend's Hessian."""
     floor = CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0)
     if lam[0] >= floor:
         return False
     S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
     iu, ju, scale = _upper(n)
-    w[2 + n:p_t] = scale * S[iu, ju]
+    w[2 + n:_n_trend(n)] = scale * S[iu, ju]
     return True
 
 
@@ -190,13 +217,9 @@ def _convex_solves(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q:
     first = _solve_shared(M, b, penalties, q, factor)
     if factor is None:
         return [_convex_solve(M + P, b, n, w) for P, w in zip(penalties, first, strict=True)]
-    out = []
-    for P, w in zip(penalties, first, strict=True):
-        if w is None or not _floor_trend(w, n):
-            out.append(w)
-            continue
-        out.append(_resolve_with_factor(M + P, b, w, n, factor))
-    return out
+    raised = _floor_trends(first, n)
+    return [_resolve_with_factor(M + P, b, w, n, factor) if up else w
+            for P, w, up in zip(penalties, first, raised, strict=True)]
 
 
 def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray],
@@ -217,24 +240,28 @@ def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np
     s, o, L, W, z = factor
     schur = M[o, o] - _gram(W)
     rhs = b[o] - W.T @ z
-    update = None
     out: list[np.ndarray | None] = []
+    factors: list[tuple | None] = []  # None: solved, floored and final already
     for P in penalties:
         try:
             S = cho_factor(schur + P[o, o])
         except np.linalg.LinAlgError:
             w = _solve_shared(M, b, [P, P], p_t, factor)[0]  # the general fallbacks
             out.append(_convex_solve(M + P, b, n, w))
+            factors.append(None)
             continue
         w = np.empty(p)
         w[o] = cho_solve(S, rhs)
         w[s] = solve_triangular(L, z - W @ w[o], lower=True, trans=1)
-        if not _floor_trend(w, n):
-            out.append(w)
-            continue
+        out.append(w)
+        factors.append(S)
+    raised = _floor_trends([w if S is not None else None
+                            for w, S in zip(out, factors, strict=True)], n)
+    update = None
+    for i in np.flatnonzero(raised):
         if update is None:
             update = _quadratic_update(M + penalties[0], n)
-        out.append(_resolve_woodbury(M + P, b, w, n, S, update))
+        out[i] = _resolve_woodbury(M + penalties[i], b, out[i], n, factors[i], update)
     return out
 
 
