@@ -29,7 +29,7 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
         return None
     keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
             "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction",
-            "n_starts_elsewhere", "n_starts_late")
+            "n_starts_elsewhere", "n_starts_late", "n_heldout_late")
     out = {key: goal.get(key) for key in keys}
     out["n_minima"] = len(goal.get("minima", ()))
     out["n_demonstrated_goals"] = len(goal.get("demonstrated_goals", ()))
@@ -60,4 +60,7 @@ def goal_text(digest: dict[str, Any] | None) -> str:
     if late > 0:
         text += (f"; from {late} demonstrations' starts it is still on its way after "
                  f"{REACH_TIME:g} times their duration")
+    elif digest.get("n_heldout_late") and not digest.get("n_starts_elsewhere"):
+        text += (f"; from {digest['n_heldout_late']} demonstrations' starts the model fitted "
+                 "without them does not reach it in time: a new start may not either")
     return text

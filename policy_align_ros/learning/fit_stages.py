@@ -1,6 +1,7 @@
 """The stages of :meth:`PolicyAlign.fit <policy_align_ros.learning.policy_align.PolicyAlign.fit>`
 that refit its global model: 4a, the demonstrations' tracking lag; 4b, the goal anchor;
-4c, each demonstration on its own clock; and the record of a fit they choose between.
+4c, each demonstration on its own clock; the record of a fit they choose between; and,
+for the fit kept, whether its fold models reach the goal from held-out starts.
 
 They are methods of :class:`FitStages`, a base class of ``PolicyAlign`` that holds no
 state of its own: each reads and sets the estimator's learnt attributes (``regressor_``,
@@ -21,8 +22,14 @@ import numpy as np
 from policy_align_ros.learning.alignment import LocalModelTable
 from policy_align_ros.learning.anchor import choose_direction_weight, direction_candidates
 from policy_align_ros.learning.estimates import Estimates
-from policy_align_ros.learning.folds import fit_checks
+from policy_align_ros.learning.folds import (
+    fit_checks,
+    fold_models,
+    heldout_reach,
+    heldout_reach_message,
+)
 from policy_align_ros.learning.global_model import cv_error, cv_score, fixed_copy, training_set
+from policy_align_ros.learning.goal import demonstrated_goal
 from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.regressors import takes_final
@@ -102,17 +109,32 @@ class FitStages:
         fit_checks`) with what :meth:`_restore` sets again and the warnings of its fit
         (``caught``) and checks, held back until the fit is kept."""
         caught = list(caught)
+        folds = fold_models(self.regressor_, est.trajs, est.masks, self.inliers_,
+                            self.aligned_potentials_, free, random_state=self.random_state)
         with warnings.catch_warnings(record=True) as checked:
             warnings.simplefilter("always")
-            checks = fit_checks(self.regressor_, est.trajs, est.masks, self.inliers_,
-                                self.aligned_potentials_, free, est.parents,
-                                random_state=self.random_state, starts_check=starts)
+            checks = fit_checks(self.regressor_, folds, est.trajs, est.parents,
+                                starts_check=starts)
         return {"regressor_": self.regressor_, "integration_": self.integration_,
                 "offsets_": self.offsets_, "aligned_potentials_": self.aligned_potentials_,
                 "timing_scales_": self.timing_scales_, "phi": est.phi, "scores": scores,
-                "anchor": anchor,
+                "anchor": anchor, "folds": folds,
                 "checks": checks, "warnings": caught + list(checked),
                 "timing_heldout": None}
+
+    def _reach_heldout(self, fit: dict, est: Estimates) -> None:
+        """The kept fit's :func:`~policy_align_ros.learning.folds.heldout_reach`, into its
+        goal report, and its warning into its warnings. Run once, for the fit kept: the
+        choice between the clocks does not read it."""
+        goal = fit["checks"]["goal"]
+        goal.update(heldout_reach(fit["folds"], est.spans, est.parents,
+                                  demonstrated_goal(est.parents), goal["extent"]))
+        message = heldout_reach_message(goal)
+        if message is not None:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                warnings.warn(message, UserWarning, stacklevel=2)
+            fit["warnings"] += list(caught)
 
     def _restore(self, fit: dict, est: Estimates) -> None:
         """The attributes of a fit recorded by :meth:`_checked_fit`, and the estimates it

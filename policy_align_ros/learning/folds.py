@@ -16,7 +16,11 @@ saw:
   model whose held-out error is no smaller predicts the motion no better than standing
   still;
 - :func:`fold_spread`: how far each fold model's nearest minimum lies from each minimum of
-  the full model (:mod:`~policy_align_ros.learning.goal`).
+  the full model (:mod:`~policy_align_ros.learning.goal`);
+- :func:`heldout_reach`: whether its policy takes the held-out demonstrations' starts to
+  the goal in time (:mod:`~policy_align_ros.learning.reach`). The fit's own starts are
+  no test of a new start: the fit saw them. A fold model's held-out start is, and the
+  fit warns when one does not reach (:func:`heldout_reach_message`).
 
 :func:`fit_checks` runs both with :func:`~policy_align_ros.learning.goal.goal_summary` and
 warns when the model is no better than a zero policy, when it explains at most half of the
@@ -54,8 +58,9 @@ from policy_align_ros.learning.regressors import (
 )
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["POOR_FIT_RATIO", "FoldModel", "fit_checks", "fold_refits", "fold_spread",
-           "heldout_vs_zero", "along_motion_errors"]
+__all__ = ["POOR_FIT_RATIO", "FoldModel", "fit_checks", "fold_models", "fold_refits",
+           "fold_spread", "heldout_reach", "heldout_reach_message", "heldout_vs_zero",
+           "along_motion_errors"]
 
 #: Folds drawn for a regressor that keeps none (as many as TrendKernelRegression's CV).
 N_FOLDS = 10
@@ -241,9 +246,77 @@ def fold_spread(folds: Sequence[FoldModel], minima: np.ndarray, *, scale: float,
     return [float(d) for d in worst]
 
 
-def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarray],
-               keep: np.ndarray, potentials: Sequence[np.ndarray], free: np.ndarray,
-               parents: Sequence[Trajectory], *, random_state: int | None = 0,
+def fold_models(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarray],
+                keep: np.ndarray, potentials: Sequence[np.ndarray], free: np.ndarray, *,
+                random_state: int | None = 0) -> list[FoldModel]:
+    """:func:`fold_refits` of a fitted global model on what it was fitted on: the pieces
+    ``keep`` of ``pieces`` (their training samples ``masks``), their aligned
+    ``potentials``, free offsets for ``free``, and the steps and drops of an anchored fit;
+    ``random_state`` seeds the folds of a regressor that keeps none."""
+    X, y, g, extra = training_set(pieces, masks, keep, potentials, free, regressor,
+                                  getattr(regressor, "goal_", None))
+    return fold_refits(regressor, X, y, g, free, random_state=random_state,
+                       motion=extra.get("motion"), drops=extra.get("drops"))
+
+
+def heldout_reach(folds: Sequence[FoldModel], spans: np.ndarray,
+                  parents: Sequence[Trajectory], goal: np.ndarray | None, extent: float
+                  ) -> dict[str, Any]:
+    """Whether each fold model's policy reaches the goal from the starts of the
+    demonstrations it was fitted without (:func:`~policy_align_ros.learning.reach.
+    starts_reach`): the CV's estimate of whether a new start does.
+
+    Parameters
+    ----------
+    folds : sequence of FoldModel
+        Held-out groups are piece indices.
+    spans : ndarray (P, 3)
+        Every piece's demonstration, first and end sample
+        (:func:`~policy_align_ros.learning.pieces.split_pieces`); a held-out piece that
+        starts its demonstration stands for that demonstration's start.
+    parents : sequence of Trajectory
+        The demonstrations.
+    goal : ndarray (n,) or None
+        Where most demonstrations end; None: nothing is run.
+    extent : float
+        The data's extent W (state units).
+
+    Returns
+    -------
+    dict
+        ``heldout_reach_ratios``: per held-out start, the fold model's arrival time over
+        its demonstration's duration (None when it did not arrive within
+        :data:`~policy_align_ros.learning.reach.REACH_TIME` of them; the list is None
+        without a goal), and ``n_heldout_late``, the count of those None.
+    """
+    if goal is None:
+        return {"heldout_reach_ratios": None, "n_heldout_late": 0}
+    ratios: list[float | None] = []
+    for fold in folds:
+        held = sorted({int(spans[p, 0]) for p in np.asarray(fold.held_out, dtype=np.int64)
+                       if spans[p, 1] == 0})
+        if held:
+            ratios += starts_reach([parents[k] for k in held], fold.regressor.gradient,
+                                   goal, extent)["start_reach_ratios"]
+    return {"heldout_reach_ratios": ratios,
+            "n_heldout_late": sum(r is None for r in ratios)}
+
+
+def heldout_reach_message(goal: dict[str, Any]) -> str | None:
+    """The warning of held-out starts that do not reach the goal, when every start of the
+    fit's own does (otherwise the goal report's warnings already say so)."""
+    late = goal.get("n_heldout_late") or 0
+    if not late or goal.get("n_starts_elsewhere") or goal.get("n_starts_late"):
+        return None
+    return (f"PolicyAlign: from every demonstration's start the learnt policy reaches the "
+            f"goal, but from {late} of {len(goal['heldout_reach_ratios'])} the model fitted "
+            f"without that demonstration (its CV fold) does not within {REACH_TIME:g} times "
+            "its duration: from a new start near the demonstrated ones it may not either "
+            "(fit_summary_['goal']['heldout_reach_ratios'])")
+
+
+def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajectory],
+               parents: Sequence[Trajectory], *,
                starts_check: dict[str, Any] | None = None) -> dict[str, Any]:
     """The goal report and the zero-policy comparison of a fitted global model.
 
@@ -251,16 +324,12 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
     ----------
     regressor : fitted regressor
         The global model of the potential.
-    pieces, masks : sequences of Trajectory and bool arrays (N_p,)
-        What the regressor's groups index, and their training samples.
-    keep : ndarray of int
-        The pieces it was fitted on; ``free`` those with free offsets.
-    potentials : sequence of ndarray (N_p,)
-        The aligned potentials it was fitted on.
+    folds : sequence of FoldModel
+        Its :func:`fold_models`.
+    pieces : sequence of Trajectory
+        What the regressor's groups index.
     parents : sequence of Trajectory
         The whole demonstrations (their ends are where they rest).
-    random_state : int or None
-        Seeds the folds of a regressor that keeps none.
     starts_check : dict, optional
         :func:`~policy_align_ros.learning.goal.starts_elsewhere` of ``parents`` and this
         regressor, if already computed.
@@ -277,15 +346,10 @@ def fit_checks(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarr
         (no descent found a minimum); a ``UserWarning`` names the numbers when any is
         True, and when starts are late beyond those stranded.
     """
-    # What the regressor was fitted on, with the steps and drops of an anchored fit.
-    X, y, g, extra = training_set(pieces, masks, keep, potentials, free, regressor,
-                                  getattr(regressor, "goal_", None))
-    folds = fold_refits(regressor, X, y, g, free, random_state=random_state,
-                        motion=extra.get("motion"), drops=extra.get("drops"))
     heldout = heldout_vs_zero(folds, pieces)
     goal = goal_summary(parents, regressor.predict, regressor.gradient,
                         starts_check=starts_check)
-    minima = np.array([m["point"] for m in goal["minima"]]).reshape(-1, X.shape[1])
+    minima = np.array([m["point"] for m in goal["minima"]]).reshape(-1, parents[0].n_dims)
     Xall = np.concatenate([t.positions for t in parents])
     extent = goal["extent"]
     spread = fold_spread(folds, minima, scale=extent, speed=goal["typical_speed"],

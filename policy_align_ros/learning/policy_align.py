@@ -336,6 +336,7 @@ class PolicyAlign(FitStages, BaseEstimator):
                                   self._checked_fit(est, free, starts, scores, anchor,
                                                     caught))
         self._restore(fit, est)
+        self._reach_heldout(fit, est)
         scores, anchor = fit["scores"], fit["anchor"]
         for held in fit["warnings"]:
             warnings.warn_explicit(held.message, held.category, held.filename, held.lineno)

@@ -38,6 +38,14 @@ def test_late_starts_are_said_only_beyond_the_stranded_ones():
     assert goal_text(goal_digest(_goal(n_starts_elsewhere=1, n_starts_late=2))) != base
 
 
+def test_held_out_starts_are_said_only_where_the_fits_own_starts_reach():
+    reaching = goal_text(goal_digest(_goal(n_starts_elsewhere=0, n_starts_late=0)))
+    assert goal_digest(_goal(n_heldout_late=2))["n_heldout_late"] == 2
+    assert goal_text(goal_digest(_goal(n_starts_late=0, n_heldout_late=2))) != reaching
+    stranded = goal_text(goal_digest(_goal(n_starts_elsewhere=1)))
+    assert goal_text(goal_digest(_goal(n_starts_elsewhere=1, n_heldout_late=2))) == stranded
+
+
 def test_the_goal_in_words():
     assert goal_text(None) == ""
     text = goal_text(goal_digest(_goal(n_escaped=3)))

@@ -9,7 +9,13 @@ import pytest
 from flows import quadratic_flow
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
-from policy_align_ros.learning.folds import along_motion_errors, fold_refits
+from policy_align_ros.learning.folds import (
+    FoldModel,
+    along_motion_errors,
+    fold_refits,
+    heldout_reach,
+    heldout_reach_message,
+)
 from policy_align_ros.learning.regressors import TrendKernelRegression
 
 A = np.array([[2.0, 0.5], [0.5, 1.0]])
@@ -52,6 +58,9 @@ def test_the_learnt_goal_of_a_quadratic_is_its_minimum_and_where_demos_rest(quad
     # Every run from a demonstrated start is home well within 3 of its durations.
     assert goal["n_starts_late"] == 0 and len(goal["start_reach_ratios"]) == 8
     assert all(0.0 < r < 1.0 for r in goal["start_reach_ratios"])
+    # And every fold model from the start of each demonstration it was fitted without.
+    assert goal["n_heldout_late"] == 0 and len(goal["heldout_reach_ratios"]) == 8
+    assert all(0.0 < r < 1.0 for r in goal["heldout_reach_ratios"])
     assert summary["worse_than_zero"] is False and summary["no_minimum"] is False
     assert summary["poor_fit"] is False
     heldout = summary["heldout_vs_zero"]
@@ -171,3 +180,33 @@ def test_along_motion_error_is_zero_for_the_true_policy_under_a_constraint():
     assert sums[0] == pytest.approx(0.0, abs=1e-20)
     assert sums[1] == pytest.approx(float(np.sum(u**2)))
     assert sums[2] == pytest.approx(25.0 * 29)
+
+
+class _Bowl:
+    """A fold model whose policy is -(x - centre), or zero (``still``)."""
+
+    def __init__(self, still=False):
+        self.still = still
+
+    def gradient(self, X):
+        return np.zeros_like(X) if self.still else X - CENTRE
+
+
+def test_held_out_starts_a_fold_model_does_not_take_home_are_counted_and_warned():
+    demos = _quadratic_demos(1, k=4)
+    # Pieces 0-3 start demonstrations 0-3; piece 4 is the second part of demonstration 3
+    # (not a start). The second fold's model stands still: its held-out start is late.
+    spans = np.array([[0, 0, 120], [1, 0, 120], [2, 0, 120], [3, 0, 60], [3, 60, 120]])
+    folds = [FoldModel(np.array([0, 4]), _Bowl()), FoldModel(np.array([1]), _Bowl(True)),
+             FoldModel(np.array([2, 3]), _Bowl())]
+    reach = heldout_reach(folds, spans, demos, CENTRE, extent=4.0)
+    assert reach["n_heldout_late"] == 1 and len(reach["heldout_reach_ratios"]) == 4
+    assert reach["heldout_reach_ratios"][1] is None
+    assert all(0.0 < r < 3.0 for i, r in enumerate(reach["heldout_reach_ratios"]) if i != 1)
+    goal = {**reach, "n_starts_elsewhere": 0, "n_starts_late": 0}
+    assert heldout_reach_message(goal) is not None
+    # The goal report's own warnings already speak for stranded or late starts.
+    assert heldout_reach_message({**goal, "n_starts_late": 2}) is None
+    assert heldout_reach_message({**goal, "n_heldout_late": 0}) is None
+    assert heldout_reach(folds, spans, demos, None, 4.0) == {
+        "heldout_reach_ratios": None, "n_heldout_late": 0}
