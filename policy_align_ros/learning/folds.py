@@ -272,8 +272,9 @@ def heldout_reach(folds: Sequence[FoldModel], spans: np.ndarray,
         Held-out groups are piece indices.
     spans : ndarray (P, 3)
         Every piece's demonstration, first and end sample
-        (:func:`~policy_align_ros.learning.pieces.split_pieces`); a held-out piece that
-        starts its demonstration stands for that demonstration's start.
+        (:func:`~policy_align_ros.learning.pieces.split_pieces`); a held-out piece that is
+        its demonstration's first (after a leading rest, which no piece keeps) stands for
+        that demonstration's start.
     parents : sequence of Trajectory
         The demonstrations.
     goal : ndarray (n,) or None
@@ -291,10 +292,12 @@ def heldout_reach(folds: Sequence[FoldModel], spans: np.ndarray,
     """
     if goal is None:
         return {"heldout_reach_ratios": None, "n_heldout_late": 0}
+    first = np.full(len(parents), np.iinfo(np.int64).max)
+    np.minimum.at(first, spans[:, 0], spans[:, 1])
     ratios: list[float | None] = []
     for fold in folds:
         held = sorted({int(spans[p, 0]) for p in np.asarray(fold.held_out, dtype=np.int64)
-                       if spans[p, 1] == 0})
+                       if spans[p, 1] == first[spans[p, 0]]})
         if held:
             ratios += starts_reach([parents[k] for k in held], fold.regressor.gradient,
                                    goal, extent)["start_reach_ratios"]

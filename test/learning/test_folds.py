@@ -194,9 +194,10 @@ class _Bowl:
 
 def test_held_out_starts_a_fold_model_does_not_take_home_are_counted_and_warned():
     demos = _quadratic_demos(1, k=4)
-    # Pieces 0-3 start demonstrations 0-3; piece 4 is the second part of demonstration 3
-    # (not a start). The second fold's model stands still: its held-out start is late.
-    spans = np.array([[0, 0, 120], [1, 0, 120], [2, 0, 120], [3, 0, 60], [3, 60, 120]])
+    # Pieces 0-3 start demonstrations 0-3 (demonstration 2 after a leading rest of 5
+    # samples); piece 4 is the second part of demonstration 3 (not a start). The second
+    # fold's model stands still: its held-out start is late.
+    spans = np.array([[0, 0, 120], [1, 0, 120], [2, 5, 120], [3, 0, 60], [3, 60, 120]])
     folds = [FoldModel(np.array([0, 4]), _Bowl()), FoldModel(np.array([1]), _Bowl(True)),
              FoldModel(np.array([2, 3]), _Bowl())]
     reach = heldout_reach(folds, spans, demos, CENTRE, extent=4.0)

@@ -187,7 +187,7 @@ def test_batched_curvature_floors_equal_the_single_ones_to_the_last_bit():
     raised = _floor_trends(ws, n)
     expected = [False if w is None else _floor_trend(w, n) for w in single]
     assert raised == expected and 0 < sum(raised) < 40
-    for w, s in zip(ws, single):
+    for w, s in zip(ws, single, strict=True):
         assert (w is None and s is None) or np.array_equal(w, s)
 
 
