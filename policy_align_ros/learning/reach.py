@@ -38,7 +38,7 @@ Field = Callable[[np.ndarray], np.ndarray]
 
 
 def reach_times(gradient: Field, X0: np.ndarray, goal: np.ndarray, horizon: np.ndarray,
-                dt: float, tol: float) -> np.ndarray:
+                dt: float, tol: float, owner: np.ndarray | None = None) -> np.ndarray:
     """How long runs of ``xdot = -gradient(x)`` take to come within ``tol`` of ``goal``.
 
     Explicit Euler at ``dt`` (longer when the longest horizon would take more than
@@ -57,6 +57,10 @@ def reach_times(gradient: Field, X0: np.ndarray, goal: np.ndarray, horizon: np.n
         Step (the demonstrations' sample period).
     tol : float
         Arrival radius (state units).
+    owner : ndarray of int (m,), optional
+        With it, runs follow different policies: ``gradient(X, owner)`` is each run's own
+        (:func:`~policy_align_ros.learning.regressors.trend_kernel.stacked.
+        stacked_gradient`).
 
     Returns
     -------
@@ -75,7 +79,8 @@ def reach_times(gradient: Field, X0: np.ndarray, goal: np.ndarray, horizon: np.n
         while active.any():
             t += dt
             idx = np.flatnonzero(active)
-            X[idx] -= dt * gradient(X[idx])
+            X[idx] -= dt * (gradient(X[idx]) if owner is None
+                            else gradient(X[idx], owner[idx]))
             moving = np.isfinite(X[idx]).all(axis=1)
             there = moving & (np.linalg.norm(X[idx] - goal, axis=1) <= tol)
             arrival[idx[there]] = t
@@ -84,7 +89,7 @@ def reach_times(gradient: Field, X0: np.ndarray, goal: np.ndarray, horizon: np.n
 
 
 def starts_reach(trajs: Sequence[Trajectory], gradient: Field, goal: np.ndarray | None,
-                 extent: float) -> dict[str, Any]:
+                 extent: float, owner: np.ndarray | None = None) -> dict[str, Any]:
     """Whether runs from the demonstrated starts reach the goal within :data:`REACH_TIME`
     times their demonstrations' durations.
 
@@ -99,6 +104,8 @@ def starts_reach(trajs: Sequence[Trajectory], gradient: Field, goal: np.ndarray 
         demonstrated_goal`); None: nothing is run (several goals, no common end).
     extent : float
         The data's extent W (state units).
+    owner : ndarray of int (len(trajs),), optional
+        Each run's policy, as in :func:`reach_times`.
 
     Returns
     -------
@@ -113,7 +120,8 @@ def starts_reach(trajs: Sequence[Trajectory], gradient: Field, goal: np.ndarray 
     starts = np.array([t.positions[0] for t in trajs])
     durations = np.array([_duration(t) for t in trajs])
     arrival = reach_times(gradient, starts, np.asarray(goal, dtype=float),
-                          REACH_TIME * durations, sample_period(trajs), GOAL_MERGE * extent)
+                          REACH_TIME * durations, sample_period(trajs), GOAL_MERGE * extent,
+                          owner)
     ratios = arrival / durations
     return {"start_reach_ratios": [float(r) if math.isfinite(r) else None for r in ratios],
             "n_starts_late": int(np.count_nonzero(~np.isfinite(ratios)))}

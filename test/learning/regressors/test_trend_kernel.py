@@ -38,6 +38,7 @@ from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     _nonneg_solve,
     _solve_shared,
 )
+from policy_align_ros.learning.regressors.trend_kernel.stacked import stacked_gradient
 
 
 def _descent(grad, starts, steps, dt):
@@ -625,3 +626,35 @@ def test_auto_centres_grow_with_the_demonstrations_up_to_the_cap():
     assert len(fitted(4, n_centres=60).centres_) == 60
     # A refit with the choice fixed keeps as many centres, on any number of demonstrations.
     assert fixed_copy(fitted(4)).n_centres == 4 * CENTRES_PER_DEMONSTRATION
+
+
+@pytest.mark.parametrize("goal", [None, np.array([0.1, -0.2])])
+def test_stacked_gradients_are_each_models_own(goal):
+    # Three models of one bowl fitted on different demonstrations (different centres,
+    # scales and residuals), evaluated at once, each at its own points.
+    rng = np.random.default_rng(11)
+    value, grad = _two_minima()
+    models = []
+    for seed in range(3):
+        X, g = _descent(grad, rng.uniform(-1.5, 1.5, size=(8, 2)), 40, 0.05)
+        extra = {} if goal is None else {"goal": goal}
+        models.append(TrendKernelRegression(random_state=seed, trend_form="quadratic",
+                                            kernel_ridge=1e-4).fit(X, value(X), groups=g,
+                                                                   **extra))
+    X = rng.uniform(-1.5, 1.5, size=(9, 2))
+    owner = np.array([0, 1, 2, 2, 1, 0, 0, 2, 1])
+    stacked = stacked_gradient(models)(X, owner)
+    each = np.array([models[j].gradient(x[None])[0] for x, j in zip(X, owner, strict=True)])
+    np.testing.assert_allclose(stacked, each, rtol=1e-10, atol=1e-12)
+
+
+def test_only_quadratic_trend_kernel_models_stack():
+    rng = np.random.default_rng(12)
+    value, grad = _velocity_limited(2, rng)
+    X, g = _descent(grad, rng.uniform(-1, 1, size=(8, 2)), 40, 0.05)
+    index = TrendKernelRegression(trend_form="single_index", random_state=0).fit(
+        X, value(X), groups=g)
+    quad = TrendKernelRegression(trend_form="quadratic", random_state=0).fit(
+        X, value(X), groups=g)
+    assert stacked_gradient([index, quad]) is None and stacked_gradient([]) is None
+    assert stacked_gradient([quad]) is not None

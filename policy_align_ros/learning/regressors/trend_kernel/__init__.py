@@ -6,7 +6,8 @@ hyperparameters chosen by cross-validation over whole demonstrations.
 - :mod:`.grams`: the per-fold sums the CV scores from;
 - :mod:`.solvers`: the penalised least-squares solves and the effective degrees of freedom;
 - :mod:`.features`: the trend's, the kernel's and the single-index trend's features;
-- :mod:`.single_index`: the single-index trend (a profile of one fitted quadratic form).
+- :mod:`.single_index`: the single-index trend (a profile of one fitted quadratic form);
+- :mod:`.stacked`: several fitted models' gradients in one evaluation.
 """
 
 from policy_align_ros.learning.regressors.trend_kernel.features import quadratic_features
