@@ -538,17 +538,21 @@ def test_state_round_trip_survives_json():
                                          meta)
 
 
+def _velocity_limited_fit(form, n, seed, n_demos):
+    """A ``form`` trend fitted on descents of a velocity-limited attractor in ``n``-D."""
+    rng = np.random.default_rng(seed)
+    value, grad = _velocity_limited(n, rng)
+    X, g = _descent(grad, rng.uniform(-1, 1, size=(n_demos, n)), 40, 0.05)
+    return TrendKernelRegression(trend_form=form, random_state=0).fit(X, value(X), groups=g)
+
+
 def test_single_index_state_round_trip_survives_json():
-    rng = np.random.default_rng(4)
-    value, grad = _velocity_limited(3, rng)
-    X, g = _descent(grad, rng.uniform(-1, 1, size=(12, 3)), 40, 0.05)
-    model = TrendKernelRegression(trend_form="single_index", random_state=0).fit(
-        X, value(X), groups=g)
+    model = _velocity_limited_fit("single_index", 3, 4, 12)
     assert model.trend_form_ == "single_index"
     arrays, meta = model.get_state()
     meta = json.loads(json.dumps(meta, allow_nan=False))
     loaded = TrendKernelRegression.from_state(arrays, meta)
-    Q = rng.uniform(-2, 2, size=(20, 3))
+    Q = np.random.default_rng(5).uniform(-2, 2, size=(20, 3))
     np.testing.assert_array_equal(loaded.predict(Q), model.predict(Q))
     np.testing.assert_array_equal(loaded.gradient(Q), model.gradient(Q))
     assert loaded.trend_form_ == "single_index" and math.isnan(loaded.trend_ridge_)
@@ -649,12 +653,7 @@ def test_stacked_gradients_are_each_models_own(goal):
 
 
 def test_only_quadratic_trend_kernel_models_stack():
-    rng = np.random.default_rng(12)
-    value, grad = _velocity_limited(2, rng)
-    X, g = _descent(grad, rng.uniform(-1, 1, size=(8, 2)), 40, 0.05)
-    index = TrendKernelRegression(trend_form="single_index", random_state=0).fit(
-        X, value(X), groups=g)
-    quad = TrendKernelRegression(trend_form="quadratic", random_state=0).fit(
-        X, value(X), groups=g)
+    index = _velocity_limited_fit("single_index", 2, 12, 8)
+    quad = _velocity_limited_fit("quadratic", 2, 12, 8)
     assert stacked_gradient([index, quad]) is None and stacked_gradient([]) is None
     assert stacked_gradient([quad]) is not None
