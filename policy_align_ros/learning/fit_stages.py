@@ -29,7 +29,6 @@ from policy_align_ros.learning.folds import (
     heldout_reach_message,
 )
 from policy_align_ros.learning.global_model import cv_error, cv_score, fixed_copy, training_set
-from policy_align_ros.learning.goal import demonstrated_goal
 from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.regressors import takes_final
@@ -126,9 +125,9 @@ class FitStages:
         """The kept fit's :func:`~policy_align_ros.learning.folds.heldout_reach`, into its
         goal report, and its warning into its warnings. Run once, for the fit kept: the
         choice between the clocks does not read it."""
-        goal = fit["checks"]["goal"]
+        goal, end = fit["checks"]["goal"], fit["anchor"]["goal"]  # demonstrated_goal's
         goal.update(heldout_reach(fit["folds"], est.spans, est.parents,
-                                  demonstrated_goal(est.parents), goal["extent"]))
+                                  None if end is None else np.asarray(end), goal["extent"]))
         message = heldout_reach_message(goal)
         if message is not None:
             with warnings.catch_warnings(record=True) as caught:

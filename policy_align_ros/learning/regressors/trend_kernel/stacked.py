@@ -15,6 +15,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from policy_align_ros.learning.regressors.trend_kernel.model import TrendKernelRegression
+
 __all__ = ["stacked_gradient"]
 
 
@@ -23,8 +25,6 @@ def stacked_gradient(models: Sequence) -> Callable[[np.ndarray, np.ndarray], np.
     state units in and out, for fitted quadratic-trend
     :class:`~.model.TrendKernelRegression` models of one state dimension and pinning;
     None for anything else (the caller then asks each model)."""
-    from policy_align_ros.learning.regressors.trend_kernel.model import TrendKernelRegression
-
     if not models or not all(isinstance(m, TrendKernelRegression)
                              and getattr(m, "trend_form_", None) == "quadratic"
                              for m in models):
