@@ -62,7 +62,6 @@ from policy_align_ros.learning.fitting import (
     check_Xy,
     single_blas_thread,
 )
-from policy_align_ros.learning.model_io import json_float, to_json
 from policy_align_ros.learning.regressors.registry import register
 from policy_align_ros.learning.regressors.trend_kernel import single_index
 from policy_align_ros.learning.regressors.trend_kernel.cv import (
@@ -80,7 +79,6 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _kernel_directions,
     _kernel_gradient,
     _median_distance,
-    _n_index_weights,
     _n_trend,
     _symmetric,
     _trend_jacobian,
@@ -101,6 +99,11 @@ from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     _penalty,
     _trend_penalty,
 )
+from policy_align_ros.learning.regressors.trend_kernel.state import (
+    TREND_FORMS,
+    model_from_state,
+    model_state,
+)
 from policy_align_ros.learning.thinning import thin_trajectories
 
 __all__ = ["CENTRES_PER_DEMONSTRATION", "DIRECTION_WEIGHTS", "MAX_CENTRES", "TREND_FORMS",
@@ -108,11 +111,6 @@ __all__ = ["CENTRES_PER_DEMONSTRATION", "DIRECTION_WEIGHTS", "MAX_CENTRES", "TRE
 
 #: Rows per block when evaluating kernels (bounds memory on large queries).
 CHUNK = 8192
-#: Trend forms the CV chooses from: the quadratic, and the single-index trend of
-#: :mod:`.single_index` (a profile of one quadratic form; no residual on top).
-TREND_FORMS = ("quadratic", "single_index")
-_STATE_VERSION = 3
-_HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
 #: The direction weights ``direction_weight="auto"`` stands for, largest first: PolicyAlign
 #: fits them in turn and keeps the first whose policy takes every demonstration's start to
 #: the goal (:func:`~policy_align_ros.learning.anchor.choose_direction_weight`); a fit
@@ -383,15 +381,7 @@ class TrendKernelRegression(BaseEstimator):
         if motion is not None:
             bases, targets = self._motion_rows(motion)
             DF = direction_rows(bases, _trend_jacobian(Z, pinned))
-
-        d_med = _median_distance(C)
-        lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
-        t_grid = _grid(self.trend_ridge, TREND_RIDGE_GRID)
-        k_grid = _grid(self.kernel_ridge, KERNEL_RIDGE_GRID)
-        o_grid = _grid(self.offset_ridge, OFFSET_RIDGE_GRID)
-        forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
-        if pinned:
-            forms = ["quadratic"]  # the single-index trend fits a centre of its own
+        lengths, t_grid, k_grid, o_grid, forms = self._grids(C, pinned)
         mid = (lengths[len(lengths) // 2], k_grid[len(k_grid) // 2])
         # Without CV, and as the fallback of a single-index trend whose profile fails to rise.
         search = CVSearch(("quadratic", t_grid[len(t_grid) // 2], *mid, o_grid[-1]))
@@ -418,6 +408,19 @@ class TrendKernelRegression(BaseEstimator):
         if final or best[0] != "quadratic" or self.cv_best_ is None:
             self._final_fit(best, F, Z, u, C, n, demo, free, bases, targets)
         return self
+
+    def _grids(self, C: np.ndarray, pinned: bool) -> tuple[list, list, list, list, list]:
+        """The candidate length scales, trend, kernel and offset penalties and trend forms
+        of the search, for centres ``C`` (standardised) and a model pinned at a goal or
+        not."""
+        d_med = _median_distance(C)
+        lengths = _grid(self.length_scale, [f * d_med for f in LENGTH_FACTORS])
+        forms = list(TREND_FORMS) if self.trend_form == "cv" else [self.trend_form]
+        if pinned:
+            forms = ["quadratic"]  # the single-index trend fits a centre of its own
+        return (lengths, _grid(self.trend_ridge, TREND_RIDGE_GRID),
+                _grid(self.kernel_ridge, KERNEL_RIDGE_GRID),
+                _grid(self.offset_ridge, OFFSET_RIDGE_GRID), forms)
 
     def _motion_rows(self, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The samples' direction bases (m, r, n) and what they observe (m, r; None:
@@ -549,92 +552,13 @@ class TrendKernelRegression(BaseEstimator):
 
     # -- persistence ------------------------------------------------------------------
     def get_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Numeric arrays and a JSON-able header that rebuild this model exactly.
-
-        The header's ``params`` are the constructor arguments in plain Python types: NumPy
-        scalars (``n_centres=np.int64(300)``) as ints and floats, a Generator
-        ``random_state`` as ``None`` (``get_params`` keeps the values as given). Anything
-        else JSON cannot hold raises a ValueError naming the parameter.
-        """
-        check_is_fitted(self, "trend_")
-        params = self.get_params(deep=False)
-        if isinstance(params["random_state"], np.random.Generator):
-            params["random_state"] = None
-        for name in _HYPER:
-            if params[name] != "cv":
-                params[name] = json_float(float(params[name]), "string")
-        params = to_json(params, "TrendKernelRegression params")
-        meta = {
-            "version": _STATE_VERSION,
-            "params": params,
-            "trend_form": self.trend_form_,
-            "index_scale": self.index_scale_,
-            "trend_ridge": json_float(self.trend_ridge_, "string"),
-            "length_scale": float(self.length_scale_),
-            "kernel_ridge": json_float(self.kernel_ridge_, "string"),
-            "offset_ridge": json_float(self.offset_ridge_, "string"),
-            "scale": self.scale_,
-            "y_mean": self.y_mean_,
-            "y_scale": self.y_scale_,
-            "n_features_in": int(self.n_features_in_),
-            "goal": None if self.goal_ is None else [float(v) for v in self.goal_],
-        }
-        arrays = {"mean": self.mean_, "trend": self.trend_, "centres": self.centres_,
-                  "alpha": self.alpha_, "index_matrix": self.index_matrix_,
-                  "index_goal": self.index_goal_}
-        return arrays, meta
+        """Numeric arrays and a JSON-able header that rebuild this model exactly
+        (:func:`~.state.model_state`)."""
+        return model_state(self)
 
     @classmethod
     def from_state(cls, arrays: dict[str, np.ndarray], meta: dict[str, Any]
                    ) -> TrendKernelRegression:
-        """Rebuild a fitted model from :meth:`get_state` output (ValueError if malformed)."""
-        try:
-            if int(meta["version"]) > _STATE_VERSION:
-                raise ValueError(f"format version {meta['version']} is newer than supported")
-            params = dict(meta["params"])
-            for name in _HYPER:
-                if params.get(name, "cv") != "cv":
-                    params[name] = float(params[name])
-            model = cls(**params)
-            n = int(meta["n_features_in"])
-            model.n_features_in_ = n
-            # Version 1 knew the quadratic trend only.
-            model.trend_form_ = str(meta.get("trend_form", "quadratic"))
-            if model.trend_form_ not in TREND_FORMS:
-                raise ValueError(f"unknown trend_form {model.trend_form_!r}")
-            single = model.trend_form_ == "single_index"
-            model.trend_ridge_ = float(meta["trend_ridge"])
-            model.length_scale_ = float(meta["length_scale"])
-            model.kernel_ridge_ = float(meta["kernel_ridge"])
-            model.offset_ridge_ = float(meta["offset_ridge"])
-            model.scale_ = float(meta["scale"])
-            model.y_mean_ = float(meta["y_mean"])
-            model.y_scale_ = float(meta["y_scale"])
-            model.mean_ = np.asarray(arrays["mean"], dtype=float).reshape(n)
-            goal = meta.get("goal")  # absent before goal-centred models existed
-            model.goal_ = None if goal is None else np.asarray(goal, dtype=float).reshape(n)
-            trend = np.asarray(arrays["trend"], dtype=float).ravel()
-            if single and int(meta["version"]) < 3:
-                # Version 2's profile had no steepening columns: their weights are zero.
-                trend = np.concatenate([trend, np.zeros(len(single_index.KNEES))])
-            model.trend_ = trend.reshape(_n_index_weights() if single else _n_trend(n))
-            model.index_matrix_ = np.asarray(arrays["index_matrix"] if single else
-                                             np.zeros((0, n)), dtype=float).reshape(-1, n)
-            model.index_goal_ = np.asarray(arrays["index_goal"] if single else np.zeros(0),
-                                           dtype=float).reshape(n if single else 0)
-            model.index_scale_ = float(meta["index_scale"]) if single else 0.0
-            if single and (model.index_matrix_.shape != (n, n) or not model.index_scale_ > 0):
-                raise ValueError("single-index trend needs an (n, n) index_matrix and "
-                                 "index_scale > 0")
-            model.centres_ = np.asarray(arrays["centres"], dtype=float).reshape(-1, n)
-            model.alpha_ = np.asarray(arrays["alpha"], dtype=float).reshape(len(model.centres_))
-        except (KeyError, TypeError, ValueError) as err:
-            raise ValueError(f"regressor state: bad or missing field ({err})") from None
-        model.cv_scores_ = {}
-        model.cv_standard_errors_ = {}
-        model.cv_dof_ = {}
-        model.cv_best_ = None
-        model.cv_folds_ = None
-        model._unpack()
-        return model
-
+        """Rebuild a fitted model from :meth:`get_state` output (ValueError if malformed;
+        :func:`~.state.model_from_state`)."""
+        return model_from_state(cls, arrays, meta)
