@@ -4,7 +4,7 @@ model file holds of the regressor (``docs/design.md``, section 4)."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -15,6 +15,9 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _n_index_weights,
     _n_trend,
 )
+
+if TYPE_CHECKING:  # the model imports this module
+    from policy_align_ros.learning.regressors.trend_kernel.model import TrendKernelRegression
 
 __all__ = ["STATE_VERSION", "TREND_FORMS", "model_from_state", "model_state"]
 
@@ -27,7 +30,7 @@ _HYPER = ("trend_ridge", "length_scale", "kernel_ridge", "offset_ridge")
 TREND_FORMS = ("quadratic", "single_index")
 
 
-def model_state(model) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def model_state(model: TrendKernelRegression) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Numeric arrays and a JSON-able header that rebuild this model exactly.
 
     The header's ``params`` are the constructor arguments in plain Python types: NumPy
@@ -64,7 +67,8 @@ def model_state(model) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     return arrays, meta
 
 
-def model_from_state(cls, arrays: dict[str, np.ndarray], meta: dict[str, Any]):
+def model_from_state(cls: type[TrendKernelRegression], arrays: dict[str, np.ndarray],
+                     meta: dict[str, Any]) -> TrendKernelRegression:
     """A fitted ``cls`` (:class:`~.model.TrendKernelRegression`) rebuilt from
     :func:`model_state` output (ValueError if malformed)."""
     try:
