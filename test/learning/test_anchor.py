@@ -134,14 +134,15 @@ def test_a_weight_whose_goal_is_a_saddle_is_passed_over():
     # The saddle's starts count as reaching the goal: only the curvature rejects it.
     assert starts_elsewhere(demos, saddle.predict, saddle.gradient, data_extent(demos),
                             typical_speed(demos))["n_starts_elsewhere"] == 0
-    models = {1000.0: saddle, 100.0: _Bowl(goal), 10.0: _Bowl(goal)}
+    largest, second = sorted(DIRECTION_WEIGHTS, reverse=True)[:2]
+    models = {w: saddle if w == largest else _Bowl(goal) for w in DIRECTION_WEIGHTS}
 
     def fit(candidate):
         return models[candidate.direction_weight]
 
     out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos,
                                   demonstrated_goal(demos))
-    assert out["direction_weight"] == 100.0 and out["goal_is_minimum"]
+    assert out["direction_weight"] == second and out["goal_is_minimum"]
     first, kept = out["direction_weights_tried"]
     assert first["goal_curvature"] < 0.0 < kept["goal_curvature"]
 
@@ -166,7 +167,8 @@ def test_auto_direction_weight_tries_every_weight_largest_first():
 def test_the_largest_weight_whose_starts_all_reach_the_goal_is_kept():
     goal = np.array([0.2, -0.1])
     demos = _demos_resting_at(goal)
-    models = {1000.0: _Tilted(goal), 100.0: _Bowl(goal), 10.0: _Bowl(goal)}
+    largest, second = sorted(DIRECTION_WEIGHTS, reverse=True)[:2]
+    models = {w: _Tilted(goal) if w == largest else _Bowl(goal) for w in DIRECTION_WEIGHTS}
     fitted = []
 
     def fit(candidate):
@@ -175,12 +177,12 @@ def test_the_largest_weight_whose_starts_all_reach_the_goal_is_kept():
 
     out = choose_direction_weight(fit, direction_candidates(TrendKernelRegression()), demos,
                                   demonstrated_goal(demos))
-    assert fitted == [1000.0, 100.0] and out["direction_weight"] == 100.0
+    assert fitted == [largest, second] and out["direction_weight"] == second
     first, kept = out["direction_weights_tried"]
     assert first["n_starts_elsewhere"] == len(demos) and kept["n_starts_elsewhere"] == 0
     # The kept fit's check, handed to the goal report instead of being run again.
-    assert out["starts"] == starts_elsewhere(demos, models[100.0].predict,
-                                             models[100.0].gradient, data_extent(demos),
+    assert out["starts"] == starts_elsewhere(demos, models[second].predict,
+                                             models[second].gradient, data_extent(demos),
                                              typical_speed(demos))
 
 

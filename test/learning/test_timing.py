@@ -109,9 +109,10 @@ def test_repeated_demonstrations_at_different_speeds_teach_one_policy():
     assert heldout["per_demonstration"] < 0.8 * heldout["shared"], heldout
     np.testing.assert_array_equal(shared.timing_scales_, np.ones(9))
     assert shared.fit_summary_["timing_heldout"] is None
-    # The slope along the motion already steadies the shared clock's directions: the
-    # clocks' gain is smaller than the held-out error's (0.82 here).
-    assert _direction_error(own, demos) < 0.9 * _direction_error(shared, demos)
+    # One policy: its directions within 1 % of the true one's. The rows across and along
+    # the motion set the directions under either clock (0.005 with the clocks, 0.003
+    # without); the clocks' gain is in the held-out motion above.
+    assert _direction_error(own, demos) < 0.01
 
 
 def _checked(elsewhere, fold_ratios):
