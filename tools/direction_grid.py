@@ -10,7 +10,7 @@ converged (the bench's measures) are recorded. A grid's rule, the one
 elsewhere and a minimum at the goal, else the smallest; its nV (median over shapes) and converged
 share are printed per grid (``docs/design/goal_anchor.md``).
 
-    python tools/direction_grid.py --jobs 2                       # about 5 min on 2 cores
+    python tools/direction_grid.py --jobs 2                       # 5-10 min on 2 cores
     python tools/direction_grid.py --weights 10,300,3000 --shapes Angle,Sine
 """
 
@@ -33,6 +33,7 @@ from policy_align_ros.experiments.lasa_metrics import (
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.regressors import TrendKernelRegression
+from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 
 
 def _task(task: tuple[str, int, tuple[float, ...]]) -> list[dict]:
@@ -76,7 +77,8 @@ def _summary(kept: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--weights", default="10,100,1000")
+    parser.add_argument("--weights", default=",".join(f"{w:g}" for w in DIRECTION_WEIGHTS),
+                        help="comma-separated direction weights (default: the ladder's)")
     parser.add_argument("--shapes", default="tuning")
     parser.add_argument("--jobs", type=int, default=1)
     args = parser.parse_args(argv)
