@@ -21,7 +21,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.optimize import minimize
 
 from policy_align_ros.experiments.suite_cases import (
     ArmPotential,
@@ -30,6 +29,7 @@ from policy_align_ros.experiments.suite_cases import (
     hand_planes,
     hold_hand,
     locked_coordinates,
+    numerical_minimum,
     random_rows,
 )
 from policy_align_ros.kinematics import nullspace_projector
@@ -44,7 +44,7 @@ from policy_align_ros.sim.recording import (
     with_ground_truth,
 )
 
-__all__ = ["RECORDING_CASES", "BumpsPotential", "numerical_minimum"]
+__all__ = ["RECORDING_CASES", "BumpsPotential", "contact_arm", "numerical_minimum"]
 
 
 class BumpsPotential:
@@ -76,25 +76,6 @@ class BumpsPotential:
         grad = (d @ (self.W + self.W.T) + self.cone * d / r[:, None]
                 - np.einsum("mk,mkn->mn", g, db) / self.width**2)
         return -grad
-
-
-def numerical_minimum(potential, x0: np.ndarray, bounds=None) -> np.ndarray:
-    """The local minimum of ``potential`` (``value``, ``policy = -grad``) reached from ``x0``.
-
-    Parameters
-    ----------
-    potential : object with ``value(X (m, n)) -> (m,)`` and ``policy(X) -> (m, n)``
-    x0 : numpy.ndarray, shape (n,)
-    bounds : sequence of (low, high), optional
-
-    Returns
-    -------
-    numpy.ndarray, shape (n,)
-    """
-    res = minimize(lambda x: float(potential.value(x[None])[0]), np.asarray(x0, float),
-                   jac=lambda x: -potential.policy(x[None])[0], method="L-BFGS-B",
-                   bounds=bounds, options={"gtol": 1e-10, "ftol": 1e-14, "maxiter": 2000})
-    return res.x
 
 
 def _rotation(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -186,7 +167,10 @@ def _arm_robot():
     return _ARM["robot"]
 
 
-def _contact_arm(rng: np.random.Generator) -> Problem:
+def contact_arm(rng: np.random.Generator, *, mu: float = 0.4, table: bool = True) -> Problem:
+    """The ``contact_arm_7`` problem of one seed (``rng``); ``mu`` the friction coefficient,
+    ``table=False`` no table under the same starts and planes (an exact recording): what
+    the contact alone costs (``tools/contact_ablation.py``)."""
     robot, frame = _arm_robot(), "panda_hand_tcp"
     q_c = np.clip(robot.neutral() + rng.normal(scale=0.2, size=robot.nq), robot.lower,
                   robot.upper)
@@ -198,7 +182,7 @@ def _contact_arm(rng: np.random.Generator) -> Problem:
     minimum = numerical_minimum(potential, q_c, bounds)
     height = float(robot.frame_position(minimum, frame)[2]) + TABLE_ABOVE_MINIMUM
     home = np.clip(q_c + rng.normal(scale=0.5, size=robot.nq), robot.lower, robot.upper)
-    hz, duration, mu = 25.0, 4.0, 0.4
+    hz, duration = 25.0, 4.0
 
     def starts(r, m):
         out = []
@@ -209,14 +193,15 @@ def _contact_arm(rng: np.random.Generator) -> Problem:
         return np.array(out)
 
     def record(q0, constraint, r, name) -> Demonstration:
-        Q, Qd, Ns, k = table_contact_rollout(q0, potential.policy, robot, frame, height, mu,
+        Q, Qd, Ns, k = table_contact_rollout(q0, potential.policy, robot, frame,
+                                             height if table else -np.inf, mu,
                                              int(hz * duration), 1.0 / hz, constraint)
         return with_ground_truth(Q, Qd, np.arange(len(Q)) / hz, potential, Ns, k, name=name)
 
     return Problem(potential, 1.0 / hz, int(hz * duration), 40, starts,
                    lambda r: hand_planes(robot, frame, duration, r),
                    hold_hand(robot, frame), record=record, minimum=minimum,
-                   extras={"hand": potential.hand, "table": height})
+                   extras={"hand": potential.hand, "table": height if table else None})
 
 
 # -- 4 and 5. local features; encoder noise and stamp jitter ------------------------------
@@ -256,7 +241,7 @@ def _bumps_case(n: int, hz: float, duration: float, k: int, noisy: bool
 RECORDING_CASES = {
     "lag_joint_7": Case("lag_joint_7", 7, "50 Hz", _lag_joint),
     "human_timing_2": Case("human_timing_2", 2, "50 Hz", _human_timing),
-    "contact_arm_7": Case("contact_arm_7", 7, "25 Hz", _contact_arm),
+    "contact_arm_7": Case("contact_arm_7", 7, "25 Hz", contact_arm),
     "bumps_2": Case("bumps_2", 2, "50 Hz", _bumps_case(2, 50.0, 4.0, 30, False)),
     "bumps_noisy_6": Case("bumps_noisy_6", 6, "100 Hz", _bumps_case(6, 100.0, 4.0, 40, True)),
 }

@@ -12,13 +12,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import minimize
 
 from policy_align_ros.sim.demonstrations import ConstraintFn
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpacePotential
 
 __all__ = ["CASES", "Case", "Problem", "ArmPotential", "SinusoidPotential",
            "TwoMinimaPotential", "hand_planes", "hold_hand", "locked_coordinates",
-           "random_rows"]
+           "numerical_minimum", "random_rows"]
 
 # -- expert potentials ------------------------------------------------------------------
 
@@ -71,6 +72,26 @@ class ArmPotential:
 
     def hand(self, q: np.ndarray) -> np.ndarray:
         return self.task.robot.frame_position(q, self.task.frames[0])
+
+
+def numerical_minimum(potential, x0: np.ndarray, bounds=None) -> np.ndarray:
+    """The local minimum of ``potential`` (``value``, ``policy = -grad``) reached from ``x0``.
+
+    Parameters
+    ----------
+    potential : object with ``value(X (m, n)) -> (m,)`` and ``policy(X) -> (m, n)``
+    x0 : numpy.ndarray, shape (n,)
+    bounds : sequence of (low, high), optional
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    res = minimize(lambda x: float(potential.value(x[None])[0]), np.asarray(x0, float),
+                   jac=lambda x: -potential.policy(x[None])[0], method="L-BFGS-B",
+                   bounds=bounds, options={"gtol": 1e-10, "ftol": 1e-14, "maxiter": 2000})
+    return res.x
+
 
 
 # -- constraints ------------------------------------------------------------------------
@@ -213,6 +234,7 @@ def _arm(rng: np.random.Generator) -> Problem:
     target = robot.frame_position(q_c, frame) + rng.normal(scale=0.05, size=3)
     task = TaskSpacePotential(robot, [frame], target, weight=4.0)
     potential = ArmPotential(task, 0.3, q_c)
+    minimum = numerical_minimum(potential, q_c, list(zip(robot.lower, robot.upper, strict=True)))
     home = np.clip(q_c + rng.normal(scale=0.5, size=robot.nq), robot.lower, robot.upper)
 
     def starts(r, m):
@@ -221,7 +243,7 @@ def _arm(rng: np.random.Generator) -> Problem:
     hz, duration = 25.0, 4.0
     return Problem(potential, 1.0 / hz, int(hz * duration), 40, starts,
                    lambda r: hand_planes(robot, frame, duration, r),
-                   hold_hand(robot, frame), extras={"hand": potential.hand})
+                   hold_hand(robot, frame), minimum=minimum, extras={"hand": potential.hand})
 
 
 CASES = {

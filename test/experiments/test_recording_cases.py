@@ -43,6 +43,20 @@ def test_the_contact_case_slides_on_the_table(monkeypatch):
     assert hand[:, 2].min() >= problem.extras["table"] - 2e-3  # never through the table
 
 
+def test_the_contact_case_without_the_table_keeps_its_starts_and_goes_through_it():
+    with_table = recording_cases.contact_arm(np.random.default_rng(0))
+    without = recording_cases.contact_arm(np.random.default_rng(0), table=False)
+    np.testing.assert_array_equal(with_table.minimum, without.minimum)
+    starts = [p.sample_starts(np.random.default_rng(2), 4) for p in (with_table, without)]
+    np.testing.assert_array_equal(*starts)
+    height = with_table.extras["table"]
+    for problem, through in ((with_table, False), (without, True)):
+        demos = suite._demos(problem, starts[0], np.random.default_rng(2))
+        hand = np.array([problem.extras["hand"](q) for d in demos
+                         for q in d.trajectory.positions])
+        assert (hand[:, 2].min() < height - 0.01) == through
+
+
 def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
     make = RECORDING_CASES["human_timing_2"].make
     small = replace(RECORDING_CASES["human_timing_2"],
@@ -54,6 +68,12 @@ def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
     for label in ("previous", "new"):
         model = result["models"][label]
         assert model["min_error"] >= 0 and np.isfinite(model["free_rel_median"])
+    # How close the training data came to the true minimum, as the suite measures it.
+    rng = np.random.default_rng(0)  # the data set run_case drew
+    problem = small.make(rng)
+    train = suite._demos(problem, problem.sample_starts(rng, problem.n_train), rng)
+    assert 0.0 <= result["models"]["new"]["data_gap"] <= min(
+        np.linalg.norm(d.trajectory.positions[-1] - problem.minimum) for d in train)
     table = suite.format_table([result])
     assert "| human_timing_2 | new |" in table  # the learnt-goal table's row
 
