@@ -1,7 +1,6 @@
 """What the table costs ``contact_arm_7``'s learnt goal: the same data sets recorded with
-the table and friction (the case), with the table and no friction, and with no table;
-and, on the case's samples, the global model fitted to the expert's true potential values
-(no estimate, no alignment: what the regression alone gets right).
+the table and friction (the case), with the table and no friction, and with no table
+(``tools/goal_bound.py`` fits the case's samples to the expert's true potential values).
 
 Each row is one seed's data set as ``policy-align bench suite --cases contact_arm_7``
 draws it (same starts, planes and held-out samples), fitted by ``PolicyAlign`` with the
@@ -25,19 +24,10 @@ from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.experiments.recording_cases import contact_arm
 from policy_align_ros.experiments.retiming import learnt_minimum
 from policy_align_ros.learning import PolicyAlign
-from policy_align_ros.learning.regressors import TrendKernelRegression
 
 #: (label, contact_arm keywords): the case first.
 VARIANTS = (("table, mu 0.4", {}), ("table, mu 0", {"mu": 0.0}),
-            ("no table", {"table": False}), ("table, mu 0.4, true potential values", {}))
-
-
-class _AsPolicy:
-    """A fitted regressor seen as a policy (``learnt_minimum`` descends ``potential``)."""
-
-    def __init__(self, regressor) -> None:
-        self.potential = regressor.predict
-        self.policy = lambda X: -regressor.gradient(X)
+            ("no table", {"table": False}))
 
 
 def _row(task: tuple[str, int]) -> dict:
@@ -50,14 +40,8 @@ def _row(task: tuple[str, int]) -> dict:
     X = np.concatenate([d.trajectory.positions for d in train])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the fit's own warnings are not what is measured
-        if "true" in label:
-            groups = np.repeat(np.arange(len(train)), [d.trajectory.n_samples for d in train])
-            regressor = TrendKernelRegression(random_state=seed).fit(
-                X, problem.potential.value(X), groups=groups)
-            model = _AsPolicy(regressor)
-        else:
-            model = PolicyAlign(sigma=problem.sigma, random_state=seed).fit(
-                [d.trajectory for d in train], train_mask=masks)
+        model = PolicyAlign(sigma=problem.sigma, random_state=seed).fit(
+            [d.trajectory for d in train], train_mask=masks)
     found = learnt_minimum(model, problem.minimum)
     hand = problem.extras["hand"]
     return {"variant": label, "seed": seed,
