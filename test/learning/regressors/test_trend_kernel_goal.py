@@ -8,8 +8,10 @@ import pytest
 
 from policy_align_ros.learning.regressors import TrendKernelRegression, takes_drops, takes_goal
 from policy_align_ros.learning.regressors.trend_kernel.features import (
+    _gaussian,
     _kernel,
     _kernel_directions,
+    _kernel_gradient,
     _kernel_jacobian,
 )
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
@@ -151,6 +153,21 @@ def test_kernel_direction_rows_project_the_kernel_gradients(pinned):
     B = direction_bases(rng.normal(size=(30, 3)), 10.0)
     np.testing.assert_allclose(_kernel_directions(B, Z, C, 0.8, pinned),
                                direction_rows(B, J), rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("pinned", [False, True])
+def test_kernel_features_and_their_gradient_are_the_formulas(pinned):
+    # The features are computed in place, in one buffer; they must still be the Gaussians
+    # exp(-|z - c|^2 / (2 l^2)) (less the pinned term) and their weighted gradient J alpha.
+    rng = np.random.default_rng(6)
+    Z, C, alpha = rng.normal(size=(40, 3)), rng.normal(size=(9, 3)), rng.normal(size=9)
+    direct = np.exp(-np.sum((Z[:, None, :] - C[None]) ** 2, axis=2) / (2 * 0.7**2))
+    np.testing.assert_allclose(_gaussian(Z, C, 0.7), direct, rtol=1e-12, atol=1e-15)
+    if not pinned:
+        np.testing.assert_allclose(_kernel(Z, C, 0.7, pinned), direct, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(_kernel_gradient(Z, C, 0.7, alpha, pinned),
+                               _kernel_jacobian(Z, C, 0.7, pinned) @ alpha, rtol=1e-10,
+                               atol=1e-13)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 7])

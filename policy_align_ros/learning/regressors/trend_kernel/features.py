@@ -39,9 +39,17 @@ def _n_trend(n: int) -> int:
 
 
 def _gaussian(Z: np.ndarray, C: np.ndarray, ell: float) -> np.ndarray:
-    sq = (np.einsum("ij,ij->i", Z, Z)[:, None] - 2.0 * Z @ C.T
-          + np.einsum("ij,ij->i", C, C)[None, :])
-    return np.exp(-0.5 * np.maximum(sq, 0.0) / ell**2)
+    """``exp(-||z_i - c_j||^2 / (2 ell^2))`` (m, m_c), in one buffer: the search evaluates
+    it for every length scale and fold model, and temporaries of its size cost more than
+    the arithmetic (the operations and their order are those of the textbook formula)."""
+    out = 2.0 * Z @ C.T
+    np.negative(out, out=out)
+    out += np.einsum("ij,ij->i", Z, Z)[:, None]
+    out += np.einsum("ij,ij->i", C, C)[None, :]
+    np.maximum(out, 0.0, out=out)
+    out *= -0.5
+    out /= ell**2
+    return np.exp(out, out=out)
 
 
 def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarray:
@@ -57,14 +65,19 @@ def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarra
         return K
     envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell**2)
     at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell**2)
-    return K - envelope[:, None] * (Z @ C.T) * (at_goal / ell**2)[None, :]
+    pin = Z @ C.T  # (m, m_c), in place as in _gaussian
+    np.multiply(envelope[:, None], pin, out=pin)
+    pin *= (at_goal / ell**2)[None, :]
+    K -= pin
+    return K
 
 
 def _kernel_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.ndarray,
                      pinned: bool) -> np.ndarray:
     """Gradient (m, n) of ``_kernel(Z, C, ell, pinned) @ alpha`` with respect to ``Z``."""
     ell2 = ell**2
-    Kw = _gaussian(Z, C, ell) * alpha
+    Kw = _gaussian(Z, C, ell)
+    Kw *= alpha
     g = (Kw @ C - Kw.sum(axis=1)[:, None] * Z) / ell2
     if pinned:
         envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
@@ -122,9 +135,11 @@ def _kernel_directions(bases: np.ndarray, Z: np.ndarray, C: np.ndarray, ell: flo
         pinned_terms = envelope[:, None] * at_goal[None, :]
         a = a - pinned_terms
         b = b - pinned_terms * (Z @ C.T) / ell2
-    BC = bases @ C.T  # (m, n - 1, m_c)
+    out = bases @ C.T  # (m, n - 1, m_c); products in place: it is the largest array here
+    out *= a[:, None, :]
     Bz = np.einsum("mij,mj->mi", bases, Z)
-    return BC * a[:, None, :] - Bz[:, :, None] * b[:, None, :]
+    out -= Bz[:, :, None] * b[:, None, :]
+    return out
 
 
 @functools.lru_cache(maxsize=8)
