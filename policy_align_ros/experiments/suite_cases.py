@@ -93,7 +93,6 @@ def numerical_minimum(potential, x0: np.ndarray, bounds=None) -> np.ndarray:
     return res.x
 
 
-
 # -- constraints ------------------------------------------------------------------------
 
 def random_rows(n: int, duration: float, rng: np.random.Generator, switches: int = 2

@@ -42,6 +42,7 @@ def _gaussian(Z: np.ndarray, C: np.ndarray, ell: float) -> np.ndarray:
     """``exp(-||z_i - c_j||^2 / (2 ell^2))`` (m, m_c), in one buffer: the search evaluates
     it for every length scale and fold model, and temporaries of its size cost more than
     the arithmetic (the operations and their order are those of the textbook formula)."""
+    Z, C = np.asarray(Z, dtype=float), np.asarray(C, dtype=float)  # in place needs doubles
     out = 2.0 * Z @ C.T
     np.negative(out, out=out)
     out += np.einsum("ij,ij->i", Z, Z)[:, None]
@@ -65,7 +66,7 @@ def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarra
         return K
     envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell**2)
     at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell**2)
-    pin = Z @ C.T  # (m, m_c), in place as in _gaussian
+    pin = np.asarray(Z, dtype=float) @ np.asarray(C, dtype=float).T  # in place, (m, m_c)
     np.multiply(envelope[:, None], pin, out=pin)
     pin *= (at_goal / ell**2)[None, :]
     K -= pin
