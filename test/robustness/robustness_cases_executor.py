@@ -170,11 +170,16 @@ class _ArmedCases:
         exe = self.exe
         # A message may meet a disarm it did not cause: on an overloaded machine the
         # feeder thread can stall past state_timeout_s, and a disarm is silent until the
-        # next enable, so the message's own reason is then never seen. That says nothing
-        # about the message, so the case is tried again (at most twice).
+        # next enable, so the message's own reason is then never seen. Or it may never
+        # arrive: a subscriber stalled for 0.2 s drops it from its queue of 10 under the
+        # feeder's 50 Hz (still armed, no counter moved). Neither says anything about the
+        # message, so the case is tried again (at most twice); an executor that ignores
+        # the message fails every attempt.
         for _ in range(3):
             r = self._attempt(case, tried, make_msg, disarms, reason)
-            if exe.controller.armed or "stale" not in exe.controller.zero_reason:
+            stale = not exe.controller.armed and "stale" in exe.controller.zero_reason
+            unseen = disarms and exe.controller.armed and not r.data.get("counted")
+            if not (stale or unseen):
                 break
         self.out.append(r)
         return r
