@@ -34,10 +34,7 @@ def _row(task: tuple[str, int]) -> dict:
     label, seed = task
     rng = np.random.default_rng(seed)
     problem = contact_arm(rng, **dict(VARIANTS)[label])
-    train = suite._demos(problem, problem.sample_starts(rng, problem.n_train), rng)
-    suite._demos(problem, problem.sample_starts(rng, suite.N_TEST_DEMOS), rng)  # as drawn
-    masks = [rng.random(d.trajectory.n_samples) >= suite.HOLDOUT for d in train]
-    X = np.concatenate([d.trajectory.positions for d in train])
+    train, _, masks = suite.draw_data_set(problem, rng)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the fit's own warnings are not what is measured
         model = PolicyAlign(sigma=problem.sigma, random_state=seed).fit(
@@ -47,7 +44,7 @@ def _row(task: tuple[str, int]) -> dict:
     return {"variant": label, "seed": seed,
             "error": float(np.linalg.norm(found - problem.minimum)),
             "hand_mm": 1e3 * float(np.linalg.norm(hand(found) - hand(problem.minimum))),
-            "gap": float(np.linalg.norm(X - problem.minimum, axis=1).min())}
+            "gap": suite.data_gap(train, problem.minimum)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,9 +36,7 @@ def _row(task: tuple[str, int]) -> dict:
     name, seed = task
     rng = np.random.default_rng(seed)
     problem = suite.ALL_CASES[name].make(rng)
-    train = suite._demos(problem, problem.sample_starts(rng, problem.n_train), rng)
-    suite._demos(problem, problem.sample_starts(rng, suite.N_TEST_DEMOS), rng)  # as drawn
-    masks = [rng.random(d.trajectory.n_samples) >= suite.HOLDOUT for d in train]
+    train, _, masks = suite.draw_data_set(problem, rng)
     X = np.concatenate([d.trajectory.positions[m] for d, m in zip(train, masks, strict=True)])
     groups = np.repeat(np.arange(len(train)), [int(m.sum()) for m in masks])
     with warnings.catch_warnings():
@@ -47,13 +45,12 @@ def _row(task: tuple[str, int]) -> dict:
             [d.trajectory for d in train], train_mask=masks)
         true = _AsPolicy(TrendKernelRegression(random_state=seed).fit(
             X, problem.potential.value(X), groups=groups))
-    every = np.concatenate([d.trajectory.positions for d in train])
     return {"case": name, "seed": seed,
             "default": float(np.linalg.norm(learnt_minimum(model, problem.minimum)
                                             - problem.minimum)),
             "true": float(np.linalg.norm(learnt_minimum(true, problem.minimum)
                                          - problem.minimum)),
-            "gap": float(np.linalg.norm(every - problem.minimum, axis=1).min())}
+            "gap": suite.data_gap(train, problem.minimum)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -58,7 +58,8 @@ from policy_align_ros.learning.regressors import (
 )
 from policy_align_ros.sim.demonstrations import ConstraintFn, Demonstration, rollout
 
-__all__ = ["ALL_CASES", "format_table", "main", "parse_settings", "plot_figure", "run_case"]
+__all__ = ["ALL_CASES", "data_gap", "draw_data_set", "format_table", "main", "parse_settings",
+           "plot_figure", "run_case"]
 
 #: Every case ``--cases`` may name: the suite's exact experts (run by default) and the
 #: recordings of real teachers and robots (:mod:`.recording_cases`, run when named).
@@ -182,13 +183,11 @@ def _goal_report(model: PolicyAlign, problem: Problem, goals, train: list[Demons
                  ) -> dict[str, float]:
     """The learnt minimum reached from the expert's (free) end point against the true
     minimum (state units; the hand's distance in mm where the case has a hand), and how
-    close the training data came to the true minimum (``data_gap``: a minimum the data
-    never came near is an extrapolation, however exact the data)."""
+    close the training data came to the true minimum (:func:`data_gap`)."""
     start = goals["free"][0][0]
     found = learnt_minimum(model, start)
-    X = np.concatenate([d.trajectory.positions for d in train])
     out = {"min_error": float(np.linalg.norm(found - problem.minimum)),
-           "data_gap": float(np.linalg.norm(X - problem.minimum, axis=1).min())}
+           "data_gap": data_gap(train, problem.minimum)}
     if "hand" in problem.extras:
         hand = problem.extras["hand"]
         out["min_hand_mm"] = 1e3 * float(np.linalg.norm(hand(found) - hand(problem.minimum)))
@@ -265,6 +264,26 @@ def _with_noise(demos: list[Demonstration], level: float, seed: int) -> list[Tra
                        t.velocities, name=t.name) for t in trajs]
 
 
+def draw_data_set(problem: Problem, rng: np.random.Generator
+                  ) -> tuple[list[Demonstration], list[Demonstration], list[np.ndarray]]:
+    """One data set of ``problem`` as :func:`run_case` draws it from ``rng``: the training
+    demonstrations, the held-out ones from new starts, and the training samples' masks
+    (``HOLDOUT`` of them held out). Tools that refit a suite data set draw it here, so
+    that it is the one the suite reports."""
+    train = _demos(problem, problem.sample_starts(rng, problem.n_train), rng)
+    test = _demos(problem, problem.sample_starts(rng, N_TEST_DEMOS), rng)
+    masks = [rng.random(d.trajectory.n_samples) >= HOLDOUT for d in train]
+    return train, test, masks
+
+
+def data_gap(train: list[Demonstration], minimum: np.ndarray) -> float:
+    """How close the demonstrations ``train`` came to ``minimum`` (n,): the smallest
+    distance of any sample (state units). A learnt minimum farther from the data is an
+    extrapolation, however exact the data."""
+    X = np.concatenate([d.trajectory.positions for d in train])
+    return float(np.linalg.norm(X - minimum, axis=1).min())
+
+
 def run_case(task: tuple) -> dict:
     """Generate one data set of a case, fit, and measure both global models."""
     name, seed = task[:2]
@@ -276,9 +295,7 @@ def run_case(task: tuple) -> dict:
     problem = case.make(rng)
     if n_train:
         problem = replace(problem, n_train=n_train)
-    train = _demos(problem, problem.sample_starts(rng, problem.n_train), rng)
-    test = _demos(problem, problem.sample_starts(rng, N_TEST_DEMOS), rng)
-    masks = [rng.random(d.trajectory.n_samples) >= HOLDOUT for d in train]
+    train, test, masks = draw_data_set(problem, rng)
     starts = problem.sample_starts(rng, N_ROLLOUTS)
     goals = {"free": [_expert_goal(problem, x0, None) for x0 in starts],
              "unseen": [_expert_goal(problem, x0, problem.unseen_constraint)

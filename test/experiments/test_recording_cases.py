@@ -71,7 +71,7 @@ def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
     # How close the training data came to the true minimum, as the suite measures it.
     rng = np.random.default_rng(0)  # the data set run_case drew
     problem = small.make(rng)
-    train = suite._demos(problem, problem.sample_starts(rng, problem.n_train), rng)
+    train, _, _ = suite.draw_data_set(problem, rng)
     assert 0.0 <= result["models"]["new"]["data_gap"] <= min(
         np.linalg.norm(d.trajectory.positions[-1] - problem.minimum) for d in train)
     table = suite.format_table([result])

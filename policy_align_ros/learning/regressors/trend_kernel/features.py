@@ -61,12 +61,13 @@ def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarra
     in the goal-centred standardisation) is zero, so no residual moves the trend's
     stationary point, and away from the goal it is the Gaussian's.
     """
+    Z, C = np.asarray(Z, dtype=float), np.asarray(C, dtype=float)  # in place needs doubles
     K = _gaussian(Z, C, ell)
     if not pinned:
         return K
     envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell**2)
     at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell**2)
-    pin = np.asarray(Z, dtype=float) @ np.asarray(C, dtype=float).T  # in place, (m, m_c)
+    pin = Z @ C.T  # (m, m_c), in place as in _gaussian
     np.multiply(envelope[:, None], pin, out=pin)
     pin *= (at_goal / ell**2)[None, :]
     K -= pin
