@@ -296,6 +296,7 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
     policy's flow instead of leaping into another basin of lower potential.
     """
     X = X.copy()
+    joint = _joint(potential, gradient)
     f, g = potential(X), gradient(X)
     alpha = 0.01 * scale / np.maximum(np.linalg.norm(g, axis=1), gtol)
     active = np.linalg.norm(_projected(g, X, lo, hi), axis=1) > gtol
@@ -311,13 +312,15 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
                                  max_step / np.maximum(norm, 1e-300), step_size)
         trial = np.clip(X[idx] - step_size * g[idx], lo, hi)
         step = trial - X[idx]
-        f_trial = potential(trial)
+        f_trial, g_trial = joint(trial) if joint is not None else (potential(trial), None)
         ok = f_trial <= f[idx] + 1e-4 * np.einsum("ij,ij->i", g[idx], step)
         alpha[idx[~ok]] *= 0.25
         done = alpha[idx] * np.linalg.norm(g[idx], axis=1) < 1e-12 * scale
         if ok.any():
             acc = idx[ok]
-            g_new = gradient(trial[ok])
+            # Rows evaluated in another batch can differ in the last bit: the joint
+            # evaluation is used when every row was accepted, as the results stay equal.
+            g_new = g_trial if g_trial is not None and ok.all() else gradient(trial[ok])
             s, y = step[ok], g_new - g[acc]
             sy, ss = np.einsum("ij,ij->i", s, y), np.einsum("ij,ij->i", s, s)
             # On a nearly flat potential the secant step overflows to inf; the next step is
@@ -330,6 +333,20 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
             done[ok] |= np.linalg.norm(_projected(g_new, X[acc], lo, hi), axis=1) <= gtol
         active[idx[done]] = False
     return X
+
+
+def _joint(potential: Field, gradient: Field
+           ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
+    """``X -> (potential(X), gradient(X))`` in one call when both are a model's ``predict``
+    and ``gradient`` and it has ``value_and_gradient`` (one kernel evaluation per step
+    of a descent instead of two); None otherwise."""
+    owner = getattr(potential, "__self__", None)
+    joint = getattr(owner, "value_and_gradient", None)
+    if (joint is None or getattr(gradient, "__self__", None) is not owner
+            or getattr(potential, "__name__", "") != "predict"
+            or getattr(gradient, "__name__", "") != "gradient"):
+        return None
+    return joint
 
 
 def _projected(g: np.ndarray, X: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -71,6 +71,29 @@ def test_minimum_of_a_known_quadratic_is_found_where_it_is():
     assert minima.values[0] == pytest.approx(0.0, abs=1e-8)
 
 
+def test_a_model_descends_through_its_joint_evaluation_to_the_same_bits():
+    # A model's predict and gradient are evaluated together at each step of a descent;
+    # the descent must end where it does with the two called apart, to the last bit.
+    from policy_align_ros.learning.regressors import TrendKernelRegression
+
+    rng = np.random.default_rng(4)
+    X = rng.uniform(-2.0, 2.0, size=(240, 2))
+    y = np.sum((X - [0.3, -0.4]) ** 2, axis=1) + 0.2 * np.sin(2.0 * X[:, 0])
+    model = TrendKernelRegression(trend_form="quadratic", length_scale=0.6,
+                                  kernel_ridge=1e-4, random_state=0)
+    model.fit(X, y, groups=np.repeat(np.arange(12), 20))
+    starts = rng.uniform(-2.0, 2.0, size=(9, 2))
+    joint = learnt_minima(model.predict, model.gradient, starts, scale=4.0)
+    apart = learnt_minima(lambda Z: model.predict(Z), lambda Z: model.gradient(Z), starts,
+                          scale=4.0)
+    assert len(joint.points) and np.array_equal(joint.points, apart.points)
+    t = np.linspace(0.0, 1.0, 30)[:, None]
+    demos = [Trajectory(x0 + t * ([0.3, -0.4] - x0), times=t[:, 0]) for x0 in starts]
+    assert starts_elsewhere(demos, model.predict, model.gradient, 4.0, 1.0) == \
+        starts_elsewhere(demos, lambda Z: model.predict(Z), lambda Z: model.gradient(Z),
+                         4.0, 1.0)
+
+
 def _two_wells():
     wells = np.array([[-1.0, 0.0], [1.0, 0.0]])
 

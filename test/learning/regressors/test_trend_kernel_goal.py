@@ -13,6 +13,7 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _kernel_directions,
     _kernel_gradient,
     _kernel_jacobian,
+    _kernel_value_gradient,
 )
 from policy_align_ros.learning.regressors.trend_kernel.grams import (
     _MEMO,
@@ -168,6 +169,26 @@ def test_kernel_features_and_their_gradient_are_the_formulas(pinned):
     np.testing.assert_allclose(_kernel_gradient(Z, C, 0.7, alpha, pinned),
                                _kernel_jacobian(Z, C, 0.7, pinned) @ alpha, rtol=1e-10,
                                atol=1e-13)
+
+
+@pytest.mark.parametrize("pinned", [False, True])
+def test_value_and_gradient_from_one_kernel_block_equal_the_two_calls(pinned):
+    # A descent takes both from one Gaussian block; they must equal the separate features'
+    # value and gradient to the last bit, so that the descents' results do not move.
+    rng = np.random.default_rng(7)
+    Z, C, alpha = rng.normal(size=(25, 3)), rng.normal(size=(8, 3)), rng.normal(size=8)
+    value, gradient = _kernel_value_gradient(Z, C, 0.9, alpha, pinned)
+    assert np.array_equal(value, _kernel(Z, C, 0.9, pinned) @ alpha)
+    assert np.array_equal(gradient, _kernel_gradient(Z, C, 0.9, alpha, pinned))
+    X, y, groups = _bowl_data(np.array([0.3, -0.2]))
+    for goal in (None, np.array([0.3, -0.2])):
+        model = TrendKernelRegression(trend_form="quadratic", length_scale=0.8,
+                                      kernel_ridge=1e-4, random_state=0)
+        model.fit(X, y + 0.05 * np.sin(3 * X[:, 0]), groups=groups, goal=goal)
+        assert len(model.alpha_)
+        value, gradient = model.value_and_gradient(X[:7])
+        assert np.array_equal(value, model.predict(X[:7]))
+        assert np.array_equal(gradient, model.gradient(X[:7]))
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 7])

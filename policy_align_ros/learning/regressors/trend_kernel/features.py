@@ -89,6 +89,36 @@ def _kernel_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.ndarray
     return g
 
 
+def _kernel_value_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.ndarray,
+                           pinned: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``_kernel(Z, C, ell, pinned) @ alpha`` (m,) and :func:`_kernel_gradient` (m, n) from
+    one Gaussian block: a descent needs both at every step, and the block is most of
+    either's cost. The operations are those of the two functions, so the results are the
+    same to the last bit."""
+    Z, C = np.asarray(Z, dtype=float), np.asarray(C, dtype=float)  # in place needs doubles
+    ell2 = ell**2
+    Kw = _gaussian(Z, C, ell)
+    if pinned:
+        K = Kw.copy()
+        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell**2)
+        at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell**2)
+        pin = Z @ C.T
+        np.multiply(envelope[:, None], pin, out=pin)
+        pin *= (at_goal / ell**2)[None, :]
+        K -= pin
+        value = K @ alpha
+    else:
+        value = Kw @ alpha
+    Kw *= alpha
+    g = (Kw @ C - Kw.sum(axis=1)[:, None] * Z) / ell2
+    if pinned:
+        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
+        beta = alpha * np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2) / ell2
+        s = beta @ C
+        g -= envelope[:, None] * (s[None, :] - Z * ((Z @ s) / ell2)[:, None])
+    return value, g
+
+
 def _trend_jacobian(Z: np.ndarray, pinned: bool) -> np.ndarray:
     """Gradients (m, n, p_t) of the :func:`quadratic_features` at ``Z`` (m, n) with respect
     to ``z``; ``pinned``: the linear features are zero (the goal-centred trend)."""
@@ -129,18 +159,24 @@ def _kernel_directions(bases: np.ndarray, Z: np.ndarray, C: np.ndarray, ell: flo
     ``a_j B c_j - b_j B z``: two products instead of one per coordinate.
     """
     ell2 = ell**2
-    a = _gaussian(Z, C, ell) / ell2
+    # In place as in _gaussian: each (m, m_c) temporary costs more than its arithmetic.
+    a = _gaussian(Z, C, ell)
+    a /= ell2
     b = a
     if pinned:
         envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
         at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2) / ell2
         pinned_terms = envelope[:, None] * at_goal[None, :]
-        a = a - pinned_terms
-        b = b - pinned_terms * (Z @ C.T) / ell2
-    out = bases @ C.T  # (m, n - 1, m_c); products in place: it is the largest array here
+        b = Z @ C.T
+        b *= pinned_terms
+        b /= ell2
+        np.subtract(a, b, out=b)
+        a -= pinned_terms
+    out = bases @ C.T  # (m, n - 1, m_c): the largest array here
     out *= a[:, None, :]
     Bz = np.einsum("mij,mj->mi", bases, Z)
-    out -= Bz[:, :, None] * b[:, None, :]
+    for i in range(out.shape[1]):  # one (m, m_c) temporary per row, not all at once
+        out[:, i, :] -= Bz[:, i, None] * b
     return out
 
 

@@ -78,6 +78,7 @@ from policy_align_ros.learning.regressors.trend_kernel.features import (
     _kernel,
     _kernel_directions,
     _kernel_gradient,
+    _kernel_value_gradient,
     _median_distance,
     _n_trend,
     _symmetric,
@@ -550,6 +551,23 @@ class TrendKernelRegression(BaseEstimator):
                                                    self.length_scale_, self.alpha_,
                                                    self.goal_ is not None)
         return g * (self.y_scale_ / self.scale_)
+
+    def value_and_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(predict(X), gradient(X))`` in one evaluation of the kernel block (a descent
+        needs both at every step); equal to the two calls to the last bit."""
+        if self.trend_form_ == "single_index" or not len(getattr(self, "alpha_", ())):
+            return self.predict(X), self.gradient(X)
+        Z = self._standardise(X)
+        u = (self._c + Z @ self._b + 0.5 * self._p * np.einsum("ij,ij->i", Z, Z)
+             + np.einsum("ij,jk,ik->i", Z, self._S, Z))
+        g = self._b + self._p * Z + 2.0 * Z @ self._S
+        for s in range(0, len(Z), CHUNK):
+            value, grad = _kernel_value_gradient(Z[s:s + CHUNK], self.centres_,
+                                                 self.length_scale_, self.alpha_,
+                                                 self.goal_ is not None)
+            u[s:s + CHUNK] += value
+            g[s:s + CHUNK] += grad
+        return self.y_mean_ + self.y_scale_ * u, g * (self.y_scale_ / self.scale_)
 
     # -- persistence ------------------------------------------------------------------
     def get_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

@@ -36,7 +36,12 @@ def _gram(A: np.ndarray) -> np.ndarray:
     if A.shape[0] == 0:
         return np.zeros((A.shape[1], A.shape[1]))
     upper = scipy.linalg.blas.dsyrk(1.0, np.asarray(A, dtype=float), trans=1)
-    return upper + np.triu(upper, 1).T  # dsyrk leaves the strict lower triangle at zero
+    # dsyrk leaves the strict lower triangle at zero, so upper + upper' is the Gram but
+    # for its doubled diagonal; set back, not through np.triu (its mask costs as much).
+    diagonal = upper.diagonal().copy()
+    out = upper + upper.T
+    np.fill_diagonal(out, diagonal)
+    return out
 
 
 def effective_dof(M: np.ndarray, P: np.ndarray) -> float:
@@ -121,8 +126,10 @@ def _floor_trends(ws: list[np.ndarray | None], n: int) -> list[bool]:
     S[:, ju, iu] = coef
     H = W[:, 1 + n, None, None] * np.eye(n) + 2.0 * S
     lam, V = np.linalg.eigh(H)
-    for j, i in enumerate(idx):
-        out[i] = _raise_curvature(ws[i], n, lam[j], V[j])
+    # The test of _raise_curvature for all at once: most need nothing raised.
+    floors = CURVATURE_FLOOR * np.where(lam[:, -1] > 0, lam[:, -1], 1.0)
+    for j in np.flatnonzero(lam[:, 0] < floors):
+        out[idx[j]] = _raise_curvature(ws[idx[j]], n, lam[j], V[j])
     return out
 
 
