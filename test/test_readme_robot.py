@@ -67,3 +67,4 @@ def test_use_it_on_your_robot_commands_arm_the_executor(tmp_path):
         f"{result.stdout[-3000:]}\n--- stderr\n{result.stderr[-3000:]}")
     config = load_robot_config(robot)
     assert read_robot_fields(tmp_path / "model.npz") == (config.robot, config.joints)
+    assert (tmp_path / "fit.png").read_bytes()[:4] == b"\x89PNG"  # learn's --plot

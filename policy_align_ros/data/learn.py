@@ -50,7 +50,8 @@ def run_learn(args: argparse.Namespace) -> int:
         ``inputs`` (bag or dataset paths), ``out`` (model path), ``joints``
         (comma-separated or None), ``sigma`` (rule or sigma^2), ``gap`` (s), and optionally
         ``robot``, ``robot_config`` (gives ``robot`` and ``joints`` when unset),
-        ``state``, ``holdout``, ``seed``, ``force``, ``overwrite`` and the
+        ``state``, ``holdout``, ``seed``, ``force``, ``overwrite``, ``plot`` (a PNG
+        path for :func:`~policy_align_ros.data.fit_figure.plot_fit`) and the
         :class:`Gates`
         fields (``min_sigma2_fraction``, ...; None keeps the default).
 
@@ -98,6 +99,15 @@ def run_learn(args: argparse.Namespace) -> int:
     for copy, original in s["duplicate_of"].items():
         print(f"policy-align learn: skipped duplicate {copy} (same as {original})",
               file=sys.stderr)
+    plot = getattr(args, "plot", None)
+    if plot:
+        from policy_align_ros.data.fit_figure import plot_fit
+
+        try:
+            print(f"policy-align learn: drew the fit in "
+                  f"{plot_fit(result.model, result.train, plot, result.held)}")
+        except (ValueError, OSError) as err:  # the model is written; the figure is extra
+            print(f"policy-align learn: could not draw {plot}: {err}", file=sys.stderr)
     if result.refused:
         print(f"policy-align learn: {result.line()}", file=sys.stderr)
         return EXIT_REFUSED

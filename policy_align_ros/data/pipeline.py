@@ -154,6 +154,10 @@ class PipelineResult:
         Whether ``model_path`` now holds this model.
     refusals : list of str
         Why the fit is degenerate (empty when it passed every gate).
+    train, held : lists of Trajectory
+        The training and held-out demonstrations in the learnt state (the order of
+        ``summary["demonstrations"]``), for :func:`~policy_align_ros.data.fit_figure.
+        plot_fit`.
     """
 
     summary: dict[str, Any]
@@ -161,6 +165,8 @@ class PipelineResult:
     model_path: Path
     written: bool
     refusals: list[str] = field(default_factory=list)
+    train: list[Trajectory] = field(default_factory=list)
+    held: list[Trajectory] = field(default_factory=list)
 
     @property
     def refused(self) -> bool:
@@ -560,7 +566,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "holdout_fraction": float(run.holdout_fraction),
     }
     return PipelineResult(summary=summary, model=model, model_path=run.path, written=False,
-                          refusals=refused)
+                          refusals=refused, train=list(train), held=list(held))
 
 
 def _write(result: PipelineResult, run: _Run, say: Callable[[str], None]) -> PipelineResult:

@@ -170,6 +170,19 @@ def test_degenerate_fit_is_refused_keeps_the_old_model_and_force_writes_it(
     assert block["sigma2"] == pytest.approx(1e-6)
 
 
+def test_the_fit_is_drawn_also_when_refused(dataset, tmp_path, capsys):
+    # The figure is for finding out what went wrong: a refused fit is drawn too, from the
+    # demonstrations it was fitted on and those held out.
+    figure = tmp_path / "fit.png"
+    args = dict(inputs=[str(dataset)], out=str(tmp_path / "model.npz"), joints=None,
+                sigma="1e-6", gap=0.5, plot=str(figure))
+    assert run_learn(argparse.Namespace(**args)) == 1
+    assert figure.read_bytes()[:4] == b"\x89PNG" and not (tmp_path / "model.npz").exists()
+    result = learn_pipeline([dataset], tmp_path / "m.npz")
+    assert [len(result.train), len(result.held)] == [6, 2]
+    assert result.train[0].n_dims == 2 and result.held[0].times is not None
+
+
 def test_sigma_collapse_gate(dataset, tmp_path):
     result = learn_pipeline([dataset], tmp_path / "m.npz", sigma="narrow",
                             gates=Gates(min_sigma2_fraction=0.9))
