@@ -28,6 +28,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from policy_align_ros.data.fit_figure import plot_fit
 from policy_align_ros.data.pipeline import (
     HOLDOUT_RANGE,
     PipelineResult,
@@ -107,6 +108,9 @@ class Learner(Node):
             "write the model even when the fit is refused as degenerate"))
         self.declare_parameter("overwrite", False, descriptor(
             "replace a model at model_path learnt for other joints or another state"))
+        self.declare_parameter("plot_path", "", descriptor(
+            "PNG drawing each fit, refused or not (docs/design/fit_figure.md): the "
+            "potential along each demonstration, runs from their starts; empty = none"))
         defaults = Gates()
         for name, (text, limits) in _GATE_PARAMETERS.items():
             self.declare_parameter(name, float(getattr(defaults, name)), descriptor(
@@ -156,7 +160,7 @@ class Learner(Node):
             response.message = f"learning failed ({type(err).__name__}): {err}"
         else:
             self.last_result = result
-            response.message = result.line()
+            response.message = result.line() + self._draw(result)
             response.success = result.written
             if result.written:
                 self._pub.publish(String(data=str(result.model_path)))
@@ -169,6 +173,16 @@ class Learner(Node):
             self.get_logger().error(response.message)
         return response
 
+
+    def _draw(self, result: PipelineResult) -> str:
+        """``plot_path``'s figure of ``result``; what to add to the answer about it."""
+        path = self.get_parameter("plot_path").value.strip()
+        if not path:
+            return ""
+        try:
+            return f"; fit drawn in {plot_fit(result.model, result.train, path, result.held)}"
+        except (ValueError, OSError) as err:  # the model is the answer; the figure is extra
+            return f"; could not draw {path}: {err}"
 
     def _learn(self) -> PipelineResult:
         """The learning pipeline on ``dataset_dir`` with the node's parameters."""

@@ -1,4 +1,5 @@
-"""Integration tests of the ``learner`` node (own rclpy.Context, domain ids 160-169)."""
+"""Integration tests of the ``learner`` node (own rclpy.Context, domain ids 160-169,
+199, 231)."""
 
 import threading
 import time
@@ -299,3 +300,18 @@ def test_robot_config_names_the_models_robot_and_joints(rig, tmp_path):
     assert response.success, response.message
     learnt = PolicyAlign.load(model)
     assert learnt.robot_ == "ur5" and learnt.joint_names_ == JOINTS  # the config's order
+
+
+def test_plot_path_draws_each_fit_and_a_bad_one_does_not_fail_the_learning(rig, tmp_path):
+    _write_dataset(tmp_path / "demos")
+    figure = tmp_path / "fit.png"
+    r = rig(231, dataset_dir=str(tmp_path / "demos"), model_path=str(tmp_path / "model.npz"),
+            plot_path=str(figure))
+    response = r.learn()
+    assert response.success and str(figure) in response.message
+    assert figure.read_bytes()[:4] == b"\x89PNG"
+    # A figure that cannot be written is said, and the model is still the answer.
+    blocked = tmp_path / "model.npz" / "fit.png"  # under a file
+    assert r.node.set_parameters([Parameter("plot_path", value=str(blocked))])[0].successful
+    response = r.learn()
+    assert response.success and f"could not draw {blocked}" in response.message
