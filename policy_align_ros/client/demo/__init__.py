@@ -16,8 +16,10 @@ Stages (each one failing makes the command exit with status 1):
    ``pi(q) = -gain (q - q_c)``; hand space: ``pi_x = -gain (x - x_c)`` realised through the
    Jacobian) with the robot config's constraint frames (Talos: both hands; Panda, UR5:
    the tool) on planes of random orientation, re-drawn twice per demonstration;
-3. ``/learner/learn`` fits PolicyAlign on all but a held-out share and announces the
-   model; what was used, held out and discarded is read from the model file's header;
+3. ``/learner/learn`` fits PolicyAlign on all but a held-out share, draws the fit in
+   ``OUT/demo_fit.png`` (the learner's ``plot_path``, ``docs/design/fit_figure.md``) and
+   announces the model; what was used, held out and discarded is read from the model
+   file's header;
 4. the learnt policy is scored with the paper's nCPE on fresh demonstrations generated
    offline, whose projectors ``N`` are known (``heldout_ncpe_fresh``);
 5. the executor drives the simulated robot from *new* start states drawn from the

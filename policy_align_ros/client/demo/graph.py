@@ -92,6 +92,7 @@ def write_params(path: Path, s: DemoSettings, task: Task, demonstrator_seed: int
     common["use_sim_time"] = True
     rate = float(s.rate_hz)
     learner = {"dataset_dir": str(s.out / "demos"), "model_path": str(s.out / "model.npz"),
+               "plot_path": str(s.out / "demo_fit.png"),
                "sigma": str(s.sigma), "joints": s.joints, "seed": int(s.seed),
                "holdout_fraction": float(s.holdout_fraction), "use_sim_time": True,
                "robot": s.robot, "state": task.state_spec}
