@@ -3,7 +3,8 @@
 Prints one row per data set: fit time, the share of it spent on the report
 (``fit_summary_["timings_s"]["checks"]``), the held-out error ratio against a zero policy
 (along the observed motion, and of the whole velocity), the learnt minima and their
-distance from where the demonstrations rest (fractions of the data's extent), the
+distance from where the demonstrations rest (fractions of the data's extent), the lowest
+minimum's distance from the nearest sample (``data``: how far the fit extrapolated), the
 spread of the minima over the CV folds, and the demonstrations from whose start the policy
 stops where no demonstration's end leads (``elsewhere``) or is still on its way to the goal
 after 3 times the demonstration's duration (``late``); on LASA also how many rollouts
@@ -51,6 +52,7 @@ def _row(name: str, model: PolicyAlign, seconds: float) -> str:
             f" ({goal['n_constrained_rests']} constrained)  minima {len(goal['minima'])}"
             f" (escaped {goal['n_escaped']})  goal {pct(goal['goal_error_fraction'])}"
             f"  ends {pct(min((m['end_fraction'] for m in goal['minima']), default=None))}"
+            f"  data {pct(goal['minima'][0].get('data_fraction') if goal['minima'] else None)}"
             f"  spread {pct(goal['fold_spread_fraction'])}"
             f"  elsewhere {goal['n_starts_elsewhere']}"
             f"  late {goal.get('n_starts_late', '-')}{_weights(s['anchor'])}")

@@ -411,9 +411,11 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
         ``fraction``}] (largest cluster first; ``nearest_minimum`` is the distance to the
         nearest learnt minimum, None without minima, ``fraction`` that over W);
         ``minima`` [{``point``, ``potential``, ``goal_distance``, ``goal_fraction``,
-        ``end_distance``, ``end_fraction``}] (distance to the nearest demonstrated goal,
-        None without goals; the median distance to the demonstrations' last samples, which
-        is all there is when they do not come to rest);
+        ``end_distance``, ``end_fraction``, ``data_distance``, ``data_fraction``}]
+        (distance to the nearest demonstrated goal, None without goals; the median
+        distance to the demonstrations' last samples, which is all there is when they do
+        not come to rest; the distance to the nearest sample: how far the fit
+        extrapolated);
         ``n_escaped`` (descents that found no minimum); ``goal_error`` and
         ``goal_error_fraction``: the largest demonstrated goal's ``nearest_minimum`` (None
         without goals or minima); ``n_starts_elsewhere``, ``n_starts_escaped`` and
@@ -452,13 +454,7 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
         summary["demonstrated_goals"].append({
             "point": [float(v) for v in g], "n_rests": int(size), "nearest_minimum": d,
             "fraction": None if d is None else d / extent})
-    for p, v in zip(minima.points, minima.values, strict=True):
-        d = _nearest(goal_points, p)
-        end = float(np.median(np.linalg.norm(ends - p, axis=1)))
-        summary["minima"].append({
-            "point": [float(c) for c in p], "potential": float(v), "goal_distance": d,
-            "goal_fraction": None if d is None else d / extent,
-            "end_distance": end, "end_fraction": end / extent})
+    summary["minima"] = _minima_entries(minima, goal_points, ends, X, extent)
     first = summary["demonstrated_goals"][:1]
     summary["goal_error"] = first[0]["nearest_minimum"] if first else None
     summary["goal_error_fraction"] = first[0]["fraction"] if first else None
@@ -537,6 +533,25 @@ def _goal_clusters(goals: list[np.ndarray], tol: float) -> tuple[np.ndarray, lis
     order = np.argsort(-sizes, kind="stable")
     return np.array([P[labels == c].mean(axis=0) for c in order]), [int(sizes[c])
                                                                    for c in order]
+
+
+def _minima_entries(minima: Minima, goal_points: np.ndarray, ends: np.ndarray,
+                    X: np.ndarray, extent: float) -> list[dict[str, Any]]:
+    """:func:`goal_summary`'s ``minima``: each learnt minimum's point and potential, and
+    its distances (state units, and over ``extent``) to the nearest demonstrated goal of
+    ``goal_points``, to the demonstrations' last samples ``ends`` (median) and to the
+    nearest sample of ``X``: how far the fit extrapolated to place it."""
+    data = cKDTree(X).query(minima.points)[0] if len(minima.points) else []
+    out = []
+    for p, v, near in zip(minima.points, minima.values, data, strict=True):
+        d = _nearest(goal_points, p)
+        end = float(np.median(np.linalg.norm(ends - p, axis=1)))
+        out.append({
+            "point": [float(c) for c in p], "potential": float(v), "goal_distance": d,
+            "goal_fraction": None if d is None else d / extent,
+            "end_distance": end, "end_fraction": end / extent,
+            "data_distance": float(near), "data_fraction": float(near) / extent})
+    return out
 
 
 def _nearest(points: np.ndarray, x: np.ndarray) -> float | None:

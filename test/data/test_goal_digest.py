@@ -62,3 +62,20 @@ def test_without_a_goal_error_the_words_say_why():
     assert "no demonstration ends at rest" in goal_text(goal_digest(moving))
     held = _goal(goal_error=None, goal_error_fraction=None, demonstrated_goals=[])
     assert "every rest is under an active constraint" in goal_text(goal_digest(held))
+
+
+def test_without_a_demonstrated_goal_the_words_say_how_far_the_fit_extrapolated():
+    # The lowest minimum's distance to the nearest sample is then the one measure; with
+    # a demonstrated goal its error says more, and reports written before it say nothing.
+    minima = [{"point": [1.0, 0.0], "data_fraction": 0.21}, {"data_fraction": 0.01}]
+    held = _goal(goal_error=None, goal_error_fraction=None, demonstrated_goals=[],
+                 minima=minima)
+    assert goal_digest(held)["minimum_data_fraction"] == 0.21
+    text = goal_text(goal_digest(held))
+    assert ("every rest is under an active constraint; the lowest is 21 % of the data's "
+            "extent from the nearest demonstration sample") in text
+    assert "nearest demonstration sample" not in goal_text(goal_digest(_goal(minima=minima)))
+    older = _goal(goal_error=None, goal_error_fraction=None, demonstrated_goals=[])
+    assert goal_digest(older)["minimum_data_fraction"] is None
+    assert "nearest demonstration sample" not in goal_text(goal_digest(older))
+    assert goal_digest(_goal(minima=[]))["minimum_data_fraction"] is None

@@ -174,6 +174,10 @@ def test_a_rest_under_an_active_constraint_is_not_a_demonstrated_goal():
     np.testing.assert_allclose(minimum["point"], c, atol=1e-5)
     # The free demonstrations end within 2 % of their peak speed, so near the goal.
     assert minimum["goal_fraction"] < 0.01
+    X = np.concatenate([t.positions for t in free + blocked])
+    nearest = np.min(np.linalg.norm(X - np.array(minimum["point"]), axis=1))
+    assert minimum["data_distance"] == pytest.approx(nearest, rel=1e-6, abs=1e-9)
+    assert minimum["data_fraction"] == pytest.approx(nearest / summary["extent"])
     assert summary["goal_error"] == pytest.approx(goal["nearest_minimum"])
     ratios = summary["rest_speed_ratio"]
     assert sum(r > 0.1 for r in ratios) == 2
