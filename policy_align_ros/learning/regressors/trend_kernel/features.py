@@ -99,22 +99,18 @@ def _kernel_value_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.n
     ell2 = ell**2
     Kw = _gaussian(Z, C, ell)
     if pinned:
-        K = Kw.copy()
-        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell**2)
-        at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell**2)
+        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
+        at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2)
         pin = Z @ C.T
         np.multiply(envelope[:, None], pin, out=pin)
-        pin *= (at_goal / ell**2)[None, :]
-        K -= pin
-        value = K @ alpha
+        pin *= (at_goal / ell2)[None, :]
+        value = (Kw - pin) @ alpha
     else:
         value = Kw @ alpha
     Kw *= alpha
     g = (Kw @ C - Kw.sum(axis=1)[:, None] * Z) / ell2
     if pinned:
-        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
-        beta = alpha * np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2) / ell2
-        s = beta @ C
+        s = (alpha * at_goal / ell2) @ C
         g -= envelope[:, None] * (s[None, :] - Z * ((Z @ s) / ell2)[:, None])
     return value, g
 
