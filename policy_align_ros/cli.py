@@ -94,9 +94,9 @@ def _build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--force", action="store_true",
                        help="write the model even if the fit is refused as degenerate")
     learn.add_argument("--plot", default=None, metavar="FIG.png",
-                       help="also draw the fit (also when refused): the potential along "
-                            "each demonstration, runs from their starts, held-out error "
-                            "per fold, the states")
+                       help="also draw the fit (also when refused; .png, .pdf or .svg): "
+                            "the potential along each demonstration, runs from their "
+                            "starts, held-out error per fold, the states")
     learn.add_argument("--overwrite", action="store_true",
                        help="replace an --out model learnt for other joints or another "
                             "state (one of the same joints is replaced without it)")

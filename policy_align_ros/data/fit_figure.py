@@ -34,12 +34,14 @@ from policy_align_ros.learning.model_io import atomic_write_bytes
 from policy_align_ros.learning.reach import MAX_REACH_STEPS, REACH_TIME
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["fit_views", "plot_fit", "policy_runs"]
+__all__ = ["FIGURE_FORMATS", "figure_format", "fit_views", "plot_fit", "policy_runs"]
 
 #: Distances below this fraction of the extent are drawn at it (the runs' panel).
 FLOOR = 1e-3
 #: Points drawn per demonstration's estimate and per run's path, at most about.
 DOTS = 100
+#: The formats :func:`plot_fit` writes, named by the path's suffix.
+FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
 def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float) -> np.ndarray:
@@ -146,9 +148,20 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
             "basis": (mean, basis), "paths": paths}
 
 
+def figure_format(path: str | Path) -> str:
+    """The format the suffix of ``path`` names, one of :data:`FIGURE_FORMATS` (no suffix:
+    ``"png"``); ValueError naming the path otherwise."""
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    if fmt not in FIGURE_FORMATS:
+        raise ValueError(f"{path}: no figure format {fmt!r}; name a "
+                         f"{', '.join('.' + f for f in FIGURE_FORMATS)} file")
+    return fmt
+
+
 def plot_fit(model, train: Sequence[Trajectory], path: str | Path,
              held: Sequence[Trajectory] = (), dpi: int = 120) -> Path:
-    """Draw :func:`fit_views` into the PNG ``path`` (written whole or not at all).
+    """Draw :func:`fit_views` into ``path`` (written whole or not at all), in the format its
+    suffix names (``.png``, ``.pdf``, ``.svg``; none: PNG).
 
     Parameters
     ----------
@@ -164,12 +177,19 @@ def plot_fit(model, train: Sequence[Trajectory], path: str | Path,
     Returns
     -------
     Path
+
+    Raises
+    ------
+    ValueError
+        A suffix of none of :data:`FIGURE_FORMATS` (:func:`figure_format`), before anything
+        is computed.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fmt = figure_format(path)
     views = fit_views(model, train, held)
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -179,7 +199,7 @@ def plot_fit(model, train: Sequence[Trajectory], path: str | Path,
     _states_panel(axes[1, 1], views, train, held, colors)
     fig.tight_layout()
     buffer = io.BytesIO()
-    fig.savefig(buffer, dpi=dpi, format="png")
+    fig.savefig(buffer, dpi=dpi, format=fmt)
     plt.close(fig)
     return atomic_write_bytes(path, lambda fh: fh.write(buffer.getvalue()))
 

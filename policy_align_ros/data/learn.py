@@ -15,6 +15,7 @@ import argparse
 import sys
 from dataclasses import fields
 
+from policy_align_ros.data.fit_figure import figure_format, plot_fit
 from policy_align_ros.data.pipeline import learn_pipeline, parse_sigma
 from policy_align_ros.data.quality import Gates
 
@@ -50,7 +51,7 @@ def run_learn(args: argparse.Namespace) -> int:
         ``inputs`` (bag or dataset paths), ``out`` (model path), ``joints``
         (comma-separated or None), ``sigma`` (rule or sigma^2), ``gap`` (s), and optionally
         ``robot``, ``robot_config`` (gives ``robot`` and ``joints`` when unset),
-        ``state``, ``holdout``, ``seed``, ``force``, ``overwrite``, ``plot`` (a PNG
+        ``state``, ``holdout``, ``seed``, ``force``, ``overwrite``, ``plot`` (a figure
         path for :func:`~policy_align_ros.data.fit_figure.plot_fit`) and the
         :class:`Gates`
         fields (``min_sigma2_fraction``, ...; None keeps the default).
@@ -69,6 +70,9 @@ def run_learn(args: argparse.Namespace) -> int:
             sigma = parse_sigma(getattr(args, "sigma", "medium"))
         except ValueError as err:
             raise ValueError(f"--{err}") from None
+        plot = getattr(args, "plot", None)
+        if plot:
+            figure_format(plot)  # a wrong suffix is said before the fit, not after it
         robot, joints = learning_robot(getattr(args, "robot", None),
                                        parse_joints(getattr(args, "joints", None)),
                                        getattr(args, "robot_config", None))
@@ -99,10 +103,7 @@ def run_learn(args: argparse.Namespace) -> int:
     for copy, original in s["duplicate_of"].items():
         print(f"policy-align learn: skipped duplicate {copy} (same as {original})",
               file=sys.stderr)
-    plot = getattr(args, "plot", None)
     if plot:
-        from policy_align_ros.data.fit_figure import plot_fit
-
         try:
             print(f"policy-align learn: drew the fit in "
                   f"{plot_fit(result.model, result.train, plot, result.held)}")

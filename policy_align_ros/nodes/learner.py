@@ -28,7 +28,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from policy_align_ros.data.fit_figure import plot_fit
+from policy_align_ros.data.fit_figure import figure_format, plot_fit
 from policy_align_ros.data.pipeline import (
     HOLDOUT_RANGE,
     PipelineResult,
@@ -109,8 +109,9 @@ class Learner(Node):
         self.declare_parameter("overwrite", False, descriptor(
             "replace a model at model_path learnt for other joints or another state"))
         self.declare_parameter("plot_path", "", descriptor(
-            "PNG drawing each fit, refused or not (docs/design/fit_figure.md): the "
-            "potential along each demonstration, runs from their starts; empty = none"))
+            "figure of each fit, refused or not, .png, .pdf or .svg "
+            "(docs/design/fit_figure.md): the potential along each demonstration, runs "
+            "from their starts; empty = none"))
         defaults = Gates()
         for name, (text, limits) in _GATE_PARAMETERS.items():
             self.declare_parameter(name, float(getattr(defaults, name)), descriptor(
@@ -133,6 +134,11 @@ class Learner(Node):
                     return reject(str(err))
             elif param.name in ("dataset_dir", "model_path") and not str(param.value).strip():
                 return reject(f"{param.name}: must not be empty")
+            elif param.name == "plot_path" and str(param.value).strip():
+                try:
+                    figure_format(str(param.value).strip())
+                except ValueError as err:
+                    return reject(f"plot_path: {err}")
             elif param.name == "state":
                 try:
                     state_name(param.value)

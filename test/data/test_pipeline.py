@@ -178,6 +178,10 @@ def test_the_fit_is_drawn_also_when_refused(dataset, tmp_path, capsys):
                 sigma="1e-6", gap=0.5, plot=str(figure))
     assert run_learn(argparse.Namespace(**args)) == 1
     assert figure.read_bytes()[:4] == b"\x89PNG" and not (tmp_path / "model.npz").exists()
+    # A suffix that names no figure format is unusable input, said before the fit.
+    capsys.readouterr()
+    assert run_learn(argparse.Namespace(**{**args, "plot": str(tmp_path / "fit.jpeg")})) == 2
+    assert "fit.jpeg: no figure format 'jpeg'" in capsys.readouterr().err
     result = learn_pipeline([dataset], tmp_path / "m.npz")
     assert [len(result.train), len(result.held)] == [6, 2]
     assert result.train[0].n_dims == 2 and result.held[0].times is not None

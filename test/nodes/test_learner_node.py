@@ -311,6 +311,8 @@ def test_plot_path_draws_each_fit_and_a_bad_one_does_not_fail_the_learning(rig, 
     assert response.success and str(figure) in response.message
     assert figure.read_bytes()[:4] == b"\x89PNG"
     # A figure that cannot be written is said, and the model is still the answer.
+    result = r.node.set_parameters([Parameter("plot_path", value="fit.jpeg")])[0]
+    assert not result.successful and "no figure format 'jpeg'" in result.reason
     blocked = tmp_path / "model.npz" / "fit.png"  # under a file
     assert r.node.set_parameters([Parameter("plot_path", value=str(blocked))])[0].successful
     response = r.learn()
