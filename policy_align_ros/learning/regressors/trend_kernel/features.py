@@ -53,8 +53,10 @@ def _gaussian(Z: np.ndarray, C: np.ndarray, ell: float) -> np.ndarray:
     return np.exp(out, out=out)
 
 
-def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarray:
+def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool,
+            gaussian: np.ndarray | None = None) -> np.ndarray:
     """Kernel features (m, m_c) of the residual; ``pinned``: flat at the origin.
+    ``gaussian``: :func:`_gaussian` of the same arguments, if known (used as the buffer).
 
     A pinned feature is ``k_j(z) - e(z) (z' c_j) k_j(0) / ell^2`` with the envelope
     ``e(z) = exp(-||z||^2 / (2 ell^2))``: its gradient at ``z = 0`` (the demonstrated goal
@@ -62,7 +64,7 @@ def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarra
     stationary point, and away from the goal it is the Gaussian's.
     """
     Z, C = np.asarray(Z, dtype=float), np.asarray(C, dtype=float)  # in place needs doubles
-    K = _gaussian(Z, C, ell)
+    K = _gaussian(Z, C, ell) if gaussian is None else gaussian
     if not pinned:
         return K
     envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell**2)
@@ -75,10 +77,11 @@ def _kernel(Z: np.ndarray, C: np.ndarray, ell: float, pinned: bool) -> np.ndarra
 
 
 def _kernel_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.ndarray,
-                     pinned: bool) -> np.ndarray:
-    """Gradient (m, n) of ``_kernel(Z, C, ell, pinned) @ alpha`` with respect to ``Z``."""
+                     pinned: bool, gaussian: np.ndarray | None = None) -> np.ndarray:
+    """Gradient (m, n) of ``_kernel(Z, C, ell, pinned) @ alpha`` with respect to ``Z``;
+    ``gaussian`` as in :func:`_kernel`."""
     ell2 = ell**2
-    Kw = _gaussian(Z, C, ell)
+    Kw = _gaussian(Z, C, ell) if gaussian is None else gaussian
     Kw *= alpha
     g = (Kw @ C - Kw.sum(axis=1)[:, None] * Z) / ell2
     if pinned:
@@ -93,26 +96,13 @@ def _kernel_value_gradient(Z: np.ndarray, C: np.ndarray, ell: float, alpha: np.n
                            pinned: bool) -> tuple[np.ndarray, np.ndarray]:
     """``_kernel(Z, C, ell, pinned) @ alpha`` (m,) and :func:`_kernel_gradient` (m, n) from
     one Gaussian block: a descent needs both at every step, and the block is most of
-    either's cost. The operations are those of the two functions, so the results are the
-    same to the last bit."""
-    Z, C = np.asarray(Z, dtype=float), np.asarray(C, dtype=float)  # in place needs doubles
-    ell2 = ell**2
-    Kw = _gaussian(Z, C, ell)
-    if pinned:
-        envelope = np.exp(-0.5 * np.einsum("ij,ij->i", Z, Z) / ell2)
-        at_goal = np.exp(-0.5 * np.einsum("ij,ij->i", C, C) / ell2)
-        pin = Z @ C.T
-        np.multiply(envelope[:, None], pin, out=pin)
-        pin *= (at_goal / ell2)[None, :]
-        value = (Kw - pin) @ alpha
-    else:
-        value = Kw @ alpha
-    Kw *= alpha
-    g = (Kw @ C - Kw.sum(axis=1)[:, None] * Z) / ell2
-    if pinned:
-        s = (alpha * at_goal / ell2) @ C
-        g -= envelope[:, None] * (s[None, :] - Z * ((Z @ s) / ell2)[:, None])
-    return value, g
+    either's cost. The two functions run on it, so the results are the same to the last
+    bit."""
+    Z, C = np.asarray(Z, dtype=float), np.asarray(C, dtype=float)
+    block = _gaussian(Z, C, ell)
+    # Both work in the block's buffer: the value first, on a copy where it is changed.
+    value = _kernel(Z, C, ell, pinned, block.copy() if pinned else block) @ alpha
+    return value, _kernel_gradient(Z, C, ell, alpha, pinned, block)
 
 
 def _trend_jacobian(Z: np.ndarray, pinned: bool) -> np.ndarray:
