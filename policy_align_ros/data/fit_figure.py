@@ -32,7 +32,7 @@ from policy_align_ros.learning.folds import POOR_FIT_RATIO
 from policy_align_ros.learning.goal import GOAL_MERGE, data_extent, demonstrated_goal
 from policy_align_ros.learning.model_io import atomic_write_bytes
 from policy_align_ros.learning.reach import MAX_REACH_STEPS, REACH_TIME
-from policy_align_ros.learning.trajectory import Trajectory
+from policy_align_ros.learning.trajectory import Trajectory, sample_period
 
 __all__ = ["FIGURE_FORMATS", "figure_format", "fit_views", "plot_fit", "policy_runs"]
 
@@ -44,7 +44,8 @@ DOTS = 100
 FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
-def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float) -> np.ndarray:
+def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Explicit Euler runs of ``xdot = policy(x)`` from every start at once.
 
     Parameters
@@ -61,7 +62,9 @@ def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float) -> np.nda
 
     Returns
     -------
-    ndarray (steps + 1, m, n)
+    times : ndarray (steps + 1,)
+        Seconds from the start, 0 first.
+    states : ndarray (steps + 1, m, n)
         The runs' states, the starts first; a run that leaves the finite numbers stops
         where it was.
     """
@@ -76,7 +79,7 @@ def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float) -> np.nda
             ok = np.isfinite(step).all(axis=1)
             X = np.where(ok[:, None], step, X)
             out[i + 1] = X
-    return out
+    return dt * np.arange(steps + 1), out
 
 
 def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = ()
@@ -124,18 +127,17 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
     target, measured_to = goal, "the demonstrated goal"
     if target is None and len(minima):
         target, measured_to = minima[0], "the lowest learnt minimum"
-    durations = np.array([_duration(t) for t in trajs])
-    dt = float(np.median(np.concatenate([np.diff(_times(t)) for t in trajs])))
-    paths = policy_runs(model.policy, np.array([t.positions[0] for t in trajs]),
-                        REACH_TIME * float(durations.max()), dt)
-    step = REACH_TIME * float(durations.max()) / (len(paths) - 1)
+    times, paths = policy_runs(model.policy, np.array([t.positions[0] for t in trajs]),
+                               REACH_TIME * max(t.duration for t in trajs),
+                               sample_period(trajs))
     runs = []
     for k, t in enumerate(trajs):
         end = target if target is not None else t.positions[-1]
+        elapsed = np.arange(t.n_samples) if t.times is None else t.times - t.times[0]
         runs.append({"held": k >= len(train),
-                     "t": np.arange(len(paths)) * step / durations[k],
+                     "t": times / t.duration,
                      "run": np.linalg.norm(paths[:, k] - end, axis=1) / extent,
-                     "demo_t": (_times(t) - _times(t)[0]) / durations[k],
+                     "demo_t": elapsed / t.duration,
                      "demo": np.linalg.norm(t.positions - end, axis=1) / extent})
     X = np.concatenate([t.positions for t in trajs])
     mean = X.mean(axis=0)
@@ -268,11 +270,3 @@ def _states_panel(ax, views: dict, train, held, colors: list[str]) -> None:
     ax.set_title("States: demonstrations (dotted), runs (solid)", fontsize=9)
     ax.legend(fontsize=7)
 
-
-def _times(t: Trajectory) -> np.ndarray:
-    return t.times if t.times is not None else np.arange(t.n_samples, dtype=float)
-
-
-def _duration(t: Trajectory) -> float:
-    times = _times(t)
-    return float(times[-1] - times[0]) or 1.0

@@ -118,7 +118,7 @@ def starts_reach(trajs: Sequence[Trajectory], gradient: Field, goal: np.ndarray 
     if goal is None:
         return {"start_reach_ratios": None, "n_starts_late": 0}
     starts = np.array([t.positions[0] for t in trajs])
-    durations = np.array([_duration(t) for t in trajs])
+    durations = np.array([t.duration for t in trajs])
     arrival = reach_times(gradient, starts, np.asarray(goal, dtype=float),
                           REACH_TIME * durations, sample_period(trajs), GOAL_MERGE * extent,
                           owner)
@@ -126,9 +126,3 @@ def starts_reach(trajs: Sequence[Trajectory], gradient: Field, goal: np.ndarray 
     return {"start_reach_ratios": [float(r) if math.isfinite(r) else None for r in ratios],
             "n_starts_late": int(np.count_nonzero(~np.isfinite(ratios)))}
 
-
-def _duration(traj: Trajectory) -> float:
-    """A demonstration's duration (s; steps without times)."""
-    if traj.times is None:
-        return float(traj.n_samples - 1)
-    return float(traj.times[-1] - traj.times[0])

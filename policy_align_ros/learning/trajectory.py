@@ -104,11 +104,18 @@ class Trajectory:
             return np.ones(self.n_samples - 1)
         return np.diff(self.times)
 
+    @property
+    def duration(self) -> float:
+        """``t_{N-1} - t_0`` (s); ``N - 1`` steps without times."""
+        if self.times is None:
+            return float(self.n_samples - 1)
+        return float(self.times[-1] - self.times[0])
+
     def __len__(self) -> int:
         return self.n_samples
 
     def __repr__(self) -> str:
-        timing = "dt=1" if self.times is None else f"T={self.times[-1] - self.times[0]:.3g}s"
+        timing = "dt=1" if self.times is None else f"T={self.duration:.3g}s"
         return f"Trajectory(N={self.n_samples}, n={self.n_dims}, {timing})"
 
 

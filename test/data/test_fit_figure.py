@@ -33,8 +33,9 @@ def fitted():
 
 def test_policy_runs_are_euler_steps_and_stop_where_numbers_end():
     starts = np.array([[1.0, -2.0], [3.0, 0.5]])
-    paths = policy_runs(lambda X: -X, starts, horizon=1.0, dt=0.1)
+    times, paths = policy_runs(lambda X: -X, starts, horizon=1.0, dt=0.1)
     assert paths.shape == (11, 2, 2)
+    np.testing.assert_allclose(times, 0.1 * np.arange(11))
     np.testing.assert_allclose(paths[-1], 0.9**10 * starts, rtol=1e-12)
 
     def blows_up(X):  # the second run leaves the finite numbers at once
@@ -42,7 +43,7 @@ def test_policy_runs_are_euler_steps_and_stop_where_numbers_end():
         V[1] = np.inf
         return V
 
-    paths = policy_runs(blows_up, starts, horizon=1.0, dt=0.1)
+    _, paths = policy_runs(blows_up, starts, horizon=1.0, dt=0.1)
     assert np.all(np.isfinite(paths)) and np.array_equal(paths[-1, 1], starts[1])
 
 

@@ -11,11 +11,13 @@ def test_plain_arrays_become_untimed_trajectories():
     assert [t.n_samples for t in trajs] == [3, 4]
     assert trajs[0].times is None
     np.testing.assert_array_equal(trajs[1].dt, np.ones(3))
+    assert trajs[1].duration == 3.0  # steps without times
 
 
 def test_times_give_real_time_steps():
     traj = Trajectory(np.zeros((3, 1)), times=[0.0, 0.1, 0.3])
     np.testing.assert_allclose(traj.dt, [0.1, 0.2])
+    assert traj.duration == pytest.approx(0.3)
 
 
 @pytest.mark.parametrize(
