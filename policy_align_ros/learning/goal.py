@@ -541,21 +541,23 @@ def _minima_entries(minima: Minima, goal_points: np.ndarray, ends: np.ndarray,
     its distances (state units, and over ``extent``) to the nearest demonstrated goal of
     ``goal_points``, to the demonstrations' last samples ``ends`` (median) and to the
     nearest sample of ``X``: how far the fit extrapolated to place it."""
-    data = cKDTree(X).query(minima.points)[0] if len(minima.points) else []
     out = []
-    for p, v, near in zip(minima.points, minima.values, data, strict=True):
-        d = _nearest(goal_points, p)
+    for p, v in zip(minima.points, minima.values, strict=True):
+        d, near = _nearest(goal_points, p), _nearest(X, p)
         end = float(np.median(np.linalg.norm(ends - p, axis=1)))
         out.append({
             "point": [float(c) for c in p], "potential": float(v), "goal_distance": d,
             "goal_fraction": None if d is None else d / extent,
             "end_distance": end, "end_fraction": end / extent,
-            "data_distance": float(near), "data_fraction": float(near) / extent})
+            "data_distance": near, "data_fraction": near / extent})
     return out
 
 
-def _nearest(points: np.ndarray, x: np.ndarray) -> float | None:
-    """Distance from ``x`` to the nearest of ``points`` (None when there are none)."""
+def _nearest(points: np.ndarray, x: np.ndarray, block: int = 65536) -> float | None:
+    """Distance from ``x`` to the nearest of ``points`` (None when there are none), in
+    blocks of ``block`` points: they may be every sample of a large data set, where one
+    difference array would cost hundreds of MB (and a KD-tree's build seconds)."""
     if not len(points):
         return None
-    return float(np.min(np.linalg.norm(points - x, axis=1)))
+    return float(min(np.min(np.linalg.norm(points[s:s + block] - x, axis=1))
+                     for s in range(0, len(points), block)))
