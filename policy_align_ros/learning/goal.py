@@ -306,16 +306,20 @@ def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
             break
         step_size = alpha[idx, None]
         if math.isfinite(max_step):
-            # On the gradient's norm, not the step's: a Barzilai-Borwein step can overflow.
+            # On the gradient's norm, not the step's: a Barzilai-Borwein step can overflow,
+            # and so can its product with the norm (a step grown by 4 at every iteration
+            # up a concave slope); an infinite product is a step to cap, not a warning.
             norm = np.linalg.norm(g[idx], axis=1, keepdims=True)
-            step_size = np.where(step_size * norm > max_step,
-                                 max_step / np.maximum(norm, 1e-300), step_size)
+            with np.errstate(over="ignore"):
+                too_long = step_size * norm > max_step
+            step_size = np.where(too_long, max_step / np.maximum(norm, 1e-300), step_size)
         trial = np.clip(X[idx] - step_size * g[idx], lo, hi)
         step = trial - X[idx]
         f_trial, g_trial = joint(trial) if joint is not None else (potential(trial), None)
         ok = f_trial <= f[idx] + 1e-4 * np.einsum("ij,ij->i", g[idx], step)
         alpha[idx[~ok]] *= 0.25
-        done = alpha[idx] * np.linalg.norm(g[idx], axis=1) < 1e-12 * scale
+        with np.errstate(over="ignore"):  # an overflowing step is not a vanishing one
+            done = alpha[idx] * np.linalg.norm(g[idx], axis=1) < 1e-12 * scale
         if ok.any():
             acc = idx[ok]
             # Rows evaluated in another batch can differ in the last bit: the joint

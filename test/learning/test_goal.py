@@ -94,6 +94,27 @@ def test_a_model_descends_through_its_joint_evaluation_to_the_same_bits():
                          4.0, 1.0)
 
 
+def test_a_capped_descent_up_a_concave_slope_raises_no_overflow_warning():
+    # Where the potential bends down, every secant step grows the next by 4 until it
+    # overflows; the cap must take such a step without a warning the fit would pass on.
+    import warnings
+
+    from policy_align_ros.learning.goal import _descend
+
+    def potential(X):
+        return -0.5 * np.sum(X**2, axis=1)
+
+    def gradient(X):
+        return -X
+
+    lo, hi = np.full(1, -1e6), np.full(1, 1e6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        end = _descend(potential, gradient, np.array([[1.0]]), lo, hi, 1e-9, 1.0, 700,
+                       max_step=0.01)
+    assert end[0, 0] == pytest.approx(1.0 + 700 * 0.01, rel=1e-6)  # every step capped
+
+
 def _two_wells():
     wells = np.array([[-1.0, 0.0], [1.0, 0.0]])
 
