@@ -31,7 +31,8 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
         return None
     keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
             "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction",
-            "n_starts_elsewhere", "n_starts_late", "n_heldout_late")
+            "n_starts_elsewhere", "n_starts_late", "n_heldout_late", "n_new_starts",
+            "n_new_starts_elsewhere")
     out = {key: goal.get(key) for key in keys}
     out["n_minima"] = len(goal.get("minima", ()))
     # Where no demonstrations rest together this is the one measure of the learnt goal:
@@ -73,4 +74,7 @@ def goal_text(digest: dict[str, Any] | None) -> str:
     elif digest.get("n_heldout_late") and not digest.get("n_starts_elsewhere"):
         text += (f"; from {digest['n_heldout_late']} demonstrations' starts the model fitted "
                  "without them does not reach it in time: a new start may not either")
+    if digest.get("n_new_starts_elsewhere"):
+        text += (f"; runs from {digest['n_new_starts_elsewhere']} of {digest['n_new_starts']} "
+                 "random new starts near the data stop elsewhere")
     return text

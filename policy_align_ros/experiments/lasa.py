@@ -45,6 +45,7 @@ from policy_align_ros.experiments.lasa_metrics import (
     across_error,
     converged,
     dtw_mean_cost,
+    euler_ends,
     euler_rollout,
     velocity_error,
     workspace_size,
@@ -76,6 +77,11 @@ DTW_DURATIONS = 1.5
 #: The figure keeps every this-many-th rollout state.
 FIGURE_STRIDE = 10
 FIGURE_GRID = 40
+#: The figure's field, and the new starts, cover the demonstrations' bounding box widened
+#: by this fraction of its largest side on each side.
+FIELD_MARGIN = 0.15
+#: New starts: a grid of this many points per axis over the field's box.
+NEW_START_GRID = 9
 #: Methods whose rollouts the figure draws.
 FIGURE_METHODS = ("policy_align", "gmr")
 #: ``--recorded``: ranges (s) of the rest before and after each demonstration's motion, and
@@ -173,13 +179,36 @@ def _evaluate(policy, demo: dict, width: float, max_steps: int | None
     return record, path
 
 
-def _field_grid(policy, demos: list[dict]) -> dict[str, Any]:
-    """The policy on a grid over the demonstrations' bounding box plus a 15 % margin."""
+def _field_axes(demos: list[dict], points: int) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` evenly spaced x and y values over the demonstrations' bounding box plus
+    :data:`FIELD_MARGIN` of its largest side on each side (mm)."""
     pts = np.concatenate([d["positions"] for d in demos])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    margin = 0.15 * (hi - lo).max()
-    xs = np.linspace(lo[0] - margin, hi[0] + margin, FIGURE_GRID)
-    ys = np.linspace(lo[1] - margin, hi[1] + margin, FIGURE_GRID)
+    margin = FIELD_MARGIN * (hi - lo).max()
+    return (np.linspace(lo[0] - margin, hi[0] + margin, points),
+            np.linspace(lo[1] - margin, hi[1] + margin, points))
+
+
+def _new_starts(policy, demos: list[dict], width: float, max_steps: int | None) -> float:
+    """The share of runs from a :data:`NEW_START_GRID` x :data:`NEW_START_GRID` grid of
+    starts over the field's box (:func:`_field_axes`) that end within 1 % of ``width`` of
+    the goal after :data:`ROLLOUT_DURATIONS` times the demonstrations' median duration:
+    new starts a user could pick anywhere near the data, not only beside the
+    demonstrated ones."""
+    xs, ys = _field_axes(demos, NEW_START_GRID)
+    gx, gy = np.meshgrid(xs, ys)
+    dt = float(np.median([np.median(np.diff(d["times"])) for d in demos]))
+    duration = float(np.median([d["times"][-1] - d["times"][0] for d in demos]))
+    steps = int(round(ROLLOUT_DURATIONS * duration / dt))
+    if max_steps is not None:
+        steps = min(steps, max_steps)
+    ends = euler_ends(policy, np.stack([gx.ravel(), gy.ravel()], axis=1), dt, steps)
+    return float(np.mean([converged(end, np.zeros(2), width) for end in ends]))
+
+
+def _field_grid(policy, demos: list[dict]) -> dict[str, Any]:
+    """The policy on a grid over the demonstrations' bounding box plus a 15 % margin."""
+    xs, ys = _field_axes(demos, FIGURE_GRID)
     gx, gy = np.meshgrid(xs, ys)
     with np.errstate(all="ignore"):
         V = np.asarray(policy(np.stack([gx.ravel(), gy.ravel()], axis=1)), float)
@@ -220,10 +249,12 @@ def run_task(task: tuple) -> dict[str, Any]:
             policy = fit_method(method, trajs, settings)
             fit_s = time.perf_counter() - t0
         messages = sorted({str(w.message).splitlines()[0][:200] for w in caught})
+        new_starts = _new_starts(policy, demos, width, options.get("max_steps"))
         for k in evaluated:
             record, path = _evaluate(policy, demos[k], width, options.get("max_steps"))
             records.append({"shape": shape, "set": shape_set(shape), "method": method,
                             "protocol": protocol, "demo": k, **record, "fit_s": fit_s,
+                            "new_starts_converged": new_starts,
                             "fit_warnings": messages})
             if method in FIGURE_METHODS:
                 figure["rollouts"].setdefault(method, []).append(path[::FIGURE_STRIDE])

@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["workspace_size", "euler_rollout", "velocity_error", "across_error",
+__all__ = ["euler_ends", "workspace_size", "euler_rollout", "velocity_error", "across_error",
            "dtw_mean_cost", "converged", "CONVERGED_FRACTION"]
 
 #: A rollout has converged when it ends closer to the goal than this fraction of W.
@@ -71,6 +71,42 @@ def euler_rollout(policy: Policy, x0: np.ndarray, dt: float, steps: int) -> np.n
             break
         path[i + 1] = x[0]
     return path
+
+
+def euler_ends(policy: Policy, X0: np.ndarray, dt: float, steps: int) -> np.ndarray:
+    """Where explicit Euler runs ``x <- x + dt policy(x)`` from every row of ``X0`` end.
+
+    Parameters
+    ----------
+    policy : callable
+        ``policy(X)`` with ``X`` (m, d) returns (m, d) velocities (mm/s).
+    X0 : ndarray, shape (m, d)
+        Starts (mm).
+    dt : float
+        Step (s), > 0.
+    steps : int
+        Number of steps, >= 0.
+
+    Returns
+    -------
+    ndarray, shape (m, d)
+        The states after ``steps`` steps (mm); NaN for a run whose state stopped being
+        finite (a diverged field).
+    """
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: must be a finite number > 0, got {dt}")
+    if steps < 0:
+        raise ValueError(f"steps: must be >= 0, got {steps}")
+    X = np.array(X0, dtype=float, ndmin=2)
+    alive = np.ones(len(X), dtype=bool)
+    with np.errstate(all="ignore"):
+        for _ in range(steps):
+            if not alive.any():
+                break
+            X[alive] += dt * np.asarray(policy(X[alive]), dtype=float)
+            alive &= np.all(np.isfinite(X), axis=1)
+    X[~alive] = np.nan
+    return X
 
 
 def velocity_error(predicted: np.ndarray, velocities: np.ndarray) -> float:

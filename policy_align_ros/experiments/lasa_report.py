@@ -2,11 +2,13 @@
 
 Aggregation: a shape's nV and DTW are the means over its evaluated demonstrations (7 per
 protocol); the table gives their median over shapes. Convergence is the share of all
-rollouts; fit time the median over all fits.
+rollouts; fit time the median over all fits. New starts: the share of the runs from every
+fit's grid of starts over the field's box that converged.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -44,7 +46,9 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
     -------
     dict or None
         ``nV``, ``nV_across``, ``dtw_mm``, ``converged_pct``, ``final_mm`` (median over
-        rollouts of the final distance to the goal), ``fit_s``, ``n_shapes``, ``n_rollouts``
+        rollouts of the final distance to the goal), ``fit_s``, ``new_starts_pct`` (the
+        share of the runs from every fit's grid of new starts that converged),
+        ``n_shapes``, ``n_rollouts``,
         ``n_missed`` (rollouts that did not converge) and ``n_missed_silently`` (those of
         them whose fit raised no warning); None when no record matches.
     """
@@ -54,6 +58,8 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
         return None
     # One fit per (shape, held-out demonstration): its time is repeated on its records.
     fits = {(r["shape"], r["demo"] if protocol == "loo" else -1): r["fit_s"] for r in rows}
+    grid = {(r["shape"], r["demo"] if protocol == "loo" else -1): r["new_starts_converged"]
+            for r in rows if "new_starts_converged" in r}
     return {
         "nV": float(np.median(list(_per_shape(rows, "nV").values()))),
         "nV_across": float(np.median(list(_per_shape(rows, "nV_across").values()))),
@@ -61,6 +67,8 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
         "converged_pct": 100.0 * float(np.mean([r["converged"] for r in rows])),
         "final_mm": float(np.median([r["final_mm"] for r in rows])),
         "fit_s": float(np.median(list(fits.values()))),
+        # Records written before the new-start grid have none: NaN, not an error.
+        "new_starts_pct": 100.0 * float(np.mean(list(grid.values()))) if grid else math.nan,
         "n_shapes": len({r["shape"] for r in rows}),
         "n_rollouts": len(rows),
         "n_missed": sum(1 for r in rows if not r["converged"]),
@@ -72,9 +80,9 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
 def _headline(records, methods, protocols) -> list[str]:
     lines = ["| shapes | protocol | method | nV (median over shapes) | nV across (median) "
              "| DTW mm (median) "
-             "| converged % (rollouts) | final distance mm (median) | fit s (median) "
-             "| shapes / rollouts |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| converged % (rollouts) | new starts converged % | final distance mm (median) "
+             "| fit s (median) | shapes / rollouts |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for shape_set in (*_SETS, None):
         for protocol in protocols:
             for method in methods:
@@ -84,7 +92,7 @@ def _headline(records, methods, protocols) -> list[str]:
                 lines.append(
                     f"| {shape_set or 'all'} | {protocol} | {METHOD_LABELS[method]} "
                     f"| {s['nV']:.3f} | {s['nV_across']:.3f} | {s['dtw_mm']:.2f} "
-                    f"| {s['converged_pct']:.0f} "
+                    f"| {s['converged_pct']:.0f} | {s['new_starts_pct']:.0f} "
                     f"| {s['final_mm']:.2f} "
                     f"| {s['fit_s']:.3f} | {s['n_shapes']} / {s['n_rollouts']} |")
     return lines

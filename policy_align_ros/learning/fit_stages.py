@@ -31,6 +31,7 @@ from policy_align_ros.learning.folds import (
 from policy_align_ros.learning.global_model import cv_error, cv_score, fixed_copy, training_set
 from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
 from policy_align_ros.learning.model_io import json_float
+from policy_align_ros.learning.new_starts import new_starts_elsewhere, new_starts_message
 from policy_align_ros.learning.regressors import takes_final
 from policy_align_ros.learning.timing import (
     TIMING_RESOLUTION,
@@ -129,6 +130,23 @@ class FitStages:
         goal.update(heldout_reach(fit["folds"], est.spans, est.parents,
                                   None if end is None else np.asarray(end), goal["extent"]))
         message = heldout_reach_message(goal)
+        if message is not None:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                warnings.warn(message, UserWarning, stacklevel=2)
+            fit["warnings"] += list(caught)
+
+    def _new_starts(self, fit: dict, est: Estimates) -> None:
+        """The kept fit's :func:`~policy_align_ros.learning.new_starts.
+        new_starts_elsewhere`, into its goal report, and its warning into its warnings.
+        Run once, for the fit kept, like :meth:`_reach_heldout`."""
+        goal, end = fit["checks"]["goal"], fit["anchor"]["goal"]  # demonstrated_goal's
+        regressor = fit["regressor_"]
+        goal.update(new_starts_elsewhere(
+            est.parents, regressor.predict, regressor.gradient,
+            None if end is None else np.asarray(end), goal["extent"], goal["typical_speed"],
+            self.random_state))
+        message = new_starts_message(goal)
         if message is not None:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")

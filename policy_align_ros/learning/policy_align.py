@@ -337,6 +337,7 @@ class PolicyAlign(FitStages, BaseEstimator):
                                                     caught))
         self._restore(fit, est)
         self._reach_heldout(fit, est)
+        self._new_starts(fit, est)
         scores, anchor = fit["scores"], fit["anchor"]
         for held in fit["warnings"]:
             warnings.warn_explicit(held.message, held.category, held.filename, held.lineno)

@@ -79,3 +79,11 @@ def test_without_a_demonstrated_goal_the_words_say_how_far_the_fit_extrapolated(
     assert goal_digest(older)["minimum_data_fraction"] is None
     assert "nearest demonstration sample" not in goal_text(goal_digest(older))
     assert goal_digest(_goal(minima=[]))["minimum_data_fraction"] is None
+
+
+def test_new_starts_that_stop_elsewhere_are_said_and_older_reports_say_nothing():
+    plain = goal_text(goal_digest(_goal()))
+    assert goal_digest(_goal())["n_new_starts_elsewhere"] is None
+    assert goal_text(goal_digest(_goal(n_new_starts=64, n_new_starts_elsewhere=0))) == plain
+    said = goal_digest(_goal(n_new_starts=64, n_new_starts_elsewhere=5))
+    assert said["n_new_starts_elsewhere"] == 5 and goal_text(said) != plain

@@ -1,0 +1,131 @@
+"""Whether runs of the learnt policy from new starts near the data stop at the goal.
+
+The goal report (:mod:`~policy_align_ros.learning.goal`) descends the learnt potential from
+where the demonstrations rest and end, and from where they start: it finds the minima on
+the demonstrated paths. A user's new start need not lie on one. Between and beside the
+paths the potential is the model's extrapolation, and a kernel residual can leave a
+minimum there that no demonstration passes (on LASA, trained on all 7 demonstrations,
+runs from a grid over the field's box stop at such minima on 5 of the 13 tuning shapes).
+So the fit also descends the potential from :data:`NEW_STARTS` random states in the data's
+bounding box widened by :data:`NEW_START_MARGIN` of its extent, where demonstrations end
+together (:func:`~policy_align_ros.learning.goal.demonstrated_goal`), and reports the
+minima those runs stop at instead of the goal (``docs/design/goal_report.md``, "From new
+starts").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from policy_align_ros.learning.goal import (
+    END_RADIUS,
+    GOAL_MERGE,
+    GRADIENT_TOL,
+    MINIMA_MERGE,
+    Field,
+    _descend,
+    _inside,
+    _merge,
+    _nearest,
+    data_box,
+)
+from policy_align_ros.learning.trajectory import Trajectory
+
+__all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_starts_elsewhere", "new_starts_message"]
+
+#: Random new starts descended, whatever the dimension: a run stopped by a minimum in a
+#: basin that covers 3.5 % of the box is then found with a probability of 0.9.
+NEW_STARTS = 64
+#: The new starts lie in the data's bounding box widened by this fraction of its extent on
+#: each side (the margin of the LASA bench's field, where a user may start a run).
+NEW_START_MARGIN = 0.15
+
+
+def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Field,
+                         goal: np.ndarray | None, extent: float, speed: float,
+                         random_state: int | np.random.Generator | None = None
+                         ) -> dict[str, Any]:
+    """Descents of the learnt potential from random new starts near the data.
+
+    Each start follows the policy's flow as :func:`~policy_align_ros.learning.goal.
+    starts_elsewhere` does (steps of at most ``END_RADIUS`` of the extent, in the data's
+    box widened by its extent), and counts when it stops more than ``GOAL_MERGE`` of the
+    extent from ``goal`` or leaves the box.
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory
+        The demonstrations (state units).
+    potential, gradient : callable
+        The learnt potential (m,) and its gradient (m, n) at states (m, n).
+    goal : ndarray (n,) or None
+        Where the demonstrations end together; None: nothing is run (several goals, or
+        none), and every entry is None.
+    extent, speed : float
+        The data's extent W (state units) and typical speed (state units/s).
+    random_state : int, Generator or None
+        Seeds the starts.
+
+    Returns
+    -------
+    dict
+        ``n_new_starts``, ``n_new_starts_elsewhere`` (those that stop away from the goal
+        or leave the box), ``n_new_starts_escaped`` (those that leave it) and
+        ``new_start_minima``: where the others stop, merged within ``MINIMA_MERGE`` of
+        the extent, lowest potential first, each ``point``, ``potential``, ``n_starts``
+        (how many runs stop there), ``goal_fraction`` and ``data_fraction`` (distance to
+        the goal and to the nearest sample, over W).
+    """
+    if goal is None:
+        return {"n_new_starts": None, "n_new_starts_elsewhere": None,
+                "n_new_starts_escaped": None, "new_start_minima": None}
+    X = np.concatenate([t.positions for t in trajs])
+    rng = np.random.default_rng(random_state)
+    lo, hi = X.min(axis=0) - NEW_START_MARGIN * extent, X.max(axis=0) + NEW_START_MARGIN * extent
+    starts = lo + rng.random((NEW_STARTS, X.shape[1])) * (hi - lo)
+    box_lo, box_hi = data_box(X, extent)
+    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
+    ends = _descend(potential, gradient, np.clip(starts, box_lo, box_hi), box_lo, box_hi, gtol,
+                    extent, 4000, max_step=END_RADIUS * extent)
+    inside = _inside(ends, box_lo, box_hi, extent)
+    elsewhere = inside & (np.linalg.norm(ends - goal, axis=1) > GOAL_MERGE * extent)
+    minima = []
+    if elsewhere.any():
+        points, values = _merge(ends[elsewhere], potential(ends[elsewhere]),
+                                MINIMA_MERGE * extent)
+        # Each run's stop to its merged minimum: the nearest of them.
+        owner = np.argmin(np.linalg.norm(ends[elsewhere][:, None] - points[None], axis=2),
+                          axis=1)
+        for i, (p, v) in enumerate(zip(points, values, strict=True)):
+            minima.append({"point": [float(c) for c in p], "potential": float(v),
+                           "n_starts": int(np.count_nonzero(owner == i)),
+                           "goal_fraction": float(np.linalg.norm(p - goal)) / extent,
+                           "data_fraction": _nearest(X, p) / extent})
+    escaped = int(np.count_nonzero(~inside))
+    return {"n_new_starts": NEW_STARTS,
+            "n_new_starts_elsewhere": int(np.count_nonzero(elsewhere)) + escaped,
+            "n_new_starts_escaped": escaped, "new_start_minima": minima}
+
+
+def new_starts_message(goal: dict[str, Any]) -> str | None:
+    """The warning of a goal report whose new starts stop elsewhere; None if none does."""
+    count = goal.get("n_new_starts_elsewhere")
+    if not count:
+        return None
+    minima = goal["new_start_minima"]
+    where = []
+    if minima:
+        far = max(m["goal_fraction"] for m in minima)
+        where.append(f"{len(minima)} minima up to {100 * far:.3g} % of the data's extent "
+                     "from the goal")
+    if goal["n_new_starts_escaped"]:
+        where.append(f"{goal['n_new_starts_escaped']} out of the data's region")
+    return (f"PolicyAlign: runs of the learnt policy from {count} of {goal['n_new_starts']} "
+            f"random new starts within {100 * NEW_START_MARGIN:g} % of the data's extent of "
+            f"its box stop away from the goal ({', '.join(where)}; fit_summary_['goal']"
+            "['new_start_minima']): between or beside the demonstrated paths the learnt "
+            "potential has minima no demonstration showed, and a robot started there would "
+            "stop short (record demonstrations from there?)")

@@ -1,0 +1,78 @@
+"""Runs from new starts near the data (policy_align_ros.learning.new_starts)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning.new_starts import (
+    NEW_STARTS,
+    new_starts_elsewhere,
+    new_starts_message,
+)
+
+GOAL = np.zeros(2)
+WELL = np.array([0.0, 1.1])  # beside the demonstrated paths, inside the starts' box
+
+
+def _bowl_with_well(depth):
+    """A bowl at GOAL plus a Gaussian well of ``depth`` at WELL, and its gradient."""
+    def potential(X):
+        return 0.5 * np.sum(X**2, axis=1) - depth * np.exp(
+            -np.sum((X - WELL) ** 2, axis=1) / 0.02)
+
+    def gradient(X):
+        D = X - WELL
+        return X + depth * np.exp(-np.sum(D**2, axis=1) / 0.02)[:, None] * D / 0.01
+
+    return potential, gradient
+
+
+def _demos():
+    """Straight demonstrations from the left and the right of the well to GOAL."""
+    t = np.linspace(0.0, 1.0, 40)[:, None]
+    starts = [[-1.0, 0.5], [1.0, 0.5], [-1.0, 1.0], [1.0, 1.0]]
+    return [Trajectory(np.array(s) * (1.0 - t), times=t[:, 0]) for s in starts]
+
+
+def test_runs_from_new_starts_find_a_well_beside_the_paths_that_no_start_leads_to():
+    potential, gradient = _bowl_with_well(1.0)
+    out = new_starts_elsewhere(_demos(), potential, gradient, GOAL, 2.0, 1.0, 0)
+    assert out["n_new_starts"] == NEW_STARTS
+    assert out["n_new_starts_elsewhere"] > 0 and out["n_new_starts_escaped"] == 0
+    (well,) = out["new_start_minima"]
+    assert np.allclose(well["point"], WELL, atol=0.02)
+    assert well["n_starts"] == out["n_new_starts_elsewhere"]
+    assert well["goal_fraction"] == pytest.approx(np.linalg.norm(WELL) / 2.0, rel=0.02)
+    assert new_starts_message(out) is not None
+
+
+def test_a_bowl_leads_every_new_start_to_its_goal_and_no_goal_runs_nothing():
+    potential, gradient = _bowl_with_well(0.0)
+    out = new_starts_elsewhere(_demos(), potential, gradient, GOAL, 2.0, 1.0, 0)
+    assert out["n_new_starts_elsewhere"] == 0 and out["new_start_minima"] == []
+    assert new_starts_message(out) is None
+    none = new_starts_elsewhere(_demos(), potential, gradient, None, 2.0, 1.0, 0)
+    assert set(none.values()) == {None} and new_starts_message(none) is None
+
+
+def test_the_new_starts_are_seeded():
+    potential, gradient = _bowl_with_well(1.0)
+    runs = [new_starts_elsewhere(_demos(), potential, gradient, GOAL, 2.0, 1.0, seed)
+            for seed in (3, 3, 4)]
+    assert runs[0] == runs[1]
+    assert runs[0]["n_new_starts_elsewhere"] != runs[2]["n_new_starts_elsewhere"]
+
+
+def test_a_fit_whose_demonstrations_end_together_reports_its_new_starts():
+    # Exact flows of a bowl: the learnt potential is the bowl, every new start reaches.
+    rng = np.random.default_rng(7)
+    t = np.linspace(0.0, 8.0, 80)  # they end together, within 1 % of the extent
+    demos = [Trajectory(x0 * np.exp(-t)[:, None], times=t)
+             for x0 in rng.uniform(-1.0, 1.0, size=(8, 2))]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        goal = PolicyAlign(random_state=0).fit(demos).fit_summary_["goal"]
+    assert goal["n_new_starts"] == NEW_STARTS and goal["n_new_starts_elsewhere"] == 0
+    assert not [w for w in caught if "new starts" in str(w.message)]
