@@ -19,6 +19,7 @@ from policy_align_ros.experiments.lasa_metrics import (
     across_error,
     converged,
     dtw_mean_cost,
+    euler_ends,
     euler_rollout,
     velocity_error,
     workspace_size,
@@ -87,6 +88,30 @@ def test_euler_rollout_of_a_linear_field():
     path = euler_rollout(lambda X: -X, np.array([1.0, -2.0]), dt=0.1, steps=10)
     assert path.shape == (11, 2)
     np.testing.assert_allclose(path[-1], 0.9**10 * np.array([1.0, -2.0]))
+
+
+def test_euler_ends_run_every_start_at_once_and_mark_diverged_runs():
+    X0 = np.array([[1.0, -2.0], [0.5, 0.5]])
+    ends = euler_ends(lambda X: -X, X0, dt=0.1, steps=10)
+    np.testing.assert_allclose(ends, 0.9**10 * X0)
+    for i, start in enumerate(X0):
+        np.testing.assert_allclose(ends[i], euler_rollout(lambda X: -X, start, 0.1, 10)[-1])
+    blown = euler_ends(lambda X: X**3 * 1e300, np.array([[1.0, 1.0], [0.0, 0.0]]), 1.0, 5)
+    assert np.all(np.isnan(blown[0])) and np.array_equal(blown[1], [0.0, 0.0])
+    with pytest.raises(ValueError, match="dt"):
+        euler_ends(lambda X: -X, X0, dt=0.0, steps=1)
+
+
+def test_new_starts_cover_the_fields_box_and_count_the_runs_that_reach_the_goal():
+    t = np.linspace(0.0, 1.0, 11)
+    demos = [{"positions": np.outer(1.0 - t, p), "times": t} for p in ([10.0, 0.0],
+                                                                         [0.0, 10.0])]
+    assert lasa._new_starts(lambda X: -5.0 * X, demos, 10.0, None) == 1.0
+    assert lasa._new_starts(lambda X: np.zeros_like(X), demos, 10.0, None) == 0.0
+    # Where x > 0 the field flows away from the goal: only the grid's first column, at
+    # x = -1.5 (the box's 15 % margin), arrives.
+    away = lasa._new_starts(lambda X: np.where(X[:, :1] > 0, X, -5.0 * X), demos, 10.0, None)
+    assert away == pytest.approx(1 / 9)
 
 
 # -- shapes and methods -----------------------------------------------------------------
@@ -168,6 +193,10 @@ def test_a_miss_counts_as_silent_only_when_its_fit_did_not_warn():
     summary = lasa_report.summarise(records, "policy_align", "loo")
     assert summary["n_missed_silently"] == 1 and summary["n_missed"] == 2
     assert summary["converged_pct"] == 50.0
+    assert np.isnan(summary["new_starts_pct"])  # records written before the grid
+    for r, share in zip(records, (1.0, 0.5, 0.0, 0.5), strict=True):
+        r["new_starts_converged"] = share
+    assert lasa_report.summarise(records, "policy_align", "loo")["new_starts_pct"] == 50.0
 
 
 def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
@@ -182,6 +211,7 @@ def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
     assert all(r["method"] == "grad_field" and r["set"] == "reporting" for r in records)
     assert all(np.isfinite(r["nV"]) and r["fit_s"] >= 0 for r in records)
     assert all(0 <= r["nV_across"] <= r["nV"] + 1 for r in records)
+    assert all(0.0 <= r["new_starts_converged"] <= 1.0 for r in records)
     table = (tmp_path / "lasa.md").read_text()
     assert "| reporting | loo | LSQ gradient field |" in table
     assert "### Per shape, protocol `loo`" in table
