@@ -36,6 +36,7 @@ from policy_align_ros.learning.regressors.trend_kernel.solvers import (
     _floor_trend,
     _floor_trends,
     _nonneg_solve,
+    _solve,
     _solve_shared,
 )
 from policy_align_ros.learning.regressors.trend_kernel.stacked import stacked_gradient
@@ -380,6 +381,19 @@ def test_cv_picks_a_steepening_single_index_trend_for_a_quartic_attractor():
     assert model.trend_form_ == "single_index"
     assert _nupe(model, Xt, grad) < 0.12
     assert np.all(model.trend_[1:] >= 0.0)
+
+
+def test_an_indefinite_ill_conditioned_solve_raises_no_linalg_warning():
+    # Cholesky fails on an indefinite matrix; the symmetric solve that takes over must
+    # return its solution without a LinAlgWarning reaching the user of the fit.
+    import warnings
+
+    M = np.diag([1.0, -1.0, 1e-17])
+    b = np.array([1.0, 2.0, 0.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        w = _solve(M, b)
+    np.testing.assert_allclose(w[:2], [1.0, -2.0])
 
 
 def test_nonneg_solve_is_the_bounded_least_squares_solution():

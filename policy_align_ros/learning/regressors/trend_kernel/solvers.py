@@ -5,6 +5,7 @@ single-index profile, the penalties and the effective degrees of freedom."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import scipy.linalg
@@ -354,11 +355,17 @@ def _nonneg_solve(M: np.ndarray, b: np.ndarray, free: int) -> np.ndarray | None:
 
 
 def _solve(M: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """``M^-1 b`` for a symmetric ``M`` (p, p): by Cholesky, else (not positive definite
+    to round-off) by a symmetric indefinite factorisation; None if that fails too."""
     try:
         return cho_solve(cho_factor(M), b)
     except np.linalg.LinAlgError:
         try:
-            return scipy.linalg.solve(M, b, assume_a="sym", check_finite=False)
+            # An ill-conditioned candidate is judged by its CV score and the fit's checks,
+            # not by a LinAlgWarning that a user of the fit could do nothing about.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+                return scipy.linalg.solve(M, b, assume_a="sym", check_finite=False)
         except (np.linalg.LinAlgError, ValueError):
             return None
 
