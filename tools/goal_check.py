@@ -7,7 +7,8 @@ distance from where the demonstrations rest (fractions of the data's extent), th
 minimum's distance from the nearest sample (``data``: how far the fit extrapolated), the
 spread of the minima over the CV folds, and the demonstrations from whose start the policy
 stops where no demonstration's end leads (``elsewhere``) or is still on its way to the goal
-after 3 times the demonstration's duration (``late``); on LASA also how many rollouts
+after 3 times the demonstration's duration (``late``), and the runs from random new starts
+around the data that stop away from the goal (``new``); on LASA also how many rollouts
 from the demonstrations' starts (the bench's Euler steps, 3 T) end within 1 % of the extent
 of the goal. An anchored fit adds the direction weights it tried (``w``), each with its
 training starts that stop elsewhere and whether the goal is a minimum (``saddle`` where
@@ -55,7 +56,16 @@ def _row(name: str, model: PolicyAlign, seconds: float) -> str:
             f"  data {pct(goal['minima'][0].get('data_fraction') if goal['minima'] else None)}"
             f"  spread {pct(goal['fold_spread_fraction'])}"
             f"  elsewhere {goal['n_starts_elsewhere']}"
-            f"  late {goal.get('n_starts_late', '-')}{_weights(s['anchor'])}")
+            f"  late {goal.get('n_starts_late', '-')}"
+            f"  new {_new_starts(goal)}{_weights(s['anchor'])}")
+
+
+def _new_starts(goal: dict) -> str:
+    """Runs from the random new starts that stop elsewhere, of how many ("-" without a
+    common end, or in a report written before them)."""
+    if goal.get("n_new_starts") is None:
+        return "-"
+    return f"{goal['n_new_starts_elsewhere']}/{goal['n_new_starts']}"
 
 
 def _weights(anchor: dict) -> str:

@@ -106,7 +106,8 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
         learning.goal.demonstrated_goal`); ``measured_to``: what the distances are to,
         the demonstrated goal, else the lowest learnt minimum, else each demonstration's
         end;
-        ``extent`` (state units); ``minima`` (k, n); ``fold_ratios`` (list);
+        ``extent`` (state units); ``minima`` (k, n); ``new_start_minima`` (j, n), where
+        runs from new starts near the data stop instead of the goal; ``fold_ratios`` (list);
         ``basis``: ``(mean (n,), P (2, n))``, the states' first two principal directions;
         ``paths`` (S, m, n): the runs' states.
     """
@@ -120,8 +121,10 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
         s = np.linspace(0.0, 1.0, t.n_samples)
         potential.append((int(k), s, estimate - estimate.mean(), learnt - learnt.mean()))
     summary = model.fit_summary_ or {}
-    minima = np.array([m["point"] for m in (summary.get("goal") or {}).get("minima", [])],
-                      dtype=float).reshape(-1, trajs[0].n_dims)
+    goal_report = summary.get("goal") or {}
+    minima, beside = (np.array([m["point"] for m in goal_report.get(key) or []],
+                               dtype=float).reshape(-1, trajs[0].n_dims)
+                      for key in ("minima", "new_start_minima"))
     # Where a run should go: the demonstrated goal; without one (every demonstration rests
     # under its own constraint), the lowest learnt minimum, where free runs stop.
     target, measured_to = goal, "the demonstrated goal"
@@ -145,7 +148,7 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
     ratios = (summary.get("heldout_vs_zero") or {}).get("fold_ratios") or []
     return {"potential": potential, "runs": runs, "goal": goal, "extent": extent,
             "measured_to": measured_to if target is not None else "each demonstration's end",
-            "minima": minima,
+            "minima": minima, "new_start_minima": beside,
             "fold_ratios": [math.nan if r is None else float(r) for r in ratios],
             "basis": (mean, basis), "paths": paths}
 
@@ -262,6 +265,9 @@ def _states_panel(ax, views: dict, train, held, colors: list[str]) -> None:
         ax.plot(*project(t.positions[0]).T, "o", ms=3, color=color)
     if len(views["minima"]):
         ax.plot(*project(views["minima"]).T, "kx", ms=9, mew=2, label="learnt minima")
+    if len(views["new_start_minima"]):
+        ax.plot(*project(views["new_start_minima"]).T, "x", color="tab:red", ms=7, mew=1.5,
+                label="minima where new starts stop")
     if views["goal"] is not None:
         ax.plot(*project(views["goal"]).T, "*", color="gold", mec="k", ms=14,
                 label="demonstrated goal")

@@ -62,6 +62,18 @@ def test_a_good_fit_follows_its_estimates_and_every_run_arrives(fitted):
         arrived = run["t"][np.flatnonzero(run["run"] < GOAL_MERGE)]
         assert arrived.size and arrived[0] < REACH_TIME
     assert views["fold_ratios"] and max(views["fold_ratios"]) < 0.1
+    assert views["new_start_minima"].shape == (0, 2)  # every new start reaches the bowl's
+
+
+def test_minima_where_new_starts_stop_are_drawn_from_the_goal_report(fitted):
+    model, train, _ = fitted
+    report = model.fit_summary_["goal"]
+    try:
+        report["new_start_minima"] = [{"point": [1.0, 2.0]}, {"point": [-1.0, 0.5]}]
+        views = fit_views(model, train)
+    finally:
+        report["new_start_minima"] = []
+    np.testing.assert_array_equal(views["new_start_minima"], [[1.0, 2.0], [-1.0, 0.5]])
 
 
 def test_a_fit_that_misses_its_goal_shows_it(fitted):
