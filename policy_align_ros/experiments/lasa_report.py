@@ -159,6 +159,8 @@ def format_report(records: Sequence[dict], methods: Sequence[str],
              "nV across: the same with the part of f(x_i) across v_i alone; "
              "DTW: mean Euclidean cost along the optimal DTW path between the demonstration "
              "and the rollout's first 1.5 T (every 5th sample); converged: |x(3T)| < 0.01 W. "
+             "New starts: runs from a 9 x 9 grid over the demonstrations' box widened by "
+             "15 % of W, converged by the same rule, T the demonstrations' median duration. "
              "A shape's value is the mean over its evaluated demonstrations. `all`: trained "
              "on the 7 demonstrations; `loo`: trained on 6, evaluated on the held-out one.",
              ""]

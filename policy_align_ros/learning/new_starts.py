@@ -5,7 +5,7 @@ where the demonstrations rest and end, and from where they start: it finds the m
 the demonstrated paths. A user's new start need not lie on one. Between and beside the
 paths the potential is the model's extrapolation, and a kernel residual can leave a
 minimum there that no demonstration passes (on LASA, trained on all 7 demonstrations,
-runs from a grid over the field's box stop at such minima on 5 of the 13 tuning shapes).
+runs from new starts stop at such minima on 4 of the 13 tuning shapes).
 So the fit also descends the potential from :data:`NEW_STARTS` random states in the data's
 bounding box widened by :data:`NEW_START_MARGIN` of its extent, where demonstrations end
 together (:func:`~policy_align_ros.learning.goal.demonstrated_goal`), and reports the
