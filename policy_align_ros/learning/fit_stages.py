@@ -20,7 +20,11 @@ import warnings
 import numpy as np
 
 from policy_align_ros.learning.alignment import LocalModelTable
-from policy_align_ros.learning.anchor import choose_direction_weight, direction_candidates
+from policy_align_ros.learning.anchor import (
+    choose_direction_weight,
+    direction_candidates,
+    goal_curvature,
+)
 from policy_align_ros.learning.estimates import Estimates
 from policy_align_ros.learning.folds import (
     fit_checks,
@@ -29,9 +33,14 @@ from policy_align_ros.learning.folds import (
     heldout_reach_message,
 )
 from policy_align_ros.learning.global_model import cv_error, cv_score, fixed_copy, training_set
+from policy_align_ros.learning.goal import data_extent, starts_elsewhere, typical_speed
 from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
 from policy_align_ros.learning.model_io import json_float
-from policy_align_ros.learning.new_starts import new_starts_elsewhere, new_starts_message
+from policy_align_ros.learning.new_starts import (
+    new_starts_elsewhere,
+    new_starts_message,
+    stiffer_residual,
+)
 from policy_align_ros.learning.regressors import takes_final
 from policy_align_ros.learning.timing import (
     TIMING_RESOLUTION,
@@ -100,8 +109,47 @@ class FitStages:
         choice = choose_direction_weight(fit_anchored, direction_candidates(template),
                                          est.parents, goal)
         starts = choice.pop("starts")
+        choice["kernel_ridge_raised"] = self._stiffer_if_fewer_minima(
+            est, template, goal, choice["direction_weight"], fit_anchored, fitted)
+        if choice["kernel_ridge_raised"]:
+            starts = None  # the goal report checks the starts of the fit kept
         anchor.update(choice)
         return starts, fitted["out"]
+
+    def _stiffer_if_fewer_minima(self, est: Estimates, template, goal: np.ndarray,
+                                 weight, fit_anchored, fitted: dict) -> bool:
+        """Refit with :func:`~policy_align_ros.learning.new_starts.stiffer_residual` where
+        runs from new starts stop away from the goal, and keep that fit when fewer of them
+        do, no more demonstrated starts stop elsewhere, and the goal stays a minimum;
+        otherwise restore the fit before. Returns whether the refit was kept."""
+        trajs = est.parents
+        extent, speed = data_extent(trajs) or 1.0, typical_speed(trajs)
+
+        def minima_off_paths(r) -> int:
+            runs = new_starts_elsewhere(trajs, r.predict, r.gradient, goal, extent, speed,
+                                        self.random_state)
+            self._new_start_runs = (r, runs)  # the goal report's, if this fit is kept
+            return runs["n_new_starts_elsewhere"]
+
+        def starts_away(r) -> int:
+            return starts_elsewhere(trajs, r.predict, r.gradient, extent,
+                                    speed)["n_starts_elsewhere"]
+
+        before = minima_off_paths(self.regressor_)
+        candidate = stiffer_residual(template, self.regressor_, weight)
+        if not before or candidate is None:
+            return False
+        kept = (self.regressor_, self.offsets_, self.aligned_potentials_,
+                self.integration_, fitted["out"])
+        was_away = starts_away(self.regressor_)
+        stiffer = fit_anchored(candidate)
+        if (minima_off_paths(stiffer) < before and starts_away(stiffer) <= was_away
+                and goal_curvature(stiffer.gradient, goal, extent) > 0.0):
+            return True
+        (self.regressor_, self.offsets_, self.aligned_potentials_, self.integration_,
+         fitted["out"]) = kept
+        self._new_start_runs = None
+        return False
 
     def _checked_fit(self, est: Estimates, free: np.ndarray, starts: dict | None,
                      scores: dict, anchor: dict, caught: list) -> dict:
@@ -142,10 +190,16 @@ class FitStages:
         Run once, for the fit kept, like :meth:`_reach_heldout`."""
         goal, end = fit["checks"]["goal"], fit["anchor"]["goal"]  # demonstrated_goal's
         regressor = fit["regressor_"]
-        goal.update(new_starts_elsewhere(
-            est.parents, regressor.predict, regressor.gradient,
-            None if end is None else np.asarray(end), goal["extent"], goal["typical_speed"],
-            self.random_state))
+        cached = getattr(self, "_new_start_runs", None)
+        if cached is not None and cached[0] is regressor:
+            runs = cached[1]  # the anchored fit's own check of this regressor
+        else:
+            runs = new_starts_elsewhere(
+                est.parents, regressor.predict, regressor.gradient,
+                None if end is None else np.asarray(end), goal["extent"],
+                goal["typical_speed"], self.random_state)
+        self._new_start_runs = None
+        goal.update(runs)
         message = new_starts_message(goal)
         if message is not None:
             with warnings.catch_warnings(record=True) as caught:

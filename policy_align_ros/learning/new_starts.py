@@ -15,6 +15,7 @@ starts").
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any
 
@@ -34,7 +35,8 @@ from policy_align_ros.learning.goal import (
 )
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_starts_elsewhere", "new_starts_message"]
+__all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_starts_elsewhere", "new_starts_message",
+           "stiffer_residual"]
 
 #: Random new starts descended, whatever the dimension: a run stopped by a minimum in a
 #: basin that covers 3.5 % of the box is then found with a probability of 0.9.
@@ -108,6 +110,27 @@ def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient
     return {"n_new_starts": NEW_STARTS,
             "n_new_starts_elsewhere": int(np.count_nonzero(elsewhere)) + escaped,
             "n_new_starts_escaped": escaped, "new_start_minima": minima}
+
+
+def stiffer_residual(template, fitted, direction_weight):
+    """The candidate an anchored fit tries when runs from new starts stop elsewhere: a copy
+    of ``template`` with the direction weight ``fitted`` was chosen with and the largest
+    finite kernel penalty of the CV's grid, when the CV chose the penalty (``template``'s
+    ``kernel_ridge`` is ``"cv"``) and ``fitted``'s is smaller; None otherwise.
+
+    The CV scores the residual along held-out demonstrations only; between and beside
+    them a small penalty lets the kernel weights grow into wells no demonstration showed
+    (``docs/design/goal_report.md``, "From new starts").
+    """
+    from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
+
+    params = template.get_params(deep=False) if hasattr(template, "get_params") else {}
+    largest = max(k for k in KERNEL_RIDGE_GRID if np.isfinite(k))
+    if params.get("kernel_ridge") != "cv" or not getattr(fitted, "kernel_ridge_",
+                                                         np.inf) < largest:
+        return None
+    return copy.deepcopy(template).set_params(direction_weight=direction_weight,
+                                              kernel_ridge=largest)
 
 
 def new_starts_message(goal: dict[str, Any]) -> str | None:

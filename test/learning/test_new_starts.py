@@ -10,6 +10,7 @@ from policy_align_ros.learning.new_starts import (
     NEW_STARTS,
     new_starts_elsewhere,
     new_starts_message,
+    stiffer_residual,
 )
 
 GOAL = np.zeros(2)
@@ -76,3 +77,40 @@ def test_a_fit_whose_demonstrations_end_together_reports_its_new_starts():
         goal = PolicyAlign(random_state=0).fit(demos).fit_summary_["goal"]
     assert goal["n_new_starts"] == NEW_STARTS and goal["n_new_starts_elsewhere"] == 0
     assert not [w for w in caught if "new starts" in str(w.message)]
+
+
+def test_the_stiffer_residual_keeps_the_direction_weight_and_respects_a_fixed_penalty():
+    from policy_align_ros.learning.regressors import TrendKernelRegression
+    from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
+
+    largest = max(k for k in KERNEL_RIDGE_GRID if np.isfinite(k))
+
+    class Fitted:
+        kernel_ridge_ = largest / 100.0
+
+    template = TrendKernelRegression(random_state=3)
+    stiffer = stiffer_residual(template, Fitted(), 1000.0)
+    assert stiffer.get_params()["kernel_ridge"] == largest
+    assert stiffer.get_params()["direction_weight"] == 1000.0
+    assert stiffer.get_params()["random_state"] == 3
+    assert template.get_params()["kernel_ridge"] == "cv"  # the template is left alone
+    Fitted.kernel_ridge_ = largest
+    assert stiffer_residual(template, Fitted(), 1000.0) is None  # already as stiff
+    Fitted.kernel_ridge_ = largest / 100.0
+    fixed = TrendKernelRegression(kernel_ridge=1e-6)
+    assert stiffer_residual(fixed, Fitted(), 1000.0) is None  # the user's choice stands
+
+
+def test_a_fit_whose_new_starts_stop_off_the_paths_refits_a_stiffer_residual():
+    # LASA JShape, all 7 demonstrations: the CV's residual leaves wells beside the paths
+    # that 26 of the 64 new starts fall into; the stiffer refit has none and is kept.
+    from policy_align_ros.experiments import lasa
+
+    demos = lasa.load_shape("JShape")
+    trajs = [Trajectory(d["positions"][::5], d["times"][::5]) for d in demos]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = PolicyAlign(random_state=0).fit(trajs)
+    assert model.fit_summary_["anchor"]["kernel_ridge_raised"] is True
+    assert model.fit_summary_["goal"]["n_new_starts_elsewhere"] == 0
+    assert model.fit_summary_["goal"]["n_starts_elsewhere"] == 0
