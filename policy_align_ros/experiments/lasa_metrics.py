@@ -38,6 +38,14 @@ def workspace_size(positions: Sequence[np.ndarray]) -> float:
     return float(np.max(stacked.max(axis=0) - stacked.min(axis=0)))
 
 
+def _check_steps(dt: float, steps: int) -> None:
+    """ValueError unless ``dt`` is a finite number > 0 and ``steps`` >= 0."""
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: must be a finite number > 0, got {dt}")
+    if steps < 0:
+        raise ValueError(f"steps: must be >= 0, got {steps}")
+
+
 def euler_rollout(policy: Policy, x0: np.ndarray, dt: float, steps: int) -> np.ndarray:
     """Explicit Euler ``x <- x + dt policy(x)`` from ``x0``.
 
@@ -58,10 +66,7 @@ def euler_rollout(policy: Policy, x0: np.ndarray, dt: float, steps: int) -> np.n
         The path, ``x0`` first (mm). Once a state is not finite the rest of the path is
         NaN (a diverged field).
     """
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: must be a finite number > 0, got {dt}")
-    if steps < 0:
-        raise ValueError(f"steps: must be >= 0, got {steps}")
+    _check_steps(dt, steps)
     x = np.asarray(x0, dtype=float).reshape(1, -1).copy()
     path = np.full((steps + 1, x.shape[1]), np.nan)
     path[0] = x[0]
@@ -74,29 +79,10 @@ def euler_rollout(policy: Policy, x0: np.ndarray, dt: float, steps: int) -> np.n
 
 
 def euler_ends(policy: Policy, X0: np.ndarray, dt: float, steps: int) -> np.ndarray:
-    """Where explicit Euler runs ``x <- x + dt policy(x)`` from every row of ``X0`` end.
-
-    Parameters
-    ----------
-    policy : callable
-        ``policy(X)`` with ``X`` (m, d) returns (m, d) velocities (mm/s).
-    X0 : ndarray, shape (m, d)
-        Starts (mm).
-    dt : float
-        Step (s), > 0.
-    steps : int
-        Number of steps, >= 0.
-
-    Returns
-    -------
-    ndarray, shape (m, d)
-        The states after ``steps`` steps (mm); NaN for a run whose state stopped being
-        finite (a diverged field).
-    """
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: must be a finite number > 0, got {dt}")
-    if steps < 0:
-        raise ValueError(f"steps: must be >= 0, got {steps}")
+    """Where :func:`euler_rollout`'s runs from every row of ``X0`` (m, d) end, all run at
+    once (``policy`` takes and returns (m, d)): (m, d), NaN for a run whose state stopped
+    being finite (a diverged field)."""
+    _check_steps(dt, steps)
     X = np.array(X0, dtype=float, ndmin=2)
     alive = np.ones(len(X), dtype=bool)
     with np.errstate(all="ignore"):

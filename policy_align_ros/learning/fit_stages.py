@@ -177,12 +177,7 @@ class FitStages:
         goal, end = fit["checks"]["goal"], fit["anchor"]["goal"]  # demonstrated_goal's
         goal.update(heldout_reach(fit["folds"], est.spans, est.parents,
                                   None if end is None else np.asarray(end), goal["extent"]))
-        message = heldout_reach_message(goal)
-        if message is not None:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                warnings.warn(message, UserWarning, stacklevel=2)
-            fit["warnings"] += list(caught)
+        _hold_warning(fit, heldout_reach_message(goal))
 
     def _new_starts(self, fit: dict, est: Estimates) -> None:
         """The kept fit's :func:`~policy_align_ros.learning.new_starts.
@@ -200,12 +195,7 @@ class FitStages:
                 goal["typical_speed"], self.random_state)
         self._new_start_runs = None
         goal.update(runs)
-        message = new_starts_message(goal)
-        if message is not None:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                warnings.warn(message, UserWarning, stacklevel=2)
-            fit["warnings"] += list(caught)
+        _hold_warning(fit, new_starts_message(goal))
 
     def _restore(self, fit: dict, est: Estimates) -> None:
         """The attributes of a fit recorded by :meth:`_checked_fit`, and the estimates it
@@ -267,3 +257,14 @@ class FitStages:
                 scores, _ = self._fit_global(est, template, free, aligned)
                 starts = None
         return self._checked_fit(est, free, starts, scores, anchor, caught)
+
+
+def _hold_warning(fit: dict, message: str | None) -> None:
+    """``message`` as a ``UserWarning`` into ``fit``'s held-back warnings (none if None):
+    they are issued once the fit is the one kept."""
+    if message is None:
+        return
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warnings.warn(message, UserWarning, stacklevel=2)
+    fit["warnings"] += list(caught)
