@@ -9,8 +9,9 @@ runs from new starts stop at such minima on 4 of the 13 tuning shapes).
 So the fit also descends the potential from :data:`NEW_STARTS` random states in the data's
 bounding box widened by :data:`NEW_START_MARGIN` of its extent, where demonstrations end
 together (:func:`~policy_align_ros.learning.goal.demonstrated_goal`), and reports the
-minima those runs stop at instead of the goal (``docs/design/goal_report.md``, "From new
-starts").
+minima those runs stop at instead of the goal. Where some do, an anchored fit tries once
+more with a stiffer kernel residual (:func:`stiffer_residual`) and keeps it when fewer
+runs stop elsewhere (``docs/design/goal_report.md``, "From new starts").
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from policy_align_ros.learning.goal import (
     _nearest,
     data_box,
 )
+from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_starts_elsewhere", "new_starts_message",
@@ -112,7 +114,8 @@ def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient
             "n_new_starts_escaped": escaped, "new_start_minima": minima}
 
 
-def stiffer_residual(template, fitted, direction_weight):
+def stiffer_residual(template: Any, fitted: Any, direction_weight: float | None
+                     ) -> Any | None:
     """The candidate an anchored fit tries when runs from new starts stop elsewhere: a copy
     of ``template`` with the direction weight ``fitted`` was chosen with and the largest
     finite kernel penalty of the CV's grid, when the CV chose the penalty (``template``'s
@@ -122,8 +125,6 @@ def stiffer_residual(template, fitted, direction_weight):
     them a small penalty lets the kernel weights grow into wells no demonstration showed
     (``docs/design/goal_report.md``, "From new starts").
     """
-    from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
-
     params = template.get_params(deep=False) if hasattr(template, "get_params") else {}
     largest = max(k for k in KERNEL_RIDGE_GRID if np.isfinite(k))
     if params.get("kernel_ridge") != "cv" or not getattr(fitted, "kernel_ridge_",
