@@ -56,10 +56,13 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
             and (shape_set is None or r["set"] == shape_set)]
     if not rows:
         return None
-    # One fit per (shape, held-out demonstration): its time is repeated on its records.
-    fits = {(r["shape"], r["demo"] if protocol == "loo" else -1): r["fit_s"] for r in rows}
-    grid = {(r["shape"], r["demo"] if protocol == "loo" else -1): r["new_starts_converged"]
-            for r in rows if "new_starts_converged" in r}
+    # One fit per (shape, held-out demonstration): its time and its new starts' share are
+    # repeated on its records.
+    def fit(r: dict) -> tuple:
+        return r["shape"], r["demo"] if protocol == "loo" else -1
+
+    fits = {fit(r): r["fit_s"] for r in rows}
+    grid = {fit(r): r["new_starts_converged"] for r in rows if "new_starts_converged" in r}
     return {
         "nV": float(np.median(list(_per_shape(rows, "nV").values()))),
         "nV_across": float(np.median(list(_per_shape(rows, "nV_across").values()))),

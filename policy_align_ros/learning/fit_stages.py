@@ -108,20 +108,22 @@ class FitStages:
 
         choice = choose_direction_weight(fit_anchored, direction_candidates(template),
                                          est.parents, goal)
-        starts = choice.pop("starts")
-        choice["kernel_ridge_raised"] = self._stiffer_if_fewer_minima(
-            est, template, goal, choice["direction_weight"], fit_anchored, fitted)
-        if choice["kernel_ridge_raised"]:
-            starts = None  # the goal report checks the starts of the fit kept
+        choice["kernel_ridge_raised"], starts = self._stiffer_if_fewer_minima(
+            est, template, goal, choice["direction_weight"], fit_anchored, fitted,
+            choice.pop("starts"))
         anchor.update(choice)
         return starts, fitted["out"]
 
     def _stiffer_if_fewer_minima(self, est: Estimates, template, goal: np.ndarray,
-                                 weight, fit_anchored, fitted: dict) -> bool:
+                                 weight, fit_anchored, fitted: dict, starts: dict | None
+                                 ) -> tuple[bool, dict | None]:
         """Refit with :func:`~policy_align_ros.learning.new_starts.stiffer_residual` where
         runs from new starts stop away from the goal, and keep that fit when fewer of them
         do, no more demonstrated starts stop elsewhere, and the goal stays a minimum;
-        otherwise restore the fit before. Returns whether the refit was kept."""
+        otherwise restore the fit before. ``starts``: the fitted model's
+        :func:`~policy_align_ros.learning.goal.starts_elsewhere`, if the direction weight's
+        choice computed it. Returns whether the refit was kept, and the kept fit's
+        ``starts_elsewhere`` (None when not computed)."""
         trajs = est.parents
         extent, speed = data_extent(trajs) or 1.0, typical_speed(trajs)
 
@@ -131,25 +133,27 @@ class FitStages:
             self._new_start_runs = (r, runs)  # the goal report's, if this fit is kept
             return runs["n_new_starts_elsewhere"]
 
-        def starts_away(r) -> int:
-            return starts_elsewhere(trajs, r.predict, r.gradient, extent,
-                                    speed)["n_starts_elsewhere"]
+        def starts_check(r) -> dict:
+            return starts_elsewhere(trajs, r.predict, r.gradient, extent, speed)
 
         before = minima_off_paths(self.regressor_)
         candidate = stiffer_residual(template, self.regressor_, weight)
         if not before or candidate is None:
-            return False
+            return False, starts
         kept = (self.regressor_, self.offsets_, self.aligned_potentials_,
                 self.integration_, fitted["out"])
-        was_away = starts_away(self.regressor_)
+        if starts is None:
+            starts = starts_check(self.regressor_)
         stiffer = fit_anchored(candidate)
-        if (minima_off_paths(stiffer) < before and starts_away(stiffer) <= was_away
-                and goal_curvature(stiffer.gradient, goal, extent) > 0.0):
-            return True
+        if minima_off_paths(stiffer) < before:
+            stiffer_starts = starts_check(stiffer)
+            if (stiffer_starts["n_starts_elsewhere"] <= starts["n_starts_elsewhere"]
+                    and goal_curvature(stiffer.gradient, goal, extent) > 0.0):
+                return True, stiffer_starts
         (self.regressor_, self.offsets_, self.aligned_potentials_, self.integration_,
          fitted["out"]) = kept
         self._new_start_runs = None
-        return False
+        return False, starts
 
     def _checked_fit(self, est: Estimates, free: np.ndarray, starts: dict | None,
                      scores: dict, anchor: dict, caught: list) -> dict:

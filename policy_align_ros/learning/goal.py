@@ -50,6 +50,7 @@ __all__ = [
     "data_box",
     "data_extent",
     "demonstrated_goal",
+    "flow_stops",
     "goal_summary",
     "learnt_minima",
     "rest_points",
@@ -467,6 +468,23 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     return summary
 
 
+def flow_stops(potential: Field, gradient: Field, starts: np.ndarray, X: np.ndarray,
+               extent: float, speed: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where runs of the learnt policy from ``starts`` (s, n) stop, by a descent whose steps
+    are at most ``END_RADIUS`` of the extent (so that it follows the flow a run takes
+    instead of leaping into another basin) inside :func:`data_box` of the samples ``X``
+    (m, n); and which of them stopped inside that box (s,) rather than leaving it.
+
+    ``extent`` and ``speed`` are the data's extent W (state units) and typical speed (state
+    units/s), as :func:`data_extent` and :func:`typical_speed` give them.
+    """
+    lo, hi = data_box(X, extent)
+    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
+    ends = _descend(potential, gradient, starts, lo, hi, gtol, extent, 4000,
+                    max_step=END_RADIUS * extent)
+    return ends, _inside(ends, lo, hi, extent)
+
+
 def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Field,
                      extent: float, speed: float) -> dict[str, Any]:
     """Demonstrations from whose start the learnt policy stops where no demonstration's
@@ -498,13 +516,8 @@ def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Fi
         from a counted start's stop to the nearest end's stop; None when there is none).
     """
     X = np.concatenate([t.positions for t in trajs])
-    lo, hi = data_box(X, extent)
     both = np.concatenate([[t.positions[0] for t in trajs], [t.positions[-1] for t in trajs]])
-    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
-    # Steps of at most END_RADIUS of the extent follow the flow a run of the policy takes.
-    out = _descend(potential, gradient, both, lo, hi, gtol, extent, 4000,
-                   max_step=END_RADIUS * extent)
-    inside = _inside(out, lo, hi, extent)
+    out, inside = flow_stops(potential, gradient, both, X, extent, speed)
     K = len(trajs)
     start, end = out[:K], out[K:]
     reached = end[inside[K:]]

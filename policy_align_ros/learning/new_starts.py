@@ -23,16 +23,12 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.learning.goal import (
-    END_RADIUS,
     GOAL_MERGE,
-    GRADIENT_TOL,
     MINIMA_MERGE,
     Field,
-    _descend,
-    _inside,
     _merge,
     _nearest,
-    data_box,
+    flow_stops,
 )
 from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
 from policy_align_ros.learning.trajectory import Trajectory
@@ -54,10 +50,10 @@ def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient
                          ) -> dict[str, Any]:
     """Descents of the learnt potential from random new starts near the data.
 
-    Each start follows the policy's flow as :func:`~policy_align_ros.learning.goal.
-    starts_elsewhere` does (steps of at most ``END_RADIUS`` of the extent, in the data's
-    box widened by its extent), and counts when it stops more than ``GOAL_MERGE`` of the
-    extent from ``goal`` or leaves the box.
+    Each start follows the policy's flow as the demonstrated starts do
+    (:func:`~policy_align_ros.learning.goal.flow_stops`), and counts when it stops more
+    than ``GOAL_MERGE`` of the extent from ``goal`` or leaves the data's box widened by
+    its extent.
 
     Parameters
     ----------
@@ -90,11 +86,7 @@ def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient
     rng = np.random.default_rng(random_state)
     lo, hi = X.min(axis=0) - NEW_START_MARGIN * extent, X.max(axis=0) + NEW_START_MARGIN * extent
     starts = lo + rng.random((NEW_STARTS, X.shape[1])) * (hi - lo)
-    box_lo, box_hi = data_box(X, extent)
-    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
-    ends = _descend(potential, gradient, np.clip(starts, box_lo, box_hi), box_lo, box_hi, gtol,
-                    extent, 4000, max_step=END_RADIUS * extent)
-    inside = _inside(ends, box_lo, box_hi, extent)
+    ends, inside = flow_stops(potential, gradient, starts, X, extent, speed)
     elsewhere = inside & (np.linalg.norm(ends - goal, axis=1) > GOAL_MERGE * extent)
     minima = []
     if elsewhere.any():
