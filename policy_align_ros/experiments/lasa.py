@@ -154,7 +154,7 @@ def _training(demos: list[dict], keep: list[int], subsample: int,
         X, t = demos[k]["positions"][::subsample], demos[k]["times"][::subsample]
         if recorded is not None:
             shape, width = recorded
-            rng = np.random.default_rng([ALL_SHAPES.index(shape), k])
+            rng = np.random.default_rng([(ALL_SHAPES + MULTI_SHAPES).index(shape), k])
             X, t = pad_with_rest(X, t, rng.uniform(*RECORDED_REST_BEFORE),
                                  rng.uniform(*RECORDED_REST_AFTER))
             X = X + RECORDED_NOISE * width * rng.standard_normal(X.shape)

@@ -270,6 +270,10 @@ def test_recorded_training_demonstrations_rest_at_both_ends_and_are_noisy():
         assert np.all(np.diff(r.times) > 0)
     # Seeded per shape and demonstration: a demonstration is recorded alike in every fold.
     np.testing.assert_array_equal(again[0].positions, recorded[1].positions)
+    # A multi-pattern shape is recorded too, with its own seeds.
+    multi = lasa.load_shape("Multi_Models_1")
+    other = lasa._training(multi, [0], 5, ("Multi_Models_1", width))[0]
+    assert len(other.positions) > len(multi[0]["positions"][::5])
 
 
 def test_bad_lasa_arguments_raise_value_errors(tmp_path):
