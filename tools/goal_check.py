@@ -61,11 +61,13 @@ def _row(name: str, model: PolicyAlign, seconds: float) -> str:
 
 
 def _new_starts(goal: dict) -> str:
-    """Runs from the random new starts that stop elsewhere, of how many ("-" without a
-    common end, or in a report written before them)."""
+    """Runs from the random new starts that stop elsewhere, and those late (``+late``),
+    of how many ("-" without a common end, or in a report written before them)."""
     if goal.get("n_new_starts") is None:
         return "-"
-    return f"{goal['n_new_starts_elsewhere']}/{goal['n_new_starts']}"
+    late = goal.get("n_new_starts_late")
+    return (f"{goal['n_new_starts_elsewhere']}{f'+{late}' if late else ''}"
+            f"/{goal['n_new_starts']}")
 
 
 def _weights(anchor: dict) -> str:

@@ -32,7 +32,7 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
     keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
             "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction",
             "n_starts_elsewhere", "n_starts_late", "n_heldout_late", "n_new_starts",
-            "n_new_starts_elsewhere")
+            "n_new_starts_elsewhere", "n_new_starts_late")
     out = {key: goal.get(key) for key in keys}
     out["n_minima"] = len(goal.get("minima", ()))
     # Where no demonstrations rest together this is the one measure of the learnt goal:
@@ -77,4 +77,8 @@ def goal_text(digest: dict[str, Any] | None) -> str:
     if digest.get("n_new_starts_elsewhere"):
         text += (f"; runs from {digest['n_new_starts_elsewhere']} of {digest['n_new_starts']} "
                  "random new starts near the data stop elsewhere")
+    if digest.get("n_new_starts_late"):
+        text += (f"; runs from {digest['n_new_starts_late']} of {digest['n_new_starts']} "
+                 f"random new starts are still on their way after {REACH_TIME:g} times the "
+                 "demonstrations' median duration")
     return text

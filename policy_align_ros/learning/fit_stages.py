@@ -37,7 +37,9 @@ from policy_align_ros.learning.goal import data_extent, starts_elsewhere, typica
 from policy_align_ros.learning.lag import choose_lag, kinetic_term, lagged_potentials
 from policy_align_ros.learning.model_io import json_float
 from policy_align_ros.learning.new_starts import (
-    new_starts_elsewhere,
+    new_start_runs,
+    new_starts_late,
+    new_starts_late_message,
     new_starts_message,
     stiffer_residual,
 )
@@ -128,10 +130,10 @@ class FitStages:
         extent, speed = data_extent(trajs) or 1.0, typical_speed(trajs)
 
         def minima_off_paths(r) -> int:
-            runs = new_starts_elsewhere(trajs, r.predict, r.gradient, goal, extent, speed,
-                                        self.random_state)
+            runs = new_start_runs(trajs, r.predict, r.gradient, goal, extent, speed,
+                                  self.random_state)
             self._new_start_runs = (r, runs)  # the goal report's, if this fit is kept
-            return runs["n_new_starts_elsewhere"]
+            return runs[0]["n_new_starts_elsewhere"]
 
         def starts_check(r) -> dict:
             return starts_elsewhere(trajs, r.predict, r.gradient, extent, speed)
@@ -184,22 +186,28 @@ class FitStages:
         _hold_warning(fit, heldout_reach_message(goal))
 
     def _new_starts(self, fit: dict, est: Estimates) -> None:
-        """The kept fit's :func:`~policy_align_ros.learning.new_starts.
-        new_starts_elsewhere`, into its goal report, and its warning into its warnings.
-        Run once, for the fit kept, like :meth:`_reach_heldout`."""
+        """The kept fit's :func:`~policy_align_ros.learning.new_starts.new_start_runs`
+        and, for the runs that stop at the goal, :func:`~policy_align_ros.learning.
+        new_starts.new_starts_late`, into its goal report (``n_new_starts_late``), and
+        their warnings into its warnings. Run once, for the fit kept, like
+        :meth:`_reach_heldout`."""
         goal, end = fit["checks"]["goal"], fit["anchor"]["goal"]  # demonstrated_goal's
         regressor = fit["regressor_"]
         cached = getattr(self, "_new_start_runs", None)
         if cached is not None and cached[0] is regressor:
-            runs = cached[1]  # the anchored fit's own check of this regressor
+            runs, starts, at_goal = cached[1]  # the anchored fit's own check of it
         else:
-            runs = new_starts_elsewhere(
+            runs, starts, at_goal = new_start_runs(
                 est.parents, regressor.predict, regressor.gradient,
                 None if end is None else np.asarray(end), goal["extent"],
                 goal["typical_speed"], self.random_state)
         self._new_start_runs = None
         goal.update(runs)
+        goal["n_new_starts_late"] = None if end is None else new_starts_late(
+            est.parents, regressor.gradient, np.asarray(end), goal["extent"],
+            starts[at_goal])
         _hold_warning(fit, new_starts_message(goal))
+        _hold_warning(fit, new_starts_late_message(goal))
 
     def _restore(self, fit: dict, est: Estimates) -> None:
         """The attributes of a fit recorded by :meth:`_checked_fit`, and the estimates it

@@ -12,6 +12,14 @@ together (:func:`~policy_align_ros.learning.goal.demonstrated_goal`), and report
 minima those runs stop at instead of the goal. Where some do, an anchored fit tries once
 more with a stiffer kernel residual (:func:`stiffer_residual`) and keeps it when fewer
 runs stop elsewhere (``docs/design/goal_report.md``, "From new starts").
+
+A run can stop at the goal and still take far longer than any demonstration did, crawling
+over a plateau the fit left beside the paths: a user sees a robot that stalls. So the fit
+kept also runs the policy, in time, from the new starts whose descent stops at the goal
+(:func:`new_starts_late`, with the clock and tolerance of
+:func:`~policy_align_ros.learning.reach.starts_reach`), and warns where some are still on
+their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` times the
+demonstrations' median duration.
 """
 
 from __future__ import annotations
@@ -30,10 +38,12 @@ from policy_align_ros.learning.goal import (
     _nearest,
     flow_stops,
 )
+from policy_align_ros.learning.reach import REACH_TIME, reach_times
 from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
-from policy_align_ros.learning.trajectory import Trajectory
+from policy_align_ros.learning.trajectory import Trajectory, sample_period
 
-__all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_starts_elsewhere", "new_starts_message",
+__all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_start_runs", "new_starts_elsewhere",
+           "new_starts_late", "new_starts_late_message", "new_starts_message",
            "stiffer_residual"]
 
 #: Random new starts descended, whatever the dimension: a run stopped by a minimum in a
@@ -48,6 +58,14 @@ def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient
                          goal: np.ndarray | None, extent: float, speed: float,
                          random_state: int | np.random.Generator | None = None
                          ) -> dict[str, Any]:
+    """:func:`new_start_runs`' report alone."""
+    return new_start_runs(trajs, potential, gradient, goal, extent, speed, random_state)[0]
+
+
+def new_start_runs(trajs: Sequence[Trajectory], potential: Field, gradient: Field,
+                   goal: np.ndarray | None, extent: float, speed: float,
+                   random_state: int | np.random.Generator | None = None
+                   ) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
     """Descents of the learnt potential from random new starts near the data.
 
     Each start follows the policy's flow as the demonstrated starts do
@@ -71,17 +89,22 @@ def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient
 
     Returns
     -------
-    dict
+    report : dict
         ``n_new_starts``, ``n_new_starts_elsewhere`` (those that stop away from the goal
         or leave the box), ``n_new_starts_escaped`` (those that leave it) and
         ``new_start_minima``: where the others stop, merged within ``MINIMA_MERGE`` of
         the extent, lowest potential first, each ``point``, ``potential``, ``n_starts``
         (how many runs stop there), ``goal_fraction`` and ``data_fraction`` (distance to
         the goal and to the nearest sample, over W).
+    starts : ndarray (NEW_STARTS, n)
+        The new starts (state units; none without a goal).
+    at_goal : ndarray of bool (NEW_STARTS,)
+        Whose descent stopped at the goal.
     """
     if goal is None:
-        return {"n_new_starts": None, "n_new_starts_elsewhere": None,
-                "n_new_starts_escaped": None, "new_start_minima": None}
+        return ({"n_new_starts": None, "n_new_starts_elsewhere": None,
+                 "n_new_starts_escaped": None, "new_start_minima": None},
+                np.zeros((0, trajs[0].positions.shape[1])), np.zeros(0, dtype=bool))
     X = np.concatenate([t.positions for t in trajs])
     rng = np.random.default_rng(random_state)
     lo, hi = X.min(axis=0) - NEW_START_MARGIN * extent, X.max(axis=0) + NEW_START_MARGIN * extent
@@ -101,9 +124,44 @@ def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient
                            "goal_fraction": float(np.linalg.norm(p - goal)) / extent,
                            "data_fraction": _nearest(X, p) / extent})
     escaped = int(np.count_nonzero(~inside))
-    return {"n_new_starts": NEW_STARTS,
-            "n_new_starts_elsewhere": int(np.count_nonzero(elsewhere)) + escaped,
-            "n_new_starts_escaped": escaped, "new_start_minima": minima}
+    return ({"n_new_starts": NEW_STARTS,
+             "n_new_starts_elsewhere": int(np.count_nonzero(elsewhere)) + escaped,
+             "n_new_starts_escaped": escaped, "new_start_minima": minima},
+            starts, inside & ~elsewhere)
+
+
+def new_starts_late(trajs: Sequence[Trajectory], gradient: Field, goal: np.ndarray,
+                    extent: float, starts: np.ndarray) -> int:
+    """How many runs of ``xdot = -gradient(x)`` from ``starts`` (s, n) do not come within
+    ``GOAL_MERGE`` of the extent of ``goal`` (n,) within :data:`~policy_align_ros.learning.
+    reach.REACH_TIME` times the demonstrations' median duration: explicit Euler at their
+    sample period (:func:`~policy_align_ros.learning.reach.reach_times`), as for the
+    demonstrated starts.
+
+    ``trajs``: the demonstrations (state units; times in s, or none: one step per
+    sample); ``extent``: the data's extent W (state units).
+    """
+    if not len(starts):
+        return 0
+    horizon = REACH_TIME * float(np.median([t.duration for t in trajs]))
+    arrival = reach_times(gradient, starts, np.asarray(goal, dtype=float),
+                          np.full(len(starts), horizon), sample_period(trajs),
+                          GOAL_MERGE * extent)
+    return int(np.count_nonzero(~np.isfinite(arrival)))
+
+
+def new_starts_late_message(goal: dict[str, Any]) -> str | None:
+    """The warning of a goal report whose new starts reach the goal late; None if none
+    does."""
+    late = goal.get("n_new_starts_late")
+    if not late:
+        return None
+    return (f"PolicyAlign: runs of the learnt policy from {late} of {goal['n_new_starts']} "
+            f"random new starts within {100 * NEW_START_MARGIN:g} % of the data's extent of "
+            f"its box are still on their way to the goal after {REACH_TIME:g} times the "
+            "demonstrations' median duration (fit_summary_['goal']['n_new_starts_late']): "
+            "beside the demonstrated paths the learnt potential is nearly flat, and a robot "
+            "started there would crawl (record demonstrations from there?)")
 
 
 def stiffer_residual(template: Any, fitted: Any, direction_weight: float | None

@@ -87,3 +87,6 @@ def test_new_starts_that_stop_elsewhere_are_said_and_older_reports_say_nothing()
     assert goal_text(goal_digest(_goal(n_new_starts=64, n_new_starts_elsewhere=0))) == plain
     said = goal_digest(_goal(n_new_starts=64, n_new_starts_elsewhere=5))
     assert said["n_new_starts_elsewhere"] == 5 and goal_text(said) != plain
+    late = goal_digest(_goal(n_new_starts=64, n_new_starts_elsewhere=0, n_new_starts_late=3))
+    assert late["n_new_starts_late"] == 3 and goal_text(late) != plain
+    assert goal_digest(_goal(n_new_starts=64))["n_new_starts_late"] is None  # older files

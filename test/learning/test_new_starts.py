@@ -8,7 +8,10 @@ import pytest
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.new_starts import (
     NEW_STARTS,
+    new_start_runs,
     new_starts_elsewhere,
+    new_starts_late,
+    new_starts_late_message,
     new_starts_message,
     stiffer_residual,
 )
@@ -58,6 +61,26 @@ def test_a_bowl_leads_every_new_start_to_its_goal_and_no_goal_runs_nothing():
     assert set(none.values()) == {None} and new_starts_message(none) is None
 
 
+def test_runs_that_reach_the_goal_only_by_crawling_over_a_plateau_count_as_late():
+    # A bowl whose slope above the demonstrated paths (y > 1) is a thousandth of its own:
+    # every descent stops at the goal, but a run from up there takes minutes, not the
+    # demonstrations' second.
+    def gradient(X):
+        return 3.0 * X * np.where(X[:, 1:] > 1.0, 1e-3, 1.0)
+
+    potential, _ = _bowl_with_well(0.0)
+    out, starts, at_goal = new_start_runs(_demos(), potential, gradient, GOAL, 2.0, 1.0, 0)
+    assert out["n_new_starts_elsewhere"] == 0 and at_goal.all()
+    above = int(np.count_nonzero(starts[:, 1] > 1.0))
+    assert above > 0
+    assert new_starts_late(_demos(), gradient, GOAL, 2.0, starts) == above
+    steep = new_starts_late(_demos(), lambda X: 3.0 * X, GOAL, 2.0, starts)
+    assert steep == 0
+    assert new_starts_late_message({"n_new_starts": 64, "n_new_starts_late": above})
+    assert new_starts_late_message({"n_new_starts": 64, "n_new_starts_late": 0}) is None
+    assert new_starts_late(_demos(), gradient, GOAL, 2.0, starts[:0]) == 0
+
+
 def test_the_new_starts_are_seeded():
     potential, gradient = _bowl_with_well(1.0)
     runs = [new_starts_elsewhere(_demos(), potential, gradient, GOAL, 2.0, 1.0, seed)
@@ -76,6 +99,7 @@ def test_a_fit_whose_demonstrations_end_together_reports_its_new_starts():
         warnings.simplefilter("always")
         goal = PolicyAlign(random_state=0).fit(demos).fit_summary_["goal"]
     assert goal["n_new_starts"] == NEW_STARTS and goal["n_new_starts_elsewhere"] == 0
+    assert goal["n_new_starts_late"] == 0
     assert not [w for w in caught if "new starts" in str(w.message)]
 
 
@@ -114,3 +138,18 @@ def test_a_fit_whose_new_starts_stop_off_the_paths_refits_a_stiffer_residual():
     assert model.fit_summary_["anchor"]["kernel_ridge_raised"] is True
     assert model.fit_summary_["goal"]["n_new_starts_elsewhere"] == 0
     assert model.fit_summary_["goal"]["n_starts_elsewhere"] == 0
+
+
+def test_a_fit_whose_new_starts_crawl_to_the_goal_says_so():
+    # LASA NShape without its first demonstration: every new start's descent stops at the
+    # goal, but some of the runs cross a plateau at a hundredth of the demonstrations'
+    # speed and are still on their way after 3 times their duration.
+    from policy_align_ros.experiments import lasa
+
+    demos = lasa.load_shape("NShape")
+    trajs = [Trajectory(d["positions"][::5], d["times"][::5]) for d in demos[1:]]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        goal = PolicyAlign(random_state=0).fit(trajs).fit_summary_["goal"]
+    assert goal["n_new_starts_elsewhere"] == 0 and goal["n_new_starts_late"] > 0
+    assert any(issubclass(w.category, UserWarning) for w in caught)
