@@ -11,7 +11,8 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
         [--seed S] [--out DIR] [--cases a,b] [--set NAME=VALUE]
     policy-align bench lasa [--protocol loo|all|both] [--shapes tuning|reporting|all|multi|A,B]
-        [--methods a,b] [--demos K] [--recorded] [--jobs J] [--out DIR] [--set NAME=VALUE]
+        [--methods a,b] [--demos K] [--recorded] [--hesitant] [--jobs J] [--out DIR]
+        [--set NAME=VALUE]
 """
 
 from __future__ import annotations
@@ -54,6 +55,9 @@ def _add_bench(sub) -> None:
     bench.add_argument("--recorded", action="store_true",
                        help="lasa only: train on the demonstrations as a recorder stores "
                             "them: at rest before and after the motion, with position noise")
+    bench.add_argument("--hesitant", action="store_true",
+                       help="lasa only: each training demonstration stops once on the way "
+                            "for 0.3-1 s, as a teacher who hesitates")
 
 
 def _build_parser() -> argparse.ArgumentParser:

@@ -24,8 +24,12 @@ node stores them when a user calls ``start_demo`` before moving and ``stop_demo`
 each training demonstration at rest for :data:`RECORDED_REST_BEFORE` s before its motion
 and :data:`RECORDED_REST_AFTER` s after it, with white position noise of
 :data:`RECORDED_NOISE` of the workspace on every sample (a tracker's noise floor), seeded
-per shape and demonstration. Rollouts and metrics stay on the data set's own
-demonstrations.
+per shape and demonstration. ``--hesitant`` makes each training demonstration stop once
+on the way, as a teacher who hesitates (:func:`~policy_align_ros.sim.recording.hesitate`):
+at :data:`HESITATE_AT` of its duration, for :data:`HESITATE_PAUSE` s, slowing down and
+setting off over :data:`HESITATE_RAMP` s, seeded per shape and demonstration (with
+``--recorded`` too, before the rests and noise). Rollouts and metrics stay on the data
+set's own demonstrations.
 """
 
 from __future__ import annotations
@@ -54,7 +58,7 @@ from policy_align_ros.experiments.lasa_metrics import (
 )
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.learning import Trajectory
-from policy_align_ros.sim.recording import pad_with_rest
+from policy_align_ros.sim.recording import hesitate, pad_with_rest
 
 __all__ = ["ALL_SHAPES", "TUNING_SHAPES", "REPORTING_SHAPES", "MULTI_SHAPES", "PROTOCOLS",
            "load_shape", "select_shapes", "run_task", "run_lasa", "main"]
@@ -94,6 +98,11 @@ FIGURE_METHODS = ("policy_align", "gmr")
 RECORDED_REST_BEFORE = (0.2, 1.0)
 RECORDED_REST_AFTER = (0.5, 2.0)
 RECORDED_NOISE = 5e-4
+#: ``--hesitant``: ranges of where the halt is (fraction of the duration) and of its length
+#: (s), and the length of its ramps (s).
+HESITATE_AT = (0.3, 0.7)
+HESITATE_PAUSE = (0.3, 1.0)
+HESITATE_RAMP = 0.3
 
 
 def load_shape(name: str) -> list[dict[str, np.ndarray]]:
@@ -146,12 +155,19 @@ def shape_set(name: str) -> str:
 
 
 def _training(demos: list[dict], keep: list[int], subsample: int,
-              recorded: tuple[str, float] | None = None) -> list[Trajectory]:
+              recorded: tuple[str, float] | None = None,
+              hesitant: str | None = None) -> list[Trajectory]:
     """Every ``subsample``-th sample of the demonstrations ``keep``; with ``recorded``
-    (shape name, workspace W in mm) as the recorder stores them (module docstring)."""
+    (shape name, workspace W in mm) as the recorder stores them, with ``hesitant`` (shape
+    name) stopping once on the way (module docstring)."""
     out = []
     for k in keep:
         X, t = demos[k]["positions"][::subsample], demos[k]["times"][::subsample]
+        if hesitant is not None:
+            # A stream of its own: the recorded rests and noise stay those of --recorded.
+            rng = np.random.default_rng([(ALL_SHAPES + MULTI_SHAPES).index(hesitant), k, 1])
+            X, t = hesitate(X, t, rng.uniform(*HESITATE_AT), rng.uniform(*HESITATE_PAUSE),
+                            HESITATE_RAMP)
         if recorded is not None:
             shape, width = recorded
             rng = np.random.default_rng([(ALL_SHAPES + MULTI_SHAPES).index(shape), k])
@@ -235,8 +251,9 @@ def run_task(task: tuple) -> dict[str, Any]:
         ``(shape, protocol, fold, methods, settings, want_field, options)``: ``fold`` is
         the held-out demonstration (``loo``) or None (``all``); ``options`` may hold
         ``demos`` (use only the first so many demonstrations), ``subsample`` and
-        ``max_steps`` (a cap on rollout steps), for quick tests, and ``recorded``
-        (train on the demonstrations as recorded, module docstring).
+        ``max_steps`` (a cap on rollout steps), for quick tests, ``recorded`` (train on
+        the demonstrations as recorded) and ``hesitant`` (each stopping once on the way;
+        module docstring).
 
     Returns
     -------
@@ -251,7 +268,8 @@ def run_task(task: tuple) -> dict[str, Any]:
     keep = [k for k in range(len(demos)) if k != fold]
     evaluated = list(range(len(demos))) if fold is None else [fold]
     trajs = _training(demos, keep, options.get("subsample", SUBSAMPLE),
-                      (shape, width) if options.get("recorded") else None)
+                      (shape, width) if options.get("recorded") else None,
+                      shape if options.get("hesitant") else None)
     records, figure = [], {"rollouts": {}, "field": None}
     for method in methods:
         with warnings.catch_warnings(record=True) as caught:
@@ -329,6 +347,7 @@ def main(args: argparse.Namespace) -> int:
     settings = parse_policy_settings(getattr(args, "set", None) or [])
     options = dict(getattr(args, "lasa_options", None) or {})
     options.setdefault("recorded", bool(getattr(args, "recorded", False)))
+    options.setdefault("hesitant", bool(getattr(args, "hesitant", False)))
     if getattr(args, "demos", None) is not None:
         if not 2 <= args.demos <= 7:
             raise ValueError(f"--demos {args.demos}: a LASA shape has 7 demonstrations; "
@@ -341,6 +360,7 @@ def main(args: argparse.Namespace) -> int:
                f"{getattr(args, 'shapes', None) or 'all'} --jobs {args.jobs}"
                + (f" --demos {options['demos']}" if "demos" in options else "")
                + (" --recorded" if options["recorded"] else "")
+               + (" --hesitant" if options["hesitant"] else "")
                + "".join(f" --set {s}" for s in getattr(args, "set", None) or []))
     text = format_report(records, methods, protocols, elapsed, command)
     print(text)

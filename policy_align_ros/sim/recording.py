@@ -33,8 +33,9 @@ from policy_align_ros.kinematics import nullspace_projector
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.sim.demonstrations import ConstraintFn, Demonstration
 
-__all__ = ["encoder_noise", "friction_slowdown", "minimum_jerk", "pad_with_rest", "retime_path",
-           "stamp_jitter", "table_contact_rollout", "track_velocity", "with_ground_truth"]
+__all__ = ["encoder_noise", "friction_slowdown", "hesitate", "minimum_jerk", "pad_with_rest",
+           "retime_path", "stamp_jitter", "table_contact_rollout", "track_velocity",
+           "with_ground_truth"]
 
 #: Distance above the table top (m) at which the hand counts as touching it.
 CONTACT_TOL = 1e-3
@@ -340,6 +341,63 @@ def pad_with_rest(X: np.ndarray, times: np.ndarray, rest_before: float, rest_aft
     times = np.concatenate([times[0] - dt * np.arange(before, 0, -1), times,
                             times[-1] + dt * np.arange(1, after + 1)])
     return X, times
+
+
+def hesitate(X: np.ndarray, times: np.ndarray, at: float, pause: float, ramp: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The recording of a teacher who stops once on the way and sets off again.
+
+    The motion ``X(t)`` is replayed on a clock that runs at the recording's pace but,
+    around ``at`` of its duration, slows to a halt over ``ramp`` s (a raised cosine),
+    stands still for ``pause`` s and speeds up again over ``ramp`` s: the path is the
+    same, its speed along it is scaled by that clock's rate, and the recording lasts
+    ``pause + ramp`` s longer, sampled at its median period.
+
+    Parameters
+    ----------
+    X : numpy.ndarray, shape (N, n)
+        Positions of the motion (state units), N >= 2.
+    times : numpy.ndarray, shape (N,)
+        Increasing stamps, s.
+    at : float
+        Where the halt is reached, as a fraction of the duration, in ``(0, 1)``.
+    pause, ramp : float
+        The halt's length and each of its two ramps' length, s (``pause >= 0``,
+        ``ramp > 0``).
+
+    Returns
+    -------
+    X : numpy.ndarray, shape (M, n)
+        Positions on the motion's path (linear interpolation between its samples).
+    times : numpy.ndarray, shape (M,)
+        From ``times[0]``, every median period.
+    """
+    X, times = np.asarray(X, dtype=float), np.asarray(times, dtype=float)
+    if X.ndim != 2 or len(X) < 2 or times.shape != (len(X),) or np.any(np.diff(times) <= 0):
+        raise ValueError(f"X, times: must have shapes (N >= 2, n) and (N,) with increasing "
+                         f"stamps, got {X.shape} and {times.shape}")
+    if not 0.0 < at < 1.0:
+        raise ValueError(f"at: must be in (0, 1), got {at}")
+    if pause < 0:
+        raise ValueError(f"pause: must be >= 0 s, got {pause}")
+    ramp = _positive("ramp", ramp)
+    dt = float(np.median(np.diff(times)))
+    halt = times[0] + at * (times[-1] - times[0])  # on the new clock, the halt starts here
+    # The motion's clock tau(t) is the integral of the rate; the ramps end where the
+    # unmodified clock would have covered ramp / 2 each (a raised cosine's mean is 1/2).
+    fine = np.linspace(times[0], times[-1] + pause + ramp, 64 * len(times))
+    rate = np.ones_like(fine)
+    down = (fine > halt - ramp) & (fine < halt)
+    rate[down] = 0.5 * (1.0 + np.cos(np.pi * (fine[down] - halt + ramp) / ramp))
+    rate[(fine >= halt) & (fine <= halt + pause)] = 0.0
+    up = (fine > halt + pause) & (fine < halt + pause + ramp)
+    rate[up] = 0.5 * (1.0 - np.cos(np.pi * (fine[up] - halt - pause) / ramp))
+    tau = times[0] + np.concatenate(
+        [[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(fine))])
+    new_times = times[0] + dt * np.arange(int(np.ceil((fine[-1] - times[0]) / dt - 1e-9)) + 1)
+    clock = np.minimum(np.interp(new_times, fine, tau), times[-1])
+    out = np.stack([np.interp(clock, times, X[:, d]) for d in range(X.shape[1])], axis=1)
+    return out, new_times
 
 
 def stamp_jitter(times: np.ndarray, sd: float, rng: np.random.Generator) -> np.ndarray:

@@ -244,11 +244,33 @@ def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
 def test_a_recorded_run_of_a_few_demonstrations_says_so_in_its_command(tmp_path):
     args = argparse.Namespace(
         protocol="loo", shapes="Line", methods=["grad_field"], set=[], jobs=1, demos=3,
-        recorded=True, out=str(tmp_path), lasa_options={"subsample": 20, "max_steps": 200})
+        recorded=True, hesitant=True, out=str(tmp_path),
+        lasa_options={"subsample": 20, "max_steps": 200})
     assert lasa.main(args) == 0
     raw = json.loads((tmp_path / "lasa.json").read_text())
-    assert raw["command"].endswith("--demos 3 --recorded")
+    assert raw["command"].endswith("--demos 3 --recorded --hesitant")
     assert sorted(r["demo"] for r in raw["records"]) == [0, 1, 2]
+
+
+def test_hesitant_training_demonstrations_stop_once_and_keep_the_recorded_noise():
+    demos = lasa.load_shape("Line")
+    width = workspace_size([d["positions"] for d in demos])
+    clean = lasa._training(demos, [0, 1], 5)
+    hesitant = lasa._training(demos, [0, 1], 5, hesitant="Line")
+    for c, h in zip(clean, hesitant, strict=True):
+        extra = h.duration - c.duration
+        low, high = lasa.HESITATE_PAUSE
+        assert low + lasa.HESITATE_RAMP - 0.02 <= extra <= high + lasa.HESITATE_RAMP + 0.02
+        speed = np.linalg.norm(np.diff(h.positions, axis=0), axis=1)
+        assert np.count_nonzero(speed < 1e-9) * np.median(np.diff(h.times)) >= low - 0.05
+        np.testing.assert_allclose(h.positions[[0, -1]], c.positions[[0, -1]], atol=1e-9)
+    # Seeded per shape and demonstration, apart from the recorded rests and noise.
+    again = lasa._training(demos, [1], 5, hesitant="Line")[0]
+    np.testing.assert_array_equal(again.positions, hesitant[1].positions)
+    both = lasa._training(demos, [1], 5, ("Line", width), hesitant="Line")[0]
+    recorded = lasa._training(demos, [1], 5, ("Line", width))[0]
+    assert len(both.positions) - len(recorded.positions) == len(hesitant[1].positions) - len(
+        clean[1].positions)
 
 
 def test_recorded_training_demonstrations_rest_at_both_ends_and_are_noisy():

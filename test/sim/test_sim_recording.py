@@ -8,6 +8,7 @@ from policy_align_ros.sim.experts import QuadraticPotential
 from policy_align_ros.sim.recording import (
     encoder_noise,
     friction_slowdown,
+    hesitate,
     minimum_jerk,
     pad_with_rest,
     retime_path,
@@ -117,3 +118,26 @@ def test_padding_holds_the_ends_for_the_rests_and_keeps_the_motion():
         pad_with_rest(X, t, -0.1, 0.5)
     with pytest.raises(ValueError, match="shapes"):
         pad_with_rest(X[:1], t[:1], 0.1, 0.5)
+
+
+def test_a_hesitation_stops_once_on_the_same_path_and_lasts_the_pause_longer():
+    t = 0.01 * np.arange(201) + 1.0  # 2 s at 100 Hz
+    X = np.stack([(t - 1.0) ** 2, np.sin(t)], axis=1)
+    Y, ty = hesitate(X, t, 0.5, 0.6, 0.3)
+    np.testing.assert_allclose(np.diff(ty), 0.01)
+    assert ty[0] == t[0] and ty[-1] == pytest.approx(t[-1] + 0.6 + 0.3)
+    np.testing.assert_allclose(Y[[0, -1]], X[[0, -1]])
+    # The same path: every sample on the motion's polyline, in order along it (x rises).
+    np.testing.assert_allclose(Y[:, 1], np.sin(np.sqrt(Y[:, 0]) + 1.0), atol=1e-4)
+    assert np.all(np.diff(Y[:, 0]) >= 0)
+    # At rest for the pause, from 1 s into the motion, and moving before and after.
+    speed = np.linalg.norm(np.diff(Y, axis=0), axis=1) / 0.01
+    still = (ty[:-1] >= 2.0) & (ty[1:] <= 2.6)
+    assert np.all(speed[still] < 1e-6) and still.sum() >= 59
+    assert np.all(speed[ty[1:] < 1.6] > 0) and np.all(speed[ty[:-1] > 2.95] > 0)
+    with pytest.raises(ValueError, match="at"):
+        hesitate(X, t, 1.0, 0.6, 0.3)
+    with pytest.raises(ValueError, match="pause"):
+        hesitate(X, t, 0.5, -0.1, 0.3)
+    with pytest.raises(ValueError, match="ramp"):
+        hesitate(X, t, 0.5, 0.6, 0.0)
