@@ -9,8 +9,8 @@ TUNING shape (1st, 3rd, ...) and a REPORTING shape (2nd, 4th, ...): 13 + 13, fix
 (:data:`TUNING_SHAPES`, :data:`REPORTING_SHAPES`). Choices may be made on the tuning shapes;
 the reporting shapes are for reporting only. The four ``Multi_Models_*`` shapes
 (:data:`MULTI_SHAPES`, ``--shapes multi``), whose demonstrations start in two or three
-places and draw a different pattern from each, are a third set that no choice of this
-package was ever made or looked at on: data it has not seen, as a user's would be.
+places and draw a different pattern from each, are a third set on which no default of
+this package was chosen: scored as data a user brings would be.
 
 Training data: every 5th sample of a demonstration with its times,
 ``Trajectory(positions, times)`` (no recorded velocities). Protocols: ``all`` (train on
