@@ -9,12 +9,12 @@ spread of the minima over the CV folds, and the demonstrations from whose start 
 stops where no demonstration's end leads (``elsewhere``) or is still on its way to the goal
 after 3 times the demonstration's duration (``late``), and the runs from random new starts
 around the data that stop away from the goal, plus those still on their way after 3 times
-the demonstrations' median duration (``new``: ``elsewhere+late/64``); on LASA also how many rollouts
-from the demonstrations' starts (the bench's Euler steps, 3 T) end within 1 % of the extent
-of the goal. An anchored fit adds the direction weights it tried (``w``), each with its
-training starts that stop elsewhere and whether the goal is a minimum (``saddle`` where
-only the curvature rejected it). ``--hold-out K`` fits LASA without demonstration ``K``
-(the rollouts still start from all 7).
+the demonstrations' median duration (``new``: ``elsewhere+late/64``); on LASA also how
+many rollouts from the demonstrations' starts (the bench's Euler steps, 3 T) end within
+1 % of the extent of the goal. An anchored fit adds the direction weights it tried
+(``w``), each with its training starts that stop elsewhere and whether the goal is a
+minimum (``saddle`` where only the curvature rejected it). ``--hold-out K`` fits LASA
+without demonstration ``K`` (the rollouts still start from all 7).
 
     python tools/goal_check.py suite --cases quad_iso_2,two_minima --seed 0
     python tools/goal_check.py lasa [--shapes Angle,Line] [--hold-out 3]
