@@ -42,9 +42,8 @@ from policy_align_ros.learning.reach import REACH_TIME, reach_times
 from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
 from policy_align_ros.learning.trajectory import Trajectory, sample_period
 
-__all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_start_runs", "new_starts_elsewhere",
-           "new_starts_late", "new_starts_late_message", "new_starts_message",
-           "stiffer_residual"]
+__all__ = ["NEW_STARTS", "NEW_START_MARGIN", "new_start_runs", "new_starts_late",
+           "new_starts_late_message", "new_starts_message", "stiffer_residual"]
 
 #: Random new starts descended, whatever the dimension: a run stopped by a minimum in a
 #: basin that covers 3.5 % of the box is then found with a probability of 0.9.
@@ -52,14 +51,6 @@ NEW_STARTS = 64
 #: The new starts lie in the data's bounding box widened by this fraction of its extent on
 #: each side (the margin of the LASA bench's field, where a user may start a run).
 NEW_START_MARGIN = 0.15
-
-
-def new_starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Field,
-                         goal: np.ndarray | None, extent: float, speed: float,
-                         random_state: int | np.random.Generator | None = None
-                         ) -> dict[str, Any]:
-    """:func:`new_start_runs`' report alone."""
-    return new_start_runs(trajs, potential, gradient, goal, extent, speed, random_state)[0]
 
 
 def new_start_runs(trajs: Sequence[Trajectory], potential: Field, gradient: Field,

@@ -9,7 +9,6 @@ from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.new_starts import (
     NEW_STARTS,
     new_start_runs,
-    new_starts_elsewhere,
     new_starts_late,
     new_starts_late_message,
     new_starts_message,
@@ -42,7 +41,7 @@ def _demos():
 
 def test_runs_from_new_starts_find_a_well_beside_the_paths_that_no_start_leads_to():
     potential, gradient = _bowl_with_well(1.0)
-    out = new_starts_elsewhere(_demos(), potential, gradient, GOAL, 2.0, 1.0, 0)
+    out = new_start_runs(_demos(), potential, gradient, GOAL, 2.0, 1.0, 0)[0]
     assert out["n_new_starts"] == NEW_STARTS
     assert out["n_new_starts_elsewhere"] > 0 and out["n_new_starts_escaped"] == 0
     (well,) = out["new_start_minima"]
@@ -54,10 +53,10 @@ def test_runs_from_new_starts_find_a_well_beside_the_paths_that_no_start_leads_t
 
 def test_a_bowl_leads_every_new_start_to_its_goal_and_no_goal_runs_nothing():
     potential, gradient = _bowl_with_well(0.0)
-    out = new_starts_elsewhere(_demos(), potential, gradient, GOAL, 2.0, 1.0, 0)
+    out = new_start_runs(_demos(), potential, gradient, GOAL, 2.0, 1.0, 0)[0]
     assert out["n_new_starts_elsewhere"] == 0 and out["new_start_minima"] == []
     assert new_starts_message(out) is None
-    none = new_starts_elsewhere(_demos(), potential, gradient, None, 2.0, 1.0, 0)
+    none = new_start_runs(_demos(), potential, gradient, None, 2.0, 1.0, 0)[0]
     assert set(none.values()) == {None} and new_starts_message(none) is None
 
 
@@ -83,7 +82,7 @@ def test_runs_that_reach_the_goal_only_by_crawling_over_a_plateau_count_as_late(
 
 def test_the_new_starts_are_seeded():
     potential, gradient = _bowl_with_well(1.0)
-    runs = [new_starts_elsewhere(_demos(), potential, gradient, GOAL, 2.0, 1.0, seed)
+    runs = [new_start_runs(_demos(), potential, gradient, GOAL, 2.0, 1.0, seed)[0]
             for seed in (3, 3, 4)]
     assert runs[0] == runs[1]
     assert runs[0]["n_new_starts_elsewhere"] != runs[2]["n_new_starts_elsewhere"]
