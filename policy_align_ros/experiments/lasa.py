@@ -77,6 +77,8 @@ REPORTING_SHAPES = ALL_SHAPES[1::2]
 #: The multi-pattern shapes: 7 demonstrations from two or three starts, a pattern per
 #: start, one goal. Reported as their own set (``multi``), never part of ``all``.
 MULTI_SHAPES = ("Multi_Models_1", "Multi_Models_2", "Multi_Models_3", "Multi_Models_4")
+#: Every shape the bench knows; a shape's index here seeds its recorded distortions.
+_KNOWN_SHAPES = ALL_SHAPES + MULTI_SHAPES
 PROTOCOLS = ("all", "loo")
 #: Training data and DTW use every this-many-th sample.
 SUBSAMPLE = 5
@@ -115,7 +117,7 @@ def load_shape(name: str) -> list[dict[str, np.ndarray]]:
         Per demonstration ``positions`` (1000, 2) mm, ``velocities`` (1000, 2) mm/s and
         ``times`` (1000,) s.
     """
-    if name not in ALL_SHAPES + MULTI_SHAPES:
+    if name not in _KNOWN_SHAPES:
         raise ValueError(f"shape {name!r}: not a LASA shape; the 26 single-pattern ones are "
                          f"{list(ALL_SHAPES)}, the multi-pattern ones {list(MULTI_SHAPES)}")
     # The package prints where its data are on import; keep the bench's stdout clean.
@@ -140,10 +142,10 @@ def select_shapes(spec: str) -> list[str]:
     if spec == "multi":
         return list(MULTI_SHAPES)
     names = [s.strip() for s in spec.split(",") if s.strip()]
-    unknown = [s for s in names if s not in ALL_SHAPES + MULTI_SHAPES]
+    unknown = [s for s in names if s not in _KNOWN_SHAPES]
     if not names or unknown:
         raise ValueError(f"--shapes {spec!r}: expected tuning, reporting, all, multi or names "
-                         f"from {list(ALL_SHAPES + MULTI_SHAPES)}; unknown: {unknown}")
+                         f"from {list(_KNOWN_SHAPES)}; unknown: {unknown}")
     return names
 
 
@@ -165,12 +167,12 @@ def _training(demos: list[dict], keep: list[int], subsample: int,
         X, t = demos[k]["positions"][::subsample], demos[k]["times"][::subsample]
         if hesitant is not None:
             # A stream of its own: the recorded rests and noise stay those of --recorded.
-            rng = np.random.default_rng([(ALL_SHAPES + MULTI_SHAPES).index(hesitant), k, 1])
+            rng = np.random.default_rng([_KNOWN_SHAPES.index(hesitant), k, 1])
             X, t = hesitate(X, t, rng.uniform(*HESITATE_AT), rng.uniform(*HESITATE_PAUSE),
                             HESITATE_RAMP)
         if recorded is not None:
             shape, width = recorded
-            rng = np.random.default_rng([(ALL_SHAPES + MULTI_SHAPES).index(shape), k])
+            rng = np.random.default_rng([_KNOWN_SHAPES.index(shape), k])
             X, t = pad_with_rest(X, t, rng.uniform(*RECORDED_REST_BEFORE),
                                  rng.uniform(*RECORDED_REST_AFTER))
             X = X + RECORDED_NOISE * width * rng.standard_normal(X.shape)
