@@ -13,16 +13,21 @@ expert's true minimum (computed numerically where it has no closed form):
   coefficient 0.4) beside the random hand planes, at 25 Hz;
 - ``bumps_2`` and ``bumps_noisy_6``: a quadratic-plus-conic attractor with two small
   Gaussian bumps that shift its minimum; the 6-D one at 100 Hz through a 14-bit encoder
-  with white noise and 1 ms stamp jitter.
+  with white noise and 1 ms stamp jitter;
+- ``kinesthetic_7``: a person guiding the suite's arm expert freely to its goal: the
+  expert's converged path with a minimum-jerk timing of 2-5 s, at rest before and after,
+  read at 50 Hz through the same encoder, velocities differenced.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
 from policy_align_ros.experiments.suite_cases import (
+    CASES,
     ArmPotential,
     Case,
     Problem,
@@ -33,7 +38,12 @@ from policy_align_ros.experiments.suite_cases import (
     random_rows,
 )
 from policy_align_ros.kinematics import nullspace_projector
-from policy_align_ros.sim.demonstrations import ConstraintFn, Demonstration, rollout
+from policy_align_ros.sim.demonstrations import (
+    ConstraintFn,
+    Demonstration,
+    no_constraint,
+    rollout,
+)
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpacePotential
 from policy_align_ros.sim.recording import (
     encoder_noise,
@@ -238,10 +248,40 @@ def _bumps_case(n: int, hz: float, duration: float, k: int, noisy: bool
     return make
 
 
+# -- 6. kinesthetic teaching: free paths to one goal, a person's timing, encoders --------
+
+#: The expert's path runs this long (s, at 100 Hz) before it is re-timed: about 6 of the
+#: posture term's time constants, so every demonstration ends at the goal it means.
+KINESTHETIC_PATH = 10.0
+
+
+def _kinesthetic(rng: np.random.Generator) -> Problem:
+    # arm_task_7's expert, starts and unseen constraint, drawn alike from the seed.
+    arm = CASES["arm_task_7"].make(rng)
+    n, hz, duration = arm.potential.n, 50.0, 3.0
+
+    def record(q0, constraint, r, name) -> Demonstration:
+        path = rollout(q0, arm.potential, constraint, int(100 * KINESTHETIC_PATH), 0.01)
+        X, _, times, _ = retime_path(path.trajectory.positions, duration * r.uniform(0.6, 1.6),
+                                     1.0 / hz, rest_before=r.uniform(0.2, 0.5),
+                                     rest_after=r.uniform(0.3, 0.8))
+        # The same 14-bit encoders and 1 ms jitter as bumps_noisy_6; velocities differenced.
+        read = encoder_noise(X, 2 * np.pi / 2**14, 0.2 * 2 * np.pi / 2**14, r)
+        V = np.gradient(read, times, axis=0)
+        eye = np.broadcast_to(np.eye(n), (len(X), n, n))
+        return with_ground_truth(read, V, stamp_jitter(times, 1e-3, r), arm.potential, eye,
+                                 np.zeros(len(X), dtype=int), name=name, truth_at=X)
+
+    free = no_constraint(n)
+    return replace(arm, dt=1.0 / hz, n_samples=int(hz * duration), n_train=8,
+                   training_constraint=lambda r: free, record=record)
+
+
 RECORDING_CASES = {
     "lag_joint_7": Case("lag_joint_7", 7, "50 Hz", _lag_joint),
     "human_timing_2": Case("human_timing_2", 2, "50 Hz", _human_timing),
     "contact_arm_7": Case("contact_arm_7", 7, "25 Hz", contact_arm),
     "bumps_2": Case("bumps_2", 2, "50 Hz", _bumps_case(2, 50.0, 4.0, 30, False)),
     "bumps_noisy_6": Case("bumps_noisy_6", 6, "100 Hz", _bumps_case(6, 100.0, 4.0, 40, True)),
+    "kinesthetic_7": Case("kinesthetic_7", 7, "50 Hz", _kinesthetic),
 }

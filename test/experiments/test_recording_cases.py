@@ -13,6 +13,7 @@ from policy_align_ros.experiments.retiming import (
     retiming_shift,
     smoothstep_warp,
 )
+from policy_align_ros.experiments.suite_cases import CASES
 from policy_align_ros.learning import PolicyAlign, Trajectory
 
 
@@ -55,6 +56,25 @@ def test_the_contact_case_without_the_table_keeps_its_starts_and_goes_through_it
         hand = np.array([problem.extras["hand"](q) for d in demos
                          for q in d.trajectory.positions])
         assert (hand[:, 2].min() < height - 0.01) == through
+
+
+def test_the_kinesthetic_case_is_the_arm_expert_guided_freely_to_its_goal():
+    problem = RECORDING_CASES["kinesthetic_7"].make(np.random.default_rng(3))
+    arm = CASES["arm_task_7"].make(np.random.default_rng(3))
+    np.testing.assert_array_equal(problem.minimum, arm.minimum)  # the same expert
+    rng = np.random.default_rng(4)
+    demos = suite._demos(problem, problem.sample_starts(rng, 3), rng)
+    durations = []
+    for d in demos:
+        X, V = d.trajectory.positions, d.trajectory.velocities
+        speed = np.linalg.norm(V, axis=1)
+        # At rest at both ends (the rests last >= 10 samples; the encoder's noise is left),
+        # a person's timing between, and at the goal in the end.
+        assert max(np.median(speed[:10]), np.median(speed[-10:])) < 0.05 * speed.max()
+        assert np.linalg.norm(X[-1] - problem.minimum) < 0.01
+        np.testing.assert_array_equal(d.projectors, np.broadcast_to(np.eye(7), d.projectors.shape))
+        durations.append(d.trajectory.times[-1] - d.trajectory.times[0])
+    assert np.ptp(durations) > 0.2
 
 
 def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
