@@ -10,7 +10,8 @@ there, with the direction of the demonstrations' motion (:func:`motion_steps`) a
 timing-free evidence of the slope across them (``docs/design/goal_anchor.md``). How much
 that evidence weighs against the timed potential values is chosen by whether the
 demonstrations' starts reach the goal and the goal is a strict minimum
-(:func:`choose_direction_weight`, :func:`goal_curvature`).
+(:func:`choose_direction_weight`, :func:`goal_curvature`). The demonstrations' durations
+bound how flat the anchored bowl may be (:func:`bowl_curvature`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from policy_align_ros.learning.goal import (
+    GOAL_MERGE,
     data_extent,
     demonstrated_goal,
     learnt_minima,
@@ -30,10 +32,11 @@ from policy_align_ros.learning.goal import (
     typical_speed,
 )
 from policy_align_ros.learning.model_io import json_float
+from policy_align_ros.learning.reach import REACH_TIME
 from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision",
+__all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision", "bowl_curvature",
            "choose_direction_weight", "direction_candidates", "goal_curvature",
            "motion_drops", "motion_steps"]
 
@@ -103,6 +106,37 @@ def motion_drops(potential: np.ndarray) -> np.ndarray:
     if len(potential) < 2:
         return np.zeros_like(potential)
     return np.gradient(potential)
+
+
+def bowl_curvature(trajs: Sequence[Trajectory]) -> float:
+    """The smallest curvature of an anchored fit's quadratic trend at the goal:
+    ``ln(1 / GOAL_MERGE) / (REACH_TIME T)``, with ``T`` the demonstrations' median
+    duration.
+
+    The demonstrations show the goal reached within about ``T`` from where they start. A
+    bowl flatter than they are in some direction lets runs crawl there: the flow
+    ``xdot = -lambda x`` of an eigenvalue ``lambda`` shrinks an offset by
+    ``exp(-lambda t)``. At this bound, the slowest direction of the trend brings an
+    offset to :data:`~policy_align_ros.learning.goal.GOAL_MERGE` of itself in
+    :data:`~policy_align_ros.learning.reach.REACH_TIME` times ``T``: the time and the
+    tolerance within which the fit's own checks expect a run at the goal
+    (:func:`~policy_align_ros.learning.reach.reach_times`). The kernel residual can still
+    bend the potential beside the data; the bound is the trend's, which decides away
+    from it (``docs/design/goal_anchor.md``, "The bowl's least curvature").
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory
+        The demonstrations; untimed ones count their steps (one per sample).
+
+    Returns
+    -------
+    float
+        1/s: potential units (state units squared per second) per squared state unit;
+        per step without times.
+    """
+    duration = float(np.median([t.duration for t in trajs]))
+    return math.log(1.0 / GOAL_MERGE) / (REACH_TIME * duration) if duration > 0 else 0.0
 
 
 def goal_curvature(gradient: Callable[[np.ndarray], np.ndarray], goal: np.ndarray,

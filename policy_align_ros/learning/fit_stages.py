@@ -97,9 +97,10 @@ class FitStages:
                       ) -> tuple[dict | None, tuple | None]:
         """Stage 4b: the global model made stationary at ``anchor["goal"]`` when
         ``anchor["anchored"]`` (:func:`~policy_align_ros.learning.anchor.anchor_decision`),
-        with the direction weight chosen from the starts (recorded in ``anchor``). Returns
-        the starts check of the kept fit and its scores and sample count (None, None
-        unanchored)."""
+        with the direction weight chosen from the starts and the bowl's least curvature
+        (:func:`~policy_align_ros.learning.anchor.bowl_curvature`; both recorded in
+        ``anchor``). Returns the starts check of the kept fit and its scores and sample
+        count (None, None unanchored)."""
         if not anchor["anchored"]:
             return None, None
         goal, fitted = np.asarray(anchor["goal"]), {}
@@ -114,6 +115,8 @@ class FitStages:
             est, template, goal, choice["direction_weight"], fit_anchored, fitted,
             choice.pop("starts"))
         anchor.update(choice)
+        anchor["min_curvature"] = json_float(getattr(self.regressor_, "min_curvature_", None),
+                                             "null")
         return starts, fitted["out"]
 
     def _stiffer_if_fewer_minima(self, est: Estimates, template, goal: np.ndarray,

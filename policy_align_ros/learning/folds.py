@@ -53,6 +53,7 @@ from policy_align_ros.learning.reach import REACH_TIME, starts_reach
 from policy_align_ros.learning.regressors import (
     takes_drops,
     takes_free_groups,
+    takes_min_curvature,
     takes_motion,
     takes_scored,
 )
@@ -133,6 +134,9 @@ def fold_refits(regressor, X: np.ndarray, y: np.ndarray, groups: np.ndarray,
             extra["scored"] = False
         if getattr(regressor, "goal_", None) is not None:
             extra["goal"] = regressor.goal_  # the fold model is stationary there too
+            bowl = getattr(regressor, "min_curvature_", None)
+            if bowl is not None and takes_min_curvature(template):
+                extra["min_curvature"] = bowl  # and as curved
             if motion is not None and takes_motion(template):
                 extra["motion"] = motion[train]
                 if drops is not None and takes_drops(template):
@@ -255,7 +259,8 @@ def fold_models(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndar
     ``potentials``, free offsets for ``free``, and the steps and drops of an anchored fit;
     ``random_state`` seeds the folds of a regressor that keeps none."""
     X, y, g, extra = training_set(pieces, masks, keep, potentials, free, regressor,
-                                  getattr(regressor, "goal_", None))
+                                  getattr(regressor, "goal_", None),
+                                  getattr(regressor, "min_curvature_", None))
     return fold_refits(regressor, X, y, g, free, random_state=random_state,
                        motion=extra.get("motion"), drops=extra.get("drops"))
 

@@ -18,6 +18,7 @@ from policy_align_ros.learning.regressors import (
     TrendKernelRegression,
     takes_drops,
     takes_goal,
+    takes_min_curvature,
     takes_motion,
 )
 from policy_align_ros.learning.trajectory import Trajectory
@@ -27,7 +28,7 @@ __all__ = ["cv_error", "cv_score", "fixed_copy", "level_free", "training_set"]
 
 def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndarray,
                  potentials: list[np.ndarray], free: np.ndarray, template,
-                 goal: np.ndarray | None = None
+                 goal: np.ndarray | None = None, min_curvature: float | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The global model's training samples.
 
@@ -45,11 +46,15 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
         Decides which keyword arguments the fit takes (``goal``, ``motion``).
     goal : ndarray, shape (n,), optional
         The demonstrated goal of an anchored fit.
+    min_curvature : float, optional
+        With ``goal``: the smallest curvature of the fit's bowl there
+        (:func:`~policy_align_ros.learning.anchor.bowl_curvature`).
 
     Returns
     -------
     X (m, n), y (m,), groups (m,), and the fit's keyword arguments (``free_groups``,
-    ``goal`` and the samples' ``motion`` and ``drops`` where the template takes them).
+    ``goal``, ``min_curvature`` and the samples' ``motion`` and ``drops`` where the
+    template takes them).
     """
     X = np.concatenate([trajs[k].positions[masks[k]] for k in keep])
     y = np.concatenate([potentials[k][masks[k]] for k in keep])
@@ -57,6 +62,8 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
     extra = {"free_groups": free} if free.size else {}
     if goal is not None and takes_goal(template):
         extra["goal"] = goal
+        if min_curvature is not None and takes_min_curvature(template):
+            extra["min_curvature"] = min_curvature
     if "goal" in extra and takes_motion(template):
         # Timing-free evidence beside where the demonstrations end: which way they move.
         extra["motion"] = np.concatenate([motion_steps(trajs[k].positions)[masks[k]]

@@ -54,7 +54,7 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_chained_offsets,
 )
-from policy_align_ros.learning.anchor import anchor_decision
+from policy_align_ros.learning.anchor import anchor_decision, bowl_curvature
 from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
     closest_approach_matrix,
@@ -414,11 +414,15 @@ class PolicyAlign(FitStages, BaseEstimator):
                     ) -> tuple[dict[str, float | None], int]:
         """Stage 4: a copy of ``template`` fitted on every rule's aligned potentials; the
         rule whose fit has the better CV score is kept (``integration_``, ``regressor_``,
-        ``offsets_``, ``aligned_potentials_``). Returns the scores and the samples fitted."""
+        ``offsets_``, ``aligned_potentials_``); with a ``goal``, stationary there, its bowl
+        no flatter than :func:`~policy_align_ros.learning.anchor.bowl_curvature`. Returns
+        the scores and the samples fitted."""
         fits, scores = {}, {}
+        bowl = None if goal is None else bowl_curvature(est.parents)
         for rule in est.rules:
             Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
-                                                aligned[rule][1], free, template, goal)
+                                                aligned[rule][1], free, template, goal,
+                                                bowl)
             fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr, **extra)
             scores[rule] = cv_score(fits[rule])
             if len(est.rules) > 1 and scores[rule] is None:

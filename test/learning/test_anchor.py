@@ -6,6 +6,7 @@ import pytest
 from policy_align_ros.learning.anchor import (
     CONSISTENT_SCORE,
     anchor_decision,
+    bowl_curvature,
     choose_direction_weight,
     direction_candidates,
     goal_curvature,
@@ -114,6 +115,17 @@ class _Saddle(_Bowl):
     def gradient(self, X):
         d = X - self.centre
         return np.stack([2.0 * d[:, 0], -2.0 * d[:, 1] + 800.0 * d[:, 1] ** 3], axis=1)
+
+
+def test_bowl_curvature_takes_an_offset_to_the_goal_tolerance_in_the_reach_time():
+    t = np.linspace(0.0, 1.0, 11)
+    trajs = [Trajectory(np.zeros((11, 2)), times=d * t) for d in (2.0, 3.0, 4.0)]
+    bound = bowl_curvature(trajs)
+    # The flow xdot = -bound x over 3 times the median duration leaves 5 % of an offset.
+    assert np.exp(-bound * 3.0 * 3.0) == pytest.approx(0.05)
+    # Untimed demonstrations count one step per sample.
+    assert bowl_curvature([Trajectory(np.zeros((11, 2)))] * 2) == pytest.approx(
+        np.log(20.0) / 30.0)
 
 
 def test_goal_curvature_is_the_smallest_eigenvalue_of_the_hessian():

@@ -163,6 +163,18 @@ def test_fold_refits_use_the_regressors_folds_with_its_choice_fixed():
                                    atol=1e-5)
 
 
+def test_fold_refits_of_an_anchored_fit_keep_its_goal_and_bowl():
+    trajs = _quadratic_demos(2, k=6, steps=40)
+    X = np.concatenate([t.positions for t in trajs])
+    y = 0.5 * np.einsum("ij,jk,ik->i", X - CENTRE, A, X - CENTRE)
+    groups = np.repeat(np.arange(6), 40)
+    reg = TrendKernelRegression(random_state=0).fit(X, y, groups=groups, goal=CENTRE,
+                                                    min_curvature=0.25)
+    for fold in fold_refits(reg, X, y, groups):
+        np.testing.assert_array_equal(fold.regressor.goal_, CENTRE)
+        assert fold.regressor.min_curvature_ == 0.25
+
+
 def test_along_motion_error_is_zero_for_the_true_policy_under_a_constraint():
     rng = np.random.default_rng(4)
     X = rng.normal(size=(30, 2))

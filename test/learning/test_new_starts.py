@@ -140,13 +140,14 @@ def test_a_fit_whose_new_starts_stop_off_the_paths_refits_a_stiffer_residual():
 
 
 def test_a_fit_whose_new_starts_crawl_to_the_goal_says_so():
-    # LASA NShape without its first demonstration: every new start's descent stops at the
-    # goal, but some of the runs cross a plateau at a hundredth of the demonstrations'
-    # speed and are still on their way after 3 times their duration.
+    # LASA PShape without its fifth demonstration: every new start's descent stops at the
+    # goal, but two of the runs are still on their way after 3 times the demonstrations'
+    # median duration.
     from policy_align_ros.experiments import lasa
 
-    demos = lasa.load_shape("NShape")
-    trajs = [Trajectory(d["positions"][::5], d["times"][::5]) for d in demos[1:]]
+    demos = lasa.load_shape("PShape")
+    trajs = [Trajectory(d["positions"][::5], d["times"][::5])
+             for k, d in enumerate(demos) if k != 4]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         goal = PolicyAlign(random_state=0).fit(trajs).fit_summary_["goal"]

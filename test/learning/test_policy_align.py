@@ -8,7 +8,7 @@ import policy_align_ros.learning.pieces as pieces_module
 from policy_align_ros.experiments.evaluation import evaluate_policy_align, holdout_masks
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.learning import NotFittedError, PolicyAlign, Trajectory, metrics
-from policy_align_ros.learning.anchor import goal_curvature
+from policy_align_ros.learning.anchor import bowl_curvature, goal_curvature
 from policy_align_ros.learning.regressors import LocalLinearRegression
 from policy_align_ros.sim.demonstrations import rollout
 from policy_align_ros.sim.experts import QuadraticPotential
@@ -510,6 +510,9 @@ def test_learnt_minimum_is_the_demonstrated_goal_and_does_not_move_when_retimed(
     # ... and at whose goal the potential is a strict minimum, not a saddle.
     assert anchor["goal_is_minimum"]
     assert goal_curvature(model.regressor_.gradient, np.asarray(anchor["goal"]), extent) > 0
+    # Its bowl is no flatter than the demonstrations' durations allow.
+    assert anchor["min_curvature"] == pytest.approx(bowl_curvature(demos))
+    assert model.regressor_.min_curvature_ == anchor["min_curvature"]
     first = _descend(model, demos[0].positions[0])
     assert np.linalg.norm(first - goal) < 0.01 * extent
     # The same path walked with another timing: slow in the middle, fast at the ends.

@@ -29,6 +29,7 @@ from policy_align_ros.learning.regressors.registry import (
     takes_final,
     takes_free_groups,
     takes_goal,
+    takes_min_curvature,
     takes_motion,
     takes_scored,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "takes_drops",
     "takes_free_groups",
     "takes_goal",
+    "takes_min_curvature",
     "takes_motion",
     "takes_final",
     "takes_scored",

@@ -10,7 +10,8 @@ from __future__ import annotations
 import inspect
 
 __all__ = ["REGISTRY", "register", "regressor_class", "takes_free_groups", "takes_goal",
-           "takes_drops", "takes_final", "takes_motion", "takes_scored"]
+           "takes_drops", "takes_final", "takes_min_curvature", "takes_motion",
+           "takes_scored"]
 
 REGISTRY: dict[str, type] = {}
 
@@ -53,6 +54,12 @@ def takes_drops(regressor) -> bool:
     """Whether ``regressor.fit`` accepts ``drops`` (each sample's potential change over
     its ``motion`` step)."""
     return _takes(regressor, "drops")
+
+
+def takes_min_curvature(regressor) -> bool:
+    """Whether ``regressor.fit`` accepts ``min_curvature`` (the smallest curvature of the
+    bowl of a model stationary at a goal)."""
+    return _takes(regressor, "min_curvature")
 
 
 def takes_scored(regressor) -> bool:

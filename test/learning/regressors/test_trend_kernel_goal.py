@@ -2,10 +2,12 @@
 
 
 import copy
+import math
 
 import numpy as np
 import pytest
 
+from policy_align_ros.learning.anchor import goal_curvature
 from policy_align_ros.learning.regressors import TrendKernelRegression, takes_drops, takes_goal
 from policy_align_ros.learning.regressors.trend_kernel.features import (
     _gaussian,
@@ -307,3 +309,33 @@ def test_the_memo_keeps_at_most_its_bytes():
         TrendKernelRegression(direction_weight=100.0, random_state=0).fit(
             X, y, groups=g, goal=goal, motion=steps, drops=drops)
     assert memo.hits == 0 and memo.misses > 0 and not memo._entries
+
+
+def _smallest_curvature(model, goal):
+    return goal_curvature(model.gradient, goal, 1.0)
+
+
+def test_min_curvature_bounds_the_bowl_at_the_goal_and_nothing_else():
+    # The bundle's values leave the slope across it free: the trend is flat across.
+    X, y, g, _ = _bundle()
+    goal = np.zeros(2)
+    trend = TrendKernelRegression(kernel_ridge=math.inf)
+    flat = copy.deepcopy(trend).fit(X, y, groups=g, goal=goal)
+    bound = 20.0 * _smallest_curvature(flat, goal)
+    bowl = copy.deepcopy(trend).fit(X, y, groups=g, goal=goal, min_curvature=bound)
+    assert _smallest_curvature(bowl, goal) == pytest.approx(bound, rel=1e-4)
+    assert bowl.min_curvature_ == bound and flat.min_curvature_ is None
+    assert np.allclose(bowl.gradient(goal[None]), 0.0, atol=1e-9)
+    # Without a goal there is no bowl to bound.
+    free = copy.deepcopy(trend).fit(X, y, groups=g, min_curvature=bound)
+    plain = copy.deepcopy(trend).fit(X, y, groups=g)
+    assert free.min_curvature_ is None
+    np.testing.assert_array_equal(free.gradient(X), plain.gradient(X))
+    with pytest.raises(ValueError, match="min_curvature"):
+        copy.deepcopy(trend).fit(X, y, groups=g, goal=goal, min_curvature=-1.0)
+
+
+def test_min_curvature_round_trips():
+    X, y, g, _ = _bundle()
+    model = TrendKernelRegression().fit(X, y, groups=g, goal=np.zeros(2), min_curvature=0.5)
+    assert TrendKernelRegression.from_state(*model.get_state()).min_curvature_ == 0.5

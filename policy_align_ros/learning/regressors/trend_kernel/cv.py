@@ -214,7 +214,8 @@ class CVSearch:
         # 1. The trend alone scores its penalties and the offsets' ...
         for o in o_grid:
             self.record([("quadratic", t, math.nan, math.inf, o) for t in t_grid],
-                         cv.trend.scores([_trend_penalty(n, t) for t in t_grid], o))
+                         cv.trend.scores([_trend_penalty(n, t) for t in t_grid], o,
+                                         floor=cv.floor))
         # 2. ... then the residual its length scale and penalty, jointly with the trend: at
         # the first stage's pick, and with free offsets at their best trend penalty. Where
         # a quadratic does not fit, the trend alone can rank the offset penalties wrongly.
@@ -234,7 +235,7 @@ class CVSearch:
             for o, t in paths.items():
                 self.record([("quadratic", t, ell, k, o) for k in finite_k],
                              grams.scores([_penalty(n, t, k, Kcc) for k in finite_k], o,
-                                          shared=_n_trend(n)))
+                                          shared=_n_trend(n), floor=cv.floor))
         # The better path, and on it the model with the fewest effective degrees of freedom
         # within one standard error of its best score (no residual only if the kernel
         # penalty is left to the CV).
@@ -254,7 +255,7 @@ class CVSearch:
             for o in o_grid:
                 self.record([("quadratic", t, ell, k, o) for t in t_grid],
                              grams.scores([_penalty(n, t, k, Kcc) for t in t_grid], o,
-                                          shared=-len(cv.C)))
+                                          shared=-len(cv.C), floor=cv.floor))
             best = _simplest_within(scores, [key for key in scores if key[2:4] == (ell, k)],
                                     0.0, _simpler_trend)
         return best

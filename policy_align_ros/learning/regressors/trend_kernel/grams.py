@@ -152,31 +152,33 @@ class _FoldGrams:
             self._free = (G0, r0, G0.sum(axis=0), r0.sum(axis=0))
         return self._free
 
-    def scores(self, penalties: list[np.ndarray], offset_ridge: float, shared: int = 0
-               ) -> list[tuple[float, float]]:
+    def scores(self, penalties: list[np.ndarray], offset_ridge: float, shared: int = 0,
+               floor: float = 0.0) -> list[tuple[float, float]]:
         """Held-out shape error per penalty, and its standard error over the folds.
 
         The shape error sums the squared residuals of the held-out demonstrations about
         their own mean (every held-out demonstration gets its best offset), over their
         spread. ``shared``: the penalties are block diagonal and equal in their first
         ``shared`` rows and columns (negative: in their last ``-shared``; see
-        :func:`_solve_shared`).
+        :func:`_solve_shared`). ``floor``: the trend's smallest curvature (see
+        :func:`_convex_solve`).
         """
         n_folds = len(self.G)
-        err = np.array([self.fold_errors(f, penalties, offset_ridge, shared)
+        err = np.array([self.fold_errors(f, penalties, offset_ridge, shared, floor=floor)
                         for f in range(n_folds)]).T
         return _fold_summary(err, self.shape_ss)
 
     def fold_errors(self, f: int, penalties: list[np.ndarray], offset_ridge: float,
-                    shared: int = 0, accept=None) -> list[float]:
+                    shared: int = 0, accept=None, floor: float = 0.0) -> list[float]:
         """Held-out squared shape residuals of fold ``f`` per penalty, fitted on the other
-        folds (``inf`` where the solve fails or ``accept(w)`` is false)."""
+        folds (``inf`` where the solve fails or ``accept(w)`` is false); ``floor`` as in
+        :meth:`scores`."""
         G, r, m = self.without(f, offset_ridge)
         M = G / m
         if self.nonneg:
             solved = [_nonneg_solve(M + penalty, r / m, 1) for penalty in penalties]
         else:
-            solved = _convex_solves(M, r / m, penalties, shared, self.n)
+            solved = _convex_solves(M, r / m, penalties, shared, self.n, floor)
         out = []
         for w in solved:
             ok = w is not None and np.all(np.isfinite(w)) and (accept is None or accept(w))
@@ -234,7 +236,9 @@ class _CVData:
     ``trend_directions`` (m, r, p_t): the samples' direction bases (``r = n - 1`` rows
     across the motion, ``n`` with the row along it) and the trend's direction rows
     (:func:`direction_rows`), or None; ``direction_targets`` (m, r): what the direction
-    rows observe (:func:`along_motion`), or None for zero.
+    rows observe (:func:`along_motion`), or None for zero; ``floor``: the trend's
+    smallest curvature in standardised units (:func:`_convex_solve`; not part of the sums,
+    which fits with other floors share).
     """
 
     F: np.ndarray
@@ -248,6 +252,7 @@ class _CVData:
     bases: np.ndarray | None = None
     trend_directions: np.ndarray | None = None
     direction_targets: np.ndarray | None = None
+    floor: float = 0.0
 
     @property
     def n(self) -> int:

@@ -277,7 +277,8 @@ class TrendKernelRegression(BaseEstimator):
     def fit(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
             free_groups: np.ndarray | None = None, goal: np.ndarray | None = None,
             motion: np.ndarray | None = None, scored: bool = True,
-            final: bool = True, drops: np.ndarray | None = None) -> TrendKernelRegression:
+            final: bool = True, drops: np.ndarray | None = None,
+            min_curvature: float | None = None) -> TrendKernelRegression:
         """Fit on states ``X`` (m, n), outputs ``y`` (m,) and demonstration ids ``groups``.
 
         Samples of one demonstration must be consecutive and in time order (they are
@@ -297,7 +298,12 @@ class TrendKernelRegression(BaseEstimator):
         each sample's step in ``motion``; the fit then also matches the model's slope
         along the motion to it, :data:`ALONG_WEIGHT` times the direction weight
         (:func:`along_motion`): the values say where a demonstration's potential lies,
-        the drops how steeply it falls at each sample. ``scored=False``:
+        the drops how steeply it falls at each sample. ``min_curvature``, output units per
+        squared state unit (1/s for potentials of velocities): with a ``goal``, the
+        smallest eigenvalue the quadratic trend's Hessian may have, in every candidate of
+        the CV and in the final fit (beside the bound relative to its largest,
+        :data:`~.solvers.CURVATURE_FLOOR`); kept as ``min_curvature_`` (None without a
+        goal), which refits of the model pass on. ``scored=False``:
         a fit of one candidate (every hyperparameter fixed, the quadratic trend) skips its
         CV score, which only a caller comparing scores reads (``cv_best_`` is then None);
         the model fitted is the same. ``final=False``: the reverse, the CV's scores and pick
@@ -321,6 +327,11 @@ class TrendKernelRegression(BaseEstimator):
         if unknown.size:
             raise ValueError(f"free_groups names ids not in groups: {unknown[:5].tolist()}")
         self.goal_ = None if goal is None else check_finite("goal", goal, (X.shape[1],))
+        if min_curvature is not None and not (math.isfinite(min_curvature)
+                                              and min_curvature >= 0.0):
+            raise ValueError(f"min_curvature must be a finite float >= 0, got {min_curvature}")
+        self.min_curvature_ = (None if goal is None or min_curvature is None
+                               else float(min_curvature))
         if motion is not None:
             motion = check_finite("motion", motion, X.shape)
         if drops is not None:
@@ -357,6 +368,9 @@ class TrendKernelRegression(BaseEstimator):
         self.y_scale_ = float(y[levelled].std()) or 1.0
         Z = (X - self.mean_) / self.scale_
         u = (y - self.y_mean_) / self.y_scale_
+        # The bowl's bound in the standardised units the solves work in.
+        self._floor = (0.0 if not self.min_curvature_
+                       else self.min_curvature_ * self.scale_**2 / self.y_scale_)
 
         demo_ids, demo = np.unique(groups, return_inverse=True)
         wanted = (min(MAX_CENTRES, CENTRES_PER_DEMONSTRATION * len(demo_ids))
@@ -402,7 +416,7 @@ class TrendKernelRegression(BaseEstimator):
         else:
             cv = _CVData(F, Z, u, C, demo, demo_fold,
                          _FoldGrams(F, u, demo, demo_fold, n, free=free, D=DF, Dt=targets),
-                         pinned, bases, DF, targets)
+                         pinned, bases, DF, targets, self._floor)
             best = self.cv_best_ = search.run(cv, forms, lengths, t_grid, k_grid, o_grid, rng)
             if math.isnan(best[2]):
                 best = (*best[:2], mid[0], *best[3:])
@@ -482,7 +496,7 @@ class TrendKernelRegression(BaseEstimator):
                   demo)
         grams = memo_sums(design, build, u, targets, free)
         G, r, m = grams.profiled_all(self.offset_ridge_)
-        w = _convex_solve(G / m + P, r / m, n)
+        w = _convex_solve(G / m + P, r / m, n, floor=self._floor)
         if w is None or not np.all(np.isfinite(w)):
             raise ValueError("TrendKernelRegression: the penalised least squares failed")
         self.trend_ = w[:p_t]

@@ -69,8 +69,8 @@ def effective_dof(M: np.ndarray, P: np.ndarray) -> float:
     return float(np.trace(cho_solve(factor, M)))
 
 
-def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = None
-                  ) -> np.ndarray | None:
+def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = None,
+                  floor: float = 0.0) -> np.ndarray | None:
     """Solve ``M w = b`` for the coefficients, keeping the trend's Hessian positive definite.
 
     The trend decides the policy far from the data: a saddle sends rollouts away along
@@ -78,13 +78,15 @@ def _convex_solve(M: np.ndarray, b: np.ndarray, n: int, w: np.ndarray | None = N
     ``H = p I + 2 S`` has an eigenvalue below ``CURVATURE_FLOOR`` times its largest, those
     eigenvalues are raised to that bound, the quadratic part is fixed there, and the other
     coefficients (constant, linear part, kernel weights) are solved again given it.
-    ``w``: the solution of ``M w = b`` if already known.
+    ``w``: the solution of ``M w = b`` if already known. ``floor``: a bound of the
+    eigenvalues in the model's standardised units as well, whatever the largest (a goal
+    anchor's bowl: ``TrendKernelRegression.fit(min_curvature=...)``).
     """
     if w is None:
         w = _solve(M, b)
     if w is None:
         return None
-    if not _floor_trend(w, n):
+    if not _floor_trend(w, n, floor):
         return w
     return _convex_resolve(M, b, w, n)
 
@@ -103,14 +105,15 @@ def _convex_resolve(M: np.ndarray, b: np.ndarray, w: np.ndarray, n: int
     return w
 
 
-def _floor_trend(w: np.ndarray, n: int) -> bool:
+def _floor_trend(w: np.ndarray, n: int, floor: float = 0.0) -> bool:
     """Raise the eigenvalues of the trend's Hessian below ``CURVATURE_FLOOR`` times its
-    largest to that bound, in place in ``w``; whether any was (see :func:`_convex_solve`)."""
+    largest, or below ``floor``, to that bound, in place in ``w``; whether any was (see
+    :func:`_convex_solve`)."""
     lam, V = np.linalg.eigh(_trend_hessian(w, n))
-    return _raise_curvature(w, n, lam, V)
+    return _raise_curvature(w, n, lam, V, floor)
 
 
-def _floor_trends(ws: list[np.ndarray | None], n: int) -> list[bool]:
+def _floor_trends(ws: list[np.ndarray | None], n: int, floor: float = 0.0) -> list[bool]:
     """:func:`_floor_trend` of every solution of ``ws`` (None: False), with one batched
     eigendecomposition: most solutions of a search need none raised, and a call per
     solution cost more than the solves' factorisations of small systems. The same LAPACK
@@ -128,16 +131,17 @@ def _floor_trends(ws: list[np.ndarray | None], n: int) -> list[bool]:
     H = W[:, 1 + n, None, None] * np.eye(n) + 2.0 * S
     lam, V = np.linalg.eigh(H)
     # The test of _raise_curvature for all at once: most need nothing raised.
-    floors = CURVATURE_FLOOR * np.where(lam[:, -1] > 0, lam[:, -1], 1.0)
+    floors = np.maximum(CURVATURE_FLOOR * np.where(lam[:, -1] > 0, lam[:, -1], 1.0), floor)
     for j in np.flatnonzero(lam[:, 0] < floors):
-        out[idx[j]] = _raise_curvature(ws[idx[j]], n, lam[j], V[j])
+        out[idx[j]] = _raise_curvature(ws[idx[j]], n, lam[j], V[j], floor)
     return out
 
 
-def _raise_curvature(w: np.ndarray, n: int, lam: np.ndarray, V: np.ndarray) -> bool:
+def _raise_curvature(w: np.ndarray, n: int, lam: np.ndarray, V: np.ndarray,
+                     floor: float = 0.0) -> bool:
     """:func:`_floor_trend` given the eigenvalues ``lam`` (n,) and vectors ``V`` (n, n) of
     the trend's Hessian."""
-    floor = CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0)
+    floor = max(CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0), floor)
     if lam[0] >= floor:
         return False
     S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
@@ -206,7 +210,7 @@ def _shared_factor(M: np.ndarray, b: np.ndarray, P: np.ndarray, q: int) -> tuple
 
 
 def _convex_solves(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q: int,
-                   n: int) -> list[np.ndarray | None]:
+                   n: int, floor: float = 0.0) -> list[np.ndarray | None]:
     """:func:`_convex_solve` of ``(M + P) w = b`` for every ``P`` in ``penalties``, solved
     by :func:`_solve_shared` with its shared block ``q``.
 
@@ -214,24 +218,26 @@ def _convex_solves(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray], q:
     the other coefficients. When the shared block is the kernel's (``q < 0``, the trend's
     penalty varies), only the trend's constant and linear part is eliminated again, at the
     cost of two triangular solves rather than a factorisation of the whole system; when it
-    is the trend's, see :func:`_convex_solves_trend_shared`.
+    is the trend's, see :func:`_convex_solves_trend_shared`. ``floor`` as in
+    :func:`_convex_solve`.
     """
     p = M.shape[0]
     if q == _n_trend(n) < p and len(penalties) >= 2:
-        return _convex_solves_trend_shared(M, b, penalties, n)
+        return _convex_solves_trend_shared(M, b, penalties, n, floor)
     factor = None
     if q < 0 and p + q == _n_trend(n) and len(penalties) >= 2:
         factor = _shared_factor(M, b, penalties[0], q)
     first = _solve_shared(M, b, penalties, q, factor)
     if factor is None:
-        return [_convex_solve(M + P, b, n, w) for P, w in zip(penalties, first, strict=True)]
-    raised = _floor_trends(first, n)
+        return [_convex_solve(M + P, b, n, w, floor)
+                for P, w in zip(penalties, first, strict=True)]
+    raised = _floor_trends(first, n, floor)
     return [_resolve_with_factor(M + P, b, w, n, factor) if up else w
             for P, w, up in zip(penalties, first, raised, strict=True)]
 
 
 def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np.ndarray],
-                                n: int) -> list[np.ndarray | None]:
+                                n: int, floor: float = 0.0) -> list[np.ndarray | None]:
     """:func:`_convex_solves` with the trend's block shared (the kernel's penalty varies).
 
     The solves are :func:`_solve_shared`'s; the factor of each penalty's Schur complement
@@ -243,7 +249,7 @@ def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np
     p, p_t = M.shape[0], _n_trend(n)
     factor = _shared_factor(M, b, penalties[0], p_t)
     if factor is None:
-        return [_convex_solve(M + P, b, n, w)
+        return [_convex_solve(M + P, b, n, w, floor)
                 for P, w in zip(penalties, _solve_shared(M, b, penalties, p_t), strict=True)]
     s, o, L, W, z = factor
     schur = M[o, o] - _gram(W)
@@ -255,7 +261,7 @@ def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np
             S = cho_factor(schur + P[o, o])
         except np.linalg.LinAlgError:
             w = _solve_shared(M, b, [P, P], p_t, factor)[0]  # the general fallbacks
-            out.append(_convex_solve(M + P, b, n, w))
+            out.append(_convex_solve(M + P, b, n, w, floor))
             factors.append(None)
             continue
         w = np.empty(p)
@@ -264,7 +270,7 @@ def _convex_solves_trend_shared(M: np.ndarray, b: np.ndarray, penalties: list[np
         out.append(w)
         factors.append(S)
     raised = _floor_trends([w if S is not None else None
-                            for w, S in zip(out, factors, strict=True)], n)
+                            for w, S in zip(out, factors, strict=True)], n, floor)
     update = None
     for i in np.flatnonzero(raised):
         if update is None:

@@ -60,6 +60,7 @@ def model_state(model: TrendKernelRegression) -> tuple[dict[str, np.ndarray], di
         "y_scale": model.y_scale_,
         "n_features_in": int(model.n_features_in_),
         "goal": None if model.goal_ is None else [float(v) for v in model.goal_],
+        "min_curvature": getattr(model, "min_curvature_", None),
     }
     arrays = {"mean": model.mean_, "trend": model.trend_, "centres": model.centres_,
               "alpha": model.alpha_, "index_matrix": model.index_matrix_,
@@ -96,6 +97,8 @@ def model_from_state(cls: type[TrendKernelRegression], arrays: dict[str, np.ndar
         model.mean_ = np.asarray(arrays["mean"], dtype=float).reshape(n)
         goal = meta.get("goal")  # absent before goal-centred models existed
         model.goal_ = None if goal is None else np.asarray(goal, dtype=float).reshape(n)
+        bound = meta.get("min_curvature")  # absent before the goal's bowl had one
+        model.min_curvature_ = None if bound is None else float(bound)
         trend = np.asarray(arrays["trend"], dtype=float).ravel()
         if single and int(meta["version"]) < 3:
             # Version 2's profile had no steepening columns: their weights are zero.
