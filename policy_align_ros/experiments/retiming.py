@@ -6,12 +6,15 @@ potential a teacher follows is the same, so the learnt minimum should not move.
 
 Usage: ``python -m policy_align_ros.experiments.retiming --cases human_timing_2,bumps_2
 [--seed 0] [--datasets 3]`` prints one Markdown table of the shifts (demonstration 0
-re-timed by :func:`smoothstep_warp`).
+re-timed by :func:`smoothstep_warp`); beside them, for scale, the shift when that
+demonstration is left out instead, and the kernel residual each fit's cross-validation
+chose (:func:`cv_residual`).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable, Sequence
 
@@ -21,7 +24,8 @@ from scipy.optimize import minimize
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.goal import data_extent
 
-__all__ = ["data_extent", "learnt_minimum", "retime", "retiming_shift", "smoothstep_warp"]
+__all__ = ["cv_residual", "data_extent", "learnt_minimum", "retime", "retiming_shift",
+           "smoothstep_warp"]
 
 #: ``warp(s (N,)) -> (N,)``: a monotone map of ``[0, 1]`` onto itself (normalised time).
 Warp = Callable[[np.ndarray], np.ndarray]
@@ -117,15 +121,37 @@ def retiming_shift(model_factory: Callable[[], PolicyAlign], trajs: Sequence[Tra
     float
         ``|m_warped - m| / data_extent(trajs)``, with ``m`` the learnt minimum.
     """
+    return _retimed_fits(model_factory, trajs, k, warp, start)[0]
+
+
+def _retimed_fits(model_factory: Callable[[], PolicyAlign], trajs: Sequence[Trajectory],
+                  k: int, warp: Warp, start: np.ndarray | None = None
+                  ) -> tuple[float, PolicyAlign, PolicyAlign]:
+    """:func:`retiming_shift`, and the two fits it compares (as given, then re-timed)."""
     if not 0 <= k < len(trajs):
         raise ValueError(f"k: must index one of the {len(trajs)} demonstrations, got {k}")
     x0 = (np.mean([t.positions[-1] for t in trajs], axis=0) if start is None
           else np.asarray(start, dtype=float))
-    base = learnt_minimum(model_factory().fit(list(trajs)), x0)
+    base_model = model_factory().fit(list(trajs))
     warped = list(trajs)
     warped[k] = retime(trajs[k], warp)
-    moved = learnt_minimum(model_factory().fit(warped), x0)
-    return float(np.linalg.norm(moved - base) / data_extent(trajs))
+    warped_model = model_factory().fit(warped)
+    moved = learnt_minimum(warped_model, x0) - learnt_minimum(base_model, x0)
+    return float(np.linalg.norm(moved) / data_extent(trajs)), base_model, warped_model
+
+
+def cv_residual(model) -> float | None:
+    """The length scale of the kernel residual a fit's cross-validation chose (standardised
+    state units), None for the trend alone, NaN for a regressor without that choice."""
+    best = getattr(getattr(model, "regressor_", None), "cv_best_", None)
+    if best is None:
+        return math.nan
+    _, _, length, kernel_ridge, _ = best
+    return float(length) if math.isfinite(kernel_ridge) else None
+
+
+def _residual_text(length: float | None) -> str:
+    return "none" if length is None else "-" if math.isnan(length) else f"l={length:.3g}"
 
 
 def _shift_task(task: tuple[str, int]) -> dict:
@@ -136,8 +162,15 @@ def _shift_task(task: tuple[str, int]) -> dict:
     problem = suite.ALL_CASES[name].make(rng)
     demos = suite._demos(problem, problem.sample_starts(rng, problem.n_train), rng)
     trajs = [d.trajectory for d in demos]
-    shift = retiming_shift(lambda: PolicyAlign(random_state=seed), trajs, 0, smoothstep_warp)
-    return {"case": name, "seed": seed, "shift": shift}
+    shift, base, warped = _retimed_fits(lambda: PolicyAlign(random_state=seed), trajs, 0,
+                                        smoothstep_warp)
+    # For scale: how far the minimum moves when the demonstration is left out instead.
+    x0 = np.mean([t.positions[-1] for t in trajs], axis=0)
+    without = PolicyAlign(random_state=seed).fit(trajs[1:])
+    left_out = np.linalg.norm(learnt_minimum(without, x0) - learnt_minimum(base, x0))
+    return {"case": name, "seed": seed, "shift": shift,
+            "left_out": float(left_out / data_extent(trajs)), "residual": cv_residual(base),
+            "residual_retimed": cv_residual(warped)}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -157,9 +190,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise ValueError(f"--cases: unknown case(s) {unknown}")
     tasks = [(c, args.seed + i) for c in names for i in range(args.datasets)]
     rows = parallel_map(_shift_task, tasks, args.jobs, "retiming")
-    print("| case | seed | learnt-minimum shift / data extent |\n|---|---|---|")
+    print("| case | seed | learnt-minimum shift / data extent | the same, demonstration 0 left "
+          "out | CV's residual: as given / re-timed |\n|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['case']} | {r['seed']} | {100 * r['shift']:.2f} % |")
+        print(f"| {r['case']} | {r['seed']} | {100 * r['shift']:.2f} % | "
+              f"{100 * r['left_out']:.2f} % | {_residual_text(r['residual'])} / "
+              f"{_residual_text(r['residual_retimed'])} |")
     return 0
 
 

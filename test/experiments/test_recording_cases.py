@@ -9,6 +9,7 @@ import pytest
 from policy_align_ros.experiments import recording_cases, suite
 from policy_align_ros.experiments.recording_cases import RECORDING_CASES
 from policy_align_ros.experiments.retiming import (
+    cv_residual,
     retime,
     retiming_shift,
     smoothstep_warp,
@@ -130,3 +131,18 @@ def test_retiming_shift_is_zero_for_the_identity_and_measured_otherwise():
     assert np.isfinite(shift) and shift >= 0
     with pytest.raises(ValueError, match="k"):
         retiming_shift(factory, trajs, 9, smoothstep_warp)
+
+
+def test_cv_residual_reads_the_length_scale_the_cv_chose_or_none_for_the_trend_alone():
+    rng = np.random.default_rng(1)
+    problem = recording_cases.RECORDING_CASES["bumps_2"].make(rng)
+    demos = suite._demos(problem, problem.sample_starts(rng, 6), rng)
+    model = PolicyAlign(random_state=0).fit([d.trajectory for d in demos])
+    form, _, length, kernel_ridge, _ = model.regressor_.cv_best_
+    expected = float(length) if np.isfinite(kernel_ridge) else None
+    assert cv_residual(model) == expected
+    # The trend alone, and a regressor without a CV choice.
+    model.regressor_.cv_best_ = (form, 1e-6, np.nan, np.inf, 0.0)
+    assert cv_residual(model) is None
+    model.regressor_.cv_best_ = None
+    assert np.isnan(cv_residual(model))
