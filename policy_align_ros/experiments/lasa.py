@@ -13,7 +13,8 @@ places and draw a different pattern from each, are a third set on which no defau
 this package was chosen: scored as data a user brings would be.
 
 Training data: every 5th sample of a demonstration with its times,
-``Trajectory(positions, times)`` (no recorded velocities). Protocols: ``all`` (train on
+``Trajectory(positions, times)`` (no recorded velocities); ``--subsample N`` every N-th
+(1: the data set's own rate, as a user's recorder would give it). Protocols: ``all`` (train on
 the 7, evaluate on each of the 7) and ``loo`` (train on 6, evaluate on the held-out one,
 for each of the 7). The measures are in :mod:`lasa_metrics`; the methods in
 :mod:`lasa_methods`.
@@ -355,6 +356,12 @@ def main(args: argparse.Namespace) -> int:
             raise ValueError(f"--demos {args.demos}: a LASA shape has 7 demonstrations; "
                              "give 2 to 7")
         options["demos"] = args.demos
+    subsample = getattr(args, "subsample", None)
+    if subsample is not None:
+        if subsample < 1:
+            raise ValueError(f"--subsample {subsample}: give a whole number >= 1 "
+                             f"(1 trains on every sample; the protocol's is {SUBSAMPLE})")
+        options["subsample"] = subsample
     results, elapsed = run_lasa(shapes, protocols, methods, settings, args.jobs, options)
     records = [r for res in results for r in res["records"]]
     widths = {res["shape"]: res["width"] for res in results}
@@ -363,6 +370,7 @@ def main(args: argparse.Namespace) -> int:
                + (f" --demos {options['demos']}" if "demos" in options else "")
                + (" --recorded" if options["recorded"] else "")
                + (" --hesitant" if options["hesitant"] else "")
+               + (f" --subsample {subsample}" if subsample is not None else "")
                + "".join(f" --set {s}" for s in getattr(args, "set", None) or []))
     text = format_report(records, methods, protocols, elapsed, command)
     print(text)

@@ -38,7 +38,7 @@ from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision", "bowl_curvature",
            "choose_direction_weight", "direction_candidates", "goal_curvature",
-           "motion_drops", "motion_steps"]
+           "motion_drops", "motion_steps", "REFERENCE_SAMPLES", "step_scale"]
 
 #: The paper's potential is kept when one of its minima lies within this fraction of the
 #: data's extent of where the demonstrations end; farther, the model is made stationary
@@ -47,6 +47,9 @@ ANCHOR_TOL = 0.01
 #: A CV score (held-out error over the within-demonstration spread) at or below this is
 #: round-off: the demonstrations are exact flows of the fitted potential.
 CONSISTENT_SCORE = 1e-10
+#: Samples per demonstration at which the direction weights were chosen (LASA, every
+#: 5th sample): :func:`step_scale` measures steps as if every demonstration had as many.
+REFERENCE_SAMPLES = 200
 #: Step of the central differences of :func:`goal_curvature`, as a fraction of the extent.
 CURVATURE_STEP = 1e-4
 
@@ -106,6 +109,31 @@ def motion_drops(potential: np.ndarray) -> np.ndarray:
     if len(potential) < 2:
         return np.zeros_like(potential)
     return np.gradient(potential)
+
+
+def step_scale(trajs: Sequence[Trajectory]) -> float:
+    """The factor on every sample's step and drop (:func:`motion_steps`,
+    :func:`motion_drops`) that measures them as if each demonstration had
+    :data:`REFERENCE_SAMPLES` samples: the median over demonstrations of
+    ``(N_k - 1) / (REFERENCE_SAMPLES - 1)``, ``N_k`` its samples.
+
+    The direction rows weigh a slope across the motion over one step against an error in
+    the potential's values. A step is the motion between two samples, so without this
+    factor the same weight would count the square of the recording rate less at a
+    higher rate (``docs/design/goal_anchor.md``, "Steps at any recording rate").
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory
+        The demonstrations as recorded (not their pieces).
+
+    Returns
+    -------
+    float
+        Dimensionless; 1 at :data:`REFERENCE_SAMPLES` samples per demonstration.
+    """
+    counts = [t.n_samples - 1 for t in trajs]
+    return float(np.median(counts)) / (REFERENCE_SAMPLES - 1) if counts else 1.0
 
 
 def bowl_curvature(trajs: Sequence[Trajectory]) -> float:

@@ -24,6 +24,7 @@ from policy_align_ros.learning.anchor import (
     choose_direction_weight,
     direction_candidates,
     goal_curvature,
+    step_scale,
 )
 from policy_align_ros.learning.estimates import Estimates
 from policy_align_ros.learning.folds import (
@@ -97,9 +98,10 @@ class FitStages:
                       ) -> tuple[dict | None, tuple | None]:
         """Stage 4b: the global model made stationary at ``anchor["goal"]`` when
         ``anchor["anchored"]`` (:func:`~policy_align_ros.learning.anchor.anchor_decision`),
-        with the direction weight chosen from the starts and the bowl's least curvature
-        (:func:`~policy_align_ros.learning.anchor.bowl_curvature`; both recorded in
-        ``anchor``). Returns the starts check of the kept fit and its scores and sample
+        with the direction weight chosen from the starts, the bowl's least curvature
+        (:func:`~policy_align_ros.learning.anchor.bowl_curvature`) and the steps' factor
+        (:func:`~policy_align_ros.learning.anchor.step_scale`), all recorded in
+        ``anchor``. Returns the starts check of the kept fit and its scores and sample
         count (None, None unanchored)."""
         if not anchor["anchored"]:
             return None, None
@@ -117,6 +119,7 @@ class FitStages:
         anchor.update(choice)
         anchor["min_curvature"] = json_float(getattr(self.regressor_, "min_curvature_", None),
                                              "null")
+        anchor["step_scale"] = step_scale(est.parents)
         return starts, fitted["out"]
 
     def _stiffer_if_fewer_minima(self, est: Estimates, template, goal: np.ndarray,
@@ -167,7 +170,8 @@ class FitStages:
         (``caught``) and checks, held back until the fit is kept."""
         caught = list(caught)
         folds = fold_models(self.regressor_, est.trajs, est.masks, self.inliers_,
-                            self.aligned_potentials_, free, random_state=self.random_state)
+                            self.aligned_potentials_, free, random_state=self.random_state,
+                            step_scale=step_scale(est.parents))
         with warnings.catch_warnings(record=True) as checked:
             warnings.simplefilter("always")
             checks = fit_checks(self.regressor_, folds, est.trajs, est.parents,

@@ -253,14 +253,15 @@ def fold_spread(folds: Sequence[FoldModel], minima: np.ndarray, *, scale: float,
 
 def fold_models(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndarray],
                 keep: np.ndarray, potentials: Sequence[np.ndarray], free: np.ndarray, *,
-                random_state: int | None = 0) -> list[FoldModel]:
+                random_state: int | None = 0, step_scale: float = 1.0) -> list[FoldModel]:
     """:func:`fold_refits` of a fitted global model on what it was fitted on: the pieces
     ``keep`` of ``pieces`` (their training samples ``masks``), their aligned
-    ``potentials``, free offsets for ``free``, and the steps and drops of an anchored fit;
+    ``potentials``, free offsets for ``free``, and the steps and drops of an anchored fit
+    (times ``step_scale``, :func:`~policy_align_ros.learning.anchor.step_scale`);
     ``random_state`` seeds the folds of a regressor that keeps none."""
     X, y, g, extra = training_set(pieces, masks, keep, potentials, free, regressor,
                                   getattr(regressor, "goal_", None),
-                                  getattr(regressor, "min_curvature_", None))
+                                  getattr(regressor, "min_curvature_", None), step_scale)
     return fold_refits(regressor, X, y, g, free, random_state=random_state,
                        motion=extra.get("motion"), drops=extra.get("drops"))
 

@@ -28,7 +28,8 @@ __all__ = ["cv_error", "cv_score", "fixed_copy", "level_free", "training_set"]
 
 def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndarray,
                  potentials: list[np.ndarray], free: np.ndarray, template,
-                 goal: np.ndarray | None = None, min_curvature: float | None = None
+                 goal: np.ndarray | None = None, min_curvature: float | None = None,
+                 step_scale: float = 1.0
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The global model's training samples.
 
@@ -49,6 +50,9 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
     min_curvature : float, optional
         With ``goal``: the smallest curvature of the fit's bowl there
         (:func:`~policy_align_ros.learning.anchor.bowl_curvature`).
+    step_scale : float
+        With ``goal``: the factor on the samples' steps and drops
+        (:func:`~policy_align_ros.learning.anchor.step_scale`).
 
     Returns
     -------
@@ -66,12 +70,12 @@ def training_set(trajs: list[Trajectory], masks: list[np.ndarray], keep: np.ndar
             extra["min_curvature"] = min_curvature
     if "goal" in extra and takes_motion(template):
         # Timing-free evidence beside where the demonstrations end: which way they move.
-        extra["motion"] = np.concatenate([motion_steps(trajs[k].positions)[masks[k]]
-                                          for k in keep])
+        extra["motion"] = step_scale * np.concatenate(
+            [motion_steps(trajs[k].positions)[masks[k]] for k in keep])
         if takes_drops(template):
             # And how steeply the potential falls along it, sample by sample.
-            extra["drops"] = np.concatenate([motion_drops(potentials[k])[masks[k]]
-                                             for k in keep])
+            extra["drops"] = step_scale * np.concatenate(
+                [motion_drops(potentials[k])[masks[k]] for k in keep])
     return X, y, groups, extra
 
 

@@ -54,7 +54,7 @@ from policy_align_ros.learning.alignment import (
     local_model_table,
     solve_chained_offsets,
 )
-from policy_align_ros.learning.anchor import anchor_decision, bowl_curvature
+from policy_align_ros.learning.anchor import anchor_decision, bowl_curvature, step_scale
 from policy_align_ros.learning.bandwidth import (
     HEURISTIC_POINTS,
     closest_approach_matrix,
@@ -419,10 +419,11 @@ class PolicyAlign(FitStages, BaseEstimator):
         the scores and the samples fitted."""
         fits, scores = {}, {}
         bowl = None if goal is None else bowl_curvature(est.parents)
+        scale = step_scale(est.parents)
         for rule in est.rules:
             Xtr, ytr, gtr, extra = training_set(est.trajs, est.masks, self.inliers_,
                                                 aligned[rule][1], free, template, goal,
-                                                bowl)
+                                                bowl, scale)
             fits[rule] = copy.deepcopy(template).fit(Xtr, ytr, groups=gtr, **extra)
             scores[rule] = cv_score(fits[rule])
             if len(est.rules) > 1 and scores[rule] is None:

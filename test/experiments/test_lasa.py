@@ -244,11 +244,11 @@ def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
 def test_a_recorded_run_of_a_few_demonstrations_says_so_in_its_command(tmp_path):
     args = argparse.Namespace(
         protocol="loo", shapes="Line", methods=["grad_field"], set=[], jobs=1, demos=3,
-        recorded=True, hesitant=True, out=str(tmp_path),
-        lasa_options={"subsample": 20, "max_steps": 200})
+        recorded=True, hesitant=True, subsample=20, out=str(tmp_path),
+        lasa_options={"max_steps": 200})
     assert lasa.main(args) == 0
     raw = json.loads((tmp_path / "lasa.json").read_text())
-    assert raw["command"].endswith("--demos 3 --recorded --hesitant")
+    assert raw["command"].endswith("--demos 3 --recorded --hesitant --subsample 20")
     assert sorted(r["demo"] for r in raw["records"]) == [0, 1, 2]
 
 
@@ -310,4 +310,6 @@ def test_bad_lasa_arguments_raise_value_errors(tmp_path):
     for k in (1, 8):
         with pytest.raises(ValueError, match="--demos"):
             lasa.main(argparse.Namespace(**{**base, "demos": k}))
+    with pytest.raises(ValueError, match="--subsample"):
+        lasa.main(argparse.Namespace(**{**base, "subsample": 0}))
     assert list(tmp_path.iterdir()) == []

@@ -1,10 +1,14 @@
 """Tests of the goal anchor's decision (policy_align_ros.learning.anchor)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
+from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.anchor import (
     CONSISTENT_SCORE,
+    REFERENCE_SAMPLES,
     anchor_decision,
     bowl_curvature,
     choose_direction_weight,
@@ -12,6 +16,7 @@ from policy_align_ros.learning.anchor import (
     goal_curvature,
     motion_drops,
     motion_steps,
+    step_scale,
 )
 from policy_align_ros.learning.goal import (
     data_extent,
@@ -22,6 +27,7 @@ from policy_align_ros.learning.goal import (
 from policy_align_ros.learning.regressors import TrendKernelRegression
 from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 from policy_align_ros.learning.trajectory import Trajectory
+from policy_align_ros.sim.recording import retime_path
 
 
 class _Bowl:
@@ -126,6 +132,51 @@ def test_bowl_curvature_takes_an_offset_to_the_goal_tolerance_in_the_reach_time(
     # Untimed demonstrations count one step per sample.
     assert bowl_curvature([Trajectory(np.zeros((11, 2)))] * 2) == pytest.approx(
         np.log(20.0) / 30.0)
+
+
+def test_step_scale_measures_steps_as_at_the_reference_sample_count():
+    def demos(n):
+        return [Trajectory(np.zeros((n, 2)), times=np.linspace(0.0, d, n)) for d in (2.0, 5.0)]
+
+    assert step_scale(demos(REFERENCE_SAMPLES)) == 1.0  # the weights' own rate, exactly
+    # Five times the rate: steps five times shorter, so five times the factor.
+    assert step_scale(demos(5 * (REFERENCE_SAMPLES - 1) + 1)) == pytest.approx(5.0)
+    # The median over demonstrations: two at the reference count outvote one at 3 times it.
+    mixed = demos(REFERENCE_SAMPLES) + demos(3 * (REFERENCE_SAMPLES - 1) + 1)[:1]
+    assert step_scale(mixed) == 1.0
+
+
+def _human_paths(hz: float, seed: int = 0, k: int = 6) -> list[Trajectory]:
+    """Flows of ``x' diag(1, 4) x / 2`` to the origin on a teacher's minimum-jerk timing
+    (1.5-3 s, at rest before and after), recorded at ``hz``: the same paths whatever the
+    rate."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 4.0, 0.002)
+    out = []
+    for _ in range(k):
+        x0 = rng.uniform(-1.0, 1.0, 2)
+        path = np.exp(-np.outer(t, [1.0, 4.0])) * (x0 / np.linalg.norm(x0))
+        X, _, times, _ = retime_path(path, rng.uniform(1.5, 3.0), 1.0 / hz,
+                                     rest_before=0.2, rest_after=0.3)
+        out.append(Trajectory(X, times))
+    return out
+
+
+def test_an_anchored_fit_learns_the_same_policy_at_any_recording_rate():
+    grid = np.stack(np.meshgrid(np.linspace(-0.8, 0.8, 8), np.linspace(-0.8, 0.8, 8)),
+                    axis=-1).reshape(-1, 2)
+    policies = []
+    for hz in (40.0, 200.0):
+        demos = _human_paths(hz)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = PolicyAlign(random_state=0).fit(demos)
+        assert model.fit_summary_["anchor"]["anchored"]  # the direction rows are in play
+        assert model.fit_summary_["anchor"]["step_scale"] == step_scale(demos)
+        policies.append(model.policy(grid))
+    # Steps five times shorter at 200 Hz: without step_scale the policies differ by 0.36.
+    diff = np.linalg.norm(policies[1] - policies[0]) / np.linalg.norm(policies[0])
+    assert diff < 0.1
 
 
 def test_goal_curvature_is_the_smallest_eigenvalue_of_the_hessian():
