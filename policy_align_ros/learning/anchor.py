@@ -36,9 +36,9 @@ from policy_align_ros.learning.reach import REACH_TIME
 from policy_align_ros.learning.regressors.trend_kernel.model import DIRECTION_WEIGHTS
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "anchor_decision", "bowl_curvature",
-           "choose_direction_weight", "direction_candidates", "goal_curvature",
-           "motion_drops", "motion_steps", "REFERENCE_SAMPLES", "step_scale"]
+__all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "REFERENCE_SAMPLES", "anchor_decision",
+           "bowl_curvature", "choose_direction_weight", "direction_candidates",
+           "goal_curvature", "motion_drops", "motion_steps", "step_scale"]
 
 #: The paper's potential is kept when one of its minima lies within this fraction of the
 #: data's extent of where the demonstrations end; farther, the model is made stationary
