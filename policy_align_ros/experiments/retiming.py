@@ -121,23 +121,30 @@ def retiming_shift(model_factory: Callable[[], PolicyAlign], trajs: Sequence[Tra
     float
         ``|m_warped - m| / data_extent(trajs)``, with ``m`` the learnt minimum.
     """
-    return _retimed_fits(model_factory, trajs, k, warp, start)[0]
+    base, warped = _retimed_fits(model_factory, trajs, k, warp, start)[2:]
+    return float(np.linalg.norm(warped - base) / data_extent(trajs))
+
+
+def _descent_start(trajs: Sequence[Trajectory], start: np.ndarray | None) -> np.ndarray:
+    """``start``, or the mean of the demonstrations' end points (state units)."""
+    return (np.mean([t.positions[-1] for t in trajs], axis=0) if start is None
+            else np.asarray(start, dtype=float))
 
 
 def _retimed_fits(model_factory: Callable[[], PolicyAlign], trajs: Sequence[Trajectory],
                   k: int, warp: Warp, start: np.ndarray | None = None
-                  ) -> tuple[float, PolicyAlign, PolicyAlign]:
-    """:func:`retiming_shift`, and the two fits it compares (as given, then re-timed)."""
+                  ) -> tuple[PolicyAlign, PolicyAlign, np.ndarray, np.ndarray]:
+    """The fits :func:`retiming_shift` compares (as given, then with demonstration ``k``
+    re-timed) and their learnt minima, descended from :func:`_descent_start`."""
     if not 0 <= k < len(trajs):
         raise ValueError(f"k: must index one of the {len(trajs)} demonstrations, got {k}")
-    x0 = (np.mean([t.positions[-1] for t in trajs], axis=0) if start is None
-          else np.asarray(start, dtype=float))
+    x0 = _descent_start(trajs, start)
     base_model = model_factory().fit(list(trajs))
     warped = list(trajs)
     warped[k] = retime(trajs[k], warp)
     warped_model = model_factory().fit(warped)
-    moved = learnt_minimum(warped_model, x0) - learnt_minimum(base_model, x0)
-    return float(np.linalg.norm(moved) / data_extent(trajs)), base_model, warped_model
+    return (base_model, warped_model, learnt_minimum(base_model, x0),
+            learnt_minimum(warped_model, x0))
 
 
 def cv_residual(model) -> float | None:
@@ -162,15 +169,16 @@ def _shift_task(task: tuple[str, int]) -> dict:
     problem = suite.ALL_CASES[name].make(rng)
     demos = suite._demos(problem, problem.sample_starts(rng, problem.n_train), rng)
     trajs = [d.trajectory for d in demos]
-    shift, base, warped = _retimed_fits(lambda: PolicyAlign(random_state=seed), trajs, 0,
-                                        smoothstep_warp)
+    base, warped, base_min, warped_min = _retimed_fits(
+        lambda: PolicyAlign(random_state=seed), trajs, 0, smoothstep_warp)
     # For scale: how far the minimum moves when the demonstration is left out instead.
-    x0 = np.mean([t.positions[-1] for t in trajs], axis=0)
     without = PolicyAlign(random_state=seed).fit(trajs[1:])
-    left_out = np.linalg.norm(learnt_minimum(without, x0) - learnt_minimum(base, x0))
-    return {"case": name, "seed": seed, "shift": shift,
-            "left_out": float(left_out / data_extent(trajs)), "residual": cv_residual(base),
-            "residual_retimed": cv_residual(warped)}
+    without_min = learnt_minimum(without, _descent_start(trajs, None))
+    extent = data_extent(trajs)
+    return {"case": name, "seed": seed,
+            "shift": float(np.linalg.norm(warped_min - base_min) / extent),
+            "left_out": float(np.linalg.norm(without_min - base_min) / extent),
+            "residual": cv_residual(base), "residual_retimed": cv_residual(warped)}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

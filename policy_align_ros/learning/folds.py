@@ -259,9 +259,9 @@ def fold_models(regressor, pieces: Sequence[Trajectory], masks: Sequence[np.ndar
     ``potentials``, free offsets for ``free``, and the steps and drops of an anchored fit
     (times ``step_scale``, :func:`~policy_align_ros.learning.anchor.step_scale`);
     ``random_state`` seeds the folds of a regressor that keeps none."""
+    # The bowl's bound fold_refits takes from the regressor; here only the samples.
     X, y, g, extra = training_set(pieces, masks, keep, potentials, free, regressor,
-                                  getattr(regressor, "goal_", None),
-                                  getattr(regressor, "min_curvature_", None), step_scale)
+                                  getattr(regressor, "goal_", None), step_scale=step_scale)
     return fold_refits(regressor, X, y, g, free, random_state=random_state,
                        motion=extra.get("motion"), drops=extra.get("drops"))
 

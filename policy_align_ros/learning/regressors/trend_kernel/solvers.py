@@ -131,8 +131,7 @@ def _floor_trends(ws: list[np.ndarray | None], n: int, floor: float = 0.0) -> li
     H = W[:, 1 + n, None, None] * np.eye(n) + 2.0 * S
     lam, V = np.linalg.eigh(H)
     # The test of _raise_curvature for all at once: most need nothing raised.
-    floors = np.maximum(CURVATURE_FLOOR * np.where(lam[:, -1] > 0, lam[:, -1], 1.0), floor)
-    for j in np.flatnonzero(lam[:, 0] < floors):
+    for j in np.flatnonzero(lam[:, 0] < _curvature_bound(lam[:, -1], floor)):
         out[idx[j]] = _raise_curvature(ws[idx[j]], n, lam[j], V[j], floor)
     return out
 
@@ -141,13 +140,20 @@ def _raise_curvature(w: np.ndarray, n: int, lam: np.ndarray, V: np.ndarray,
                      floor: float = 0.0) -> bool:
     """:func:`_floor_trend` given the eigenvalues ``lam`` (n,) and vectors ``V`` (n, n) of
     the trend's Hessian."""
-    floor = max(CURVATURE_FLOOR * (lam[-1] if lam[-1] > 0 else 1.0), floor)
+    floor = _curvature_bound(lam[-1], floor)
     if lam[0] >= floor:
         return False
     S = 0.5 * ((V * np.maximum(lam, floor)) @ V.T - w[1 + n] * np.eye(n))
     iu, ju, scale = _upper(n)
     w[2 + n:_n_trend(n)] = scale * S[iu, ju]
     return True
+
+
+def _curvature_bound(largest: float | np.ndarray, floor: float = 0.0) -> np.ndarray:
+    """The least eigenvalue the trend's Hessian may keep: ``CURVATURE_FLOOR`` times its
+    largest, ``largest`` (1 where that is not positive), and at least ``floor``; for one
+    Hessian or, given an array of largest eigenvalues, for each."""
+    return np.maximum(CURVATURE_FLOOR * np.where(largest > 0, largest, 1.0), floor)
 
 
 def _without_block(M: np.ndarray, a: int, b: int) -> np.ndarray:
