@@ -47,6 +47,7 @@ from policy_align_ros.control.limits import (
     DEFAULT_STATE_LIMIT_MARGIN,
     braking_scale,
     clearance_scale,
+    goal_in_margin,
     inner_limits,
     joint_velocity_bounds,
     limit_locks,
@@ -55,7 +56,12 @@ from policy_align_ros.control.limits import (
     speed_limits,
     velocity_scale,
 )
-from policy_align_ros.control.loading import StartModel, load_policy
+from policy_align_ros.control.loading import (
+    StartModel,
+    goal_margin_problem,
+    learnt_goal,
+    load_policy,
+)
 from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
 from policy_align_ros.control.resolved_rate import (
     damped_pinv,
@@ -106,10 +112,13 @@ __all__ = [
     "clock_mismatch_hint",
     "constrained_command",
     "damped_pinv",
+    "goal_in_margin",
+    "goal_margin_problem",
     "inner_limits",
     "joint_order_problem",
     "joint_velocity_bounds",
     "joint_velocity_within_limits",
+    "learnt_goal",
     "limit_locks",
     "load_policy",
     "model_permutation",

@@ -17,6 +17,7 @@ __all__ = [
     "ROUNDOFF",
     "braking_scale",
     "clearance_scale",
+    "goal_in_margin",
     "inner_limits",
     "joint_velocity_bounds",
     "limit_locks",
@@ -104,6 +105,42 @@ def position_outside_limits(
     if bad.size > 1:
         text += f" ({bad.size} joints outside: {', '.join(names[j] for j in bad)})"
     return text
+
+
+def goal_in_margin(goal: np.ndarray, lower: np.ndarray, upper: np.ndarray, margin: float,
+                   names: Sequence[str]) -> str:
+    """Which joints of a learnt goal lie within ``margin`` of their limits, or beyond them.
+
+    The control law brakes joints to rest ``margin`` inside their limits
+    (:func:`inner_limits`), so a run toward such a goal stops short of it: by up to
+    ``margin`` on each of those joints, however well the policy was learnt.
+
+    Parameters
+    ----------
+    goal : ndarray, shape (n,)
+        Joint positions (rad, or m for prismatic joints), in the order of ``names``.
+    lower, upper : ndarray, shape (n,)
+        URDF limits; infinite entries (continuous joints) never flag.
+    margin : float
+        The executor's ``joint_limit_margin`` (units of the limits), >= 0.
+    names : sequence of str, length n
+
+    Returns
+    -------
+    str
+        Empty when every joint of the goal lies inside; else a sentence naming those that
+        do not, with their values and limits, and what to change.
+    """
+    goal = np.asarray(goal, dtype=float)
+    lo, hi = inner_limits(lower, upper, margin)
+    bad = np.flatnonzero(~((goal >= lo) & (goal <= hi)))
+    if bad.size == 0:
+        return ""
+    joints = ", ".join(f"{names[i]} at {goal[i]:.4g} (limits [{lower[i]:.4g}, "
+                       f"{upper[i]:.4g}])" for i in bad)
+    return (f"the learnt goal puts {joints} within joint_limit_margin {margin:g} of a "
+            f"limit: runs stop up to {margin:g} short of it there (demonstrate a goal "
+            "inside the limits, or lower joint_limit_margin)")
 
 
 def limit_locks(

@@ -13,12 +13,13 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from policy_align_ros.control.joint_order import model_permutation
+from policy_align_ros.control.limits import goal_in_margin
 from policy_align_ros.control.task_policy import policy_for_state
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
-__all__ = ["StartModel", "load_policy"]
+__all__ = ["StartModel", "goal_margin_problem", "learnt_goal", "load_policy"]
 
 
 class StartModel:
@@ -127,3 +128,33 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
     frames = ", ".join(policy.state_map.frames)
     return model, policy, np.arange(len(joints)), f"frames {frames}"
 
+
+
+def learnt_goal(model: PolicyAlign) -> np.ndarray | None:
+    """Where runs of ``model``'s policy come to rest: the learnt minimum nearest to where
+    most demonstrations rest, else the lowest learnt minimum (n,), in the model's state
+    order and units (``fit_summary_["goal"]``, :func:`~policy_align_ros.learning.goal.
+    goal_summary`); None when the fit found no minimum or has no goal report."""
+    goal = (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
+    minima = np.array([m["point"] for m in goal.get("minima") or []], dtype=float)
+    if not len(minima):
+        return None
+    rests = goal.get("demonstrated_goals") or []
+    if not rests:
+        return minima[0]
+    rest = np.asarray(rests[0]["point"], dtype=float)
+    return minima[int(np.argmin(np.linalg.norm(minima - rest, axis=1)))]
+
+
+def goal_margin_problem(model: PolicyAlign, permutation: np.ndarray, robot: Robot,
+                        margin: float) -> str:
+    """:func:`~policy_align_ros.control.limits.goal_in_margin` of ``model``'s
+    :func:`learnt_goal` on ``robot``, whose joints ``permutation`` maps to the model's
+    order (:func:`load_policy`); "" for a model learnt on frame positions (its goal is not
+    a posture) or without a learnt minimum."""
+    goal = None if getattr(model, "state_definition_", None) is not None else learnt_goal(model)
+    if goal is None or len(goal) != len(permutation):
+        return ""
+    q = np.empty(len(permutation))
+    q[np.asarray(permutation)] = goal
+    return goal_in_margin(q, robot.lower, robot.upper, margin, list(robot.joint_names))

@@ -12,7 +12,7 @@ run that needs several times as long crossed a slope the demonstrations did not 
 
 A run reaches the goal when it comes within ``GOAL_MERGE`` of the data's extent of it,
 the tolerance of :func:`~policy_align_ros.learning.goal.starts_elsewhere`.
-``docs/design/goal_report.md`` ("Reaching the goal in time") gives the numbers behind the
+``docs/design/goal_report.md`` ("In time, from new starts") gives the numbers behind the
 choices.
 """
 

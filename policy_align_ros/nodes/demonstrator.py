@@ -144,7 +144,7 @@ class Demonstrator(Node):
         planes = config.constraint_frames if config is not None else DEFAULT_FRAMES
         p("attractor", Parameter.Type.DOUBLE_ARRAY, descriptor(
             "minimum of the expert potential [rad]; unset = robot_config's home, else the "
-            "reference posture", read_only=True))
+            "reference posture 0.1 rad inside the limits", read_only=True))
         p("gain", 1.0, descriptor("expert gain: pi = -gain (q - attractor) [1/s]",
                                   read_only=True, float_range=(0.01, 20.0)))
         p("expert", "joints", descriptor(

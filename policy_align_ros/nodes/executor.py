@@ -106,6 +106,7 @@ from policy_align_ros.control import (
     SupportDistance,
     arming_status,
     clock_mismatch_hint,
+    goal_margin_problem,
     joint_order_problem,
     joint_velocity_bounds,
     load_policy,
@@ -385,6 +386,9 @@ class Executor(Node):
         self.model_path = path
         self._update_context()
         self.get_logger().info(f"model loaded from {path} (state: {state})")
+        margin = self.controller.step.joint_limit_margin
+        if problem := goal_margin_problem(model, perm, self.robot, margin):
+            self.get_logger().warning(problem)
         self._emit(out)
 
     def _guard(self, model: PolicyAlign, policy: Callable, perm: np.ndarray, state: str

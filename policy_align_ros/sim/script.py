@@ -27,19 +27,39 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from policy_align_ros.control import constrained_command, velocity_scale
+from policy_align_ros.control import (
+    DEFAULT_JOINT_LIMIT_MARGIN,
+    constrained_command,
+    inner_limits,
+    velocity_scale,
+)
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
 from policy_align_ros.sim.demonstrations import sample_start_states
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
 
 __all__ = ["DEFAULT_FRAMES", "EXPERTS", "DemonstrationScript", "drop_roundoff_at_limits",
            "hand_plane_rows", "hands_command", "make_hand_expert", "plane_segment",
-           "random_plane_specs", "stale_joint_state"]
+           "random_plane_specs", "reachable_home", "stale_joint_state"]
 
 DEFAULT_FRAMES = ["arm_left_7_link", "arm_right_7_link"]
 EXPERTS = ("joints", "hands")
 #: Outward joint speeds at a limit below this (rad/s) are round-off of a locked joint.
 LIMIT_ROUNDOFF = 1e-9
+#: How far inside its limits (rad) :func:`reachable_home` keeps every joint: twice the
+#: executor's default braking margin, so that a goal there is one it can reach.
+HOME_MARGIN = 2.0 * DEFAULT_JOINT_LIMIT_MARGIN
+
+
+def reachable_home(robot: Robot, margin: float = HOME_MARGIN) -> np.ndarray:
+    """The robot's reference posture (n,) moved ``margin`` (rad) inside its limits.
+
+    A URDF's reference posture often puts joints at a limit (an arm folded against its
+    stop, a gripper closed). The executor brakes joints to rest ``joint_limit_margin``
+    inside their limits, so an expert whose minimum lies there demonstrates a goal no run
+    can reach (:func:`~policy_align_ros.control.limits.inner_limits` shrinks the margin on
+    narrow joints)."""
+    lower, upper = inner_limits(robot.lower, robot.upper, margin)
+    return np.clip(robot.neutral(), lower, upper)
 
 
 def stale_joint_state(received: float | None, now: float, timeout: float) -> str:
@@ -184,7 +204,7 @@ class DemonstrationScript:
     ----------
     robot : Robot
     attractor : array_like, shape (n,), or None
-        Minimum of the expert potential [rad]; None: the robot's reference posture.
+        Minimum of the expert potential [rad]; None: :func:`reachable_home`.
     gain : float
         Expert gain [1/s].
     mode : {"joints", "hands"}
@@ -207,7 +227,7 @@ class DemonstrationScript:
                  constraint_frames: Sequence[str], hand_frames: Sequence[str], hand_targets,
                  max_velocity: np.ndarray, period: float, rng: np.random.Generator) -> None:
         self.robot = robot
-        self.attractor = robot.neutral() if attractor is None else np.asarray(attractor)
+        self.attractor = reachable_home(robot) if attractor is None else np.asarray(attractor)
         if self.attractor.shape != (robot.nq,):
             raise ValueError(f"attractor: need {robot.nq} values, got {self.attractor.size}")
         self.expert = QuadraticPotential(self.attractor, weight=gain / 2.0)

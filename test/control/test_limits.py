@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from policy_align_ros.control import (
+    goal_in_margin,
     joint_velocity_bounds,
     position_outside_limits,
     ramp_toward,
@@ -123,3 +124,21 @@ def test_positions_outside_the_limits_beyond_the_margin_are_named_with_their_val
     q = np.full(N, 1e6)
     assert position_outside_limits(q, np.full(N, -np.inf), np.full(N, np.inf), 0.1,
                                    names) == ""
+
+
+def test_a_goal_within_the_braking_margin_of_a_limit_names_those_joints():
+    # The control law brakes joints to rest joint_limit_margin inside their limits: a goal
+    # there (an arm folded against its stop) is one no run reaches.
+    names = [f"j{i}" for i in range(N)]
+    lower, upper = np.full(N, -1.57), np.full(N, 1.57)
+    lower[1] = 0.0
+    goal = np.zeros(N)
+    text = goal_in_margin(goal, lower, upper, 0.05, names)
+    assert "j1" in text and not any(f"j{i}" in text for i in range(N) if i != 1)
+    goal[1] = 0.06
+    assert goal_in_margin(goal, lower, upper, 0.05, names) == ""
+    goal[3] = 2.0  # beyond a limit: flagged too
+    assert "j3" in goal_in_margin(goal, lower, upper, 0.05, names)
+    # A continuous joint (infinite limits) never is.
+    assert goal_in_margin(np.full(N, 1e6), np.full(N, -np.inf), np.full(N, np.inf), 0.05,
+                          names) == ""

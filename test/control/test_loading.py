@@ -2,11 +2,12 @@
 start. ROS-free."""
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from policy_align_ros.control import StartModel, load_policy
+from policy_align_ros.control import StartModel, goal_margin_problem, learnt_goal, load_policy
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.kinematics import Robot
 from policy_align_ros.learning import PolicyAlign, model_io
@@ -62,3 +63,32 @@ def test_a_file_that_does_not_load_still_names_its_robot_from_its_header(model_f
         load_policy(str(bad), Robot.load("panda", JOINTS))
     with pytest.raises(FileNotFoundError):
         start.robot_fields(str(tmp_path / "missing.npz"))
+
+
+def _goal_model(minima, rests, state=None):
+    goal = {"minima": [{"point": p} for p in minima],
+            "demonstrated_goals": [{"point": p} for p in rests]}
+    return SimpleNamespace(fit_summary_={"goal": goal}, state_definition_=state)
+
+
+def test_the_learnt_goal_is_the_minimum_nearest_where_the_demonstrations_rest():
+    minima = [[1.0, 1.0], [0.1, -0.05]]  # lowest first, as goal_summary lists them
+    np.testing.assert_array_equal(learnt_goal(_goal_model(minima, [[0.0, 0.0]])), minima[1])
+    np.testing.assert_array_equal(learnt_goal(_goal_model(minima, [])), minima[0])
+    assert learnt_goal(_goal_model([], [[0.0, 0.0]])) is None
+    assert learnt_goal(SimpleNamespace()) is None
+
+
+def test_a_learnt_goal_at_a_limit_is_named_by_the_executors_joint():
+    # The model's joints are the executor's in reverse order: the joint at its limit is
+    # the model's first, the executor's second.
+    robot = SimpleNamespace(lower=np.array([-1.0, 0.0]), upper=np.array([1.0, 2.0]),
+                            joint_names=["a", "b"])
+    perm = np.array([1, 0])
+    at_limit = _goal_model([[0.01, 0.5]], [[0.0, 0.5]])
+    # Read in the model's order, both joints would be inside their limits.
+    assert "b" in goal_margin_problem(at_limit, perm, robot, 0.05)
+    assert goal_margin_problem(_goal_model([[0.5, 0.5]], []), perm, robot, 0.05) == ""
+    # A goal in frame positions is no posture to check.
+    frames = _goal_model([[0.01, 0.5]], [], state={"type": "frames"})
+    assert goal_margin_problem(frames, perm, robot, 0.05) == ""

@@ -538,3 +538,23 @@ def test_a_fit_in_metres_is_the_fit_in_millimetres_rescaled():
                                atol=1e-6 * np.abs(expected).max())
     assert (in_m.fit_summary_["anchor"]["direction_weight"]
             == in_mm.fit_summary_["anchor"]["direction_weight"])
+
+
+def test_a_fit_moved_rotated_and_stamped_from_the_epoch_is_the_fit_moved_and_rotated():
+    # A user's goal is rarely the origin, their axes are their robot's, and their recorder
+    # stamps in seconds since 1970: no step of the fit may depend on where, in which
+    # orientation or from which instant the same motion was recorded.
+    goal = np.array([0.5, -1.0])
+    demos = _human_timed_demos(goal, n_demos=5)
+    angle = 0.7
+    R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    shift = np.array([40.0, -25.0])
+    moved = [Trajectory(positions=d.positions @ R.T + shift, times=d.times + 1.7e9)
+             for d in demos]
+    base, other = PolicyAlign().fit(demos), PolicyAlign().fit(moved)
+    X = np.concatenate([d.positions[::10] for d in demos])
+    expected = base.policy(X)
+    np.testing.assert_allclose(other.policy(X @ R.T + shift) @ R, expected,
+                               atol=1e-5 * np.abs(expected).max())
+    assert other.fit_summary_["anchor"]["anchored"] == base.fit_summary_["anchor"]["anchored"]
+    np.testing.assert_allclose(other.timing_scales_, base.timing_scales_, rtol=1e-6)

@@ -7,6 +7,7 @@ from policy_align_ros.sim.script import (
     drop_roundoff_at_limits,
     hand_plane_rows,
     random_plane_specs,
+    reachable_home,
     stale_joint_state,
 )
 
@@ -44,3 +45,21 @@ def test_stale_joint_state_says_why_or_nothing():
     assert stale_joint_state(5.0, 5.0, 0.1) == ""
     assert "0.300 s ago" in stale_joint_state(4.7, 5.0, 0.1)
     assert "clock went back" in stale_joint_state(6.0, 5.0, 0.1)
+
+
+def test_the_reachable_home_is_the_reference_posture_moved_inside_the_limits():
+    # z1's reference posture folds joints against their stops (0 on [0, 2.97]).
+    class Folded:
+        lower = np.array([0.0, -2.88, -1.0, -np.inf])
+        upper = np.array([2.97, 0.0, 1.0, np.inf])
+
+        @staticmethod
+        def neutral():
+            return np.array([0.0, 0.0, 0.3, 5.0])
+
+    home = reachable_home(Folded(), margin=0.1)
+    np.testing.assert_allclose(home, [0.1, -0.1, 0.3, 5.0])
+    narrow = Folded()
+    narrow.lower, narrow.upper = np.array([0.0, -0.2, -1.0, -1.0]), np.array([0.2, 0.0, 1, 1])
+    home = reachable_home(narrow, margin=0.1)
+    assert np.all(home > narrow.lower) and np.all(home < narrow.upper)

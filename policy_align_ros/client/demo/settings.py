@@ -84,7 +84,8 @@ class DemoSettings:
     #: Constraint specs of the run under a constraint never demonstrated (empty: hold the
     #: first frame in place, or lock the first joint when there is no frame).
     unseen_constraint: list[dict] = field(default_factory=list)
-    #: The demonstrations' attractor (rad); empty = the robot's reference posture.
+    #: The demonstrations' attractor (rad); empty = the robot's reference posture moved
+    #: inside its limits (:func:`~policy_align_ros.sim.script.reachable_home`).
     home: list[float] = field(default_factory=list)
     plots: bool = True
     require_progress: bool = True

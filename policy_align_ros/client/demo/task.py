@@ -17,7 +17,12 @@ from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.metrics import ncpe
 from policy_align_ros.sim.demonstrations import rollout, sample_start_states, task_space_rollout
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
-from policy_align_ros.sim.script import hand_plane_rows, hands_command, random_plane_specs
+from policy_align_ros.sim.script import (
+    hand_plane_rows,
+    hands_command,
+    random_plane_specs,
+    reachable_home,
+)
 
 __all__ = ["Task", "new_starts"]
 
@@ -36,7 +41,7 @@ class Task:
         self.s = s
         self.dt = 1.0 / s.rate_hz
         self.attractor = (np.asarray(s.home, dtype=float) if len(s.home)
-                          else robot.neutral())
+                          else reachable_home(robot))
         self.vmax = speed_limits(robot.velocity_limit, s.max_velocity)
         self.hands = TaskSpaceMap(robot, s.frames) if s.frames else None
         self.joint_expert = QuadraticPotential(self.attractor, weight=s.gain / 2.0)
