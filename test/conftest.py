@@ -13,6 +13,9 @@ mistake that makes a test see another's nodes when test runs overlap.
   ``-p`` parameters (for start-up refusals: exit status and stderr).
 * ``wait_for(predicate, timeout)`` -> poll until true; the timeout only bounds a failure, it
   never decides a pass, so no assertion depends on the machine's speed.
+
+Hypothesis runs derandomized: its examples follow from each test, so every run of the suite
+draws the same ones, as every other random draw of the tests is seeded.
 """
 
 from __future__ import annotations
@@ -22,8 +25,12 @@ import threading
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import settings
 
 from policy_align_ros.polling import wait_for
+
+settings.register_profile("seeded", derandomize=True)
+settings.load_profile("seeded")
 
 _USED_DOMAINS: dict[int, str] = {}
 

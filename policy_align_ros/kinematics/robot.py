@@ -25,6 +25,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import importlib.metadata
+import math
 import os
 import sysconfig
 from collections.abc import Sequence
@@ -125,12 +126,16 @@ def _reference_posture(model: pin.Model, srdf: Path | None, ref: str | None) -> 
 
 
 class Robot:
-    """Kinematic model of a robot restricted to a subset of 1-DoF joints.
+    """Kinematic model of a robot restricted to a subset of its 1-DoF joints.
 
     Build with :meth:`load`. Attributes
     ``joint_names`` (list of n str), ``lower``/``upper`` (n,) position limits,
     ``velocity_limit`` (n,) in rad/s or m/s, ``nq`` (= n), ``model``/``data`` (the reduced
     Pinocchio model and its data, built once), ``urdf`` (path), ``name``.
+
+    A continuous joint (URDF ``continuous``: Pinocchio's unbounded revolute, configured by
+    ``(cos, sin)`` of its angle) is one angle here, as ``/joint_states`` gives it, with
+    infinite limits; Pinocchio's Jacobians already have one column per joint.
     """
 
     def __init__(self, model: pin.Model, q_ref: np.ndarray, *, name: str, urdf: Path,
@@ -142,14 +147,24 @@ class Robot:
         tree_names = [model.names[i] for i in range(1, model.njoints)]
         order = tree_names if joint_order is None else list(joint_order)
         idx = [tree_names.index(j) for j in order]
+        joints = [model.joints[model.getJointId(j)] for j in order]
+        iq = np.array([j.idx_q for j in joints], dtype=int)
+        iv = np.array([j.idx_v for j in joints], dtype=int)
+        continuous = np.array([_continuous(j) for j in joints], dtype=bool)
         # The reduced model keeps kinematic-tree order; public arrays use ``order``, so
-        # the hot paths only permute q (``_order``) and Jacobian columns.
-        self._order: list[int] | None = None if idx == list(range(len(idx))) else idx
+        # the hot paths only scatter q into Pinocchio's (``_order``) and gather Jacobian
+        # columns (``_columns``); None where that is the identity.
+        plain = not continuous.any() and idx == list(range(len(idx)))
+        self._order: np.ndarray | None = None if plain else iq
+        self._columns: np.ndarray | None = None if plain else iv
+        self._continuous = np.flatnonzero(continuous)
         self.joint_names: list[str] = order
-        self.nq = int(model.nq)
-        self.lower = np.array(model.lowerPositionLimit, dtype=float)[idx]
-        self.upper = np.array(model.upperPositionLimit, dtype=float)[idx]
-        self.velocity_limit = np.array(model.velocityLimit, dtype=float)[idx]
+        self.nq = len(order)
+        self.lower = np.where(continuous, -np.inf,
+                              np.array(model.lowerPositionLimit, dtype=float)[iq])
+        self.upper = np.where(continuous, np.inf,
+                              np.array(model.upperPositionLimit, dtype=float)[iq])
+        self.velocity_limit = np.array(model.velocityLimit, dtype=float)[iv]
         self._q_ref = np.array(q_ref, dtype=float)[idx]
         self.frame_names: list[str] = [f.name for f in model.frames]
         #: Posture (joint -> its ``nq`` configuration values) at which every joint outside
@@ -171,7 +186,7 @@ class Robot:
             URDF file (meshes are not loaded, so ``package://`` paths need not resolve).
         joints : sequence of str, optional
             Joints to keep, in this order; ``None`` keeps every joint. All kept joints must
-            be 1-DoF revolute or prismatic.
+            be 1-DoF: revolute, continuous or prismatic.
         reference : array_like (nq_full,) or dict joint -> value, optional
             Posture at which the other joints are locked (and :meth:`neutral`); defaults
             to the SRDF reference posture, else zeros clipped to the limits.
@@ -210,10 +225,12 @@ class Robot:
                 seen.add(j)
         for j in keep:
             jmodel = full.joints[full.getJointId(j)]
-            if jmodel.nq != 1 or jmodel.nv != 1:
+            if jmodel.nv != 1 or not (jmodel.nq == 1 or _continuous(jmodel)):
                 raise ValueError(
-                    f"joints: joint {j!r} is a {jmodel.shortname()} with nq={jmodel.nq}; "
-                    "only 1-DoF revolute/prismatic joints are supported"
+                    f"joints: joint {j!r} is a {jmodel.shortname()} with nv={jmodel.nv}; "
+                    "only 1-DoF revolute, continuous and prismatic joints are supported "
+                    "(list the others' 1-DoF joints in joints, or leave them out to lock "
+                    "them)"
                 )
         lock = [full.getJointId(j) for j in names if j not in keep]
         model = pin.buildReducedModel(full, lock, q_full) if lock else full
@@ -259,8 +276,11 @@ class Robot:
             raise ValueError(f"q: must have shape ({self.nq},), got {vec.shape}")
         if self._order is None:
             return vec
-        out = np.empty(self.nq)
+        out = np.empty(self.model.nq)
         out[self._order] = vec
+        angles = vec[self._continuous]
+        at = self._order[self._continuous]
+        out[at], out[at + 1] = np.cos(angles), np.sin(angles)
         return out
 
     def frame_position(self, q: np.ndarray, frame: str) -> np.ndarray:
@@ -319,9 +339,9 @@ class Robot:
         return pin.SE3(placement.placement)
 
     def _user_cols(self, jac: np.ndarray) -> np.ndarray:
-        if self._order is None:
+        if self._columns is None:
             return np.array(jac)
-        return np.array(jac[:, self._order])
+        return np.array(jac[:, self._columns])
 
     def random_configuration(self, rng: np.random.Generator, std: float = 0.1,
                              center: np.ndarray | None = None) -> np.ndarray:
@@ -344,8 +364,20 @@ def _locked_posture(full: pin.Model, q_full: np.ndarray, keep: Sequence[str]
     return out
 
 
+def _continuous(joint) -> bool:
+    """Whether a Pinocchio joint model is an unbounded revolute (URDF ``continuous``)."""
+    return joint.nq == 2 and joint.nv == 1 and joint.shortname().startswith("JointModelRUB")
+
+
 def _subset(full: pin.Model, q_full: np.ndarray, keep: list[str]) -> np.ndarray:
-    return np.array([q_full[full.joints[full.getJointId(j)].idx_q] for j in keep])
+    """The joint positions of ``keep`` (one each: a continuous joint's angle) in
+    ``q_full``."""
+    out = []
+    for j in keep:
+        jm = full.joints[full.getJointId(j)]
+        c = q_full[jm.idx_q:jm.idx_q + jm.nq]
+        out.append(math.atan2(c[1], c[0]) if _continuous(jm) else c[0])
+    return np.array(out, dtype=float)
 
 
 def _apply_reference(full: pin.Model, q_full: np.ndarray,
@@ -362,6 +394,9 @@ def _apply_reference(full: pin.Model, q_full: np.ndarray,
                     f"{closest_names(joint, names)}"
                 )
             jmodel = full.joints[full.getJointId(joint)]
+            if _continuous(jmodel):
+                q[jmodel.idx_q:jmodel.idx_q + 2] = math.cos(float(value)), math.sin(float(value))
+                continue
             if jmodel.nq != 1:
                 raise ValueError(f"reference: joint {joint!r} is not 1-DoF")
             q[jmodel.idx_q] = float(value)

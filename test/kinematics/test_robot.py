@@ -149,3 +149,34 @@ def test_locked_posture_and_urdf_hash(talos_arm: Robot) -> None:
     assert moved.locked_posture["arm_right_4_joint"] == [-1.0]
     expect = hashlib.sha256(talos_arm.urdf.read_bytes()).hexdigest()
     assert talos_arm.urdf_sha256() == expect != Robot.load("panda").urdf_sha256()
+
+
+def test_a_continuous_joint_is_one_angle_with_no_limits() -> None:
+    # Kinova's Jaco: joints 1, 4 and 6 are URDF "continuous", which Pinocchio configures
+    # by (cos, sin) of the angle; /joint_states and this class give the angle.
+    path = robots_dir() / "kinova_description" / "robots" / "kinova.urdf"
+    joints = ["j2s6s200_joint_4", "j2s6s200_joint_1", "j2s6s200_joint_3"]
+    robot = Robot.load(str(path), joints=joints)
+    assert robot.nq == 3
+    assert np.all(np.isinf(robot.lower[:2])) and np.all(np.isinf(robot.upper[:2]))
+    assert np.isfinite(robot.lower[2]) and np.isfinite(robot.upper[2])
+    frame = "j2s6s200_end_effector"
+    q = np.array([0.4, -2.0, 1.5])
+    # Pinocchio's own configuration, written out: the locked joints at their posture.
+    full = pin.buildModelFromUrdf(str(path))
+    q_pin = np.concatenate([
+        [np.cos(q[joints.index(name)]), np.sin(q[joints.index(name)])]
+        if name in joints[:2] else [q[2]] if name == joints[2]
+        else robot.locked_posture[name] for name in full.names[1:]])
+    data = full.createData()
+    pin.forwardKinematics(full, data, q_pin)
+    expected = pin.updateFramePlacement(full, data, full.getFrameId(frame)).translation
+    np.testing.assert_allclose(robot.frame_position(q, frame), expected, atol=1e-12)
+    turned = q + np.array([2 * np.pi, -2 * np.pi, 0.0])
+    np.testing.assert_allclose(robot.frame_position(turned, frame), expected, atol=1e-12)
+    eps = 1e-6
+    fd = np.stack([(robot.frame_position(q + eps * e, frame)
+                    - robot.frame_position(q - eps * e, frame)) / (2 * eps)
+                   for e in np.eye(3)], axis=1)
+    np.testing.assert_allclose(robot.frame_jacobian(q, frame), fd, atol=1e-6)
+    np.testing.assert_allclose(robot.frames_kinematics(q, [frame])[1][0], fd, atol=1e-6)

@@ -20,7 +20,7 @@ Usage::
     python test/robustness/robustness_table.py --in-process     # CLI through cli.main (faster)
 
 ROS cases run in-process, each rig with its own ``rclpy.Context`` on its own DDS domain
-(``--domain-base``, default 60: ids 60-99; ``test_robustness.py`` uses 204-216); node
+(``--domain-base``, default 60: ids 60-99; ``test_robustness.py`` uses 130-142); node
 start-up cases and, by default, CLI cases run as subprocesses of this interpreter's
 environment.
 """

@@ -1,4 +1,4 @@
-"""Robustness cases as assertions (docs/robustness.md; domain ids 204-216).
+"""Robustness cases as assertions (docs/robustness.md; domain ids 130-142).
 
 The cases live in ``robustness_cases_*.py``; ``robustness_table.py`` also prints the table of
 the doc. Here the fast, deterministic groups run, with the CLI called in-process through
@@ -35,7 +35,7 @@ KNOWN: dict[str, str] = {}
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     # Node start-up cases (a process each) are left to the table and the nodes' own tests.
-    return Lab(tmp_path_factory.mktemp("robustness"), domain_base=204,
+    return Lab(tmp_path_factory.mktemp("robustness"), domain_base=130,
                domain_count=12, cli_subprocess=False, start_ups=False, n_good=5, samples=25)
 
 
@@ -113,7 +113,7 @@ def test_the_recorder_checks_stamps_against_its_clock_only_without_sim_time(tmp_
     from policy_align_ros.nodes.recorder import RecorderNode
 
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=216)
+    rclpy.init(context=context, domain_id=142)
     nodes = []
     try:
         for sim in (False, True):
