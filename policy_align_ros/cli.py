@@ -11,7 +11,8 @@ Sub-commands (each imports its heavy dependencies only when it runs)::
     policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
         [--seed S] [--out DIR] [--cases a,b] [--set NAME=VALUE]
     policy-align bench lasa [--protocol loo|all|both] [--shapes tuning|reporting|all|multi|A,B]
-        [--methods a,b] [--demos K] [--recorded] [--hesitant] [--subsample N] [--jobs J]
+        [--methods a,b] [--demos K] [--recorded] [--hesitant] [--scattered-ends]
+        [--subsample N] [--jobs J]
         [--out DIR] [--set NAME=VALUE]
 """
 
@@ -58,6 +59,9 @@ def _add_bench(sub) -> None:
     bench.add_argument("--hesitant", action="store_true",
                        help="lasa only: each training demonstration stops once on the way "
                             "for 0.3-1 s, as a teacher who hesitates")
+    bench.add_argument("--scattered-ends", action="store_true",
+                       help="lasa only: each training demonstration ends where a teacher "
+                            "stops, 2 %% of the workspace apart (per coordinate, random)")
     bench.add_argument("--subsample", type=int, default=None, metavar="N",
                        help="lasa only: train on every N-th sample (default 5, the "
                             "protocol's; 1 is the data set's own rate, 115-520 Hz)")

@@ -29,8 +29,13 @@ per shape and demonstration. ``--hesitant`` makes each training demonstration st
 on the way, as a teacher who hesitates (:func:`~policy_align_ros.sim.recording.hesitate`):
 at :data:`HESITATE_AT` of its duration, for :data:`HESITATE_PAUSE` s, slowing down and
 setting off over :data:`HESITATE_RAMP` s, seeded per shape and demonstration (with
-``--recorded`` too, before the rests and noise). Rollouts and metrics stay on the data
-set's own demonstrations.
+``--recorded`` too, before the rests and noise). ``--scattered-ends`` makes each training
+demonstration end where a teacher stops, never twice at the same point: displaced by an
+offset drawn per shape and demonstration (:data:`SCATTERED_ENDS` of W per coordinate),
+blended in over its duration by a smoothstep, so that it starts where it did and still
+ends at rest (before the other variants' changes). Rollouts and metrics stay on the data
+set's own demonstrations; with ``--scattered-ends`` a rollout has converged when it ends
+near the mean of the training demonstrations' ends, the goal they show.
 """
 
 from __future__ import annotations
@@ -106,6 +111,9 @@ RECORDED_NOISE = 5e-4
 HESITATE_AT = (0.3, 0.7)
 HESITATE_PAUSE = (0.3, 1.0)
 HESITATE_RAMP = 0.3
+#: ``--scattered-ends``: the standard deviation of each coordinate of a training
+#: demonstration's end offset, as a fraction of the workspace W.
+SCATTERED_ENDS = 0.02
 
 
 def load_shape(name: str) -> list[dict[str, np.ndarray]]:
@@ -159,13 +167,19 @@ def shape_set(name: str) -> str:
 
 def _training(demos: list[dict], keep: list[int], subsample: int,
               recorded: tuple[str, float] | None = None,
-              hesitant: str | None = None) -> list[Trajectory]:
+              hesitant: str | None = None,
+              scattered: tuple[str, float] | None = None) -> list[Trajectory]:
     """Every ``subsample``-th sample of the demonstrations ``keep``; with ``recorded``
     (shape name, workspace W in mm) as the recorder stores them, with ``hesitant`` (shape
-    name) stopping once on the way (module docstring)."""
+    name) stopping once on the way, with ``scattered`` (shape name, W) ending apart
+    (module docstring)."""
     out = []
     for k in keep:
         X, t = demos[k]["positions"][::subsample], demos[k]["times"][::subsample]
+        if scattered is not None:
+            shape, width = scattered
+            rng = np.random.default_rng([_KNOWN_SHAPES.index(shape), k, 2])
+            X = X + _smoothstep(t)[:, None] * rng.normal(0.0, SCATTERED_ENDS * width, 2)
         if hesitant is not None:
             # A stream of its own: the recorded rests and noise stay those of --recorded.
             rng = np.random.default_rng([_KNOWN_SHAPES.index(hesitant), k, 1])
@@ -181,9 +195,17 @@ def _training(demos: list[dict], keep: list[int], subsample: int,
     return out
 
 
-def _evaluate(policy, demo: dict, width: float, max_steps: int | None
-              ) -> tuple[dict[str, Any], np.ndarray]:
-    """Metrics of ``policy`` on one demonstration, and its rollout."""
+def _smoothstep(t: np.ndarray) -> np.ndarray:
+    """``3 u^2 - 2 u^3`` of the normalised times ``u`` (N,): 0 at the start, 1 at the end,
+    flat at both."""
+    u = (t - t[0]) / (t[-1] - t[0]) if t[-1] > t[0] else np.zeros_like(t)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def _evaluate(policy, demo: dict, width: float, max_steps: int | None,
+              goal: np.ndarray | None = None) -> tuple[dict[str, Any], np.ndarray]:
+    """Metrics of ``policy`` on one demonstration, and its rollout; ``goal`` (mm) where it
+    should end (default: the data set's, the origin)."""
     times = demo["times"]
     dt = float(np.median(np.diff(times)))
     duration = float(times[-1] - times[0])
@@ -193,7 +215,7 @@ def _evaluate(policy, demo: dict, width: float, max_steps: int | None
     path = euler_rollout(policy, demo["positions"][0], dt, steps)
     n_dtw = int(round(DTW_DURATIONS * duration / dt)) + 1
     final = path[-1]
-    goal = np.zeros(2)
+    goal = np.zeros(2) if goal is None else goal
     with np.errstate(all="ignore"):
         predicted = policy(demo["positions"])
         nv = velocity_error(predicted, demo["velocities"])
@@ -219,12 +241,13 @@ def _field_axes(demos: list[dict], points: int) -> tuple[np.ndarray, np.ndarray]
             np.linspace(lo[1] - margin, hi[1] + margin, points))
 
 
-def _new_starts(policy, demos: list[dict], width: float, max_steps: int | None) -> float:
+def _new_starts(policy, demos: list[dict], width: float, max_steps: int | None,
+                goal: np.ndarray | None = None) -> float:
     """The share of runs from a :data:`NEW_START_GRID` x :data:`NEW_START_GRID` grid of
     starts over the field's box (:func:`_field_axes`) that end within 1 % of ``width`` of
-    the goal after :data:`ROLLOUT_DURATIONS` times the demonstrations' median duration:
-    new starts a user could pick anywhere near the data, not only beside the
-    demonstrated ones."""
+    the goal (``goal``, mm; default the origin) after :data:`ROLLOUT_DURATIONS` times the
+    demonstrations' median duration: new starts a user could pick anywhere near the data,
+    not only beside the demonstrated ones."""
     xs, ys = _field_axes(demos, NEW_START_GRID)
     gx, gy = np.meshgrid(xs, ys)
     dt = float(np.median([np.median(np.diff(d["times"])) for d in demos]))
@@ -233,7 +256,8 @@ def _new_starts(policy, demos: list[dict], width: float, max_steps: int | None) 
     if max_steps is not None:
         steps = min(steps, max_steps)
     ends = euler_ends(policy, np.stack([gx.ravel(), gy.ravel()], axis=1), dt, steps)
-    return float(np.mean([converged(end, np.zeros(2), width) for end in ends]))
+    goal = np.zeros(2) if goal is None else goal
+    return float(np.mean([converged(end, goal, width) for end in ends]))
 
 
 def _field_grid(policy, demos: list[dict]) -> dict[str, Any]:
@@ -255,8 +279,8 @@ def run_task(task: tuple) -> dict[str, Any]:
         the held-out demonstration (``loo``) or None (``all``); ``options`` may hold
         ``demos`` (use only the first so many demonstrations), ``subsample`` and
         ``max_steps`` (a cap on rollout steps), for quick tests, ``recorded`` (train on
-        the demonstrations as recorded) and ``hesitant`` (each stopping once on the way;
-        module docstring).
+        the demonstrations as recorded), ``hesitant`` (each stopping once on the way) and
+        ``scattered`` (each ending apart; module docstring).
 
     Returns
     -------
@@ -272,7 +296,11 @@ def run_task(task: tuple) -> dict[str, Any]:
     evaluated = list(range(len(demos))) if fold is None else [fold]
     trajs = _training(demos, keep, options.get("subsample", SUBSAMPLE),
                       (shape, width) if options.get("recorded") else None,
-                      shape if options.get("hesitant") else None)
+                      shape if options.get("hesitant") else None,
+                      (shape, width) if options.get("scattered") else None)
+    # Where the training demonstrations end is the goal they show.
+    goal = (np.mean([t.positions[-1] for t in trajs], axis=0) if options.get("scattered")
+            else None)
     records, figure = [], {"rollouts": {}, "field": None}
     for method in methods:
         with warnings.catch_warnings(record=True) as caught:
@@ -281,9 +309,9 @@ def run_task(task: tuple) -> dict[str, Any]:
             policy = fit_method(method, trajs, settings)
             fit_s = time.perf_counter() - t0
         messages = sorted({str(w.message).splitlines()[0][:200] for w in caught})
-        new_starts = _new_starts(policy, demos, width, options.get("max_steps"))
+        new_starts = _new_starts(policy, demos, width, options.get("max_steps"), goal)
         for k in evaluated:
-            record, path = _evaluate(policy, demos[k], width, options.get("max_steps"))
+            record, path = _evaluate(policy, demos[k], width, options.get("max_steps"), goal)
             records.append({"shape": shape, "set": shape_set(shape), "method": method,
                             "protocol": protocol, "demo": k, **record, "fit_s": fit_s,
                             "new_starts_converged": new_starts,
@@ -351,6 +379,7 @@ def main(args: argparse.Namespace) -> int:
     options = dict(getattr(args, "lasa_options", None) or {})
     options.setdefault("recorded", bool(getattr(args, "recorded", False)))
     options.setdefault("hesitant", bool(getattr(args, "hesitant", False)))
+    options.setdefault("scattered", bool(getattr(args, "scattered_ends", False)))
     if getattr(args, "demos", None) is not None:
         if not 2 <= args.demos <= 7:
             raise ValueError(f"--demos {args.demos}: a LASA shape has 7 demonstrations; "
@@ -370,6 +399,7 @@ def main(args: argparse.Namespace) -> int:
                + (f" --demos {options['demos']}" if "demos" in options else "")
                + (" --recorded" if options["recorded"] else "")
                + (" --hesitant" if options["hesitant"] else "")
+               + (" --scattered-ends" if options["scattered"] else "")
                + (f" --subsample {subsample}" if subsample is not None else "")
                + "".join(f" --set {s}" for s in getattr(args, "set", None) or []))
     text = format_report(records, methods, protocols, elapsed, command)

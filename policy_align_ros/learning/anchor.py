@@ -2,7 +2,8 @@
 
 Where most demonstrations end (:func:`~policy_align_ros.learning.goal.demonstrated_goal`)
 does not depend on how they were timed. PolicyAlign keeps the paper's potential when it has
-a minimum within :data:`ANCHOR_TOL` extents of that goal, or when it predicts held-out
+a minimum within :data:`ANCHOR_TOL` extents of that goal, or within the spread of the ends
+around it if wider (a teacher stops a little apart each time), or when it predicts held-out
 demonstrations to round-off (their timing is one potential's, so a rest away from its
 minimum is a rest under a constraint, not a goal); otherwise (a teacher's timing, a
 lagging robot, a potential its family cannot hold) it refits the global model stationary
@@ -26,7 +27,7 @@ import numpy as np
 from policy_align_ros.learning.goal import (
     GOAL_MERGE,
     data_extent,
-    demonstrated_goal,
+    goal_ends,
     learnt_minima,
     starts_elsewhere,
     typical_speed,
@@ -41,8 +42,8 @@ __all__ = ["ANCHOR_TOL", "CONSISTENT_SCORE", "REFERENCE_SAMPLES", "anchor_decisi
            "goal_curvature", "motion_drops", "motion_steps", "step_scale"]
 
 #: The paper's potential is kept when one of its minima lies within this fraction of the
-#: data's extent of where the demonstrations end; farther, the model is made stationary
-#: there.
+#: data's extent of where the demonstrations end, or within the ends' own spread around
+#: it when that is wider; farther, the model is made stationary there.
 ANCHOR_TOL = 0.01
 #: A CV score (held-out error over the within-demonstration spread) at or below this is
 #: round-off: the demonstrations are exact flows of the fitted potential.
@@ -73,25 +74,33 @@ def anchor_decision(regressor, trajs: Sequence[Trajectory], can_anchor: bool = T
     Returns
     -------
     dict
-        ``goal`` (list of n floats, or None), ``unanchored_error_fraction`` (the distance
-        from the goal to the potential's nearest minimum over the extent; None when there
-        is no goal, inf as None when no minimum was found), ``consistent`` (the CV score
-        is at round-off) and ``anchored`` (bool).
+        ``goal`` (list of n floats, or None), ``goal_spread_fraction`` (the largest
+        distance of the ends that make the goal from it, over the extent; None without a
+        goal), ``unanchored_error_fraction`` (the distance from the goal to the
+        potential's nearest minimum over the extent; None when there is no goal, inf as
+        None when no minimum was found), ``consistent`` (the CV score is at round-off) and
+        ``anchored`` (bool).
     """
-    goal = demonstrated_goal(trajs)
+    ends = goal_ends(trajs)
+    goal = None if ends is None else ends.mean(axis=0)
     consistent = cv_score is not None and cv_score <= CONSISTENT_SCORE
+    extent = data_extent(trajs)
+    spread = None if goal is None else float(
+        np.max(np.linalg.norm(ends - goal, axis=1))) / (extent or 1.0)
     out = {"goal": None if goal is None else [float(v) for v in goal],
-           "unanchored_error_fraction": None, "consistent": consistent, "anchored": False}
+           "goal_spread_fraction": spread, "unanchored_error_fraction": None,
+           "consistent": consistent, "anchored": False}
     if goal is None or not can_anchor:
         return out
-    extent = data_extent(trajs)
     speed = typical_speed(trajs)
     found = learnt_minima(regressor.predict, regressor.gradient, goal[None], scale=extent,
                           speed=speed)
     error = (float(np.min(np.linalg.norm(found.points - goal, axis=1))) / extent
              if len(found.points) else math.inf)
     out["unanchored_error_fraction"] = json_float(error, "null")
-    out["anchored"] = not (error <= ANCHOR_TOL or consistent)
+    # The goal is known only to the spread of where the teacher stopped: a minimum inside
+    # it is one the demonstrations cannot tell from theirs.
+    out["anchored"] = not (error <= max(ANCHOR_TOL, spread) or consistent)
     return out
 
 

@@ -51,6 +51,7 @@ __all__ = [
     "data_extent",
     "demonstrated_goal",
     "flow_stops",
+    "goal_ends",
     "goal_summary",
     "learnt_minima",
     "rest_points",
@@ -64,10 +65,12 @@ REST_FRACTION = 0.02
 #: A rest where the learnt policy's speed exceeds this fraction of the typical demonstrated
 #: (peak) speed is a rest under an active constraint, not a goal.
 ACTIVE_FRACTION = 0.1
-#: Rest points closer than this fraction of the extent are one demonstrated goal.
+#: Rest points, and the ends of demonstrations (:func:`demonstrated_goal`), closer than
+#: this fraction of the extent are one demonstrated goal: a teacher never stops twice at
+#: the same point.
 GOAL_MERGE = 0.05
-#: Demonstrations that end within this fraction of the extent of one another end at one
-#: place (:func:`demonstrated_goal`): the resolution of a goal a user can ask for.
+#: The longest step of a descent that follows the learnt policy's flow (:func:`flow_stops`),
+#: as a fraction of the extent.
 END_RADIUS = 0.01
 #: Learnt minima (and descent starts) closer than this fraction of the extent are one.
 MINIMA_MERGE = 1e-3
@@ -153,16 +156,10 @@ def _final_rest(traj: Trajectory, fraction: float) -> int | None:
 
 
 def demonstrated_goal(trajs: Sequence[Trajectory | np.ndarray],
-                      radius: float = END_RADIUS) -> np.ndarray | None:
+                      radius: float = GOAL_MERGE) -> np.ndarray | None:
     """Where most demonstrations end: the goal the demonstrator meant, or None.
 
-    Each demonstration ends at the last tenth of its final rest run or, when it is still
-    moving at its last sample (a recording cut as the goal is reached), at that sample.
-    Trajectories of one potential-based policy end at its minima, whatever their timing; a
-    constraint holds each demonstration at a minimum of its own, so ends that differ mean
-    constraints (or demonstrations cut short). The goal is the mean of the ends within
-    ``radius`` extents of the end that has the most such neighbours, when they are more
-    than half of the demonstrations (and at least two); otherwise there is none.
+    The mean of :func:`goal_ends`.
 
     Parameters
     ----------
@@ -176,15 +173,63 @@ def demonstrated_goal(trajs: Sequence[Trajectory | np.ndarray],
     ndarray (n,) or None
         The goal (state units).
     """
+    ends = goal_ends(trajs, radius)
+    return None if ends is None else ends.mean(axis=0)
+
+
+def goal_ends(trajs: Sequence[Trajectory | np.ndarray], radius: float = GOAL_MERGE
+              ) -> np.ndarray | None:
+    """The ends of the demonstrations that end together (k, n), or None.
+
+    Each demonstration ends at the last tenth of its final rest run or, when it is still
+    moving at its last sample (a recording cut as the goal is reached), at that sample.
+    Trajectories of one potential-based policy end at its minima, whatever their timing; a
+    constraint holds each demonstration at a minimum of its own, so ends far apart mean
+    constraints (or demonstrations cut short). A teacher, though, never stops twice at
+    the same point: the ends within ``radius`` extents of the end that has the most such
+    neighbours are one goal, when they are more than half of the demonstrations (and at
+    least two); otherwise there is none. The ends at rest are tried first, and all ends
+    only when those are too few: a recording cut while it still moves shows where it was
+    heading, not where it stopped, and a few such ends beside the rests would move the
+    goal. A ball rather than chains of ends: a chain grows with the number of
+    demonstrations, and the ends of constrained ones chain across a tenth of the extent
+    and more. How far they lie from their mean is how well the demonstrations show the
+    goal (:func:`~policy_align_ros.learning.anchor.anchor_decision` reads it).
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory or array_like (N_k, n)
+        The demonstrations (state units).
+    radius : float
+        Ends within ``radius`` times the extent (:func:`data_extent`) are one place.
+
+    Returns
+    -------
+    ndarray (k, n) or None
+        Those ends (state units).
+    """
     trajs = as_trajectories(trajs)
+    if len(trajs) < 2:
+        return None
     ends = np.array([_end_point(t) for t in trajs])
-    if len(ends) < 2:
-        return None
-    near = cKDTree(ends).query_ball_point(ends, radius * data_extent(trajs))
-    best = max(near, key=len)
-    if len(best) < 2 or 2 * len(best) <= len(ends):
-        return None
-    return ends[best].mean(axis=0)
+    resting = np.array([_final_rest(t, REST_FRACTION) is not None for t in trajs])
+    scale = radius * data_extent(trajs)
+    # A demonstration at rest at its end shows the goal; one still moving at its last
+    # sample only heads for it: the rests decide where they are enough on their own.
+    for candidates in (np.flatnonzero(resting), np.arange(len(ends))):
+        best = _largest_ball(ends[candidates], scale)
+        if len(best) >= 2 and 2 * len(best) > len(ends):
+            return ends[candidates[best]]
+    return None
+
+
+def _largest_ball(points: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of the points within ``radius`` of the point that has the most of them
+    (none for no points)."""
+    if not len(points):
+        return np.zeros(0, dtype=int)
+    near = cKDTree(points).query_ball_point(points, radius)
+    return np.asarray(max(near, key=len), dtype=int)
 
 
 def _end_point(traj: Trajectory, tail: float = 0.1) -> np.ndarray:

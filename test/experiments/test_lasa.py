@@ -244,11 +244,12 @@ def test_small_run_writes_json_table_and_figure(tmp_path, capsys):
 def test_a_recorded_run_of_a_few_demonstrations_says_so_in_its_command(tmp_path):
     args = argparse.Namespace(
         protocol="loo", shapes="Line", methods=["grad_field"], set=[], jobs=1, demos=3,
-        recorded=True, hesitant=True, subsample=20, out=str(tmp_path),
+        recorded=True, hesitant=True, scattered_ends=True, subsample=20, out=str(tmp_path),
         lasa_options={"max_steps": 200})
     assert lasa.main(args) == 0
     raw = json.loads((tmp_path / "lasa.json").read_text())
-    assert raw["command"].endswith("--demos 3 --recorded --hesitant --subsample 20")
+    assert raw["command"].endswith(
+        "--demos 3 --recorded --hesitant --scattered-ends --subsample 20")
     assert sorted(r["demo"] for r in raw["records"]) == [0, 1, 2]
 
 
@@ -271,6 +272,26 @@ def test_hesitant_training_demonstrations_stop_once_and_keep_the_recorded_noise(
     recorded = lasa._training(demos, [1], 5, ("Line", width))[0]
     assert len(both.positions) - len(recorded.positions) == len(hesitant[1].positions) - len(
         clean[1].positions)
+
+
+def test_scattered_training_demonstrations_start_alike_and_end_apart_at_rest():
+    demos = lasa.load_shape("Line")
+    width = workspace_size([d["positions"] for d in demos])
+    clean = lasa._training(demos, [0, 1, 2], 5)
+    scattered = lasa._training(demos, [0, 1, 2], 5, scattered=("Line", width))
+    ends = []
+    for c, s in zip(clean, scattered, strict=True):
+        np.testing.assert_array_equal(s.times, c.times)
+        np.testing.assert_allclose(s.positions[0], c.positions[0], atol=1e-12)
+        offset = s.positions[-1] - c.positions[-1]
+        assert 1e-4 * width < np.linalg.norm(offset) < 10 * lasa.SCATTERED_ENDS * width
+        # Flat blend at the end: the last step moves no more than the clean one.
+        last = np.linalg.norm(np.diff(s.positions[-2:], axis=0))
+        assert last <= np.linalg.norm(np.diff(c.positions[-2:], axis=0)) + 1e-3 * width
+        ends.append(offset)
+    assert np.linalg.norm(ends[0] - ends[1]) > 1e-4 * width  # each its own offset
+    again = lasa._training(demos, [1], 5, scattered=("Line", width))[0]
+    np.testing.assert_array_equal(again.positions, scattered[1].positions)
 
 
 def test_recorded_training_demonstrations_rest_at_both_ends_and_are_noisy():

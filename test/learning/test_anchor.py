@@ -69,6 +69,25 @@ def test_a_minimum_away_from_the_demonstrated_goal_is_anchored():
     assert decision["anchored"] and np.allclose(decision["goal"], goal, atol=1e-3)
 
 
+def test_a_minimum_within_the_spread_of_where_the_teacher_stopped_is_kept():
+    # Ends scattered 2.5 % of the extent around the goal: a minimum 1.5 % from their mean
+    # (beyond ANCHOR_TOL) is one the demonstrations cannot tell from theirs, one 15 %
+    # away is not.
+    goal = np.array([0.2, -0.1])
+    demos = _demos_resting_at(goal)
+    extent = data_extent(demos)
+    offsets = 0.025 * extent * np.array([[1, 0], [0, 1], [-1, 0], [0, -1], [0.6, 0.6]])
+    u = demos[0].times / demos[0].times[-1]
+    blend = (u * u * (3 - 2 * u))[:, None]  # at rest at both ends
+    scattered = [Trajectory(positions=d.positions + blend * o, times=d.times)
+                 for d, o in zip(demos, offsets, strict=True)]
+    mean = goal + offsets.mean(axis=0)
+    inside = anchor_decision(_Bowl(mean + [0.015 * extent, 0.0]), scattered, cv_score=1e-3)
+    assert inside["goal_spread_fraction"] > 0.015 and not inside["anchored"]
+    outside = anchor_decision(_Bowl(mean + [0.15 * extent, 0.0]), scattered, cv_score=1e-3)
+    assert outside["anchored"] and np.allclose(outside["goal"], mean, atol=1e-3 * extent)
+
+
 def test_a_fit_exact_to_round_off_keeps_the_papers_potential():
     # Exact flows of the fitted potential that rest elsewhere rest under a constraint.
     goal = np.array([0.2, -0.1])

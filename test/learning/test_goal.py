@@ -151,9 +151,13 @@ def test_a_start_whose_well_no_end_reaches_is_counted():
     assert report["n_starts_elsewhere"] == 1 and report["n_starts_escaped"] == 0
     assert report["starts_elsewhere_fraction"] == pytest.approx(2.0 / 2.5, abs=0.02)
     left = line(np.array([-1.3, 0.3]), [-1.0, 0.02])  # another goal, its own well
-    for trajs in ([within], [within, left], [across, within, left]):
+    for trajs in ([within], [within, left]):
         assert starts_elsewhere(trajs, potential, gradient, extent=2.5,
                                 speed=1.0)["n_starts_elsewhere"] == 0
+    # Two of three end together (3 % of the extent apart, as a teacher stops): that is
+    # the goal, and both starts whose runs stop in the other well count.
+    assert starts_elsewhere([across, within, left], potential, gradient, extent=2.5,
+                            speed=1.0)["n_starts_elsewhere"] == 2
 
 
 def test_where_demonstrations_end_together_runs_must_stop_there():
@@ -223,3 +227,44 @@ def test_no_demonstrated_goal_when_the_ends_differ():
     demos = [np.linspace(rng.uniform(-3, 3, 2), rng.uniform(-3, 3, 2), 30) for _ in range(6)]
     assert demonstrated_goal(demos) is None
     assert demonstrated_goal(demos[:1]) is None
+
+
+def test_ends_a_teacher_scatters_around_one_place_are_one_goal():
+    from policy_align_ros.learning.goal import GOAL_MERGE, demonstrated_goal, goal_ends
+
+    rng = np.random.default_rng(7)
+    goal = np.array([1.0, -2.0])
+    # Six demonstrations of extent about 6 that stop 0.5-2 % of it from the goal: a
+    # teacher never stops twice at the same point.
+    offsets = 0.06 * rng.uniform(0.5, 2.0, 6)[:, None] * np.stack(
+        [np.cos(np.arange(6)), np.sin(np.arange(6))], axis=1)
+    demos = [np.linspace(goal + rng.uniform(-3, 3, 2), goal + d, 30) for d in offsets]
+    ends = goal_ends(demos)
+    assert ends is not None and len(ends) == 6
+    np.testing.assert_allclose(demonstrated_goal(demos), (goal + offsets).mean(axis=0))
+    # Twice as far apart as GOAL_MERGE allows, they are not one place.
+    extent = np.ptp(np.concatenate(demos), axis=0).max()
+    spread = [np.linspace(goal + rng.uniform(-3, 3, 2), goal + 2 * GOAL_MERGE * extent
+                          * np.array([np.cos(a), np.sin(a)]), 30)
+              for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)]
+    assert goal_ends(spread) is None
+
+
+def test_recordings_cut_while_moving_do_not_move_the_goal_the_rests_show():
+    from policy_align_ros.learning.goal import demonstrated_goal, goal_ends
+
+    # Six demonstrations come to rest at the goal; three more are cut 4.6 % of the extent
+    # short, still moving. Within 5 % of the rests, they would pull the goal toward them.
+    goal = np.array([0.5, -1.0])
+    t = np.linspace(0.0, 4.0, 200)
+    rng = np.random.default_rng(8)
+    resting = [Trajectory(goal + (s - goal) * np.exp(-3.0 * t)[:, None], times=t)
+               for s in goal + rng.uniform(-2.0, 2.0, (6, 2))]
+    cut = []
+    for s in goal + rng.uniform(-2.0, 2.0, (3, 2)):
+        path = goal + (s - goal) * np.exp(-3.0 * t)[:, None]
+        stop = int(np.argmax(np.linalg.norm(path - goal, axis=1) < 0.14))
+        cut.append(Trajectory(path[:stop + 1], times=t[:stop + 1]))
+    ends = goal_ends(resting + cut)
+    assert ends is not None and len(ends) == 6
+    np.testing.assert_allclose(demonstrated_goal(resting + cut), goal, atol=1e-4)

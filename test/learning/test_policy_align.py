@@ -558,3 +558,27 @@ def test_a_fit_moved_rotated_and_stamped_from_the_epoch_is_the_fit_moved_and_rot
                                atol=1e-5 * np.abs(expected).max())
     assert other.fit_summary_["anchor"]["anchored"] == base.fit_summary_["anchor"]["anchored"]
     np.testing.assert_allclose(other.timing_scales_, base.timing_scales_, rtol=1e-6)
+
+
+def test_demonstrations_that_stop_apart_still_show_one_goal_the_runs_reach():
+    # A teacher never stops twice at the same point: the same human-timed paths, each
+    # ending 1-2.5 % of the extent from the goal, blended in so that each still ends at
+    # rest. The goal they show is the mean of their ends, and runs from their starts must
+    # stop there rather than wherever the paper's potential has its minimum.
+    goal = np.array([0.5, -1.0])
+    demos = _human_timed_demos(goal, n_demos=6)
+    extent = np.ptp(np.concatenate([d.positions for d in demos]), axis=0).max()
+    angles = np.linspace(0.0, 2 * np.pi, 6, endpoint=False)
+    offsets = extent * np.linspace(0.01, 0.025, 6)[:, None] * np.stack(
+        [np.cos(angles), np.sin(angles)], axis=1)
+    stopped = []
+    for d, offset in zip(demos, offsets, strict=True):
+        u = (d.times - d.times[0]) / (d.times[-1] - d.times[0])
+        stopped.append(Trajectory(positions=d.positions + (u * u * (3 - 2 * u))[:, None]
+                                  * offset, times=d.times))
+    model = PolicyAlign().fit(stopped)
+    shown = goal + offsets.mean(axis=0)
+    anchor = model.fit_summary_["anchor"]
+    assert anchor["anchored"] and np.allclose(anchor["goal"], shown, atol=1e-3 * extent)
+    for d in stopped:
+        assert np.linalg.norm(_descend(model, d.positions[0]) - shown) < 0.01 * extent
