@@ -157,22 +157,8 @@ def _final_rest(traj: Trajectory, fraction: float) -> int | None:
 
 def demonstrated_goal(trajs: Sequence[Trajectory | np.ndarray],
                       radius: float = GOAL_MERGE) -> np.ndarray | None:
-    """Where most demonstrations end: the goal the demonstrator meant, or None.
-
-    The mean of :func:`goal_ends`.
-
-    Parameters
-    ----------
-    trajs : sequence of Trajectory or array_like (N_k, n)
-        The demonstrations (state units).
-    radius : float
-        Ends within ``radius`` times the extent (:func:`data_extent`) are one place.
-
-    Returns
-    -------
-    ndarray (n,) or None
-        The goal (state units).
-    """
+    """Where most demonstrations end: the goal the demonstrator meant (n,), state units,
+    or None. The mean of :func:`goal_ends` of ``trajs`` and ``radius``."""
     ends = goal_ends(trajs, radius)
     return None if ends is None else ends.mean(axis=0)
 
