@@ -63,6 +63,7 @@ from policy_align_ros.experiments.lasa_metrics import (
     workspace_size,
 )
 from policy_align_ros.experiments.pool import parallel_map
+from policy_align_ros.experiments.retiming import smoothstep_warp
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.sim.recording import hesitate, pad_with_rest
 
@@ -179,7 +180,8 @@ def _training(demos: list[dict], keep: list[int], subsample: int,
         if scattered is not None:
             shape, width = scattered
             rng = np.random.default_rng([_KNOWN_SHAPES.index(shape), k, 2])
-            X = X + _smoothstep(t)[:, None] * rng.normal(0.0, SCATTERED_ENDS * width, 2)
+            u = (t - t[0]) / (t[-1] - t[0]) if t[-1] > t[0] else np.zeros_like(t)
+            X = X + smoothstep_warp(u)[:, None] * rng.normal(0.0, SCATTERED_ENDS * width, 2)
         if hesitant is not None:
             # A stream of its own: the recorded rests and noise stay those of --recorded.
             rng = np.random.default_rng([_KNOWN_SHAPES.index(hesitant), k, 1])
@@ -193,13 +195,6 @@ def _training(demos: list[dict], keep: list[int], subsample: int,
             X = X + RECORDED_NOISE * width * rng.standard_normal(X.shape)
         out.append(Trajectory(X, t, name=str(k)))
     return out
-
-
-def _smoothstep(t: np.ndarray) -> np.ndarray:
-    """``3 u^2 - 2 u^3`` of the normalised times ``u`` (N,): 0 at the start, 1 at the end,
-    flat at both."""
-    u = (t - t[0]) / (t[-1] - t[0]) if t[-1] > t[0] else np.zeros_like(t)
-    return u * u * (3.0 - 2.0 * u)
 
 
 def _evaluate(policy, demo: dict, width: float, max_steps: int | None,

@@ -278,9 +278,10 @@ class Robot:
             return vec
         out = np.empty(self.model.nq)
         out[self._order] = vec
-        angles = vec[self._continuous]
-        at = self._order[self._continuous]
-        out[at], out[at + 1] = np.cos(angles), np.sin(angles)
+        if self._continuous.size:
+            angles = vec[self._continuous]
+            at = self._order[self._continuous]
+            out[at], out[at + 1] = np.cos(angles), np.sin(angles)
         return out
 
     def frame_position(self, q: np.ndarray, frame: str) -> np.ndarray:

@@ -197,8 +197,9 @@ def goal_ends(trajs: Sequence[Trajectory | np.ndarray], radius: float = GOAL_MER
     trajs = as_trajectories(trajs)
     if len(trajs) < 2:
         return None
-    ends = np.array([_end_point(t) for t in trajs])
-    resting = np.array([_final_rest(t, REST_FRACTION) is not None for t in trajs])
+    rests = [_final_rest(t, REST_FRACTION) for t in trajs]
+    ends = np.array([_end_point(t, first) for t, first in zip(trajs, rests, strict=True)])
+    resting = np.array([first is not None for first in rests])
     scale = radius * data_extent(trajs)
     # A demonstration at rest at its end shows the goal; one still moving at its last
     # sample only heads for it: the rests decide where they are enough on their own.
@@ -218,11 +219,11 @@ def _largest_ball(points: np.ndarray, radius: float) -> np.ndarray:
     return np.asarray(max(near, key=len), dtype=int)
 
 
-def _end_point(traj: Trajectory, tail: float = 0.1) -> np.ndarray:
+def _end_point(traj: Trajectory, first: int | None, tail: float = 0.1) -> np.ndarray:
     """Where a demonstration ends (n,): the mean of the last ``tail`` of its final rest
-    run (the flow still creeps toward its minimum over the run, so its early part lags),
-    or its last sample when it ends in motion."""
-    first = _final_rest(traj, REST_FRACTION)
+    run, which starts at sample ``first`` (:func:`_final_rest`; the flow still creeps
+    toward its minimum over the run, so its early part lags), or its last sample when it
+    ends in motion (``first`` None)."""
     if first is None:
         return traj.positions[-1]
     run = traj.n_samples - first
