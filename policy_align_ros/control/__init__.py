@@ -18,7 +18,8 @@ constraints in force, scaled for speed and position limits. Modules:
   start, :class:`StartModel`);
 - :mod:`.stall`: stall detection (a joint commanded to move that does not);
 - :mod:`.stamp_hints`: joint-state stamps far from the node clock, explained;
-- :mod:`.status`: the executor's status in words (its ``/diagnostics``).
+- :mod:`.status`: the executor's status in words (its ``/diagnostics``);
+- :mod:`.turns`: continuous joints' angles on the turn the model was learnt on.
 """
 
 from policy_align_ros.control.armed import (
@@ -83,6 +84,7 @@ from policy_align_ros.control.step import (
     ControlStep,
 )
 from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_state
+from policy_align_ros.control.turns import TURN, nearest_turn, turn_centres
 
 __all__ = [
     "DEFAULT_DRIFT_CLAMP_M",
@@ -96,6 +98,7 @@ __all__ = [
     "IMPLAUSIBLE_POSITION",
     "NO_ORDER_CHECK",
     "STAMP_REJECTIONS",
+    "TURN",
     "ArmedController",
     "ControlStep",
     "DistanceFn",
@@ -122,6 +125,7 @@ __all__ = [
     "limit_locks",
     "load_policy",
     "model_permutation",
+    "nearest_turn",
     "order_check_off",
     "position_outside_limits",
     "policy_for_state",
@@ -131,6 +135,7 @@ __all__ = [
     "speed_limits",
     "stall_time_problem",
     "task_to_joint_velocity",
+    "turn_centres",
     "unchecked_order_refusal",
     "velocity_scale",
 ]

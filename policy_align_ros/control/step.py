@@ -45,6 +45,7 @@ from policy_align_ros.control.limits import (
     velocity_scale,
 )
 from policy_align_ros.control.locked_projection import project_with_locks
+from policy_align_ros.control.turns import nearest_turn
 from policy_align_ros.kinematics.constraints import ConstraintModel
 from policy_align_ros.kinematics.projection import nullspace_projector, projector_from_svd
 
@@ -122,6 +123,10 @@ class ControlStep:
         The guard's scale at the last :meth:`evaluate` (1 without a guard).
     extrapolation_distance : float
         ``d`` (spacings) at the last :meth:`evaluate`; NaN without a guard.
+    turn_centres : ndarray, shape (n,), or None
+        Continuous joints' angles are moved by whole turns to within half a turn of these
+        (rad; NaN for the other joints) before anything else sees them
+        (:mod:`~policy_align_ros.control.turns`); None: as measured.
     """
 
     def __init__(
@@ -160,6 +165,7 @@ class ControlStep:
         self.drift_gain = drift_gain
         self.drift_clamp_m = drift_clamp_m
         self.min_singular_value = min_singular_value
+        self.turn_centres: np.ndarray | None = None
         self.extrapolation_scale = 1.0
         self.extrapolation_distance = float("nan")
         self._zeros = np.zeros(n)
@@ -375,6 +381,7 @@ class ControlStep:
         q = np.asarray(q, dtype=float)
         if q.shape != (self.n_joints,) or not np.all(np.isfinite(q)):
             return self._zeros.copy(), "joint positions missing or not finite", self._eye
+        q = nearest_turn(q, self.turn_centres)
         p = self.permutation
         try:
             pi_model = np.asarray(self.policy(q[p][None, :]), dtype=float).reshape(-1)

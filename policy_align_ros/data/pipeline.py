@@ -9,7 +9,9 @@ call :func:`learn_pipeline`, which does, in order:
    with the reason (a bag without JointState messages with its topics), a missing joint is
    named beside the joints that exist; unless ``joints`` is given, joints that never move
    (:func:`~policy_align_ros.data.selection.constant_joints`) are left out of a joint state
-   and named; a model file at ``model_path`` learnt for other joints or another state is
+   and named; with a ``robot``, its continuous joints are put on one turn
+   (:func:`~policy_align_ros.data.turns.unwrap_turns`: drivers report them modulo a
+   turn); a model file at ``model_path`` learnt for other joints or another state is
    replaced only with ``overwrite``;
 2. **de-duplication**: a bag named twice is read once, and demonstrations that are
    near-identical copies of an earlier one
@@ -35,9 +37,9 @@ so it needs no constraint. Each numbered step is one function (``_discover`` ...
 ``_write``).
 
 Imports: numpy, scipy and :mod:`policy_align_ros.learning`, and rosbags through ``bags``. The
-``frames:`` state needs Pinocchio: :mod:`policy_align_ros.kinematics` is imported inside
-:func:`learn_pipeline` only for that case (or the caller passes its own ``state_map``), so
-this module imports without Pinocchio for joint states.
+``frames:`` state and a joint state with a ``robot`` need Pinocchio:
+:mod:`policy_align_ros.kinematics` is imported inside :func:`learn_pipeline` only for those
+(or the caller passes its own ``state_map``), so this module imports without Pinocchio.
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ from policy_align_ros.data.selection import (
     fingerprint,
     holdout_split,
 )
+from policy_align_ros.data.turns import unwrap_turns
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.model_io import json_float, json_floats
 from policy_align_ros.learning.state_spec import parse_state_spec
@@ -143,7 +146,9 @@ class PipelineResult:
         ``skipped_bags`` [{``bag``, ``reason``}]; ``sigma2``; ``fit_time_s``;
         ``heldout_ncpe_observed`` (float or None); ``goal``
         (:func:`~policy_align_ros.data.goal_digest.goal_digest`); ``state``; ``joints``;
-        ``constant_joints`` (left out because they never move); ``robot``;
+        ``constant_joints`` (left out because they never move); ``continuous_joints``
+        (``robot``'s continuous joints, put on one turn: :mod:`~policy_align_ros.data.
+        turns`); ``robot``;
         ``data`` (what was read, one line); ``current_model`` (its held-out nCPE on the
         demonstrations it was not trained on); ``gates``; ``refusals``; ``forced``.
     model : PolicyAlign
@@ -198,6 +203,8 @@ class PipelineResult:
                  + ("n/a" if ncpe is None else f"{ncpe:.4f}") + " (along observed motion)")
         if s.get("poor_fit"):
             text += "; poor fit: it explains at most half of the held-out motion"
+        if s.get("unfixed_goal"):
+            text += "; the CV folds do not fix the goal (docs/design/goal_report.md)"
         scales = s.get("timing_scales") or []
         if any(f != 1.0 for f in scales):
             text += (f"; demonstrations on their own clocks (factors {min(scales):.2f}-"
@@ -322,6 +329,8 @@ def learn_pipeline(
     demos = _discover(run, joints, gap_s, say)
     if joints is None and run.state == "joints" and state_map is None:
         _drop_constant_joints(demos, say)
+    if run.state == "joints" and state_map is None:
+        _unwrap_continuous(demos, run.robot, say)
     if not overwrite:
         check_replacement(run.path, demos.joints, run.state if state_map is None else None)
     _deduplicate(demos, run, say)
@@ -361,6 +370,7 @@ class _Demos:
     duplicate_of: dict[str, str] = field(default_factory=dict)
     unique: list[int] = field(default_factory=list)
     constant: list[str] = field(default_factory=list)
+    continuous: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -467,6 +477,27 @@ def _drop_constant_joints(demos: _Demos, say: Callable[[str], None]) -> None:
         f"{', '.join(demos.constant)} (name the joints explicitly to keep them)")
 
 
+def _unwrap_continuous(demos: _Demos, robot: str | None, say: Callable[[str], None]
+                       ) -> None:
+    """Put the continuous joints of ``robot`` (its URDF) on one turn in every demonstration
+    (:func:`~policy_align_ros.data.turns.unwrap_turns`): drivers report them modulo a
+    turn. Without a robot the joints' kinds are unknown, and nothing changes."""
+    if not robot:
+        return
+    from policy_align_ros.kinematics import Robot  # Pinocchio, only with a robot
+
+    try:
+        mask = Robot.load(robot, demos.joints).continuous
+    except (ValueError, OSError) as err:
+        say(f"continuous joints left as recorded: robot {robot!r} does not load with the "
+            f"demonstrations' joints ({err})")
+        return
+    if mask.any():
+        demos.trajs = unwrap_turns(demos.trajs, mask)
+        demos.continuous = [j for j, c in zip(demos.joints, mask, strict=True) if c]
+        say(f"continuous joint(s) {', '.join(demos.continuous)} put on one turn")
+
+
 def _split(unique: list[int], fraction: float, seed: int) -> tuple[list[int], list[int]]:
     """Stage 3: the training and held-out demonstrations (indices into the ones read)."""
     train_idx, test_idx = holdout_split(len(unique), fraction, seed)
@@ -551,10 +582,12 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         # Files of models fitted before per-demonstration clocks hold none: one clock.
         "timing_scales": json_floats(model.fit_summary_.get("timing_scales")),
         "no_minimum": bool(model.fit_summary_.get("no_minimum")),
+        "unfixed_goal": bool(model.fit_summary_.get("unfixed_goal")),
         "goal": goal_digest(model.fit_summary_.get("goal")),
         "state": states.state,
         "joints": list(demos.joints),
         "constant_joints": list(demos.constant),
+        "continuous_joints": list(demos.continuous),
         "robot": run.robot,
         "inputs": [str(p) for p in run.inputs],
         "data": report.summary(),

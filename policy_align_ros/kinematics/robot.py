@@ -248,6 +248,13 @@ class Robot:
         """Reference posture of the joint subset, shape (n,)."""
         return self._q_ref.copy()
 
+    @property
+    def continuous(self) -> np.ndarray:
+        """Which joints are continuous (n,) bool: one angle, no limits, any turn."""
+        mask = np.zeros(self.nq, dtype=bool)
+        mask[self._continuous] = True
+        return mask
+
     def clip(self, q: np.ndarray) -> np.ndarray:
         """Clip joint positions (..., n) to the finite position limits."""
         lo = np.where(np.isfinite(self.lower), self.lower, -np.inf)

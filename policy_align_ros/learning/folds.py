@@ -44,6 +44,7 @@ import numpy as np
 from policy_align_ros.learning.fitting import assign_folds
 from policy_align_ros.learning.global_model import fixed_copy, training_set
 from policy_align_ros.learning.goal import (
+    GOAL_MERGE,
     data_box,
     demonstrated_goal,
     goal_summary,
@@ -62,7 +63,7 @@ from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["POOR_FIT_RATIO", "FoldModel", "fit_checks", "fold_models", "fold_refits",
            "fold_spread", "heldout_reach", "heldout_reach_message", "heldout_vs_zero",
-           "along_motion_errors"]
+           "along_motion_errors", "unfixed_goal"]
 
 #: Folds drawn for a regressor that keeps none (as many as TrendKernelRegression's CV).
 N_FOLDS = 10
@@ -372,7 +373,8 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
         ``start_reach_ratios`` and ``n_starts_late``), ``heldout_vs_zero``
         (:func:`heldout_vs_zero`) and ``worse_than_zero``, ``poor_fit`` (held-out error at
         least :data:`POOR_FIT_RATIO` of a zero policy's, but below it) and ``no_minimum``
-        (no descent found a minimum); a ``UserWarning`` names the numbers when any is
+        (no descent found a minimum) and ``unfixed_goal`` (:func:`unfixed_goal`); a
+        ``UserWarning`` names the numbers when any is
         True, and when starts are late beyond those stranded.
     """
     heldout = heldout_vs_zero(folds, pieces)
@@ -399,12 +401,15 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
     if worse or poor:
         warnings.warn(_heldout_message(heldout, worse), UserWarning, stacklevel=3)
     return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),
-            "poor_fit": bool(poor), "no_minimum": bool(no_minimum)}
+            "poor_fit": bool(poor), "no_minimum": bool(no_minimum),
+            "unfixed_goal": unfixed_goal(goal)}
 
 
 def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
     """The goal report's warnings: no minimum, starts that stop elsewhere, starts still on
-    their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` durations."""
+    their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` durations, and
+    minima the CV folds' models move by more than :data:`~policy_align_ros.learning.goal.
+    GOAL_MERGE` of the extent."""
     extent = goal["extent"]
     # Every descent from where the demonstrations end left the data's box widened by its
     # extent: the policy has no goal to stop at (it would run to the executor's guard).
@@ -434,7 +439,47 @@ def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
             "demonstration's duration: its potential is nearly flat on the way (a teacher "
             "who set off slowly?), where a robot would stall (fit_summary_['goal']"
             "['start_reach_ratios'])")
+    if unfixed_goal(goal):
+        entry = goal["minima"][_goal_minimum(goal)]
+        spread = entry["fold_spread"]
+        moves = ("a CV fold's model, fitted without some of the demonstrations, has no "
+                 "minimum near the learnt goal" if spread is None else
+                 f"the learnt goal moves by up to {100 * spread / extent:.3g} % of the data's "
+                 f"extent between the models of the {goal['n_folds']} CV folds, each fitted "
+                 "without some of the demonstrations")
+        messages.append(
+            f"PolicyAlign: {moves}: they do not fix it, and a run may stop far from where "
+            f"they meant (it lies {100 * entry['data_fraction']:.3g} % of the extent from "
+            "the nearest sample; record demonstrations that end at rest where the task "
+            "ends)")
     return messages
+
+
+def unfixed_goal(goal: dict[str, Any]) -> bool:
+    """Whether the CV folds' models leave the learnt goal open. ``goal`` is a fit's
+    ``fit_summary_["goal"]``; its goal is the minimum nearest the largest demonstrated goal,
+    or without one the minimum nearest where the demonstrations end (least
+    ``end_distance``). Open when some fold model has no minimum near it, or puts one more
+    than :data:`~policy_align_ros.learning.goal.GOAL_MERGE` of the extent from it
+    (``fold_spread``); False without minima or fold models."""
+    # Farther apart than two rests that count as one goal: the data do not fix the goal
+    # (demonstrations cut while moving, teachers heading for different places, or held
+    # off it by constraints that leave it to extrapolation). Other minima, which only a
+    # few demonstrations lead to, the starts' and new starts' checks cover.
+    if not goal["minima"] or not goal.get("n_folds"):
+        return False
+    spread = goal["minima"][_goal_minimum(goal)]["fold_spread"]
+    return spread is None or spread > GOAL_MERGE * goal["extent"]
+
+
+def _goal_minimum(goal: dict[str, Any]) -> int:
+    """Index into ``goal["minima"]`` of the learnt goal (:func:`unfixed_goal`)."""
+    minima = goal["minima"]
+    if goal["demonstrated_goals"]:
+        target = np.asarray(goal["demonstrated_goals"][0]["point"])
+        return int(np.argmin([np.linalg.norm(np.asarray(m["point"]) - target)
+                              for m in minima]))
+    return int(np.argmin([m["end_distance"] for m in minima]))
 
 
 def _heldout_message(heldout: dict[str, Any], worse: bool) -> str:

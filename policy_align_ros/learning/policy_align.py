@@ -182,9 +182,10 @@ class PolicyAlign(FitStages, BaseEstimator):
         explains: near 1, the recording's steps are mostly noise.
     fit_summary_ : dict
         The fit's counts and measures, saved with the model; with ``goal``,
-        ``heldout_vs_zero``, ``worse_than_zero`` and ``poor_fit``
-        (:func:`~policy_align_ros.learning.folds.fit_checks`: a ``UserWarning`` when the
-        held-out error is at least half of a zero policy's).
+        ``heldout_vs_zero``, ``worse_than_zero``, ``poor_fit``, ``no_minimum`` and
+        ``unfixed_goal`` (:func:`~policy_align_ros.learning.folds.fit_checks`: a
+        ``UserWarning`` when the held-out error is at least half of a zero policy's, and
+        when the CV folds' models put the minimum more than 5 % of the extent apart).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,

@@ -113,6 +113,7 @@ from policy_align_ros.control import (
     order_check_off,
     speed_limits,
     stall_time_problem,
+    turn_centres,
     unchecked_order_refusal,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
@@ -383,6 +384,12 @@ class Executor(Node):
         self._arm_at_start = False  # a swapped model is never armed without ~/enable
         out = self.controller.set_policy(policy, perm, reason=f"model swap to {path}")
         self.controller.step.guard = self._guard(model, policy, perm, state)
+        # A joint-state model learnt its continuous joints' angles on some turn; a frames
+        # state sees them through the kinematics, on every turn alike.
+        self.controller.step.turn_centres = (
+            turn_centres(model.support_states_, self.robot.continuous, perm)
+            if state == "joints" and getattr(model, "support_states_", None) is not None
+            else None)
         self.model_path = path
         self._update_context()
         self.get_logger().info(f"model loaded from {path} (state: {state})")

@@ -100,7 +100,8 @@ class Learner(Node):
         self.declare_parameter("robot", "", descriptor(
             "example-robot-data name or URDF path the demonstrations were recorded on, "
             "stored in the model file (the executor takes it from there); gives the frames "
-            "of a frames: state; empty = robot_config's, else none"))
+            "of a frames: state and the continuous joints to unwrap; empty = "
+            "robot_config's, else none"))
         self.declare_parameter("robot_config", "", descriptor(
             "robot config (talos, panda, ur5 or a .yaml path): robot and joints when they "
             "are unset; empty = none"))

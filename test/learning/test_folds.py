@@ -15,7 +15,9 @@ from policy_align_ros.learning.folds import (
     fold_refits,
     heldout_reach,
     heldout_reach_message,
+    unfixed_goal,
 )
+from policy_align_ros.learning.goal import GOAL_MERGE
 from policy_align_ros.learning.regressors import TrendKernelRegression
 
 A = np.array([[2.0, 0.5], [0.5, 1.0]])
@@ -119,6 +121,54 @@ def test_a_potential_without_a_minimum_warns_and_is_recorded():
     assert summary["goal"]["minima"] == [] and summary["goal"]["n_escaped"] == 8
     assert len(caught) == 1
     json.dumps(summary, allow_nan=False)
+
+
+def _cut_while_moving(scatter, k=6, seed=0):
+    """Flows of xdot = -(x - c_k) from starts 3 from the origin, cut at 0.7 s while still
+    moving; each teacher heads for its own goal c_k, ``scatter`` about the origin."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 0.7, 50)
+    out = []
+    for i in range(k):
+        c = scatter * rng.standard_normal(2)
+        x0 = 3.0 * np.array([np.cos(i), np.sin(i)])
+        out.append(Trajectory(c + (x0 - c) * np.exp(-t)[:, None], times=t, name=str(i)))
+    return out
+
+
+def test_a_goal_the_cv_folds_put_apart_warns_and_one_they_agree_on_does_not():
+    # One goal, never reached: the fit extrapolates it, and every fold agrees.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        one = PolicyAlign(random_state=0).fit(_cut_while_moving(0.0))
+    goal = one.fit_summary_["goal"]
+    assert goal["n_rests"] == 0 and goal["minima"][0]["data_fraction"] > 0.2
+    np.testing.assert_allclose(goal["minima"][0]["point"], [0.0, 0.0], atol=1e-3)
+    assert goal["fold_spread_fraction"] < 1e-3 and one.fit_summary_["unfixed_goal"] is False
+    # Teachers heading for goals about 1 apart: leaving one out moves the minimum.
+    with pytest.warns(UserWarning) as caught:
+        apart = PolicyAlign(random_state=0).fit(_cut_while_moving(1.0))
+    goal = apart.fit_summary_["goal"]
+    assert goal["fold_spread_fraction"] > GOAL_MERGE
+    assert apart.fit_summary_["unfixed_goal"] is True and len(caught) == 1
+    assert apart.fit_summary_["poor_fit"] is False and goal["n_starts_elsewhere"] == 0
+
+
+def test_the_goal_is_the_minimum_where_the_demonstrations_end_and_no_folds_cannot_say():
+    def goal(spreads, n_folds=8):
+        # Two minima: the first far from where the demonstrations end, the second at it.
+        return {"extent": 10.0, "n_folds": n_folds, "demonstrated_goals": [],
+                "minima": [{"point": [5.0, 0.0], "end_distance": 5.0, "fold_spread": spreads[0]},
+                           {"point": [0.0, 0.0], "end_distance": 0.1, "fold_spread": spreads[1]}]}
+
+    # Only the goal's spread counts: the other minimum may move (few demonstrations lead
+    # there), and a fold model without a minimum near the goal leaves it open.
+    assert not unfixed_goal(goal([3.0, 0.4]))
+    assert unfixed_goal(goal([0.0, 0.6])) and unfixed_goal(goal([0.0, None]))
+    assert not unfixed_goal(goal([0.0, None], n_folds=0))
+    # With a demonstrated goal, the minimum nearest it is the goal.
+    near_first = goal([0.6, 0.0]) | {"demonstrated_goals": [{"point": [4.9, 0.1]}]}
+    assert unfixed_goal(near_first)
 
 
 def test_runs_still_on_their_way_after_the_allowed_time_warn_and_are_counted(monkeypatch):

@@ -1,6 +1,6 @@
 """The executor's robot and joints: an explicit parameter, then the model file, then the
 robot config, else an error naming the fix; the model file is read once (own
-rclpy.Context, domain ids 196-198)."""
+rclpy.Context, domain ids 196-198 and 228)."""
 
 import numpy as np
 import pytest
@@ -95,3 +95,20 @@ def test_unknown_joints_stop_the_node_with_the_fix(executor):
     with pytest.raises(ValueError, match="robot_config") as err:
         executor(198, robot="panda", joints=["torso_1_joint"])
     assert "torso_1_joint" in str(err.value)
+
+
+def test_a_joint_state_model_brings_continuous_joints_to_its_turn(executor, tmp_path):
+    # Kinova's joints 1 and 4 are continuous, joint 2 is not; learnt near pi on joint 1.
+    urdf = str(robots_dir() / "kinova_description" / "robots" / "kinova.urdf")
+    joints = ["j2s6s200_joint_1", "j2s6s200_joint_2", "j2s6s200_joint_4"]
+    path = _model(tmp_path / "kinova.npz", joints, [3.1, 2.5, 0.5], urdf)
+    node = executor(228, model_path=path)
+    centres = node.controller.step.turn_centres
+    support = PolicyAlign.load(path).support_states_
+    middle = 0.5 * (support.min(axis=0) + support.max(axis=0))
+    np.testing.assert_allclose(centres[[0, 2]], middle[[0, 2]])
+    assert np.isnan(centres[1])
+    # A wrapped measurement gets the command of the same posture on the model's turn.
+    q = np.array([3.3, 2.5, 0.5])
+    wrapped = q - np.array([2 * np.pi, 0.0, 0.0])
+    np.testing.assert_allclose(node.controller.step(wrapped)[0], node.controller.step(q)[0])

@@ -1,0 +1,37 @@
+"""Tests of policy_align_ros.data.turns (recorded continuous joints on one turn)."""
+
+import numpy as np
+
+from policy_align_ros.data.turns import unwrap_turns
+from policy_align_ros.learning import Trajectory
+
+
+def _wrap(a):
+    """As a driver reports an angle: in [-pi, pi)."""
+    return np.remainder(a + np.pi, 2 * np.pi) - np.pi
+
+
+def test_demonstrations_across_the_wrap_are_continuous_and_on_one_turn():
+    t = np.linspace(0.0, 1.0, 50)
+    through = 2.8 + 0.6 * t  # passes pi at about t = 0.57
+    beyond = 3.3 + 0.1 * t  # entirely past pi: reported as negative angles
+    other = np.linspace(0.1, 0.4, 50)  # a joint with limits: left as it is
+    trajs = [Trajectory(np.column_stack([_wrap(a), other]), t, name=f"d{k}")
+             for k, a in enumerate((through, beyond))]
+    assert np.abs(np.diff(trajs[0].positions[:, 0])).max() > 6.0  # the driver's jump
+    out = unwrap_turns(trajs, np.array([True, False]))
+    for before, after, true in zip(trajs, out, (through, beyond), strict=True):
+        # The true angles up to one whole turn, shared by both demonstrations.
+        np.testing.assert_allclose(after.positions[:, 0] - true,
+                                   after.positions[0, 0] - true[0], atol=1e-12)
+        np.testing.assert_array_equal(after.positions[:, 1], other)
+        np.testing.assert_array_equal(after.times, before.times)
+        assert after.name == before.name
+    shift = [after.positions[0, 0] - true[0]
+             for after, true in zip(out, (through, beyond), strict=True)]
+    np.testing.assert_allclose(shift[0], shift[1], atol=1e-12)
+    turns = shift[0] / (2 * np.pi)
+    assert abs(turns - round(turns)) < 1e-12
+    # Without continuous joints nothing changes.
+    same = unwrap_turns(trajs, np.array([False, False]))
+    assert all(a is b for a, b in zip(same, trajs, strict=True))
