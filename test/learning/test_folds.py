@@ -9,9 +9,11 @@ import pytest
 from flows import quadratic_flow
 
 from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.learning import folds as folds_module
 from policy_align_ros.learning.folds import (
     FoldModel,
     along_motion_errors,
+    demonstration_ratios,
     fold_refits,
     heldout_reach,
     heldout_reach_message,
@@ -169,6 +171,33 @@ def test_the_goal_is_the_minimum_where_the_demonstrations_end_and_no_folds_canno
     # With a demonstrated goal, the minimum nearest it is the goal.
     near_first = goal([0.6, 0.0]) | {"demonstrated_goals": [{"point": [4.9, 0.1]}]}
     assert unfixed_goal(near_first)
+
+
+class _Drift:
+    """A fitted model whose policy is (1, 0) everywhere: ``gradient = -(1, 0)``."""
+
+    def gradient(self, X):
+        return np.tile([-1.0, 0.0], (len(X), 1))
+
+
+def test_the_demonstration_the_others_contradict_is_named():
+    t = DT * np.arange(20)
+    along = Trajectory(np.column_stack([t, 0.0 * t]), times=t, name="forth")
+    back = Trajectory(np.column_stack([-t, 0.0 * t]), times=t, name="back")
+    # Demonstration "forth" cut into two pieces (0, 1), "back" one piece (2); each fold
+    # holds one demonstration out.
+    pieces, owners = [along, along, back], np.array([0, 0, 1])
+    folds = [FoldModel(np.array([0, 1]), _Drift()), FoldModel(np.array([2]), _Drift())]
+    ratios = demonstration_ratios(folds, pieces, owners, 2)
+    # Along the motion: 0 where the policy is the motion; (1 - (-1))^2 = 4 against it.
+    np.testing.assert_allclose(ratios, [0.0, 4.0], atol=1e-12)
+    heldout = {"error": 1.0, "zero_error": 1.5, "ratio": 0.67, "n_samples": 57,
+               "n_folds": 2, "demonstration_ratios": ratios}
+    message = folds_module._heldout_message(heldout, False, [along, back])
+    assert "back" in message and "forth" not in message
+    # Every demonstration contradicted is no single culprit: none is named.
+    heldout["demonstration_ratios"] = [4.0, 4.0]
+    assert "back" not in folds_module._heldout_message(heldout, False, [along, back])
 
 
 def test_runs_still_on_their_way_after_the_allowed_time_warn_and_are_counted(monkeypatch):
