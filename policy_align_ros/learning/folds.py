@@ -447,9 +447,8 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
 
 def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
     """The goal report's warnings: no minimum, starts that stop elsewhere, starts still on
-    their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` durations, and
-    minima the CV folds' models move by more than :data:`~policy_align_ros.learning.goal.
-    GOAL_MERGE` of the extent."""
+    their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` durations, and a
+    learnt goal the CV folds' models leave open (:func:`unfixed_goal`)."""
     extent = goal["extent"]
     # Every descent from where the demonstrations end left the data's box widened by its
     # extent: the policy has no goal to stop at (it would run to the executor's guard).
