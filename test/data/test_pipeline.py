@@ -475,6 +475,10 @@ def test_a_continuous_joint_recorded_across_the_wrap_is_learnt_on_one_turn(tmp_p
         q[:, 0] = np.remainder(q[:, 0] + np.pi, 2 * np.pi) - np.pi
         demos.append(q)
     root = _write_joints(tmp_path / "bags", demos, joints)
+    # Without the robot the joint's kind is unknown: the jump is refused, naming the fix.
+    with pytest.raises(ValueError, match="j2s6s200_joint_1") as err:
+        learn_pipeline([root], tmp_path / "model.npz")
+    assert "--robot" in str(err.value)
     result = learn_pipeline([root], tmp_path / "model.npz", robot=str(urdf))
     assert result.summary["continuous_joints"] == ["j2s6s200_joint_1"]
     (minimum, *_) = PolicyAlign.load(tmp_path / "model.npz").fit_summary_["goal"]["minima"]
