@@ -250,14 +250,13 @@ def test_policy_dimension_and_bad_gains_are_refused(hand_map: TaskSpaceMap) -> N
         def policy(self, X: np.ndarray) -> np.ndarray:
             return np.zeros_like(X)
 
-    with pytest.raises(ValueError, match="policy: learnt on 6-D states, the state map "
-                                         "gives 3-D"):
+    with pytest.raises(ValueError, match=r"^policy\b.*\b6-D\b.*\b3-D\b"):
         TaskSpacePolicy(Fitted(), hand_map)
-    with pytest.raises(ValueError, match="damping: must be a finite number >= 0"):
+    with pytest.raises(ValueError, match=r"^damping\b.*-1\.0"):
         TaskSpacePolicy(Attractor(np.zeros(3)), hand_map, damping=-1.0)
-    with pytest.raises(ValueError, match=r"rest: must be a finite \(9,\) posture"):
+    with pytest.raises(ValueError, match=r"^rest\b.*\(9,\).*\(3,\)"):
         TaskSpacePolicy(Attractor(np.zeros(3)), hand_map, rest=np.zeros(3))
-    with pytest.raises(ValueError, match="policy: must be callable"):
+    with pytest.raises(ValueError, match=r"^policy\b"):
         TaskSpacePolicy(3.0, hand_map)
 
 
@@ -367,16 +366,15 @@ def test_policy_for_state_accepts_reordered_joints_and_refuses_other_robots(
     rest = {j: float(v) + 0.1 for j, v in zip(ARM, q, strict=True)}
     tsp = policy_for_state(pol, {**state, "rest": rest}, other)
     np.testing.assert_allclose(tsp.rest, q[perm] + 0.1)
-    with pytest.raises(ValueError, match="field 'rest' lacks joints"):
+    with pytest.raises(ValueError, match="'rest'.*" + repr(order[0])):
         policy_for_state(pol, {**state, "rest": {}}, other)
-    with pytest.raises(ValueError, match="field 'rest' must map joints to numbers"):
+    with pytest.raises(ValueError, match="'rest'"):
         policy_for_state(pol, {**state, "rest": dict.fromkeys(ARM)}, other)
-    with pytest.raises(ValueError, match=r"state definition does not match the robot: "
-                                         r"joints differ \(missing \['torso_2_joint'\]"):
+    with pytest.raises(ValueError, match=r"\['torso_2_joint'\]"):
         policy_for_state(pol, state, Robot.load("talos", joints=ARM[:-1]))
-    with pytest.raises(ValueError, match="URDF differs"):
+    with pytest.raises(ValueError, match="'talos'.*'panda'"):
         policy_for_state(pol, state, Robot.load("panda"))
-    with pytest.raises(ValueError, match="same joints in another order"):
+    with pytest.raises(ValueError):  # the same joints in another order
         FrameStateDefinition.from_dict(state).check(other)
 
 
@@ -399,7 +397,7 @@ def test_constraint_may_be_a_callable_such_as_the_executors(robot: Robot,
     np.testing.assert_allclose(command, qdot, atol=1e-12)
     step.constraints = []  # a parameter change is seen at the next call
     np.testing.assert_allclose(tsp.command(q), TaskSpacePolicy(pol, hand_map).command(q))
-    with pytest.raises(ValueError, match="constraint: must have matrix"):
+    with pytest.raises(ValueError, match=r"^constraint\b"):
         TaskSpacePolicy(pol, hand_map, 3)
 
 

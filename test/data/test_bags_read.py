@@ -74,7 +74,7 @@ def test_an_mcap_that_a_killed_recorder_left_without_footer_is_read(tmp_path):
     mcap.write_bytes(data[:chunk + 100])
     trajs, _, report = load_dataset(tmp_path)
     assert len(trajs) == 1 and report.skipped_bags[0][0] == str(mcap)
-    assert "end magic" in report.skipped_bags[0][1]
+    assert report.skipped_bags[0][1] in report.errors[0]  # the reader's own error
 
 
 def test_bag_directory_without_metadata_is_read_from_its_mcap(tmp_path):

@@ -85,9 +85,9 @@ def test_joint_selector_and_clock_units():
     assert [clock.step(s) for s in (1050, 1000, 950, 1101, 850)] == [SAME, SKIP, SKIP, NEW,
                                                                      NEW]
     assert StreamClock(0).step(5) == NEW
-    with pytest.raises(ValueError, match="listed twice"):
+    with pytest.raises(ValueError, match=r"^joints: .*'a'"):
         validate_joint_names(["a", "a"])
-    with pytest.raises(ValueError, match="invalid joint name"):
+    with pytest.raises(ValueError, match=r"^joints: .*''"):
         validate_joint_names(["a", ""])
     assert validate_joint_names([]) is None
 

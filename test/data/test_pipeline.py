@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -94,16 +95,17 @@ def test_training_block_holds_the_summary(clean, dataset):
     assert model.state_definition_ is None and model.joint_names_ == JOINTS
     assert block["current_model"]["note"] == "no current model"
     line = result.line()
-    assert "of 6 training demonstrations" in line and "2 held out" in line
-    assert f"held-out nCPE {block['heldout_ncpe_observed']:.4f}" in line and str(path) in line
-    # Noise-free recordings: nothing to report.
-    assert block["noise_to_step"] < 1e-6 and "position noise" not in line
+    assert re.search(r"\b6\b.*\b2\b", line)  # training and held-out counts
+    assert f"{block['heldout_ncpe_observed']:.4f}" in line and str(path) in line
+    # Noise-free recordings: nothing to report, as for a summary without the noise value.
+    quiet = dataclasses.replace(result, summary={**result.summary, "noise_to_step": None})
+    assert block["noise_to_step"] < 1e-6 and quiet.line() == line
 
 
 def test_the_summary_line_names_noisy_recordings(clean):
     result, _ = clean
     noisy = dataclasses.replace(result, summary={**result.summary, "noise_to_step": 0.42})
-    assert "position noise 42 % of the mean squared step (corrected)" in noisy.line()
+    assert "42 %" in noisy.line()
 
 
 def test_same_dataset_twice_and_copied_bags_are_skipped_as_duplicates(
@@ -133,9 +135,10 @@ def test_same_dataset_twice_and_copied_bags_are_skipped_as_duplicates(
 
 def test_the_same_bag_twice_is_a_clear_error_not_a_nan_crash(dataset, tmp_path):
     bag = dataset / "demo_0000"
-    with pytest.raises(ValueError, match="at least 2 distinct demonstrations, found 1") as err:
+    # The bag, the 2 demonstrations needed, the 1 found and the 1 duplicate skipped.
+    with pytest.raises(ValueError, match=re.escape(str(bag)) + r".*\b2\b.*\b1\b.*\b1\b") as err:
         learn_pipeline([bag, bag], tmp_path / "m.npz")
-    assert "NaN" not in str(err.value) and "1 duplicates skipped" in str(err.value)
+    assert "NaN" not in str(err.value)
     assert not (tmp_path / "m.npz").exists()
 
 
@@ -153,20 +156,19 @@ def test_degenerate_fit_is_refused_keeps_the_old_model_and_force_writes_it(
     # A kernel far narrower than the gaps between demonstrations: each is its own group.
     refused = learn_pipeline([dataset], path, sigma=1e-6)
     assert refused.refused and not refused.written
-    assert "too weakly connected" in refused.refusals[0]
-    assert "max_discarded_fraction" in refused.line()
-    assert refused.line().startswith("refused: ") and "kept unchanged" in refused.line()
+    assert "max_discarded_fraction" in refused.refusals[0]  # the gate it failed
+    assert "max_discarded_fraction" in refused.line() and str(path) in refused.line()
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.npz"]
     # The command line: exit 1, the reason on stderr, the model untouched.
     args = dict(inputs=[str(dataset)], out=str(path), joints=None, sigma="1e-6", gap=0.5)
     assert run_learn(argparse.Namespace(**args)) == 1
-    assert "refused: outlier detection found" in capsys.readouterr().err
+    assert "max_discarded_fraction" in capsys.readouterr().err
     assert path.read_bytes() == before
     # force writes it and records what it overrode.
     assert run_learn(argparse.Namespace(**args, force=True)) == 0
     block = PolicyAlign.load(path).fit_summary_["pipeline"]
-    assert block["forced"] and "too weakly connected" in block["refusals"][0]
+    assert block["forced"] and "max_discarded_fraction" in block["refusals"][0]
     assert block["sigma2"] == pytest.approx(1e-6)
 
 
@@ -181,7 +183,7 @@ def test_the_fit_is_drawn_also_when_refused(dataset, tmp_path, capsys):
     # A suffix that names no figure format is unusable input, said before the fit.
     capsys.readouterr()
     assert run_learn(argparse.Namespace(**{**args, "plot": str(tmp_path / "fit.jpeg")})) == 2
-    assert "fit.jpeg: no figure format 'jpeg'" in capsys.readouterr().err
+    assert str(tmp_path / "fit.jpeg") in capsys.readouterr().err
     result = learn_pipeline([dataset], tmp_path / "m.npz")
     assert [len(result.train), len(result.held)] == [6, 2]
     assert result.train[0].n_dims == 2 and result.held[0].times is not None
@@ -190,7 +192,7 @@ def test_the_fit_is_drawn_also_when_refused(dataset, tmp_path, capsys):
 def test_sigma_collapse_gate(dataset, tmp_path):
     result = learn_pipeline([dataset], tmp_path / "m.npz", sigma="narrow",
                             gates=Gates(min_sigma2_fraction=0.9))
-    assert result.refused and "sigma^2 collapsed" in result.refusals[0]
+    assert result.refused and "min_sigma2_fraction" in result.refusals[0]  # the gate
     # An explicit sigma^2 is the user's choice, never a collapse.
     explicit = learn_pipeline([dataset], tmp_path / "m.npz", sigma=result.summary["sigma2"],
                               gates=Gates(min_sigma2_fraction=0.9))
@@ -209,7 +211,7 @@ def test_a_fit_worse_than_the_current_model_on_held_out_data_is_refused(tmp_path
     current = result.summary["current_model"]
     assert current["compared_on"] == result.summary["demonstrations"]["held_out"]
     assert current["new_ncpe_observed"] > current["heldout_ncpe_observed"] + 0.02
-    assert result.refused and "worse than the current model's" in result.refusals[0]
+    assert result.refused and "heldout_tolerance" in result.refusals[0]  # the gate
     assert path.read_bytes() == before
     # The current model is not scored on demonstrations it was trained on (by content).
     again = learn_pipeline([tmp_path / "big"], path, holdout_fraction=0.2)
@@ -223,7 +225,7 @@ def test_missing_joint_is_named_with_the_available_ones(dataset, tmp_path, capsy
     out = tmp_path / "m.npz"
     assert main(["learn", str(dataset), "--joints", "j1,not_a_joint", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "'not_a_joint' not found" in err and "available: j1, j2" in err
+    assert "'not_a_joint'" in err and "j1, j2" in err  # the joint and those available
     assert not out.exists()
 
 
@@ -243,30 +245,31 @@ def test_truncated_and_foreign_bags_are_named_with_the_reason(dataset, tmp_path,
     skipped = {entry["bag"]: entry["reason"] for entry in block["skipped_bags"]}
     assert set(skipped) == {str(data / "demo_0003"), str(data / "other_robot")}
     assert "cannot open" in skipped[str(data / "demo_0003")]
-    assert "missing joint(s) j1, j2" in skipped[str(data / "other_robot")]
+    assert "j1, j2" in skipped[str(data / "other_robot")]
     assert "knee" in skipped[str(data / "other_robot")]
-    assert f"skipped bag {data / 'demo_0003'}: cannot open" in err
+    assert f"{data / 'demo_0003'}: {skipped[str(data / 'demo_0003')]}" in err
     assert block["demonstrations"]["found"] == 7
 
 
 def test_bad_arguments_name_the_parameter(dataset, tmp_path):
-    for kwargs, match in (({"state": "hands"}, "state: expected"),
-                          ({"state": "frames:a,a"}, "listed twice"),
+    for kwargs, match in (({"state": "hands"}, r"^state\b.*'hands'"),
+                          ({"state": "frames:a,a"}, r"^state\b.*'frames:a,a'"),
                           ({"holdout_fraction": 1.5}, "holdout_fraction"),
                           ({"sigma": "huge"}, "sigma"),
-                          ({"state": "frames:a", "robot": None}, "robot: a frames: state"),
+                          ({"state": "frames:a", "robot": None}, r"^robot\b"),
                           # NumPy's "expected non-negative integer" named no parameter.
-                          ({"seed": -1}, "seed: must be an integer >= 0, got -1"),
-                          ({"seed": 1.5}, "seed: must be an integer")):
+                          ({"seed": -1}, r"^seed\b.*-1\b"),
+                          ({"seed": 1.5}, r"^seed\b.*\b1\.5\b")):
         with pytest.raises(ValueError, match=match):
             learn_pipeline([dataset], tmp_path / "m.npz", **kwargs)
     assert state_name(" frames: a ,b ") == "frames:a,b"
     assert not (tmp_path / "m.npz").exists()
     # An unwritable model path fails before the fit, naming the path.
     (tmp_path / "file").write_text("x")
-    with pytest.raises(ValueError, match="file is not a directory"):
+    with pytest.raises(ValueError, match=r"^model_path\b.*" + re.escape(
+            str(tmp_path / "file")) + ".*" + re.escape(str(tmp_path / "file" / "sub" / "m.npz"))):
         learn_pipeline([dataset], tmp_path / "file" / "sub" / "m.npz")
-    with pytest.raises(ValueError, match="is a directory"):
+    with pytest.raises(ValueError, match=r"^model_path\b.*" + re.escape(str(tmp_path))):
         learn_pipeline([dataset], tmp_path)
 
 
@@ -337,10 +340,12 @@ def test_a_model_no_better_than_a_zero_policy_is_refused_and_force_writes_it(tmp
     with pytest.warns(UserWarning):
         result = learn_pipeline([data], path)
     assert result.refused and not result.written and not path.exists()
-    assert any("no better than a zero policy" in r for r in result.refusals)
     assert result.summary["worse_than_zero"] is True
     cv = result.summary["heldout_vs_zero"]["cv_folds"]
     assert cv["error"] >= cv["zero_error"] > 0
+    # A refusal names the two errors compared.
+    assert any(f"{cv['error']:.4g}" in r and f"{cv['zero_error']:.4g}" in r
+               for r in result.refusals)
     args = dict(inputs=[str(data)], out=str(path), joints=None, sigma="medium", gap=0.5)
     with pytest.warns(UserWarning):
         assert run_learn(argparse.Namespace(**args)) == 1
@@ -453,10 +458,11 @@ def test_one_continuous_recording_names_gap_and_one_bag_per_demonstration(tmp_pa
     q = np.concatenate(_demos(3, 0))  # three demonstrations without a pause between them
     stamps = 10**18 + np.arange(len(q)) * DT_NS
     write_joint_state_bag(tmp_path / "continuous", JOINTS, stamps, q)
-    with pytest.raises(ValueError, match="found 1") as err:
+    with pytest.raises(ValueError, match=re.escape(str(tmp_path / "continuous"))
+                       + r".*\b2\b.*\b1\b") as err:
         learn_pipeline([tmp_path / "continuous"], tmp_path / "m.npz")
     assert "--gap" in str(err.value) and "gap_s" in str(err.value)
-    assert "one bag per demonstration" in str(err.value)
+    assert "~/start_demo" in str(err.value) and "~/stop_demo" in str(err.value)
 
 
 def test_a_continuous_joint_recorded_across_the_wrap_is_learnt_on_one_turn(tmp_path):

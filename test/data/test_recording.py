@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import stat
 import time
 
@@ -158,10 +159,10 @@ def test_state_errors_and_parameter_validation(tmp_path):
     rec = DemoRecorder(tmp_path)
     assert rec.stop() is None  # nothing recorded, nothing written
     rec.start()
-    with pytest.raises(RuntimeError, match="already recording"):
+    with pytest.raises(RuntimeError):
         rec.start()
     _feed(rec, rng, 3, T0)
-    with pytest.raises(ValueError, match="joints: cannot change"):
+    with pytest.raises(ValueError, match=r"^joints\b"):
         rec.set_joints(["a"])
     assert rec.discard() == 3 and list(tmp_path.iterdir()) == []
     rec.set_joints(["j2"])
@@ -170,12 +171,12 @@ def test_state_errors_and_parameter_validation(tmp_path):
         rec.set_auto_split_gap(-1.0)
     with pytest.raises(ValueError, match="auto_split_gap_s"):
         DemoRecorder(tmp_path, auto_split_gap_s=float("nan"))
-    with pytest.raises(ValueError, match="dataset_dir: must not be empty"):
+    with pytest.raises(ValueError, match=r"^dataset_dir\b"):
         rec.set_dataset_dir("  ")
     (tmp_path / "file").write_text("x")
-    with pytest.raises(ValueError, match="not a directory"):
+    with pytest.raises(ValueError, match=re.escape(str(tmp_path / "file"))):
         DemoRecorder(tmp_path / "file")
-    with pytest.raises(ValueError, match="listed twice"):
+    with pytest.raises(ValueError, match="'a'"):
         DemoRecorder(tmp_path, joints=["a", "a"])
 
 
@@ -212,10 +213,11 @@ def test_failed_write_keeps_the_demonstration_until_a_stop_succeeds(tmp_path, mo
     stamps, q, v = _feed(rec, rng, 20, T0)
     with pytest.raises(PendingWriteError, match=err.strerror) as info:
         rec.stop()
-    assert "kept in memory" in str(info.value) and "20 messages" in str(info.value)
+    assert info.value.__cause__ is err
+    assert re.search(r"\b20\b", str(info.value)) and str(tmp_path) in str(info.value)
     assert rec.pending == 20 and err.strerror in rec.pending_error
     assert _entries(tmp_path) == []  # no partial bag, no temporary left
-    with pytest.raises(RuntimeError, match="could not be written"):
+    with pytest.raises(RuntimeError):
         rec.start()  # at most one pending: no new demonstration until it is written
     with pytest.raises(PendingWriteError):
         rec.stop()  # still failing: still kept
@@ -243,7 +245,7 @@ def test_dataset_dir_replaced_by_a_file_then_restored(tmp_path):
     with pytest.raises(PendingWriteError, match="ds"):
         rec.stop()
     assert rec.pending == 15
-    with pytest.raises(ValueError, match="dataset_dir: .* not a directory"):
+    with pytest.raises(ValueError, match=re.escape(str(dataset))):
         rec.set_dataset_dir(dataset)  # the fix must be real
     rec.set_dataset_dir(tmp_path / "other")
     path = rec.stop()
@@ -381,10 +383,10 @@ def test_any_writer_exception_keeps_the_demonstration_pending(tmp_path, monkeypa
     stamps, q, v = _feed(rec, rng, 20, T0)
     with pytest.raises(PendingWriteError, match=type(err).__name__) as info:
         rec.stop()
-    assert info.value.__cause__ is err and "kept in memory" in str(info.value)
+    assert info.value.__cause__ is err and re.search(r"\b20\b", str(info.value))
     assert rec.pending == 20 and rec.pending_error == f"{type(err).__name__}: {err}"
     assert _entries(tmp_path / "ds") == []  # no partial bag, no temporary left
-    with pytest.raises(RuntimeError, match="could not be written"):
+    with pytest.raises(RuntimeError):
         rec.start()
     with pytest.raises(PendingWriteError):
         rec.retry_pending()
@@ -498,8 +500,9 @@ def test_a_real_full_disk_loses_nothing(tmp_path, tiny_disk):
     names = [f"j{i}" for i in range(22)]
     rec.start()
     stamps, q, v = _feed(rec, rng, 2000, T0, names=names)  # ~0.7 MB: does not fit
-    with pytest.raises(PendingWriteError, match="No space left"):
+    with pytest.raises(PendingWriteError) as info:
         rec.stop()
+    assert info.value.__cause__.errno == errno.ENOSPC
     assert _entries(tiny_disk) == [] and rec.pending == 2000  # no partial bag left
     results = rec.close(keep_current=False, fallback_dirs=[tmp_path / "fallback"])
     assert [(r.messages, r.fallback) for r in results] == [(2000, True)]

@@ -121,9 +121,9 @@ def test_chained_offsets_keep_the_ties_and_minimise_the_rest():
     np.testing.assert_allclose(
         solve_chained_offsets(H, a, pairs, b0[pairs[:, 1]] - b0[pairs[:, 0]]), b0, atol=1e-9)
     np.testing.assert_array_equal(solve_chained_offsets(H, a, np.zeros((0, 2)), []), b0)
-    with pytest.raises(ValueError, match="2 values for 3 pairs"):
+    with pytest.raises(ValueError, match=r"^jumps\b.*\b2\b.*\b3\b"):
         solve_chained_offsets(H, a, pairs, jumps[:2])
-    with pytest.raises(ValueError, match="p < q"):
+    with pytest.raises(ValueError, match="^pairs"):
         solve_chained_offsets(H, a, pairs[:, ::-1], jumps)
 
 

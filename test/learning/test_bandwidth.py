@@ -52,7 +52,7 @@ def test_resolve_rejects_bad_values():
     for bad in ("tiny", -1.0, 0.0, float("nan")):
         with pytest.raises(ValueError, match="sigma"):
             resolve_sigma2(bad, trajs)
-    with pytest.raises(ValueError, match="at least 2"):
+    with pytest.raises(ValueError, match=r"\b2\b"):
         sigma2_heuristics(trajs[:1])
 
 

@@ -40,9 +40,9 @@ def test_deep_params_reach_a_nested_estimator():
 
 
 def test_unknown_or_unreachable_params_raise():
-    with pytest.raises(ValueError, match="unknown parameter 'depth'"):
+    with pytest.raises(ValueError, match="'depth'"):
         _Inner().set_params(depth=1)
-    with pytest.raises(ValueError, match="no parameters to set"):
+    with pytest.raises(ValueError, match=r"'inner'.*\bNone\b"):
         _Outer(inner=None).set_params(inner__width=1.0)
 
 
@@ -66,8 +66,8 @@ def test_estimators_follow_the_contract():
     assert reg.n_centres == 50 and model.merge_tol == 0.2
     assert repr(model).startswith("PolicyAlign(sigma='wide', integration='auto'")
     assert "n_centres=50" in repr(model)
-    with pytest.raises(ValueError, match="unknown parameter"):
+    with pytest.raises(ValueError, match="'width'"):
         model.set_params(width=1.0)
     for est in (model, reg):
-        with pytest.raises(NotFittedError, match="not fitted"):
+        with pytest.raises(NotFittedError):
             est.predict(np.zeros((1, 2))) if est is reg else est.policy(np.zeros((1, 2)))

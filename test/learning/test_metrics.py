@@ -33,7 +33,7 @@ def test_ncpe_ignores_errors_the_constraint_removes():
 
 
 def test_shape_errors():
-    with pytest.raises(ValueError, match="equal shape"):
+    with pytest.raises(ValueError, match=r"\(3, 2\).*\(3, 3\)"):
         metrics.nupe(np.zeros((3, 2)), np.zeros((3, 3)))
-    with pytest.raises(ValueError, match="N must have shape"):
+    with pytest.raises(ValueError, match=r"^N\b.*\(3, 2, 2\).*\(3, 2\)"):
         metrics.ncpe(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)))

@@ -59,7 +59,7 @@ def test_truncated_file_names_the_file(model, tmp_path):
 def test_foreign_and_missing_files(tmp_path):
     foreign = tmp_path / "foreign.npz"
     np.savez(foreign, x=np.arange(3))
-    with pytest.raises(ValueError, match="foreign.npz.*not a policy_align_ros model"):
+    with pytest.raises(ValueError, match="foreign.npz"):
         PolicyAlign.load(foreign)
     text = tmp_path / "notes.npz"
     text.write_text("hello")
@@ -76,12 +76,12 @@ def test_newer_format_version_is_refused(tmp_path):
     newer = tmp_path / "newer.npz"
     np.savez(newer, __header__=np.array(json.dumps(
         {"format_version": FORMAT_VERSION + 1, "kind": "policy_align"})))
-    with pytest.raises(ValueError, match="newer.npz.*newer than"):
+    with pytest.raises(ValueError, match=rf"newer.npz.*\b{FORMAT_VERSION + 1}\b"):
         load_npz(newer, kind="policy_align")
 
 
 def test_object_arrays_are_refused(tmp_path):
-    with pytest.raises(ValueError, match="pickle"):
+    with pytest.raises(ValueError, match="'bad'"):
         save_npz(tmp_path / "bad.npz", {"kind": "x"}, {"bad": np.array([{}], dtype=object)})
     assert not list(tmp_path.iterdir())
 
@@ -89,7 +89,7 @@ def test_object_arrays_are_refused(tmp_path):
 def test_bytes_that_are_no_archive_are_not_called_a_pickle(tmp_path):
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"junk")
-    with pytest.raises(ValueError, match="junk.npz: truncated or not a model file") as err:
+    with pytest.raises(ValueError, match="junk.npz") as err:
         load_npz(junk, "policy_align")
     assert "pickle" not in str(err.value)
 
@@ -115,8 +115,9 @@ def test_failed_write_removes_its_temporary_file_and_keeps_the_old_model(model, 
         fh.write(b"partial")
         raise OSError(errno.EFBIG, "File too large")
 
-    with pytest.raises(OSError, match="File too large"):
+    with pytest.raises(OSError) as err:
         atomic_write_bytes(path, failing)
+    assert err.value.errno == errno.EFBIG
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["model.npz"]
 
@@ -152,7 +153,7 @@ def test_state_definition_round_trips_and_old_files_load_as_joint_states(model, 
         model.state_definition_ = None
     header["state_definition"] = ["hand"]
     bad = save_npz(tmp_path / "bad.npz", header, arrays)
-    with pytest.raises(ValueError, match="bad.npz: malformed"):
+    with pytest.raises(ValueError, match=r"bad.npz.*\bstate_definition\b"):
         PolicyAlign.load(bad)
 
 
@@ -211,21 +212,23 @@ def _set(mapping, key, value):
 
 
 @pytest.mark.parametrize(("header", "arrays", "message"), [
-    (lambda h: [1, 2], None, "header is a JSON list"),
-    (lambda h: _set(h, "training", [1]), None, "training must be a JSON object"),
-    (lambda h: _set(h, "params", [1]), None, "params must be a JSON object"),
-    (lambda h: _set(h, "format_version", "1"), None, "format_version must be a positive"),
-    (lambda h: _set(h, "n_features", 3), None, "regressor takes 2 features"),
-    (None, lambda a: _set(a, "aligned_lengths", np.array([5])), "aligned_lengths.*1 entries"),
-    (None, lambda a: _set(a, "inliers", np.array([0, 99])), "inliers must index"),
-    (None, lambda a: _set(a, "groups", np.zeros(3, dtype=int)), "groups.*3 entries"),
-    (None, lambda a: _set(a, "support_states", np.zeros((4, 3))), "support_states has 3"),
+    # The file, the field and the numbers that disagree.
+    (lambda h: [1, 2], None, r"\blist\b"),
+    (lambda h: _set(h, "training", [1]), None, r"\btraining\b"),
+    (lambda h: _set(h, "params", [1]), None, r"\bparams\b"),
+    (lambda h: _set(h, "format_version", "1"), None, r"format_version\b.*'1'"),
+    (lambda h: _set(h, "n_features", 3), None, r"\b2\b.*n_features\b.*\b3\b"),
+    (None, lambda a: _set(a, "aligned_lengths", np.array([5])), r"aligned_lengths'.*\b1\b"),
+    (None, lambda a: _set(a, "inliers", np.array([0, 99])), r"\binliers\b.*\b20\b"),
+    (None, lambda a: _set(a, "groups", np.zeros(3, dtype=int)), r"groups'.*\b3\b"),
+    (None, lambda a: _set(a, "support_states", np.zeros((4, 3))),
+     r"support_states\b.*\b3\b.*n_features\b.*\b2\b"),
 ])
 def test_malformed_model_files_name_the_file_and_the_problem(model, tmp_path, header,
                                                              arrays, message):
     good = model.save(tmp_path / "good.npz")
     bad = _rewrite(tmp_path, good, header, arrays)
-    with pytest.raises(ValueError, match=f"bad.npz: malformed.*{message}"):
+    with pytest.raises(ValueError, match=f"bad.npz.*{message}"):
         PolicyAlign.load(bad)
 
 
@@ -272,7 +275,7 @@ def test_json_float_writes_non_finite_values_as_each_format_holds_them():
     # As json.dumps(default=...): NumPy scalars only, anything else is a TypeError.
     assert json.dumps({"a": np.float32(0.5), "b": np.int64(2)}, default=json_float) == (
         '{"a": 0.5, "b": 2}')
-    with pytest.raises(TypeError, match="not JSON-serialisable"):
+    with pytest.raises(TypeError, match="'object'"):
         json.dumps({"a": object()}, default=json_float)
     with pytest.raises(ValueError, match="nonfinite"):
         json_float(math.inf, "zero")
@@ -309,7 +312,7 @@ def test_an_old_file_without_the_robot_field_still_loads(model, tmp_path):
     assert read_robot_fields(old) == (None, ["j1", "j2"])
     assert model_robot_fields(loaded) == (None, ["j1", "j2"])
     bad = _rewrite(tmp_path, source, header=lambda h: _set(h, "robot", ["panda"]))
-    with pytest.raises(ValueError, match="robot must be null or a string"):
+    with pytest.raises(ValueError, match=r"bad.npz.*\brobot\b"):
         PolicyAlign.load(bad)
 
 

@@ -137,7 +137,7 @@ def test_timed_trajectories_give_a_policy_per_second():
 def test_demonstrations_that_never_move_are_refused():
     still = [Trajectory(np.tile([0.1 * k, 0.0], (20, 1)), 0.01 * np.arange(20))
              for k in range(3)]
-    with pytest.raises(ValueError, match="none of them moves"):
+    with pytest.raises(ValueError, match="^trajectories: "):
         PolicyAlign().fit(still)
 
 
@@ -149,11 +149,11 @@ def test_sigma_is_the_one_positional_argument():
 
 
 def test_errors_are_clear():
-    with pytest.raises(NotFittedError, match="not fitted"):
+    with pytest.raises(NotFittedError):
         PolicyAlign().policy(np.zeros((1, 2)))
-    with pytest.raises(ValueError, match="at least 2 trajectories"):
+    with pytest.raises(ValueError, match=r"\b2\b"):  # the number of trajectories needed
         PolicyAlign().fit([np.zeros((3, 2))])
-    with pytest.raises(ValueError, match="integration must be one of"):
+    with pytest.raises(ValueError, match="integration.*'rk4'"):
         PolicyAlign(integration="rk4").fit([np.zeros((3, 2)), np.ones((3, 2))])
     data = make_toy_dataset("parabola", 6, 10, np.random.default_rng(0))
     with pytest.raises(ValueError, match="train_mask 1"):
@@ -162,7 +162,7 @@ def test_errors_are_clear():
     model = PolicyAlign().fit(data.trajectories)
     with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
         model.policy(np.zeros((2, 3)))
-    with pytest.raises(ValueError, match=r"NaN or inf \(first at row 1\)"):
+    with pytest.raises(ValueError, match=r"^X\b.*\brow 1\b"):
         model.policy(np.array([[0.0, 0.0], [np.nan, 0.0]]))
     # A single state is one query, as for the regressors themselves.
     assert model.policy(np.zeros(2)).shape == (1, 2)
@@ -404,7 +404,7 @@ def test_kernel_width_and_groups_do_not_depend_on_where_the_states_lie():
 
 def test_unnamed_trajectories_are_named_by_their_index_in_errors():
     demos = [Trajectory(t.positions, t.times) for t in _offset_demos(0.0)]
-    with pytest.raises(ValueError, match="trajectory 0: the trapezoid estimate") as err:
+    with pytest.raises(ValueError, match="^trajectory 0: ") as err:
         PolicyAlign(integration="trapezoid").fit(demos)
     assert "None" not in str(err.value)
     assert all(t.name is None for t in demos)

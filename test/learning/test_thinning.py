@@ -93,11 +93,11 @@ def test_spacing_keeps_the_first_sample_of_every_piece_of_arc_length():
 
 def test_bad_arguments():
     X, g = np.zeros((5, 2)), np.zeros(5, dtype=int)
-    with pytest.raises(ValueError, match="not both"):
+    with pytest.raises(ValueError, match="max_points.*spacing"):
         thin_trajectories(X, g, 3, spacing=0.1)
-    with pytest.raises(ValueError, match="max_points or spacing"):
+    with pytest.raises(ValueError, match="max_points.*spacing"):
         thin_trajectories(X, g)
-    with pytest.raises(ValueError, match="rule"):
+    with pytest.raises(ValueError, match="rule.*'random'"):
         thin_trajectories(X, g, 3, rule="random")
     with pytest.raises(ValueError, match="rng"):
         thin_trajectories(X, g, 3, rule="stride")

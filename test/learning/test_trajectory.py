@@ -23,12 +23,13 @@ def test_times_give_real_time_steps():
 @pytest.mark.parametrize(
     ("positions", "times", "message"),
     [
-        (np.zeros(5), None, "shape"),
-        (np.zeros((1, 2)), None, "at least 2 samples"),
-        (np.array([[0.0, 1.0], [np.nan, 0.0]]), None, "NaN"),
-        (np.array([[0.0], [np.inf]]), None, "NaN or inf"),
-        (np.zeros((3, 2)), [0.0, 0.2, 0.2], "increase strictly"),
-        (np.zeros((3, 2)), [0.0, 0.2], "times must have shape"),
+        # The array and the numbers at fault: its shape, sample count or sample index.
+        (np.zeros(5), None, r"\bpositions\b.*\(5,\)"),
+        (np.zeros((1, 2)), None, r"\b2\b.*\b1\b"),
+        (np.array([[0.0, 1.0], [np.nan, 0.0]]), None, r"\bpositions\b.*\bsample 1\b"),
+        (np.array([[0.0], [np.inf]]), None, r"\bpositions\b.*\bsample 1\b"),
+        (np.zeros((3, 2)), [0.0, 0.2, 0.2], r"\btimes\b.*t\[2\] <= t\[1\]"),
+        (np.zeros((3, 2)), [0.0, 0.2], r"\btimes\b.*\(3,\).*\(2,\)"),
     ],
 )
 def test_bad_trajectory_names_index_and_problem(positions, times, message):
@@ -43,7 +44,7 @@ def test_bad_trajectory_names_index_and_problem(positions, times, message):
 
 
 def test_dimension_mismatch_names_the_trajectory():
-    with pytest.raises(ValueError, match=r"trajectory 2: has dimension 3"):
+    with pytest.raises(ValueError, match=r"^trajectory 2: .*\b3\b.*\btrajectory 0\b.*\b2\b"):
         as_trajectories([np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 3))])
 
 
@@ -53,14 +54,14 @@ def test_velocities_must_match_positions():
 
 
 def test_empty_and_single_array_inputs_are_rejected():
-    with pytest.raises(ValueError, match="no trajectories"):
+    with pytest.raises(ValueError):
         as_trajectories([])
-    with pytest.raises(ValueError, match="sequence of trajectories"):
+    with pytest.raises(ValueError, match=r"\bndarray\b"):
         as_trajectories(np.zeros((3, 2)))
 
 
 def test_mixing_timed_and_untimed_is_rejected():
-    with pytest.raises(ValueError, match="trajectory 1: mixes timed"):
+    with pytest.raises(ValueError, match=r"^trajectory 1: .*\btrajectory 0\b.*\btimes\b"):
         as_trajectories([Trajectory(np.zeros((2, 1)), times=[0, 1]), np.zeros((2, 1))])
 
 

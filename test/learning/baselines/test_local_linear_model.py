@@ -79,7 +79,7 @@ def test_params_are_stored_untouched():
     reg = LocalLinearRegression(bandwidth_grid=grid, ridge=0.01, random_state=3)
     assert reg.get_params()["bandwidth_grid"] is grid
     assert reg.set_params(n_folds=3).n_folds == 3
-    with pytest.raises(ValueError, match="unknown parameter"):
+    with pytest.raises(ValueError, match="'width'"):
         reg.set_params(width=1.0)
     with pytest.raises(TypeError):
         LocalLinearRegression(0.5)  # keyword-only
@@ -109,22 +109,23 @@ def test_bad_parameters_raise_value_error(params, match):
 def test_bad_inputs_raise_clear_errors(toy_model):
     X = np.random.default_rng(0).normal(size=(50, 2))
     reg = LocalLinearRegression(bandwidth=0.5)
-    with pytest.raises(ValueError, match="X contains NaN"):
+    row = int(np.argwhere(X > 2.0)[0, 0])  # the first row the NaN is in
+    with pytest.raises(ValueError, match=rf"^X\b.*\brow {row}\b"):
         reg.fit(np.where(X > 2.0, np.nan, X), X[:, 0])
-    with pytest.raises(ValueError, match="y contains NaN"):
+    with pytest.raises(ValueError, match=r"^y\b.*\brow 0\b"):
         reg.fit(X, np.full(50, np.inf))
-    with pytest.raises(ValueError, match="X must have shape"):
+    with pytest.raises(ValueError, match=r"^X\b.*\(50,\)"):
         reg.fit(X[:, 0], X[:, 0])
-    with pytest.raises(ValueError, match="y must have shape"):
+    with pytest.raises(ValueError, match=r"^y\b.*\(50,\).*\(49,\)"):
         reg.fit(X, X[:-1, 0])
-    with pytest.raises(ValueError, match="groups must have shape"):
+    with pytest.raises(ValueError, match=r"^groups\b.*\(50,\).*\(3,\)"):
         reg.fit(X, X[:, 0], groups=np.zeros(3, dtype=int))
-    with pytest.raises(ValueError, match="integer"):
+    with pytest.raises(ValueError, match=r"^groups\b.*float64"):
         reg.fit(X, X[:, 0], groups=np.zeros(50))
-    with pytest.raises(NotFittedError, match="not fitted"):
+    with pytest.raises(NotFittedError):
         reg.predict(X)
     assert issubclass(NotFittedError, ValueError)
     with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
         toy_model.predict(np.zeros((3, 5)))
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(ValueError, match=r"^X\b.*\brow 0\b"):
         toy_model.gradient(np.array([[0.0, np.nan]]))

