@@ -36,10 +36,12 @@ def test_a_robot_that_does_not_move_stalls_ramps_down_and_reports_an_error(rig):
     assert not np.any(r.commands[-1])
     # Within stall_time_s of the command exceeding the floor: one command per tick, so
     # the ticks between the first command above it and the first smaller one are counted.
+    # A loaded machine delays ticks and the timer then catches up in a burst, so a few
+    # more ticks than stall_time_s holds may fall in that time; twice as many may not.
     sizes = [float(np.abs(c).max()) for c in r.commands]
     above = next(i for i, s in enumerate(sizes) if s >= STALL_MIN_SPEED)
     down = next(i for i in range(1, len(sizes)) if sizes[i] < sizes[i - 1] - 1e-12)
-    assert (down - above) * PERIOD <= stall_s + 2 * PERIOD
+    assert (down - above) * PERIOD <= 2 * stall_s
     statuses = [a.status[0] for a in r.diagnostics]
     stalled = [s for s in statuses
                if {kv.key: kv.value for kv in s.values}.get("stalled") == "true"]
