@@ -350,13 +350,17 @@ def best_timing(trajs: list[Trajectory], noise: float = 0.0) -> str | None:
 
 
 def sampling_gaps(traj: Trajectory) -> np.ndarray:
-    """Steps that span lost samples: longer than :data:`GAP_RATIO` times the median step.
+    """Steps that span lost samples: longer than :data:`GAP_RATIO` times the median step,
+    and with their two neighbours longer than ``2 + GAP_RATIO`` times it.
 
     A recorder that loses messages (a loaded machine, a lossy network) leaves a step over
     which the state moved at velocities that nobody recorded. Where the constraint or the
     speed changed in between, no rule gets that step's potential drop right to first
-    order, whatever the velocity timing. Stamps jittered by up to a fifth of a step stay
-    below the ratio. Measured with ``tools/recording_check.py``
+    order, whatever the velocity timing. A jittered stamp lengthens one step by as much as
+    it shortens a neighbour, so three steps span three medians give or take two stamps'
+    offsets, and four over a lost sample: halfway between, stamps off by up to a quarter
+    of a step are told from a lost sample (a missing neighbour, at an end, counts as one
+    median step). Measured with ``tools/recording_check.py``
     (``docs/design/constraint_switches.md``).
 
     Returns
@@ -368,7 +372,10 @@ def sampling_gaps(traj: Trajectory) -> np.ndarray:
     if traj.times is None or traj.n_samples < 3:
         return np.zeros(0, dtype=np.int64)
     dt = traj.dt
-    return np.flatnonzero(dt > GAP_RATIO * np.median(dt)).astype(np.int64)
+    median = np.median(dt)
+    span = dt + np.r_[median, dt[:-1]] + np.r_[dt[1:], median]
+    return np.flatnonzero((dt > GAP_RATIO * median)
+                          & (span > (2.0 + GAP_RATIO) * median)).astype(np.int64)
 
 
 def leading_rest(positions: np.ndarray, noise: float) -> int:

@@ -53,9 +53,9 @@ def test_trapezoid_is_more_accurate_than_euler_with_velocities():
 
 def test_trapezoid_without_velocities_and_unknown_rule_fail_clearly():
     traj = Trajectory(np.zeros((3, 2)), name="7")
-    with pytest.raises(ValueError, match="trajectory 7: the trapezoid estimate needs"):
+    with pytest.raises(ValueError, match=r"^trajectory 7: .*\bvelocities\b"):
         estimate_potential(traj, "trapezoid")
-    with pytest.raises(ValueError, match="unknown potential estimate"):
+    with pytest.raises(ValueError, match="'simpson'"):
         estimate_potential(traj, "simpson")
 
 
@@ -322,3 +322,9 @@ def test_sampling_gaps_are_lost_samples_not_jittered_stamps():
     np.testing.assert_array_equal(gaps, [29, 59])
     assert np.all(np.diff(times[keep])[gaps] > GAP_RATIO * 0.01 * 0.8)
     assert sampling_gaps(Trajectory(X)).size == 0  # no times: steps of 1, no gaps
+    # Stamps jittered by up to 0.3 of a step: single steps reach 1.6 of the median, but a
+    # long step's neighbours are short by as much.
+    wide = 0.01 * np.arange(100) + rng.uniform(-0.003, 0.003, 100)
+    assert np.max(np.diff(wide)) > GAP_RATIO * np.median(np.diff(wide))
+    assert sampling_gaps(Trajectory(X, wide)).size == 0
+    np.testing.assert_array_equal(sampling_gaps(Trajectory(X[keep], wide[keep])), [29, 59])
