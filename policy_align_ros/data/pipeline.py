@@ -69,7 +69,7 @@ from policy_align_ros.data.selection import (
     fingerprint,
     holdout_split,
 )
-from policy_align_ros.data.turns import unwrap_turns
+from policy_align_ros.data.turns import check_jumps, unwrap_turns
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.model_io import json_float, json_floats
 from policy_align_ros.learning.state_spec import parse_state_spec
@@ -480,9 +480,8 @@ def _drop_constant_joints(demos: _Demos, say: Callable[[str], None]) -> None:
 def _unwrap_continuous(demos: _Demos, robot: str | None, say: Callable[[str], None]
                        ) -> None:
     """Put the continuous joints of ``robot`` (its URDF) on one turn in every demonstration
-    (:func:`~policy_align_ros.data.turns.unwrap_turns`): drivers report them modulo a
-    turn. Without a robot the joints' kinds are unknown; a joint that still jumps by more
-    than half a turn is refused (:func:`_check_jumps`)."""
+    (:mod:`~policy_align_ros.data.turns`): drivers report them modulo a turn. A joint
+    that still jumps by more than half a turn is refused (``check_jumps``)."""
     mask = np.zeros(len(demos.joints), dtype=bool)
     if robot:
         from policy_align_ros.kinematics import Robot  # Pinocchio, only with a robot
@@ -496,25 +495,7 @@ def _unwrap_continuous(demos: _Demos, robot: str | None, say: Callable[[str], No
         demos.trajs = unwrap_turns(demos.trajs, mask)
         demos.continuous = [j for j, c in zip(demos.joints, mask, strict=True) if c]
         say(f"continuous joint(s) {', '.join(demos.continuous)} put on one turn")
-    _check_jumps(demos, robot)
-
-
-def _check_jumps(demos: _Demos, robot: str | None) -> None:
-    """ValueError naming the joint, the demonstration and the fix when a joint moves by
-    more than half a turn between two samples: no joint does that, a continuous joint
-    reported modulo a turn (and not unwrapped) does."""
-    for traj, name in zip(demos.trajs, demos.names, strict=True):
-        steps = np.abs(np.diff(traj.positions, axis=0))
-        if not steps.size or steps.max() <= math.pi:
-            continue
-        i, j = np.unravel_index(int(np.argmax(steps)), steps.shape)
-        fix = ("give the robot (--robot, --robot-config; the learner's robot or "
-               "robot_config) so that its continuous joints are unwrapped" if not robot else
-               f"it is not a continuous joint of {robot}: a glitch in the recording? leave "
-               "the demonstration out")
-        raise ValueError(f"joint {demos.joints[j]}: moves by {steps[i, j]:.3g} between two "
-                         f"samples of demonstration {name} (more than half a turn): a "
-                         f"continuous joint reported modulo a turn? {fix}")
+    check_jumps(demos.trajs, demos.names, demos.joints, robot)
 
 
 def _split(unique: list[int], fraction: float, seed: int) -> tuple[list[int], list[int]]:

@@ -7,18 +7,20 @@ a motion of hundreds of rad/s and the two sides two places. :func:`unwrap_turns`
 demonstration's angle continuous in time (``numpy.unwrap``) and moves each demonstration by
 whole turns to within half a turn of the angles' circular mean over all demonstrations.
 The executor brings its measurements to the same turn
-(:mod:`policy_align_ros.control.turns`).
+(:mod:`policy_align_ros.control.turns`). Where the joints' kinds are unknown (no robot),
+or a joint the robot does not call continuous jumps, :func:`check_jumps` refuses the data.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["unwrap_turns"]
+__all__ = ["check_jumps", "unwrap_turns"]
 
 _TURN = 2.0 * np.pi
 
@@ -53,3 +55,39 @@ def unwrap_turns(trajs: Sequence[Trajectory], continuous: np.ndarray) -> list[Tr
         X[:, columns] += _TURN * np.round((reference - X[:, columns].mean(axis=0)) / _TURN)
         out.append(Trajectory(X, t.times, t.velocities, name=t.name))
     return out
+
+
+def check_jumps(trajs: Sequence[Trajectory], names: Sequence[str], joints: Sequence[str],
+                robot: str | None) -> None:
+    """Refuse demonstrations in which a joint moves by more than half a turn between two
+    samples: no joint does that; a continuous joint reported modulo a turn, and not
+    unwrapped, does.
+
+    Parameters
+    ----------
+    trajs : sequence of Trajectory
+        Joint-position demonstrations (rad, or m for prismatic joints).
+    names : sequence of str
+        The demonstrations' names, as the error gives them.
+    joints : sequence of str
+        The joints of the positions' columns.
+    robot : str or None
+        The robot the joints' kinds came from (None: unknown).
+
+    Raises
+    ------
+    ValueError
+        Naming the joint, the demonstration, the jump and the fix.
+    """
+    for traj, name in zip(trajs, names, strict=True):
+        steps = np.abs(np.diff(traj.positions, axis=0))
+        if not steps.size or steps.max() <= math.pi:
+            continue
+        i, j = np.unravel_index(int(np.argmax(steps)), steps.shape)
+        fix = ("give the robot (--robot, --robot-config; the learner's robot or "
+               "robot_config) so that its continuous joints are unwrapped" if not robot else
+               f"it is not a continuous joint of {robot}: a glitch in the recording? leave "
+               "the demonstration out")
+        raise ValueError(f"joint {joints[j]}: moves by {steps[i, j]:.3g} between two samples "
+                         f"of demonstration {name} (more than half a turn): a continuous "
+                         f"joint reported modulo a turn? {fix}")

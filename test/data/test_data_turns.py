@@ -1,8 +1,9 @@
 """Tests of policy_align_ros.data.turns (recorded continuous joints on one turn)."""
 
 import numpy as np
+import pytest
 
-from policy_align_ros.data.turns import unwrap_turns
+from policy_align_ros.data.turns import check_jumps, unwrap_turns
 from policy_align_ros.learning import Trajectory
 
 
@@ -35,3 +36,14 @@ def test_demonstrations_across_the_wrap_are_continuous_and_on_one_turn():
     # Without continuous joints nothing changes.
     same = unwrap_turns(trajs, np.array([False, False]))
     assert all(a is b for a, b in zip(same, trajs, strict=True))
+
+
+def test_a_jump_of_more_than_half_a_turn_is_refused_naming_joint_demonstration_and_fix():
+    t = np.linspace(0.0, 1.0, 20)
+    calm = Trajectory(np.column_stack([0.1 * t, 0.2 * t]), t)
+    check_jumps([calm], ["calm"], ["a", "b"], None)  # nothing to refuse
+    wrapped = Trajectory(np.column_stack([0.1 * t, _wrap(3.0 + 0.3 * t)]), t)
+    with pytest.raises(ValueError, match=r"^joint b\b.*\bwrapped\b.*--robot"):
+        check_jumps([calm, wrapped], ["calm", "wrapped"], ["a", "b"], None)
+    with pytest.raises(ValueError, match=r"^joint b\b.*\bwrapped\b.*\bjaco\b"):
+        check_jumps([calm, wrapped], ["calm", "wrapped"], ["a", "b"], "jaco")
