@@ -13,6 +13,12 @@ def test_centres_are_the_middle_of_the_support_along_continuous_joints_in_comman
     np.testing.assert_allclose(centres[0], 3.2)
     assert np.isnan(centres[1])
     assert turn_centres(support, np.array([False, False])) is None
+    # A three-cycle (its own inverse no longer): q[permutation] is q in model order.
+    model = np.array([[1.0, 10.0, 100.0], [3.0, 30.0, 300.0]])  # middles 2, 20, 200
+    permutation = np.array([2, 0, 1])
+    centres = turn_centres(model, np.ones(3, dtype=bool), permutation)
+    np.testing.assert_allclose(centres[permutation], [2.0, 20.0, 200.0])
+    np.testing.assert_allclose(centres, [20.0, 200.0, 2.0])
     with pytest.raises(ValueError, match="support"):
         turn_centres(support[:, :1], np.array([True, False]))
 
