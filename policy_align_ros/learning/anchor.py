@@ -24,11 +24,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from policy_align_ros.learning.descent import learnt_minima
 from policy_align_ros.learning.goal import (
     GOAL_MERGE,
     data_extent,
     goal_ends,
-    learnt_minima,
     starts_elsewhere,
     typical_speed,
 )

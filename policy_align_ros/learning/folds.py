@@ -41,14 +41,14 @@ from typing import Any
 
 import numpy as np
 
+from policy_align_ros.learning.descent import data_box, learnt_minima
 from policy_align_ros.learning.fitting import assign_folds
 from policy_align_ros.learning.global_model import fixed_copy, training_set
 from policy_align_ros.learning.goal import (
     GOAL_MERGE,
-    data_box,
     demonstrated_goal,
     goal_summary,
-    learnt_minima,
+    learnt_goal_index,
 )
 from policy_align_ros.learning.reach import REACH_TIME, starts_reach
 from policy_align_ros.learning.regressors import (
@@ -479,7 +479,7 @@ def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
             "who set off slowly?), where a robot would stall (fit_summary_['goal']"
             "['start_reach_ratios'])")
     if unfixed_goal(goal):
-        entry = goal["minima"][_goal_minimum(goal)]
+        entry = goal["minima"][learnt_goal_index(goal)]
         spread = entry["fold_spread"]
         moves = ("a CV fold's model, fitted without some of the demonstrations, has no "
                  "minimum near the learnt goal" if spread is None else
@@ -496,9 +496,8 @@ def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
 
 def unfixed_goal(goal: dict[str, Any]) -> bool:
     """Whether the CV folds' models leave the learnt goal open. ``goal`` is a fit's
-    ``fit_summary_["goal"]``; its goal is the minimum nearest the largest demonstrated goal,
-    or without one the minimum nearest where the demonstrations end (least
-    ``end_distance``). Open when some fold model has no minimum near it, or puts one more
+    ``fit_summary_["goal"]``; its goal is :func:`~policy_align_ros.learning.goal.
+    learnt_goal_index`'s. Open when some fold model has no minimum near it, or puts one more
     than :data:`~policy_align_ros.learning.goal.GOAL_MERGE` of the extent from it
     (``fold_spread``); False without minima or fold models."""
     # Farther apart than two rests that count as one goal: the data do not fix the goal
@@ -507,18 +506,8 @@ def unfixed_goal(goal: dict[str, Any]) -> bool:
     # few demonstrations lead to, the starts' and new starts' checks cover.
     if not goal["minima"] or not goal.get("n_folds"):
         return False
-    spread = goal["minima"][_goal_minimum(goal)]["fold_spread"]
+    spread = goal["minima"][learnt_goal_index(goal)]["fold_spread"]
     return spread is None or spread > GOAL_MERGE * goal["extent"]
-
-
-def _goal_minimum(goal: dict[str, Any]) -> int:
-    """Index into ``goal["minima"]`` of the learnt goal (:func:`unfixed_goal`)."""
-    minima = goal["minima"]
-    if goal["demonstrated_goals"]:
-        target = np.asarray(goal["demonstrated_goals"][0]["point"])
-        return int(np.argmin([np.linalg.norm(np.asarray(m["point"]) - target)
-                              for m in minima]))
-    return int(np.argmin([m["end_distance"] for m in minima]))
 
 
 def _heldout_message(heldout: dict[str, Any], worse: bool,

@@ -8,18 +8,17 @@ the learnt model only:
 
 - :func:`rest_points`: where each demonstration comes to rest at its end (its final samples
   below ``fraction`` of its peak speed);
-- :func:`learnt_minima`: the local minima of the learnt potential, found by descending it
-  (projected Barzilai-Borwein steps with the
-  analytic gradient, all starts at once) from given starts, merged when closer than a
-  tolerance tied to the data's scale; a descent that leaves the box around the data found
-  no minimum (the policy runs away there);
+- the learnt potential's local minima, and where its flow from given starts stops, come
+  from descents of it (:mod:`~policy_align_ros.learning.descent`);
 - :func:`starts_elsewhere`: demonstrations from whose start the learnt policy stops
   somewhere else than from their end;
 - :func:`goal_summary`: the learnt minima, each with its distance to the nearest
   *demonstrated goal* (a cluster of rest points), and the data's extent to read the
   distances as fractions. A rest where the learnt policy is far from zero is a rest under
   an active constraint (a hand stopped by a table), not a goal: it is left out of the
-  demonstrated goals and counted.
+  demonstrated goals and counted;
+- :func:`learnt_goal_index`: which of those minima is the learnt goal, the one a user's
+  runs are meant to stop at.
 
 Notation: ``K`` demonstrations ``X_k`` (``N_k`` x ``n``, state units) with times in seconds
 (speeds in state units per second; per step without times). The *extent* ``W`` of a set
@@ -30,30 +29,31 @@ of demonstrations is the largest side of their bounding box (state units).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from policy_align_ros.learning.descent import (
+    Field,
+    Minima,
+    cluster_labels,
+    data_box,
+    flow_stops,
+    learnt_minima,
+)
 from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = [
     "ACTIVE_FRACTION",
-    "END_RADIUS",
     "GOAL_MERGE",
-    "MINIMA_MERGE",
     "REST_FRACTION",
-    "Minima",
-    "data_box",
     "data_extent",
     "demonstrated_goal",
-    "flow_stops",
     "goal_ends",
     "goal_summary",
-    "learnt_minima",
+    "learnt_goal_index",
     "rest_points",
     "sample_speeds",
     "starts_elsewhere",
@@ -69,37 +69,6 @@ ACTIVE_FRACTION = 0.1
 #: this fraction of the extent are one demonstrated goal: a teacher never stops twice at
 #: the same point.
 GOAL_MERGE = 0.05
-#: The longest step of a descent that follows the learnt policy's flow (:func:`flow_stops`),
-#: as a fraction of the extent.
-END_RADIUS = 0.01
-#: Learnt minima (and descent starts) closer than this fraction of the extent are one.
-MINIMA_MERGE = 1e-3
-#: The descent's box: the data's bounding box widened by this many extents on each side.
-BOX_MARGIN = 1.0
-#: The descent stops when the learnt speed is below this fraction of the speed scale: the
-#: minimum is then located to about this fraction of the distance over which the learnt
-#: speed reaches the typical speed.
-GRADIENT_TOL = 1e-6
-
-Field = Callable[[np.ndarray], np.ndarray]
-
-
-class Minima(NamedTuple):
-    """Local minima of a learnt potential (:func:`learnt_minima`).
-
-    Attributes
-    ----------
-    points : ndarray (k, n)
-        The minima (state units), lowest potential first.
-    values : ndarray (k,)
-        The potential there.
-    n_escaped : int
-        Descents that left the box around the data: no minimum there.
-    """
-
-    points: np.ndarray
-    values: np.ndarray
-    n_escaped: int
 
 
 def sample_speeds(traj: Trajectory) -> np.ndarray:
@@ -242,180 +211,6 @@ def data_extent(trajs: Sequence[Trajectory | np.ndarray]) -> float:
     return float(np.max(X.max(axis=0) - X.min(axis=0)))
 
 
-def learnt_minima(potential: Field, gradient: Field, starts: np.ndarray, *,
-                  scale: float | None = None, speed: float | None = None,
-                  bounds: tuple[np.ndarray, np.ndarray] | None = None,
-                  merge_tol: float = MINIMA_MERGE, max_iter: int = 1000) -> Minima:
-    """Local minima of a learnt potential, by descent from ``starts``.
-
-    Parameters
-    ----------
-    potential, gradient : callable
-        ``potential(X)`` (m,) and ``gradient(X)`` (m, n) of the learnt potential at states
-        ``X`` (m, n); the policy is ``-gradient``.
-    starts : ndarray (s, n)
-        Where the descents start (state units); starts closer than ``merge_tol * scale``
-        are descended once.
-    scale : float, optional
-        The data's extent (state units): the unit of ``merge_tol`` and of the box. Default:
-        the largest side of the starts' bounding box (1 if they coincide).
-    speed : float, optional
-        The typical speed (state units per second): a descent stops where the learnt speed
-        is below ``GRADIENT_TOL * speed``. Default: the largest learnt speed at the starts.
-    bounds : (lo, hi) ndarrays (n,), optional
-        The box of the descent (state units). Default: the starts' bounding box widened by
-        ``BOX_MARGIN * scale`` on each side. A descent that ends on its boundary found no
-        minimum and is counted in ``n_escaped``.
-    merge_tol : float
-        Minima closer than ``merge_tol * scale`` are one (the lowest is kept).
-    max_iter : int
-        Iterations of each descent.
-
-    Returns
-    -------
-    Minima
-        The merged minima (k, n), lowest potential first, their potential values (k,) and
-        the number of descents that escaped.
-    """
-    starts = np.atleast_2d(np.asarray(starts, dtype=float))
-    if starts.ndim != 2 or not len(starts) or not np.all(np.isfinite(starts)):
-        raise ValueError(f"starts: need a finite (s, n) array, got shape {starts.shape}")
-    n = starts.shape[1]
-    if scale is None:
-        side = float(np.max(np.ptp(starts, axis=0)))
-        scale = side if side > 0 else 1.0
-    if not scale > 0:
-        raise ValueError(f"scale: must be positive, got {scale!r}")
-    starts = _merge(starts, np.zeros(len(starts)), merge_tol * scale)[0]
-    if speed is None:
-        speed = float(np.max(np.linalg.norm(gradient(starts), axis=1)))
-    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
-    if bounds is None:
-        bounds = data_box(starts, scale)
-    lo, hi = (np.asarray(b, dtype=float).reshape(n) for b in bounds)
-    X = _descend(potential, gradient, np.clip(starts, lo, hi), lo, hi, gtol, scale,
-                 max_iter)
-    inside = _inside(X, lo, hi, scale)
-    if not inside.any():
-        return Minima(np.zeros((0, n)), np.zeros(0), int(len(X)))
-    P, v = _merge(X[inside], potential(X[inside]), merge_tol * scale)
-    return Minima(P, v, int(np.count_nonzero(~inside)))
-
-
-def data_box(X: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """The bounding box of the states ``X`` (m, n) widened by ``BOX_MARGIN * scale`` on
-    each side (state units): where descents of a learnt potential look for minima."""
-    return X.min(axis=0) - BOX_MARGIN * scale, X.max(axis=0) + BOX_MARGIN * scale
-
-
-def _inside(X: np.ndarray, lo: np.ndarray, hi: np.ndarray, scale: float) -> np.ndarray:
-    """Rows of ``X`` (s, n) that ended off the box's boundary: descents that stopped."""
-    edge = 1e-9 * scale
-    return ~np.any((X <= lo + edge) | (X >= hi - edge), axis=1)
-
-
-def _descend(potential: Field, gradient: Field, X: np.ndarray, lo: np.ndarray,
-             hi: np.ndarray, gtol: float, scale: float, max_iter: int,
-             max_step: float = math.inf) -> np.ndarray:
-    """Projected gradient descent of every row of ``X`` (s, n) at once, inside the box
-    ``[lo, hi]``; returns where the rows end (s, n).
-
-    Each row takes Barzilai-Borwein steps (the secant estimate of the inverse curvature,
-    which copes with the anisotropic bowls the trend fits), shrunk until the potential
-    decreases (Armijo); a row stops when its projected gradient is below ``gtol`` or its
-    steps no longer move it. All rows share one call of ``potential`` and ``gradient``
-    per iteration: a descent costs a few hundred batched evaluations, not one per row.
-    ``max_step`` (state units) caps every step's length: the descent then follows the
-    policy's flow instead of leaping into another basin of lower potential.
-    """
-    X = X.copy()
-    joint = _joint(potential, gradient)
-    f, g = potential(X), gradient(X)
-    alpha = 0.01 * scale / np.maximum(np.linalg.norm(g, axis=1), gtol)
-    active = np.linalg.norm(_projected(g, X, lo, hi), axis=1) > gtol
-    for _ in range(max_iter):
-        idx = np.flatnonzero(active)
-        if not idx.size:
-            break
-        step_size = alpha[idx, None]
-        if math.isfinite(max_step):
-            # On the gradient's norm, not the step's: a Barzilai-Borwein step can overflow,
-            # and so can its product with the norm (a step grown by 4 at every iteration
-            # up a concave slope); an infinite product is a step to cap, not a warning.
-            norm = np.linalg.norm(g[idx], axis=1, keepdims=True)
-            with np.errstate(over="ignore"):
-                too_long = step_size * norm > max_step
-            step_size = np.where(too_long, max_step / np.maximum(norm, 1e-300), step_size)
-        trial = np.clip(X[idx] - step_size * g[idx], lo, hi)
-        step = trial - X[idx]
-        f_trial, g_trial = joint(trial) if joint is not None else (potential(trial), None)
-        ok = f_trial <= f[idx] + 1e-4 * np.einsum("ij,ij->i", g[idx], step)
-        alpha[idx[~ok]] *= 0.25
-        with np.errstate(over="ignore"):  # an overflowing step is not a vanishing one
-            done = alpha[idx] * np.linalg.norm(g[idx], axis=1) < 1e-12 * scale
-        if ok.any():
-            acc = idx[ok]
-            # Rows evaluated in another batch can differ in the last bit: the joint
-            # evaluation is used when every row was accepted, as the results stay equal.
-            g_new = g_trial if g_trial is not None and ok.all() else gradient(trial[ok])
-            s, y = step[ok], g_new - g[acc]
-            sy, ss = np.einsum("ij,ij->i", s, y), np.einsum("ij,ij->i", s, s)
-            # On a nearly flat potential the secant step overflows to inf; the next step is
-            # then capped (max_step, the box) and shrunk by the Armijo test, so the overflow
-            # is not a warning the fit should pass on.
-            with np.errstate(over="ignore"):
-                alpha[acc] = np.where(sy > 0, ss / np.where(sy > 0, sy, 1.0),
-                                      4.0 * alpha[acc])
-            X[acc], f[acc], g[acc] = trial[ok], f_trial[ok], g_new
-            done[ok] |= np.linalg.norm(_projected(g_new, X[acc], lo, hi), axis=1) <= gtol
-        active[idx[done]] = False
-    return X
-
-
-def _joint(potential: Field, gradient: Field
-           ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
-    """``X -> (potential(X), gradient(X))`` in one call when both are a model's ``predict``
-    and ``gradient`` and it has ``value_and_gradient`` (one kernel evaluation per step
-    of a descent instead of two); None otherwise."""
-    owner = getattr(potential, "__self__", None)
-    joint = getattr(owner, "value_and_gradient", None)
-    if (joint is None or getattr(gradient, "__self__", None) is not owner
-            or getattr(potential, "__name__", "") != "predict"
-            or getattr(gradient, "__name__", "") != "gradient"):
-        return None
-    return joint
-
-
-def _projected(g: np.ndarray, X: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The gradient ``g`` (m, n) without the components that push ``X`` out of the box."""
-    out = g.copy()
-    out[(X <= lo) & (g > 0)] = 0.0
-    out[(X >= hi) & (g < 0)] = 0.0
-    return out
-
-
-def _merge(points: np.ndarray, values: np.ndarray, tol: float
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Points closer than ``tol`` (chained) as one: the lowest ``values`` of each group,
-    the groups ordered by it."""
-    if len(points) < 2 or tol <= 0:
-        order = np.argsort(values, kind="stable")
-        return points[order], values[order]
-    labels = _clusters(points, tol)
-    keep = [int(np.flatnonzero(labels == c)[np.argmin(values[labels == c])])
-            for c in range(labels.max() + 1)]
-    keep = sorted(keep, key=lambda i: values[i])
-    return points[keep], values[keep]
-
-
-def _clusters(points: np.ndarray, tol: float) -> np.ndarray:
-    """Single-linkage cluster label of every point (chains of points closer than ``tol``)."""
-    pairs = cKDTree(points).query_pairs(tol, output_type="ndarray")
-    m = len(points)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
-    return connected_components(graph, directed=False)[1]
-
-
 def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
                  gradient: Field, *, fraction: float = REST_FRACTION,
                  active_fraction: float = ACTIVE_FRACTION,
@@ -500,21 +295,39 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     return summary
 
 
-def flow_stops(potential: Field, gradient: Field, starts: np.ndarray, X: np.ndarray,
-               extent: float, speed: float) -> tuple[np.ndarray, np.ndarray]:
-    """Where runs of the learnt policy from ``starts`` (s, n) stop, by a descent whose steps
-    are at most ``END_RADIUS`` of the extent (so that it follows the flow a run takes
-    instead of leaping into another basin) inside :func:`data_box` of the samples ``X``
-    (m, n); and which of them stopped inside that box (s,) rather than leaving it.
+def learnt_goal_index(goal: Mapping[str, Any]) -> int | None:
+    """Which of a goal report's minima is the learnt goal: where runs of the policy are
+    meant to stop.
 
-    ``extent`` and ``speed`` are the data's extent W (state units) and typical speed (state
-    units/s), as :func:`data_extent` and :func:`typical_speed` give them.
+    The minimum nearest to the largest demonstrated goal (where most demonstrations rest);
+    without one, the minimum nearest to where the demonstrations end (the median distance
+    of their last samples), not the lowest: a minimum the fit extrapolated far from the
+    data can be lower than the one every demonstration leads to.
+
+    Parameters
+    ----------
+    goal : mapping
+        :func:`goal_summary`'s report (``minima``, ``demonstrated_goals``), as a fit
+        summary or a model file holds it.
+
+    Returns
+    -------
+    int or None
+        Index into ``goal["minima"]`` (lowest first); None when there is no minimum. A
+        report whose minima lack a ``point`` or an ``end_distance`` (written by an older
+        version) gets the lowest.
     """
-    lo, hi = data_box(X, extent)
-    gtol = GRADIENT_TOL * (speed if speed > 0 else 1.0)
-    ends = _descend(potential, gradient, starts, lo, hi, gtol, extent, 4000,
-                    max_step=END_RADIUS * extent)
-    return ends, _inside(ends, lo, hi, extent)
+    minima = goal.get("minima") or []
+    if not minima:
+        return None
+    rests = goal.get("demonstrated_goals") or []
+    if rests and all("point" in m for m in minima):
+        points = np.array([m["point"] for m in minima], dtype=float)
+        target = np.asarray(rests[0]["point"], dtype=float)
+        return int(np.argmin(np.linalg.norm(points - target, axis=1)))
+    # A report written before minima carried their distance to the ends: the lowest.
+    ends = np.array([m.get("end_distance", math.inf) for m in minima], dtype=float)
+    return int(np.argmin(ends)) if np.isfinite(ends).any() else 0
 
 
 def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Field,
@@ -522,9 +335,11 @@ def starts_elsewhere(trajs: Sequence[Trajectory], potential: Field, gradient: Fi
     """Demonstrations from whose start the learnt policy stops where no demonstration's
     end leads.
 
-    Every demonstration's first and last samples are descended (:func:`learnt_minima`'s
-    box, with steps of at most ``END_RADIUS`` of the extent, so that the descent follows
-    the policy's flow instead of leaping into another basin). A start counts when its
+    Every demonstration's first and last samples are descended
+    (:func:`~policy_align_ros.learning.descent.flow_stops`: in :func:`~policy_align_ros.
+    learning.descent.learnt_minima`'s box, with steps of at most ``END_RADIUS`` of the
+    extent, so that the descent follows the policy's flow instead of leaping into another
+    basin). A start counts when its
     descent ends more than ``GOAL_MERGE`` of the extent from where every end's descent
     ends, or leaves the box while some end's does not: a run of the learnt policy from
     there stops at a minimum the demonstrations never stopped at (a path that loops or
@@ -577,7 +392,7 @@ def _goal_clusters(goals: list[np.ndarray], tol: float) -> tuple[np.ndarray, lis
     if not goals:
         return np.zeros((0, 0)), []
     P = np.array(goals)
-    labels = _clusters(P, tol)
+    labels = cluster_labels(P, tol)
     sizes = np.bincount(labels)
     order = np.argsort(-sizes, kind="stable")
     return np.array([P[labels == c].mean(axis=0) for c in order]), [int(sizes[c])

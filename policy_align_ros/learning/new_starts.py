@@ -30,14 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from policy_align_ros.learning.goal import (
-    GOAL_MERGE,
-    MINIMA_MERGE,
-    Field,
-    _merge,
-    _nearest,
-    flow_stops,
-)
+from policy_align_ros.learning.descent import MINIMA_MERGE, Field, flow_stops, merge_points
+from policy_align_ros.learning.goal import GOAL_MERGE, _nearest
 from policy_align_ros.learning.reach import REACH_TIME, reach_times
 from policy_align_ros.learning.regressors.trend_kernel.cv import KERNEL_RIDGE_GRID
 from policy_align_ros.learning.trajectory import Trajectory, sample_period
@@ -60,7 +54,7 @@ def new_start_runs(trajs: Sequence[Trajectory], potential: Field, gradient: Fiel
     """Descents of the learnt potential from random new starts near the data.
 
     Each start follows the policy's flow as the demonstrated starts do
-    (:func:`~policy_align_ros.learning.goal.flow_stops`), and counts when it stops more
+    (:func:`~policy_align_ros.learning.descent.flow_stops`), and counts when it stops more
     than ``GOAL_MERGE`` of the extent from ``goal`` or leaves the data's box widened by
     its extent.
 
@@ -104,7 +98,7 @@ def new_start_runs(trajs: Sequence[Trajectory], potential: Field, gradient: Fiel
     elsewhere = inside & (np.linalg.norm(ends - goal, axis=1) > GOAL_MERGE * extent)
     minima = []
     if elsewhere.any():
-        points, values = _merge(ends[elsewhere], potential(ends[elsewhere]),
+        points, values = merge_points(ends[elsewhere], potential(ends[elsewhere]),
                                 MINIMA_MERGE * extent)
         # Each run's stop to its merged minimum: the nearest of them.
         owner = np.argmin(np.linalg.norm(ends[elsewhere][:, None] - points[None], axis=2),

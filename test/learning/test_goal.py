@@ -1,29 +1,19 @@
-"""The learnt goal (policy_align_ros.learning.goal): rest points, minima, the summary."""
+"""The learnt goal (policy_align_ros.learning.goal): rest points, the demonstrated goal, the
+summary, the learnt goal among the minima, starts that stop elsewhere."""
 
 import numpy as np
 import pytest
+from flows import bowl, two_wells
 
 from policy_align_ros.learning import Trajectory
 from policy_align_ros.learning.goal import (
     data_extent,
     goal_summary,
-    learnt_minima,
+    learnt_goal_index,
     rest_points,
     sample_speeds,
     starts_elsewhere,
 )
-
-
-def _bowl(A, c):
-    """The potential 0.5 (x - c)' A (x - c) and its gradient."""
-    def potential(X):
-        D = X - c
-        return 0.5 * np.einsum("ij,jk,ik->i", D, A, D)
-
-    def gradient(X):
-        return (X - c) @ A
-
-    return potential, gradient
 
 
 def test_rest_point_is_the_mean_of_the_final_run_below_two_percent_of_peak_speed():
@@ -57,92 +47,8 @@ def test_bad_rest_fraction_is_named():
         rest_points([np.zeros((3, 2))], fraction=1.5)
 
 
-def test_minimum_of_a_known_quadratic_is_found_where_it_is():
-    rng = np.random.default_rng(3)
-    n = 5
-    Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
-    A = (Q * np.geomspace(1.0, 100.0, n)) @ Q.T
-    c = rng.normal(size=n)
-    potential, gradient = _bowl(A, c)
-    starts = c + rng.normal(scale=2.0, size=(12, n))
-    minima = learnt_minima(potential, gradient, starts, scale=4.0, speed=100.0)
-    assert minima.points.shape == (1, n) and minima.n_escaped == 0
-    np.testing.assert_allclose(minima.points[0], c, atol=1e-4)
-    assert minima.values[0] == pytest.approx(0.0, abs=1e-8)
-
-
-def test_a_model_descends_through_its_joint_evaluation_to_the_same_bits():
-    # A model's predict and gradient are evaluated together at each step of a descent;
-    # the descent must end where it does with the two called apart, to the last bit.
-    from policy_align_ros.learning.regressors import TrendKernelRegression
-
-    rng = np.random.default_rng(4)
-    X = rng.uniform(-2.0, 2.0, size=(240, 2))
-    y = np.sum((X - [0.3, -0.4]) ** 2, axis=1) + 0.2 * np.sin(2.0 * X[:, 0])
-    model = TrendKernelRegression(trend_form="quadratic", length_scale=0.6,
-                                  kernel_ridge=1e-4, random_state=0)
-    model.fit(X, y, groups=np.repeat(np.arange(12), 20))
-    starts = rng.uniform(-2.0, 2.0, size=(9, 2))
-    joint = learnt_minima(model.predict, model.gradient, starts, scale=4.0)
-    apart = learnt_minima(lambda Z: model.predict(Z), lambda Z: model.gradient(Z), starts,
-                          scale=4.0)
-    assert len(joint.points) and np.array_equal(joint.points, apart.points)
-    t = np.linspace(0.0, 1.0, 30)[:, None]
-    demos = [Trajectory(x0 + t * ([0.3, -0.4] - x0), times=t[:, 0]) for x0 in starts]
-    assert starts_elsewhere(demos, model.predict, model.gradient, 4.0, 1.0) == \
-        starts_elsewhere(demos, lambda Z: model.predict(Z), lambda Z: model.gradient(Z),
-                         4.0, 1.0)
-
-
-def test_a_capped_descent_up_a_concave_slope_raises_no_overflow_warning():
-    # Where the potential bends down, every secant step grows the next by 4 until it
-    # overflows; the cap must take such a step without a warning the fit would pass on.
-    import warnings
-
-    from policy_align_ros.learning.goal import _descend
-
-    def potential(X):
-        return -0.5 * np.sum(X**2, axis=1)
-
-    def gradient(X):
-        return -X
-
-    lo, hi = np.full(1, -1e6), np.full(1, 1e6)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        end = _descend(potential, gradient, np.array([[1.0]]), lo, hi, 1e-9, 1.0, 700,
-                       max_step=0.01)
-    assert end[0, 0] == pytest.approx(1.0 + 700 * 0.01, rel=1e-6)  # every step capped
-
-
-def _two_wells():
-    wells = np.array([[-1.0, 0.0], [1.0, 0.0]])
-
-    def potential(X):
-        d2 = np.sum((X[:, None, :] - wells[None]) ** 2, axis=2)
-        return 0.05 * np.sum(X**2, axis=1) - np.exp(-d2 / 0.2).sum(axis=1)
-
-    def gradient(X):
-        D = X[:, None, :] - wells[None]
-        e = np.exp(-np.sum(D**2, axis=2) / 0.2)
-        return 0.1 * X + np.einsum("mk,mkn->mn", e, D) / 0.1
-
-    return potential, gradient
-
-
-def test_two_wells_give_two_minima_and_a_falling_plane_gives_none():
-    potential, gradient = _two_wells()
-    starts = np.array([[-1.2, 0.3], [-0.8, -0.2], [1.1, 0.2], [0.9, -0.3]])
-    minima = learnt_minima(potential, gradient, starts, scale=2.0)
-    assert len(minima.points) == 2
-    np.testing.assert_allclose(np.sort(minima.points[:, 0]), [-1.0, 1.0], atol=0.02)
-    plane = learnt_minima(lambda X: X[:, 0], lambda X: np.tile([1.0, 0.0], (len(X), 1)),
-                          starts, scale=2.0)
-    assert len(plane.points) == 0 and plane.n_escaped == len(starts)
-
-
 def test_a_start_whose_well_no_end_reaches_is_counted():
-    potential, gradient = _two_wells()
+    potential, gradient = two_wells()
     t = np.linspace(0.0, 1.0, 50)
     line = lambda a, b: Trajectory(a + t[:, None] * (np.asarray(b) - a), times=t)  # noqa: E731
     across = line(np.array([-1.1, 0.2]), [0.95, 0.05])  # from the left well to the right
@@ -163,7 +69,7 @@ def test_a_start_whose_well_no_end_reaches_is_counted():
 def test_where_demonstrations_end_together_runs_must_stop_there():
     # A bowl whose minimum is not where all the demonstrations end: every end slides to
     # the bowl's minimum, and so does every start, but none stops at the goal.
-    potential, gradient = _bowl(np.eye(2), np.array([1.0, 0.0]))
+    potential, gradient = bowl(np.eye(2), np.array([1.0, 0.0]))
     t = np.linspace(0.0, 1.0, 40)
     demos = [Trajectory(np.outer(1.0 - t, start), times=t)
              for start in ([-1.0, 1.0], [-1.0, -1.0], [-1.5, 0.2])]
@@ -186,7 +92,7 @@ def _flow(A, c, x0, steps=120, dt=0.05, wall=None):
 
 def test_a_rest_under_an_active_constraint_is_not_a_demonstrated_goal():
     A, c = np.diag([1.0, 2.0]), np.array([1.0, 0.0])
-    potential, gradient = _bowl(A, c)
+    potential, gradient = bowl(A, c)
     free = [_flow(A, c, x0) for x0 in ([-1.0, 1.0], [-1.5, -1.0], [2.5, 1.0])]
     # Stopped by a wall at x1 = 0, where the policy still pushes at speed 1.
     blocked = [_flow(A, c, x0, wall=0.0) for x0 in ([-2.0, 1.0], [-1.0, -1.5])]
@@ -268,3 +174,16 @@ def test_recordings_cut_while_moving_do_not_move_the_goal_the_rests_show():
     ends = goal_ends(resting + cut)
     assert ends is not None and len(ends) == 6
     np.testing.assert_allclose(demonstrated_goal(resting + cut), goal, atol=1e-4)
+
+
+def test_the_learnt_goal_is_the_minimum_where_most_rest_else_where_they_end():
+    minima = [{"point": [5.0, 5.0], "end_distance": 6.0},   # lowest, far from the data
+              {"point": [0.1, 0.0], "end_distance": 0.2}]
+    rests = [{"point": [0.0, 0.0], "n_rests": 4}]
+    assert learnt_goal_index({"minima": minima, "demonstrated_goals": rests}) == 1
+    assert learnt_goal_index({"minima": minima, "demonstrated_goals": []}) == 1
+    assert learnt_goal_index({"minima": [], "demonstrated_goals": rests}) is None
+    # A report without the distances to the ends (an older model file): the lowest.
+    bare = [{"point": m["point"]} for m in minima]
+    assert learnt_goal_index({"minima": bare, "demonstrated_goals": []}) == 0
+
