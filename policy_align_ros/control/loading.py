@@ -17,6 +17,7 @@ from policy_align_ros.control.limits import goal_in_margin
 from policy_align_ros.control.task_policy import policy_for_state
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
 from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
 __all__ = ["StartModel", "goal_margin_problem", "learnt_goal", "load_policy"]
@@ -131,19 +132,13 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
 
 
 def learnt_goal(model: PolicyAlign) -> np.ndarray | None:
-    """Where runs of ``model``'s policy come to rest: the learnt minimum nearest to where
-    most demonstrations rest, else the lowest learnt minimum (n,), in the model's state
-    order and units (``fit_summary_["goal"]``, :func:`~policy_align_ros.learning.goal.
-    goal_summary`); None when the fit found no minimum or has no goal report."""
+    """Where runs of ``model``'s policy are meant to come to rest (n,), in the model's state
+    order and units: the minimum of its goal report (``fit_summary_["goal"]``) that
+    :func:`~policy_align_ros.learning.goal.learnt_goal_index` calls the learnt goal; None
+    when the fit found no minimum or has no goal report."""
     goal = (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
-    minima = np.array([m["point"] for m in goal.get("minima") or []], dtype=float)
-    if not len(minima):
-        return None
-    rests = goal.get("demonstrated_goals") or []
-    if not rests:
-        return minima[0]
-    rest = np.asarray(rests[0]["point"], dtype=float)
-    return minima[int(np.argmin(np.linalg.norm(minima - rest, axis=1)))]
+    index = learnt_goal_index(goal)
+    return None if index is None else np.asarray(goal["minima"][index]["point"], dtype=float)
 
 
 def goal_margin_problem(model: PolicyAlign, permutation: np.ndarray, robot: Robot,

@@ -29,7 +29,12 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.learning.folds import POOR_FIT_RATIO
-from policy_align_ros.learning.goal import GOAL_MERGE, data_extent, demonstrated_goal
+from policy_align_ros.learning.goal import (
+    GOAL_MERGE,
+    data_extent,
+    demonstrated_goal,
+    learnt_goal_index,
+)
 from policy_align_ros.learning.model_io import atomic_write_bytes
 from policy_align_ros.learning.reach import MAX_REACH_STEPS, REACH_TIME
 from policy_align_ros.learning.trajectory import Trajectory, sample_period
@@ -104,8 +109,8 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
         "run": (S,) and "demo_t", "demo": (N_k,) distances to the goal over the extent}``;
         ``goal`` (n,) or None, where most demonstrations end (:func:`~policy_align_ros.
         learning.goal.demonstrated_goal`); ``measured_to``: what the distances are to,
-        the demonstrated goal, else the lowest learnt minimum, else each demonstration's
-        end;
+        the demonstrated goal, else the learnt goal (:func:`~policy_align_ros.learning.goal.
+        learnt_goal_index`), else each demonstration's end;
         ``extent`` (state units); ``minima`` (k, n); ``new_start_minima`` (j, n), where
         runs from new starts near the data stop instead of the goal; ``fold_ratios`` (list);
         ``basis``: ``(mean (n,), P (2, n))``, the states' first two principal directions;
@@ -126,10 +131,10 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
                                dtype=float).reshape(-1, trajs[0].n_dims)
                       for key in ("minima", "new_start_minima"))
     # Where a run should go: the demonstrated goal; without one (every demonstration rests
-    # under its own constraint), the lowest learnt minimum, where free runs stop.
+    # under its own constraint), the learnt goal, the minimum nearest where they end.
     target, measured_to = goal, "the demonstrated goal"
     if target is None and len(minima):
-        target, measured_to = minima[0], "the lowest learnt minimum"
+        target, measured_to = minima[learnt_goal_index(goal_report)], "the learnt goal"
     times, paths = policy_runs(model.policy, np.array([t.positions[0] for t in trajs]),
                                REACH_TIME * max(t.duration for t in trajs),
                                sample_period(trajs))

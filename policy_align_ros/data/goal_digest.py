@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.model_io import json_floats
 from policy_align_ros.learning.reach import REACH_TIME
 
@@ -24,9 +25,10 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
     """The learn summary's part of ``fit_summary_["goal"]``
     (:func:`~policy_align_ros.learning.goal.goal_summary`): counts and distances (state
     units; ``*_fraction`` of the data's extent), without the points; non-finite values as
-    None; ``minimum_data_fraction``: the lowest minimum's distance to the nearest
-    demonstration sample (None without minima, or from a model file written before it was
-    recorded). None without a goal report."""
+    None; ``minimum_data_fraction``: the learnt goal's distance to the nearest
+    demonstration sample (the minimum :func:`~policy_align_ros.learning.goal.
+    learnt_goal_index` picks; None without minima, or from a model file written before it
+    was recorded). None without a goal report."""
     if not goal:
         return None
     keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
@@ -36,9 +38,10 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
     out = {key: goal.get(key) for key in keys}
     out["n_minima"] = len(goal.get("minima", ()))
     # Where no demonstrations rest together this is the one measure of the learnt goal:
-    # how far from every sample the fit placed its lowest minimum (an extrapolation).
-    minima = goal.get("minima") or [{}]
-    out["minimum_data_fraction"] = minima[0].get("data_fraction")
+    # how far from every sample the fit placed the learnt goal (an extrapolation).
+    index = learnt_goal_index(goal)
+    out["minimum_data_fraction"] = (None if index is None
+                                    else goal["minima"][index].get("data_fraction"))
     out["n_demonstrated_goals"] = len(goal.get("demonstrated_goals", ()))
     return json_floats(out)
 
@@ -58,7 +61,8 @@ def goal_text(digest: dict[str, Any] | None) -> str:
         elif digest["n_demonstrated_goals"] == 0:
             text += ", every rest is under an active constraint"
         if digest.get("minimum_data_fraction") is not None:
-            text += (f"; the lowest is {100 * digest['minimum_data_fraction']:.2g} % of the "
+            text += (f"; the one nearest where they end is "
+                     f"{100 * digest['minimum_data_fraction']:.2g} % of the "
                      "data's extent from the nearest demonstration sample")
     if digest["fold_spread_fraction"] is not None:
         text += f" (spread over the CV folds {100 * digest['fold_spread_fraction']:.2g} %)"

@@ -66,15 +66,21 @@ def test_a_file_that_does_not_load_still_names_its_robot_from_its_header(model_f
         start.robot_fields(str(tmp_path / "missing.npz"))
 
 
-def _goal_model(minima, rests, state=None):
+def _goal_model(minima, rests, state=None, ends=None):
     goal = {"minima": [{"point": p} for p in minima],
             "demonstrated_goals": [{"point": p} for p in rests]}
+    for entry, end in zip(goal["minima"], ends or (), strict=False):
+        entry["end_distance"] = end
     return SimpleNamespace(fit_summary_={"goal": goal}, state_definition_=state)
 
 
 def test_the_learnt_goal_is_the_minimum_nearest_where_the_demonstrations_rest():
     minima = [[1.0, 1.0], [0.1, -0.05]]  # lowest first, as goal_summary lists them
     np.testing.assert_array_equal(learnt_goal(_goal_model(minima, [[0.0, 0.0]])), minima[1])
+    # Without a place where most rest: the minimum nearest where they end, not the lowest.
+    np.testing.assert_array_equal(learnt_goal(_goal_model(minima, [], ends=[2.0, 0.1])),
+                                  minima[1])
+    # A report that does not give the distances to the ends: the lowest.
     np.testing.assert_array_equal(learnt_goal(_goal_model(minima, [])), minima[0])
     assert learnt_goal(_goal_model([], [[0.0, 0.0]])) is None
     assert learnt_goal(SimpleNamespace()) is None

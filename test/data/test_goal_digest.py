@@ -67,12 +67,16 @@ def test_without_a_goal_error_the_words_say_why():
 
 
 def test_without_a_demonstrated_goal_the_words_say_how_far_the_fit_extrapolated():
-    # The lowest minimum's distance to the nearest sample is then the one measure; with
-    # a demonstrated goal its error says more, and reports written before it say nothing.
+    # The learnt goal's distance to the nearest sample is then the one measure; with a
+    # demonstrated goal its error says more, and reports written before it say nothing.
     minima = [{"point": [1.0, 0.0], "data_fraction": 0.21}, {"data_fraction": 0.01}]
     held = _goal(goal_error=None, goal_error_fraction=None, demonstrated_goals=[],
                  minima=minima)
-    assert goal_digest(held)["minimum_data_fraction"] == 0.21
+    assert goal_digest(held)["minimum_data_fraction"] == 0.21  # no end distances: lowest
+    # The learnt goal is the minimum nearest where the demonstrations end, not the lowest.
+    ended = [{**minima[0], "end_distance": 0.9},
+             {"point": [0.1, 0.0], "data_fraction": 0.01, "end_distance": 0.05}]
+    assert goal_digest({**held, "minima": ended})["minimum_data_fraction"] == 0.01
     text = goal_text(goal_digest(held))
     assert "21 %" in text
     assert "21 %" not in goal_text(goal_digest(_goal(minima=minima)))
