@@ -11,6 +11,7 @@ constraints in force, scaled for speed and position limits. Modules:
   correction of held frames, near-singular constraints);
 - :mod:`.armed`: :class:`ArmedController`, arming, joint-state stamps and ramps on the
   caller's clock;
+- :mod:`.causes`: why the command is zero, as stable identifiers (:class:`ZeroCause`);
 - :mod:`.joint_order`: model and controller joint orders;
 - :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
   velocities;
@@ -28,6 +29,7 @@ from policy_align_ros.control.armed import (
     ArmedController,
     Output,
 )
+from policy_align_ros.control.causes import NO_CAUSE, ZeroCause
 from policy_align_ros.control.guard import (
     DEFAULT_MAX_EXTRAPOLATION,
     DEFAULT_MAX_EXTRAPOLATION_RAD,
@@ -72,6 +74,7 @@ from policy_align_ros.control.resolved_rate import (
 )
 from policy_align_ros.control.stall import (
     DEFAULT_STALL_TIME_S,
+    Stall,
     StallDetector,
     stall_time_problem,
 )
@@ -96,6 +99,7 @@ __all__ = [
     "DEFAULT_STALL_TIME_S",
     "DEFAULT_STATE_LIMIT_MARGIN",
     "IMPLAUSIBLE_POSITION",
+    "NO_CAUSE",
     "NO_ORDER_CHECK",
     "STAMP_REJECTIONS",
     "TURN",
@@ -105,10 +109,12 @@ __all__ = [
     "ExtrapolationGuard",
     "FrameSupportDistance",
     "Output",
+    "Stall",
     "StallDetector",
     "StartModel",
     "SupportDistance",
     "TaskSpacePolicy",
+    "ZeroCause",
     "arming_status",
     "braking_scale",
     "clearance_scale",

@@ -20,6 +20,9 @@ simulated time:
 * *stall*: with a :class:`~policy_align_ros.control.stall.StallDetector`, a joint that
   the measured positions show not following its command for ``stall_time_s`` ramps the
   command down and disarms (:attr:`ArmedController.stalled`).
+
+Every disarm says why twice: in words (:attr:`ArmedController.zero_reason`) and as a
+:class:`~policy_align_ros.control.causes.ZeroCause` (:attr:`ArmedController.zero_cause`).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from policy_align_ros.control.causes import ZeroCause
 from policy_align_ros.control.limits import (
     DEFAULT_STATE_LIMIT_MARGIN,
     ROUNDOFF,
@@ -37,7 +41,7 @@ from policy_align_ros.control.limits import (
     ramp_toward,
     velocity_scale,
 )
-from policy_align_ros.control.stall import StallDetector
+from policy_align_ros.control.stall import Stall, StallDetector
 from policy_align_ros.control.stamp_hints import clock_mismatch_hint
 from policy_align_ros.control.step import ControlStep, PolicyFn
 
@@ -64,6 +68,8 @@ class Output:
         line has the details).
     extrapolation_scale : float
         The extrapolation guard's scale at the last evaluated step (1: not scaling).
+    zero_cause : ZeroCause or None
+        ``zero_reason`` as a stable identifier; None while following the policy.
     """
 
     command: np.ndarray | None
@@ -72,14 +78,17 @@ class Output:
     events: list[tuple[str, str]] = field(default_factory=list)
     rejected: str = ""
     extrapolation_scale: float = 1.0
+    zero_cause: ZeroCause | None = None
 
 
-#: Keys of :attr:`Output.rejected`: stamp zero, earlier than the last one, older than
-#: ``state_timeout_s + max_clock_skew_s``, later than the clock by ``max_clock_skew_s``.
-STAMP_REJECTIONS: tuple[str, ...] = ("zero_stamp", "stamp_backwards", "stamp_too_old",
-                                     "stamp_in_future")
+#: Keys of :attr:`Output.rejected` (values of their :class:`ZeroCause`): stamp zero,
+#: earlier than the last one, older than ``state_timeout_s + max_clock_skew_s``, later
+#: than the clock by ``max_clock_skew_s``.
+STAMP_REJECTIONS: tuple[str, ...] = tuple(c.value for c in (
+    ZeroCause.ZERO_STAMP, ZeroCause.STAMP_BACKWARDS, ZeroCause.STAMP_TOO_OLD,
+    ZeroCause.STAMP_IN_FUTURE))
 #: Key of :attr:`Output.rejected` for a position outside its limits beyond the margin.
-IMPLAUSIBLE_POSITION = "position_outside_limits"
+IMPLAUSIBLE_POSITION = ZeroCause.POSITION_OUTSIDE_LIMITS.value
 
 #: Minimum time between two reports of a constraint forcing a larger change (ns).
 _FORCED_REPORT_NS = 1_000_000_000
@@ -127,9 +136,18 @@ class ArmedController:
     faulted : bool
         Whether the last disarm was caused by a fault (joint states, clock, policy output,
         a stall) rather than requested; cleared when armed again.
+    zero_reason : str
+        Why the command is zero or ramping to zero, in words; empty while armed.
+    zero_cause : ZeroCause or None
+        The same as a stable identifier; None while armed.
     stalled : bool
         Whether the last disarm was a stall (:attr:`zero_reason` describes it); cleared
         when armed again.
+    last_stall : Stall or None
+        That stall: the joints, the commanded and the measured speed; None unless
+        :attr:`stalled`.
+    clock_jump_s : float
+        How far the clock last jumped back (s); 0 until it does.
     context : str
         Appended to arm and disarm log lines (the caller puts the model and the
         constraint specs there).
@@ -152,6 +170,8 @@ class ArmedController:
         self.step = step
         self.stall = stall
         self.stalled = False
+        self.last_stall: Stall | None = None
+        self.clock_jump_s = 0.0
         self.max_acceleration = max_acceleration
         self.state_timeout_s = state_timeout_s
         self.max_clock_skew_s = max_clock_skew_s
@@ -164,12 +184,14 @@ class ArmedController:
         self.command = np.zeros(n)
         self.context = ""
         self.zero_reason = "not enabled yet"
+        self.zero_cause: ZeroCause | None = ZeroCause.NOT_ENABLED
         self.ramp_scale = 1.0
         self.extrapolation_scale = 1.0
         # Nothing left to publish: disarmed and the zero command has gone out.
         self._silent = True
         self._q: np.ndarray | None = None
         self._rejection = ""  # why the last joint state was refused (until one is taken)
+        self._rejection_cause = ZeroCause.NO_STATE
         self._stamp_ns: int | None = None
         self._arrival_ns: int | None = None
         self._repeat_ns: int | None = None  # arrival of the last repeat of that stamp
@@ -260,29 +282,31 @@ class ArmedController:
         if last is not None and stamp_ns == last:
             self._repeat_ns = int(now_ns)  # messages come, the stamp does not advance
             return self._output(None)
-        key, problem = "", ""
+        key: ZeroCause | None = None
+        problem = ""
         if stamp_ns <= 0:
-            key, problem = "zero_stamp", "joint state without a header stamp"
+            key, problem = ZeroCause.ZERO_STAMP, "joint state without a header stamp"
         elif now_ns - stamp_ns > self._timeout_ns + self._skew_ns:
-            key = "stamp_too_old"
+            key = ZeroCause.STAMP_TOO_OLD
             problem = (f"joint state stamp {(now_ns - stamp_ns) / 1e9:.3f} s old "
                        f"(> state_timeout_s + max_clock_skew_s)")
         elif stamp_ns - now_ns > self._skew_ns:
-            key = "stamp_in_future"
+            key = ZeroCause.STAMP_IN_FUTURE
             problem = (f"joint state stamp {(stamp_ns - now_ns) / 1e9:.3f} s in the future "
                        f"(> max_clock_skew_s)")
         elif last is not None and stamp_ns < last:
-            key = "stamp_backwards"
+            key = ZeroCause.STAMP_BACKWARDS
             problem = f"joint state stamp went backwards by {(last - stamp_ns) / 1e9:.3f} s"
         else:
             outside = position_outside_limits(q, self.step.lower, self.step.upper,
                                               self._state_limit_margin, self.joint_names)
             if outside:
-                key, problem = IMPLAUSIBLE_POSITION, f"implausible joint state: {outside}"
-        if problem:
-            hint = clock_mismatch_hint(key, stamp_ns, now_ns)
-            out = self.reject_state(f"{problem}; {hint}" if hint else problem)
-            out.rejected = key
+                key = ZeroCause.POSITION_OUTSIDE_LIMITS
+                problem = f"implausible joint state: {outside}"
+        if key is not None:
+            hint = clock_mismatch_hint(key.value, stamp_ns, now_ns)
+            out = self.reject_state(f"{problem}; {hint}" if hint else problem, key)
+            out.rejected = key.value
             return out
         self._q = np.asarray(q, dtype=float)
         self._rejection = ""
@@ -293,35 +317,46 @@ class ArmedController:
             self.stall.position(self._q, stamp_ns)
         return self._output(None)
 
-    def reject_state(self, reason: str) -> Output:
+    def reject_state(self, reason: str, cause: ZeroCause) -> Output:
         """A broken joint state (NaN, duplicate names, bad lengths, bad stamp) arrived.
 
         The last good state is forgotten, so arming needs a fresh valid one, and the
-        command goes to zero at once.
+        command goes to zero at once, with ``reason`` (words) and ``cause``.
         """
         self._forget_state()
         self._rejection = reason
-        return self.fault(reason)
+        self._rejection_cause = cause
+        return self.fault(reason, cause)
 
     def state_problem(self, now_ns: int) -> str:
         """Why the joint states are not fresh at ``now_ns``; empty when they are."""
+        return self.state_check(now_ns)[1]
+
+    def state_check(self, now_ns: int) -> tuple[ZeroCause | None, str]:
+        """As :meth:`state_problem`: ``(cause, reason)``, ``(None, "")`` when fresh.
+
+        Without a valid state since the last one was refused, the cause is that refusal's.
+        """
         if self._q is None:
             if self._rejection:
-                return f"no valid joint state received (the last one: {self._rejection})"
-            return "no valid joint state received"
+                return self._rejection_cause, (f"no valid joint state received (the last "
+                                               f"one: {self._rejection})")
+            return ZeroCause.NO_STATE, "no valid joint state received"
         age = now_ns - self._arrival_ns
         stamp_age = now_ns - self._stamp_ns
         if age <= self._timeout_ns and stamp_age <= self._timeout_ns + self._skew_ns:
-            return ""
+            return None, ""
         repeat = self._repeat_ns
         if repeat is not None and now_ns - repeat <= self._timeout_ns:
-            return (f"joint states stale: stamp frozen at {self._stamp_ns / 1e9:.3f} s while "
-                    f"messages keep arriving (the last {(now_ns - repeat) / 1e9:.3f} s ago, "
-                    f"no new stamp for {age / 1e9:.3f} s): a paused simulation or a driver "
-                    f"that repeats its stamp")
+            return ZeroCause.FROZEN_STAMP, (
+                f"joint states stale: stamp frozen at {self._stamp_ns / 1e9:.3f} s while "
+                f"messages keep arriving (the last {(now_ns - repeat) / 1e9:.3f} s ago, "
+                f"no new stamp for {age / 1e9:.3f} s): a paused simulation or a driver "
+                f"that repeats its stamp")
         if age > self._timeout_ns:
-            return f"joint states stale: last received {age / 1e9:.3f} s ago"
-        return f"joint states stale: last stamp {stamp_age / 1e9:.3f} s old"
+            return (ZeroCause.STALE_STATE,
+                    f"joint states stale: last received {age / 1e9:.3f} s ago")
+        return ZeroCause.STALE_STATE, f"joint states stale: last stamp {stamp_age / 1e9:.3f} s old"
 
     def _forget_state(self) -> None:
         self._q = None
@@ -338,8 +373,9 @@ class ArmedController:
             return None
         self._forget_state()
         self._forced_reported_ns = None
-        return self.fault(f"clock jumped back by {(last - now_ns) / 1e9:.3f} s "
-                          f"(restarted simulation?)")
+        self.clock_jump_s = (last - now_ns) / 1e9
+        return self.fault(f"clock jumped back by {self.clock_jump_s:.3f} s "
+                          f"(restarted simulation?)", ZeroCause.CLOCK_JUMPED_BACK)
 
     # -- arming ---------------------------------------------------------------------
     def arm_refusal(self, now_ns: int) -> str:
@@ -348,9 +384,16 @@ class ArmedController:
         No side effects, so a caller can check before a slower step (the executor node
         asks the controller for its joint order only when arming would go ahead).
         """
+        return self.arm_check(now_ns)[1]
+
+    def arm_check(self, now_ns: int) -> tuple[ZeroCause | None, str]:
+        """As :meth:`arm_refusal`: ``(cause, reason)``, ``(None, "")`` when it would arm."""
         if self.step.policy is None:
-            return "no model loaded"
-        return self.state_problem(now_ns) or self.step.constraint_problem(self._q)
+            return ZeroCause.NO_MODEL, "no model loaded"
+        cause, problem = self.state_check(now_ns)
+        if cause is not None:
+            return cause, problem
+        return self.step.constraint_check(self._q)
 
     def arm(self, now_ns: int) -> tuple[bool, str, Output]:
         """Request to follow the policy.
@@ -361,34 +404,39 @@ class ArmedController:
             Refused, with the reason, without a model or with stale joint states.
         """
         jumped = self._clock(now_ns)
-        refusal = self.arm_refusal(now_ns)
-        if refusal:
+        cause, refusal = self.arm_check(now_ns)
+        if cause is not None:
             return False, refusal, jumped or self._output(None)
         if self.armed:
             return True, "already enabled", self._output(None)
         self.armed = True
         self.faulted = self.stalled = False
+        self.last_stall = None
         if self.stall is not None:
             self.stall.reset()  # the window starts at the arming
         self._silent = False
         self.zero_reason = ""
+        self.zero_cause = None
         # Held frames stay where they are at enable; drift is measured from here.
         self.step.latch(self._q)
         # The ramp starts from the last command sent (zero, or partway down a ramp).
         self._log("info", "armed: following the policy")
         return True, "enabled", self._output(None)
 
-    def disarm(self, reason: str) -> Output:
-        """Stop following the policy and ramp the command down to zero (``reason`` logged)."""
+    def disarm(self, reason: str, cause: ZeroCause = ZeroCause.DISABLED) -> Output:
+        """Stop following the policy and ramp the command down to zero (``reason`` logged,
+        ``cause`` its identifier: a request unless told otherwise)."""
         if self.armed:
             self.armed = False
             self.zero_reason = reason
+            self.zero_cause = cause
             self._log("info", f"disarmed: {reason}; ramping down at "
                               f"{self.max_acceleration:g} rad/s^2")
         return self._output(None)
 
-    def fault(self, reason: str) -> Output:
-        """Zero command at once and disarm (nothing to publish when already silent)."""
+    def fault(self, reason: str, cause: ZeroCause) -> Output:
+        """Zero command at once and disarm, for ``reason`` (words) and ``cause`` (nothing
+        to publish, and the reason kept, when already silent)."""
         if self._silent:
             return self._output(None)
         was_armed = self.armed
@@ -396,6 +444,7 @@ class ArmedController:
         self.faulted = True
         self._silent = True
         self.zero_reason = reason
+        self.zero_cause = cause
         self.ramp_scale = 1.0
         self.command = np.zeros(self.step.n_joints)
         self._log("warning", f"{'disarmed' if was_armed else 'ramp-down cut short'}: "
@@ -405,7 +454,7 @@ class ArmedController:
     def set_policy(self, policy: PolicyFn | None, permutation: np.ndarray | None = None,
                    reason: str = "model swap") -> Output:
         """Swap the model; an armed controller disarms and ramps down (``reason``)."""
-        out = self.disarm(reason)
+        out = self.disarm(reason, ZeroCause.MODEL_SWAP)
         self.step.policy = policy
         self.step.permutation = (np.arange(self.step.n_joints) if permutation is None
                                  else np.asarray(permutation, dtype=int))
@@ -419,9 +468,9 @@ class ArmedController:
             return jumped
         if self._silent:
             return self._output(None)
-        problem = self.state_problem(now_ns)
-        if problem:
-            return self.fault(problem)
+        cause, problem = self.state_check(now_ns)
+        if cause is not None:
+            return self.fault(problem, cause)
         if self.armed and self.stall is not None:
             self._disarm_on_stall()
         q = self._q
@@ -430,16 +479,17 @@ class ArmedController:
         projector = None
         if self.armed:
             try:
-                target, reason, projector = step.evaluate(q, previous)
+                target, reason, cause, projector = step.evaluate(q, previous)
             except Exception as err:  # noqa: BLE001 - e.g. an SVD that did not converge
                 target, projector = np.zeros(step.n_joints), None
                 reason = f"control step failed: {type(err).__name__}: {err}"
+                cause = ZeroCause.STEP_FAILED
             self.extrapolation_scale = step.extrapolation_scale
-            if reason:
+            if cause is not None:
                 # The policy cannot be trusted here, but q and the constraints still
                 # can: ramp down like a disable. (disarm() hands its log line back in
                 # an Output; keep it for this tick's.)
-                logged = self.disarm(reason).events
+                logged = self.disarm(reason, cause).events
                 self._events.extend(logged)
                 self.faulted = True
         if not self.armed:
@@ -447,9 +497,11 @@ class ArmedController:
             try:
                 projector = step.hold_projector(q, previous)
             except Exception as err:  # noqa: BLE001 - the ramp down needs none of it
-                return self.fault(f"constraints failed: {type(err).__name__}: {err}")
+                return self.fault(f"constraints failed: {type(err).__name__}: {err}",
+                                  ZeroCause.CONSTRAINTS_FAILED)
             if projector is None:
-                return self.fault("constraint matrix not finite")
+                return self.fault("constraint matrix not finite",
+                                  ZeroCause.CONSTRAINTS_NOT_FINITE)
         limit = self.max_delta
         if self._published_ns is not None:
             since = max(0, now_ns - self._published_ns) / 1e9
@@ -480,12 +532,14 @@ class ArmedController:
 
     def _disarm_on_stall(self) -> None:
         """Ramp down and disarm when a joint does not follow its command (ERROR level)."""
-        stall = self.stall.check()
-        if stall:
+        stall = self.stall.find()
+        if stall is not None:
             self.armed = False
             self.faulted = self.stalled = True
-            self.zero_reason = stall
-            self._log("warning", f"disarmed: {stall}; ramping down at "
+            self.last_stall = stall
+            self.zero_reason = stall.text
+            self.zero_cause = ZeroCause.STALL
+            self._log("warning", f"disarmed: {stall.text}; ramping down at "
                                  f"{self.max_acceleration:g} rad/s^2")
 
     def _report_forced(self, change: np.ndarray, forced: np.ndarray, s: float,
@@ -517,4 +571,5 @@ class ArmedController:
     def _output(self, command: np.ndarray | None) -> Output:
         events, self._events = self._events, []
         return Output(command, self.zero_reason, self.ramp_scale, events,
-                      extrapolation_scale=self.extrapolation_scale)
+                      extrapolation_scale=self.extrapolation_scale,
+                      zero_cause=self.zero_cause)

@@ -32,11 +32,12 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = ["DEFAULT_STALL_TIME_S", "MIN_STALL_TIME_S", "STALL_FRACTION", "STALL_LAG_S",
-           "STALL_MIN_SPEED", "StallDetector", "stall_time_problem"]
+           "STALL_MIN_SPEED", "Stall", "StallDetector", "stall_time_problem"]
 
 #: Default window (s): 10 periods of the tracking lag of a real arm (0.05 s).
 DEFAULT_STALL_TIME_S = 0.5
@@ -48,6 +49,33 @@ STALL_FRACTION = 0.25
 STALL_MIN_SPEED = 0.05
 #: Time constant of the tracking lag the expected displacement assumes (s).
 STALL_LAG_S = 0.05
+
+
+@dataclass(frozen=True)
+class Stall:
+    """A stall found by :meth:`StallDetector.find`.
+
+    Attributes
+    ----------
+    joints : tuple of str
+        The stalled joints, the one that moved the least along its command (relative to
+        it) first.
+    commanded : float
+        That first joint's mean lagged command over the window, along its sign (rad/s, >
+        0).
+    moved : float
+        Its mean measured speed along the same sign (rad/s; negative: against it).
+    window_s : float
+        Length of the window, by the joint states' stamps (s).
+    text : str
+        The stall in words (the controller's ``zero_reason``).
+    """
+
+    joints: tuple[str, ...]
+    commanded: float
+    moved: float
+    window_s: float
+    text: str
 
 
 def stall_time_problem(value: float) -> str:
@@ -62,7 +90,8 @@ class StallDetector:
     """Per-joint comparison of commanded and measured motion over a sliding window.
 
     Feed it every command published while armed (:meth:`command`) and every accepted
-    joint state (:meth:`position`); :meth:`check` then says whether a joint stalls.
+    joint state (:meth:`position`); :meth:`find` (or :meth:`check`, in words) then says
+    whether a joint stalls.
     :meth:`reset` starts afresh (at each arming).
 
     Parameters
@@ -178,15 +207,21 @@ class StallDetector:
     def check(self) -> str:
         """The stall, described (joint, commanded and measured speed, window); empty when
         no joint stalls or the window is not full yet."""
+        stall = self.find()
+        return "" if stall is None else stall.text
+
+    def find(self) -> Stall | None:
+        """The stall (joints, commanded and measured speed, window, words); None when no
+        joint stalls or the window is not full yet."""
         positions = self._positions
         if not self.enabled or len(positions) < 2 or not self._commands:
-            return ""
+            return None
         (t0, q0), (t1, q1) = positions[0], positions[-1]
         if t1 - t0 < self._window_ns:
-            return ""
+            return None
         candidates = self._run_start <= t0
         if not candidates.any():
-            return ""
+            return None
         window_s = (t1 - t0) / 1e9
         sign = self._run_sign
         expected = sign * (self._integral_at(t1, from_end=True)
@@ -195,16 +230,21 @@ class StallDetector:
         stalled = (candidates & (expected > 0.5 * self.min_speed * window_s)
                    & (measured < self.fraction * expected))
         if not stalled.any():
-            return ""
+            return None
         ratio = np.where(stalled, measured / np.where(stalled, expected, 1.0), np.inf)
-        worst = int(np.argmin(ratio))
-        others = int(stalled.sum()) - 1
+        # Worst first; a stable sort keeps equal ratios in joint order.
+        order = [int(i) for i in np.argsort(ratio, kind="stable") if stalled[i]]
+        worst = order[0]
+        others = len(order) - 1
         more = f" (and {others} more joint{'s' if others > 1 else ''})" if others else ""
-        return (f"stall: {self.joint_names[worst]} commanded "
-                f"{expected[worst] / window_s:.3f} rad/s but moved "
-                f"{measured[worst] / window_s:.3f} rad/s along it for {window_s:.2f} s "
+        commanded = float(expected[worst] / window_s)
+        moved = float(measured[worst] / window_s)
+        text = (f"stall: {self.joint_names[worst]} commanded {commanded:.3f} rad/s but "
+                f"moved {moved:.3f} rad/s along it for {window_s:.2f} s "
                 f"(< {100 * self.fraction:g} % of the command; stall_time_s "
                 f"{self.stall_time_s:g}){more}")
+        return Stall(tuple(self.joint_names[i] for i in order), commanded, moved, window_s,
+                     text)
 
     # -- internals ------------------------------------------------------------------
     def _advance(self, integral: np.ndarray, lagged: np.ndarray, c: np.ndarray,

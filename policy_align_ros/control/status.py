@@ -7,6 +7,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from policy_align_ros.control.armed import ArmedController
+from policy_align_ros.control.causes import NO_CAUSE
 
 __all__ = ["ERROR", "OK", "WARN", "arming_status", "held_error_text"]
 
@@ -48,7 +49,9 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
     message : str
         Armed, ramping down or at zero, with the reason.
     values : dict str -> str
-        Key-value pairs, in display order.
+        Key-value pairs, in display order; ``zero_cause`` is the
+        :class:`~policy_align_ros.control.causes.ZeroCause` value of ``zero_reason``, or
+        :data:`~policy_align_ros.control.causes.NO_CAUSE` while armed.
     """
     problem = controller.state_problem(now_ns)
     level = OK
@@ -66,6 +69,8 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "model": model or "(none)",
         "model_state": model_state or "(none)",
         "zero_reason": controller.zero_reason,
+        "zero_cause": (NO_CAUSE if controller.zero_cause is None
+                       else controller.zero_cause.value),
         "stalled": str(not controller.armed and controller.stalled).lower(),
         "stall_time_s": (f"{controller.stall.stall_time_s:g}" if controller.stall is not None
                          and controller.stall.enabled else "off"),

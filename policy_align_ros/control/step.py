@@ -27,7 +27,8 @@ policy (rad/s), ``A(q)`` the stacked constraint matrix (k, n) of the configured 
   cannot be trusted: the step returns zero with the reason.
 
 Anything that prevents a safe command (non-finite state, no policy, a policy returning
-non-finite values) gives zeros and a reason.
+non-finite values) gives zeros, a reason in words and its
+:class:`~policy_align_ros.control.causes.ZeroCause`.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from policy_align_ros.control.causes import ZeroCause
 from policy_align_ros.control.guard import ExtrapolationGuard
 from policy_align_ros.control.limits import (
     clearance_scale,
@@ -347,7 +349,7 @@ class ControlStep:
             start += block.shape[0]
         return A, mask
 
-    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, str]:
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, str, ZeroCause | None]:
         """Command for positions ``q`` (n,) in controller order.
 
         Returns
@@ -355,13 +357,15 @@ class ControlStep:
         qdot : ndarray, shape (n,)
             Velocity command in rad/s; zeros when no safe command exists.
         reason : str
-            Empty on a normal command, else why the command is zero.
+            Empty on a normal command, else why the command is zero (for people).
+        cause : ZeroCause or None
+            None on a normal command, else why the command is zero (for programs).
         """
-        qdot, reason, _ = self.evaluate(q)
-        return qdot, reason
+        qdot, reason, cause, _ = self.evaluate(q)
+        return qdot, reason, cause
 
     def evaluate(self, q: np.ndarray, previous: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, str, np.ndarray]:
+                 ) -> tuple[np.ndarray, str, ZeroCause | None, np.ndarray]:
         """As :meth:`__call__`, plus the projector ``N'`` (n, n) the command lies in.
 
         A unilateral barrier blocks the command when the policy, the command made of it,
@@ -377,18 +381,19 @@ class ControlStep:
         ``qdot_c`` leaves ``N'``.
         """
         if self.policy is None:
-            return self._zeros.copy(), "no model loaded", self._eye
+            return self._zero("no model loaded", ZeroCause.NO_MODEL)
         q = np.asarray(q, dtype=float)
         if q.shape != (self.n_joints,) or not np.all(np.isfinite(q)):
-            return self._zeros.copy(), "joint positions missing or not finite", self._eye
+            return self._zero("joint positions missing or not finite", ZeroCause.STATE_INVALID)
         q = nearest_turn(q, self.turn_centres)
         p = self.permutation
         try:
             pi_model = np.asarray(self.policy(q[p][None, :]), dtype=float).reshape(-1)
         except Exception as err:  # noqa: BLE001 - any failure is "no safe command"
-            return self._zeros.copy(), f"policy failed: {type(err).__name__}: {err}", self._eye
+            return self._zero(f"policy failed: {type(err).__name__}: {err}",
+                              ZeroCause.POLICY_FAILED)
         if pi_model.shape != (self.n_joints,) or not np.all(np.isfinite(pi_model)):
-            return self._zeros.copy(), "policy output not finite", self._eye
+            return self._zero("policy output not finite", ZeroCause.POLICY_NOT_FINITE)
         pi = np.empty(self.n_joints)
         pi[p] = pi_model
         # Active set of the unilateral barriers: one that the command approaches joins,
@@ -397,9 +402,9 @@ class ControlStep:
                                                                                dtype=float)])
         A, held = self._stack(blocks)
         while True:
-            problem, P0 = self._enforceable(A)
-            if problem:
-                return self._zeros.copy(), problem, self._eye
+            cause, problem, P0 = self._enforceable(A)
+            if cause is not None:
+                return self._zero(problem, cause)
             if held is None or self._drift_gain == 0.0:
                 v, P = project_with_locks(q, pi, A, *self._inner, P0)
             else:
@@ -423,27 +428,33 @@ class ControlStep:
             try:
                 g, d = self.guard.scale(q, v, self.max_velocity, self.max_acceleration)
             except ValueError as err:
-                return self._zeros.copy(), f"extrapolation guard: {err}", self._eye
+                return self._zero(f"extrapolation guard: {err}", ZeroCause.EXTRAPOLATION_GUARD)
             self.extrapolation_scale, self.extrapolation_distance = g, d
             if g < 1.0:
                 v = g * v
-        return v, "", P
+        return v, "", None, P
 
-    def _enforceable(self, A: np.ndarray) -> tuple[str, np.ndarray | None]:
-        """Why ``A`` (k, n) cannot be enforced (not finite, or :meth:`_singular`), empty
-        when it can, and its projector when computed on the way."""
+    def _zero(self, reason: str, cause: ZeroCause
+              ) -> tuple[np.ndarray, str, ZeroCause, np.ndarray]:
+        """What :meth:`evaluate` returns when no safe command exists."""
+        return self._zeros.copy(), reason, cause, self._eye
+
+    def _enforceable(self, A: np.ndarray
+                     ) -> tuple[ZeroCause | None, str, np.ndarray | None]:
+        """Why ``A`` (k, n) cannot be enforced (not finite, or :meth:`_singular`): cause
+        and words, (None, "") when it can; and its projector when computed on the way."""
         if not np.all(np.isfinite(A)):
-            return "constraint matrix not finite", None
+            return ZeroCause.CONSTRAINTS_NOT_FINITE, "constraint matrix not finite", None
         return self._singular(A)
 
-    def _singular(self, A: np.ndarray) -> tuple[str, np.ndarray | None]:
-        """Why ``A`` (k, n) is too close to singular to be enforced (empty when it is
+    def _singular(self, A: np.ndarray) -> tuple[ZeroCause | None, str, np.ndarray | None]:
+        """Why ``A`` (k, n) is too close to singular to be enforced ((None, "") when it is
         not), and its null-space projector when computed on the way (else None)."""
         k, n = A.shape
         if k == 0:
-            return "", self._eye
+            return None, "", self._eye
         if self._min_sv == 0.0:
-            return "", None
+            return None, "", None
         if k > n:
             smallest, P = 0.0, None
         else:
@@ -452,9 +463,10 @@ class ControlStep:
             smallest = float(sv[-1])
             P = projector_from_svd(sv, vt)
         if smallest >= self._min_sv:
-            return "", P
-        return (f"constraint matrix near-singular: smallest singular value {smallest:.3g} "
-                f"< min_singular_value {self._min_sv:g} ({k} rows on {n} joints)"), None
+            return None, "", P
+        return (ZeroCause.CONSTRAINTS_NEAR_SINGULAR,
+                f"constraint matrix near-singular: smallest singular value {smallest:.3g} "
+                f"< min_singular_value {self._min_sv:g} ({k} rows on {n} joints)", None)
 
     def _with_correction(self, q: np.ndarray, pi: np.ndarray, A: np.ndarray,
                          held: np.ndarray, P0: np.ndarray | None = None
@@ -509,11 +521,17 @@ class ControlStep:
         controlled joints do not move) is refused at enable instead of disarming the
         first step.
         """
+        return self.constraint_check(q)[1]
+
+    def constraint_check(self, q: np.ndarray) -> tuple[ZeroCause | None, str]:
+        """As :meth:`constraint_problem`: ``(cause, reason)``, ``(None, "")`` when the
+        constraints at ``q`` (n,) can be enforced."""
         try:
             A = self.constraint_matrix(q, self._zeros)
         except Exception as err:  # noqa: BLE001 - a refusal, never an escaping error
-            return f"constraints failed: {type(err).__name__}: {err}"
-        return self._enforceable(A)[0]
+            return (ZeroCause.CONSTRAINTS_FAILED,
+                    f"constraints failed: {type(err).__name__}: {err}")
+        return self._enforceable(A)[:2]
 
     def hold_projector(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray | None:
         """Projector (n, n) for a command ``qdot`` (n,) at ``q`` (n,) without the policy.

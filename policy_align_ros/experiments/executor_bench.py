@@ -14,7 +14,7 @@ besides ROS transport, with the safety layer on:
   guard (nearest support state of the model, :class:`SupportDistance`) and the
   acceleration ramp, and run the stall detection (``stall_time_s`` 0.5 s: the window's
   positions and lagged commands; the stall disarms counted in ``full_step_stalls``);
-* the values the node puts on ``/diagnostics`` (arming, zero reason, ramp and
+* the values the node puts on ``/diagnostics`` (arming, zero reason and cause, ramp and
   extrapolation scales, largest command), formatted as strings every step although the
   node publishes them once a second;
 * convert the command to a list for the message.
@@ -42,11 +42,13 @@ import numpy as np
 from policy_align_ros.control import (
     DEFAULT_JOINT_LIMIT_MARGIN,
     DEFAULT_STALL_TIME_S,
+    NO_CAUSE,
     ArmedController,
     ControlStep,
     ExtrapolationGuard,
     StallDetector,
     SupportDistance,
+    ZeroCause,
     model_permutation,
 )
 from policy_align_ros.experiments.humanoid import HANDS, JOINTS, make_humanoid_dataset
@@ -69,6 +71,8 @@ def time_steps(step, states: np.ndarray, names: list[str], steps: int, warmup: i
                cpu_ns: np.ndarray | None = None) -> np.ndarray:
     """Time ``steps`` control steps cycling through ``states`` (m, n); returns ns, (steps,).
 
+    ``step(q)`` returns a tuple whose first item is the command (n,).
+
     Each step starts from a joint state as a message carries it (names and a position
     list, here in reversed order so the name matching is exercised) and ends with the
     command as a list of floats. When ``cpu_ns`` (steps,) is given it receives each
@@ -87,7 +91,7 @@ def time_steps(step, states: np.ndarray, names: list[str], steps: int, warmup: i
         q = np.empty(len(index))
         for name, value in zip(msg_names, positions, strict=True):
             q[index[name]] = value
-        qdot, _ = step(q)
+        qdot = step(q)[0]
         qdot.tolist()
         if k >= 0:
             out[k] = time.perf_counter_ns() - start
@@ -101,6 +105,7 @@ def diagnostic_values(control: ArmedController, now_ns: int) -> dict[str, str]:
     return {
         "armed": str(control.armed).lower(),
         "zero_reason": control.zero_reason,
+        "zero_cause": NO_CAUSE if control.zero_cause is None else control.zero_cause.value,
         "ramp_scale": f"{control.ramp_scale:.3f}",
         "extrapolation_scale": f"{control.extrapolation_scale:.3f}",
         "max_abs_command_rad_s": f"{float(np.max(np.abs(control.command))):.4f}",
@@ -109,7 +114,8 @@ def diagnostic_values(control: ArmedController, now_ns: int) -> dict[str, str]:
 
 
 def armed_step(control: ArmedController, period_ns: int):
-    """A ``step(q) -> (qdot, reason)`` running ``control`` as the node does per period.
+    """A ``step(q) -> (qdot, reason, cause)`` running ``control`` as the node does per
+    period.
 
     Each call advances a simulated clock by ``period_ns``, passes ``q`` as a joint state
     stamped now, ticks, and formats the diagnostic values. The controller is armed at
@@ -118,7 +124,7 @@ def armed_step(control: ArmedController, period_ns: int):
     clock = {"now": 1_000_000_000}
     zeros = np.zeros(control.step.n_joints)
 
-    def step(q: np.ndarray) -> tuple[np.ndarray, str]:
+    def step(q: np.ndarray) -> tuple[np.ndarray, str, ZeroCause | None]:
         clock["now"] += period_ns
         now = clock["now"]
         control.joint_state(q, now, now)
@@ -128,7 +134,7 @@ def armed_step(control: ArmedController, period_ns: int):
         out = control.tick(now)
         step.stalls += was_armed and control.stalled
         diagnostic_values(control, now)
-        return (zeros if out.command is None else out.command), out.zero_reason
+        return (zeros if out.command is None else out.command), out.zero_reason, out.zero_cause
 
     step.stalls = 0
     return step

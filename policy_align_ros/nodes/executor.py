@@ -104,6 +104,7 @@ from policy_align_ros.control import (
     StallDetector,
     StartModel,
     SupportDistance,
+    ZeroCause,
     arming_status,
     clock_mismatch_hint,
     goal_margin_problem,
@@ -169,7 +170,8 @@ class Executor(Node):
         self._selector = JointSelector(joints)
         #: Rejected joint-state messages by reason, over the node's lifetime.
         self.rejected_states: Counter[str] = Counter()
-        self._last = Output(None, self.controller.zero_reason, 1.0)
+        self._last = Output(None, self.controller.zero_reason, 1.0,
+                            zero_cause=self.controller.zero_cause)
         #: The arming state the last /diagnostics status reported.
         self._diag_armed = False
         self._create_interfaces()
@@ -436,7 +438,8 @@ class Executor(Node):
         if isinstance(q, str):
             self._count_rejected(q)
             if q in UNTRUSTWORTHY:
-                self._emit(self.controller.reject_state(f"untrustworthy joint state: {q}"))
+                self._emit(self.controller.reject_state(f"untrustworthy joint state: {q}",
+                                                        ZeroCause(q)))
             return
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         out = self.controller.joint_state(q, stamp, now)
@@ -474,7 +477,7 @@ class Executor(Node):
         with self._lock:
             self._arm_at_start = False
             self._enable_requests += 1
-            self._emit(self.controller.disarm("disabled by ~/enable"))
+            self._emit(self.controller.disarm("disabled by ~/enable", ZeroCause.DISABLED))
             response.success = True
             response.message = f"disabled ({self._model_text()})"
         return response

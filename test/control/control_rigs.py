@@ -104,9 +104,12 @@ class _Run:
         return out
 
     def arm(self):
-        accepted, reason, out = self.control.arm(self.now)
+        """``(accepted, cause)``: the cause of a refusal (the words are in
+        ``control.arm_refusal(now)``), None when armed."""
+        accepted, _, out = self.control.arm(self.now)
         self.keep(out)
-        return accepted, reason
+        # The check has no side effects: at the same time it gives the refusal's cause.
+        return accepted, (None if accepted else self.control.arm_check(self.now)[0])
 
 
 def _assert_ramped(commands, max_delta, start=None):

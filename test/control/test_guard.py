@@ -23,6 +23,7 @@ from policy_align_ros.control import (
     ControlStep,
     ExtrapolationGuard,
     SupportDistance,
+    ZeroCause,
     model_permutation,
 )
 from policy_align_ros.kinematics import Robot
@@ -73,11 +74,11 @@ def test_guard_stops_outward_motion_beyond_the_band_and_never_scales_inward_moti
     assert band == 1.0  # no acceleration limit: the minimum band
     q = np.zeros(N)
     q[0] = SPACING * (3.0 + band + 0.01)  # beyond the band
-    qdot, reason = step(q)
-    assert reason == "" and not np.any(qdot) and step.extrapolation_scale == 0.0
+    qdot, _, cause = step(q)
+    assert cause is None and not np.any(qdot) and step.extrapolation_scale == 0.0
     # The same state with the policy pointing back in: unscaled, and so is sideways motion.
     step.policy = _outward(-0.3)
-    qdot, _ = step(q)
+    qdot = step(q)[0]
     np.testing.assert_allclose(qdot, -0.3 * np.eye(N)[0])
     assert step.extrapolation_scale == 1.0
     step.policy = lambda X: np.tile(0.3 * np.eye(N)[1], (len(X), 1))
@@ -123,8 +124,8 @@ def test_guard_scaling_keeps_a_qdot_zero(seed, k):
                          constraints=[_Row(r) for r in rows])
     q = rng.normal(size=N)
     q *= SPACING * rng.uniform(3.0, 4.0) / np.linalg.norm(q)  # inside the band
-    qdot, reason = step(q)
-    assert reason == ""
+    qdot, _, cause = step(q)
+    assert cause is None
     np.testing.assert_allclose(rows @ qdot, 0.0, atol=1e-10)
     unguarded = ControlStep(-10 * np.ones(N), 10 * np.ones(N), VMAX, DT,
                             constraints=[_Row(r) for r in rows], policy=step.policy)(q)[0]
@@ -138,11 +139,11 @@ def test_guard_acts_before_the_ramp_and_stops_within_the_band():
     band = step.guard.band(1.0 / SPACING, VMAX, ACC)
     run = _Run(step, np.zeros(N))
     run.state()
-    assert run.arm() == (True, "enabled")
+    assert run.arm() == (True, None)
     scales = []
     for _ in range(300):
         out = run.tick()
-        assert out.command is not None and out.zero_reason == ""
+        assert out.command is not None and out.zero_cause is None
         scales.append(out.extrapolation_scale)
         assert run.q[0] / SPACING <= 3.0 + band + 1e-9  # never beyond the band
     max_delta = ACC * DT_NS / 1e9
@@ -161,8 +162,8 @@ def test_guard_acts_before_the_ramp_and_stops_within_the_band():
 def test_guard_distance_failure_gives_zero_with_a_reason():
     guard = ExtrapolationGuard(lambda q: (float("nan"), None), 3.0)
     step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_outward(0.3), guard=guard)
-    qdot, reason = step(np.zeros(N))
-    assert not np.any(qdot) and reason.startswith("extrapolation guard: ")
+    qdot, reason, cause = step(np.zeros(N))
+    assert not np.any(qdot) and cause == ZeroCause.EXTRAPOLATION_GUARD and reason
     with pytest.raises(ValueError, match="max_extrapolation"):
         ExtrapolationGuard(guard.distance, 0.0)
     with pytest.raises(ValueError, match="max_extrapolation"):
@@ -309,7 +310,7 @@ def test_a_model_pushing_away_from_the_data_stops_within_half_a_radian_of_it():
                            joint_limit_margin=0.05)
         run = _Run(step, q0)
         run.state()
-        assert run.arm() == (True, "enabled")
+        assert run.arm() == (True, None)
         beyond = []
         for _ in range(500):
             run.tick()
@@ -332,7 +333,8 @@ def test_guard_without_a_finite_stopping_distance_gives_zero_with_a_reason():
     step = ControlStep(-10 * np.ones(N), 10 * np.ones(N), np.full(N, np.inf), DT,
                        policy=_outward(0.3), guard=guard, max_acceleration=ACC)
     q = np.zeros(N)
-    assert step(q)[1] == ""  # inside: nothing to scale, no band needed
+    assert step(q)[2] is None  # inside: nothing to scale, no band needed
     q[0] = 0.35  # 3.5 spacings, leading out
-    qdot, reason = step(q)
-    assert not np.any(qdot) and "band needs finite max_velocity" in reason
+    qdot, reason, cause = step(q)
+    assert not np.any(qdot) and cause == ZeroCause.EXTRAPOLATION_GUARD
+    assert "max_velocity" in reason  # the setting that has no stopping distance

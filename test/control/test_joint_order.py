@@ -29,6 +29,8 @@ def test_only_an_explicit_none_or_empty_controller_turns_the_order_check_off(con
 
 
 def test_an_unread_joint_order_refusal_names_the_fixes():
-    text = unchecked_order_refusal("/velocity_controller", "it did not answer within 1 s")
-    assert "/velocity_controller" in text and "did not answer within 1 s" in text
-    assert f"controller:={NO_ORDER_CHECK}" in text and "start /velocity_controller" in text
+    why = "it did not answer within 1 s"
+    text = unchecked_order_refusal("/velocity_controller", why)
+    # The controller, what went wrong (passed through) and the parameter that opts out.
+    assert "/velocity_controller" in text and why in text
+    assert f"-p controller:={NO_ORDER_CHECK}" in text

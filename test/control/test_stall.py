@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 from control_rigs import ACC, DT, DT_NS, LOWER, UPPER, VMAX, N, _assert_ramped, _Constant, _Linear
 
-from policy_align_ros.control import ArmedController, ControlStep, StallDetector, arming_status
+from policy_align_ros.control import (
+    ArmedController,
+    ControlStep,
+    StallDetector,
+    ZeroCause,
+    arming_status,
+)
 from policy_align_ros.control.stall import STALL_MIN_SPEED, stall_time_problem
 from policy_align_ros.control.status import ERROR, OK
 
@@ -83,10 +89,11 @@ def test_a_blocked_robot_disarms_within_stall_time_of_the_command_exceeding_the_
     # Ramped down within max_acceleration (not cut), to zero, then silent.
     _assert_ramped(sent, ACC * DT, start=np.zeros(N))
     assert not np.any(sent[-1]) and not control.publishing
-    assert control.zero_reason.startswith("stall: ")
+    assert control.zero_cause == ZeroCause.STALL and control.last_stall.joints == tuple(NAMES)
     level, _, values = arming_status(control, times[-1], model="m", model_state="joints",
                                      constraints="[]", rejected={})
     assert level == ERROR and values["stalled"] == "true"
+    assert values["zero_cause"] == "stall" and values["zero_reason"] == control.zero_reason
 
 
 def test_a_robot_blocked_while_moving_disarms_within_stall_time_naming_the_joint():
@@ -102,8 +109,11 @@ def test_a_robot_blocked_while_moving_disarms_within_stall_time_naming_the_joint
     _, _, stalled_at = _drive(control, robot, 3.0, on_tick=block_j3)
     assert stalled_at is not None
     assert stalled_at - blocked_at[0] <= round(STALL_S * 1e9) + DT_NS
-    assert "j3 commanded 0.400 rad/s but moved" in control.zero_reason
-    assert "and " not in control.zero_reason  # only j3 stalled
+    stall = control.last_stall
+    assert control.zero_cause == ZeroCause.STALL
+    assert stall.joints == ("j3",)  # only j3 stalled
+    assert stall.commanded == pytest.approx(0.4, abs=5e-4) and abs(stall.moved) < 0.1
+    assert "j3" in control.zero_reason
 
 
 @pytest.mark.parametrize("tau", [0.05, 0.1])
@@ -161,7 +171,7 @@ def test_stall_time_must_be_zero_or_long_enough():
     with pytest.raises(ValueError, match="stall_time_s"):
         StallDetector(N, 0.01)
     detector = StallDetector(N, 0.0)
-    assert not detector.enabled and detector.check() == ""
+    assert not detector.enabled and detector.find() is None and detector.check() == ""
 
 
 def test_the_detector_compares_displacements_over_the_window():
@@ -172,11 +182,14 @@ def test_the_detector_compares_displacements_over_the_window():
         detector.command(np.array([0.2, 0.0]), t)
         detector.position(np.array([0.04 * k * DT, 0.0]), t)
         if k < 50:
-            assert detector.check() == "", k  # the window is not full yet
-    text = detector.check()
-    assert text.startswith("stall: a commanded 0.200 rad/s but moved 0.040 rad/s")
+            assert detector.find() is None, k  # the window is not full yet
+    stall = detector.find()
+    assert stall.joints == ("a",)
+    assert stall.commanded == pytest.approx(0.2) and stall.moved == pytest.approx(0.04)
+    assert stall.window_s == pytest.approx(0.5)
+    assert detector.check() == stall.text  # the same stall in words
     detector.reset()
-    assert detector.check() == ""
+    assert detector.find() is None and detector.check() == ""
     level = arming_status(_controller(_Linear(np.zeros(N))), 0, model="", model_state="",
                           constraints="", rejected={})[0]
     assert level == OK
@@ -192,5 +205,5 @@ def test_a_joint_moving_against_its_command_stalls():
     control = _controller(_Constant(np.full(N, 0.2)))
     _, _, stalled_at = _drive(control, _Reversed(np.zeros(N)), 2.0)
     # Caught while still ramping up: the window's mean command is below 0.2 rad/s.
-    assert stalled_at is not None and control.zero_reason.startswith("stall: j2 commanded")
-    assert "but moved -0." in control.zero_reason
+    assert stalled_at is not None and control.last_stall.joints == ("j2",)
+    assert control.last_stall.moved < 0.0 < control.last_stall.commanded  # moved against it

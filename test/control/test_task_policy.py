@@ -10,6 +10,7 @@ from policy_align_ros.control import (
     ArmedController,
     ControlStep,
     TaskSpacePolicy,
+    ZeroCause,
     joint_velocity_bounds,
     joint_velocity_within_limits,
     task_to_joint_velocity,
@@ -293,7 +294,7 @@ def test_non_finite_task_policy_faults_the_controller_until_enabled_again(
     assert np.all(np.isnan(tsp.command(q)))
     run(100)
     assert controller.faulted and not controller.armed
-    assert controller.zero_reason == "policy output not finite"
+    assert controller.zero_cause == ZeroCause.POLICY_NOT_FINITE
     broken["now"] = False
     run(50)
     assert not controller.armed
@@ -392,8 +393,8 @@ def test_constraint_may_be_a_callable_such_as_the_executors(robot: Robot,
     assert abs((plane.matrix(q) @ qdot).item()) < 1e-12
     # The executor's step, given the task-space policy, leaves its command as it is.
     step.policy = tsp
-    command, reason = step(q)
-    assert reason == ""
+    command, _, cause = step(q)
+    assert cause is None
     np.testing.assert_allclose(command, qdot, atol=1e-12)
     step.constraints = []  # a parameter change is seen at the next call
     np.testing.assert_allclose(tsp.command(q), TaskSpacePolicy(pol, hand_map).command(q))

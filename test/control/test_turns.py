@@ -41,8 +41,8 @@ def test_the_step_commands_the_same_on_either_side_of_the_wrap():
     step.turn_centres = np.array([3.0, np.nan])
     unwrapped = np.array([TURN - 3.1, 0.5])  # 3.183 rad: just past pi
     wrapped = np.array([-3.1, 0.5])  # the same posture as a driver reports it
-    v_wrapped, reason = step(wrapped)
-    assert reason == ""
+    v_wrapped, _, cause = step(wrapped)
+    assert cause is None
     np.testing.assert_allclose(v_wrapped, step(unwrapped)[0], atol=1e-12)
     np.testing.assert_allclose(v_wrapped, -(unwrapped - goal), atol=1e-12)
     # Without the centres the wrapped angle lies 6 rad from the data: the joint would turn
