@@ -138,7 +138,9 @@ class FitStages:
         def minima_off_paths(r) -> int:
             runs = new_start_runs(trajs, r.predict, r.gradient, goal, extent, speed,
                                   self.random_state)
-            self._new_start_runs = (r, runs)  # the goal report's, if this fit is kept
+            # The goal report's, if this fit is kept: the shared clock's fit or the one on
+            # each demonstration's clock, whichever _choose_clocks keeps.
+            self._new_start_runs = [*(self._new_start_runs or []), (r, runs)]
             return runs[0]["n_new_starts_elsewhere"]
 
         def starts_check(r) -> dict:
@@ -160,7 +162,6 @@ class FitStages:
                 return True, stiffer_starts
         (self.regressor_, self.offsets_, self.aligned_potentials_, self.integration_,
          fitted["out"]) = kept
-        self._new_start_runs = None
         return False, starts
 
     def _checked_fit(self, est: Estimates, free: np.ndarray, starts: dict | None,
@@ -200,9 +201,10 @@ class FitStages:
         :meth:`_reach_heldout`."""
         goal, end = fit["checks"]["goal"], fit["anchor"]["goal"]  # demonstrated_goal's
         regressor = fit["regressor_"]
-        cached = getattr(self, "_new_start_runs", None)
-        if cached is not None and cached[0] is regressor:
-            runs, starts, at_goal = cached[1]  # the anchored fit's own check of it
+        cached = [runs for r, runs in self._new_start_runs or []
+                  if r is regressor]
+        if cached:
+            runs, starts, at_goal = cached[0]  # the anchored fit's own check of it
         else:
             runs, starts, at_goal = new_start_runs(
                 est.parents, regressor.predict, regressor.gradient,

@@ -291,6 +291,7 @@ class PolicyAlign(FitStages, BaseEstimator):
         """:meth:`fit` on checked data."""
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
+        self._new_start_runs = None  # the anchored fits' runs from new starts (FitStages)
         positions = [t.positions for t in trajs]
         closest = closest_approach_matrix(thin_each(positions, HEURISTIC_POINTS))
         self.sigma2_ = resolve_sigma2(self.sigma, positions, closest)

@@ -143,3 +143,24 @@ def test_time_units_round_trip_and_bad_values_are_refused(tmp_path):
     np.testing.assert_array_equal(loaded.timing_scales_, model.timing_scales_)
     with pytest.raises(ValueError, match="time_units"):
         PolicyAlign(time_units="fast").fit(demos)
+
+
+@pytest.mark.parametrize("factors", [[0.7, 1.0, 1.4], [0.97, 1.0, 1.03]])
+def test_the_goal_report_holds_the_new_starts_of_the_fit_kept(factors, monkeypatch):
+    # Both clocks' fits run their new starts before one is kept (the per-demonstration
+    # clocks with the first factors, the shared clock with the second): the report must be
+    # the kept fit's runs, whichever fit ran last.
+    from policy_align_ros.learning import fit_stages
+
+    real = fit_stages.new_start_runs
+
+    def tagged(trajs, potential, gradient, *args):
+        report, starts, at_goal = real(trajs, potential, gradient, *args)
+        return {**report, "regressor_id": id(potential.__self__)}, starts, at_goal
+
+    monkeypatch.setattr(fit_stages, "new_start_runs", tagged)
+    demos = [_on_another_clock(d, f)
+             for d, f in zip(_bundles(2), np.tile(factors, 3), strict=True)]
+    model = PolicyAlign(random_state=0).fit(demos)
+    assert model.fit_summary_["timing_heldout"] is not None  # both fits were made
+    assert model.fit_summary_["goal"]["regressor_id"] == id(model.regressor_)
