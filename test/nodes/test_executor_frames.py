@@ -118,13 +118,12 @@ def test_frames_model_of_another_robot_or_frame_set_is_refused(rig, tmp_path):
     r = rig(207, model_path=str(good))
     result = r.node.set_parameters([Parameter("model_path", value=str(other_robot))])[0]
     assert not result.successful
-    assert "panda.npz: state definition does not match the robot: URDF differs" in result.reason
+    assert "panda.npz" in result.reason and "URDF" in result.reason  # the file, what differs
     result = r.node.set_parameters([Parameter("model_path", value=str(two))])[0]
     assert not result.successful
-    assert ("policy: learnt on 3-D states, the state map gives 6-D states (2 frames)"
-            in result.reason)
+    assert "3-D" in result.reason and "6-D" in result.reason  # the model's, the map's
     result = r.node.set_parameters([Parameter("model_path", value=str(unknown))])[0]
-    assert not result.successful and "state definition of type 'poses'" in result.reason
+    assert not result.successful and "'poses'" in result.reason
     # Announced by the learner: refused with the reason, the loaded model stays.
     r.models.publish(String(data=str(other_robot)))
     r.spin(0.3)
