@@ -92,15 +92,15 @@ def test_learn_writes_the_model_publishes_it_and_summarises(rig, tmp_path):
     assert response.success, response.message
     assert model.is_file()
     text = response.message
-    assert "of 8 training demonstrations" in text and "2 held out" in text
-    assert "sigma^2=" in text and "fit " in text and "held-out nCPE" in text
-    ncpe = float(text.split("held-out nCPE ")[1].split()[0])
     # The answer is made from the summary stored in the model header.
     block = PolicyAlign.load(model).fit_summary_["pipeline"]
-    assert r.node.last_result.summary == block
+    assert r.node.last_result.summary == block and text == r.node.last_result.line()
+    assert len(block["demonstrations"]["training"]) == 8
     assert len(block["demonstrations"]["held_out"]) == 2 and block["sigma2"] > 0
-    assert ncpe == pytest.approx(block["heldout_ncpe_observed"], abs=1e-4)
-    assert f"sigma^2={block['sigma2']:.4g}" in text
+    assert block["heldout_ncpe_observed"] is not None
+    # The numbers a user reads in it: sigma^2, the held-out nCPE, the model file.
+    assert f"{block['sigma2']:.4g}" in text
+    assert f"{block['heldout_ncpe_observed']:.4f}" in text and str(model) in text
     end = time.monotonic() + 5.0
     while not r.models and time.monotonic() < end:
         time.sleep(0.01)
@@ -123,16 +123,20 @@ def test_a_refused_fit_answers_false_keeps_the_model_and_publishes_nothing(rig, 
     # A kernel far narrower than the gaps between demonstrations: most cannot be aligned.
     assert r.node.set_parameters([Parameter("sigma", value="1e-6")])[0].successful
     response = r.learn()
-    assert not response.success
-    assert response.message.startswith("refused: outlier detection found")
-    assert "kept unchanged" in response.message
+    result = r.node.last_result
+    assert not response.success and result.refused and not result.written
+    # The gate that refused it: more demonstrations left unaligned than allowed.
+    demos, gates = result.summary["demonstrations"], result.summary["gates"]
+    assert len(demos["unaligned"]) > gates["max_discarded_fraction"] * len(demos["training"])
+    assert str(model) in response.message  # the file kept as it was
     assert model.read_bytes() == before and published == []
     time.sleep(0.3)  # a stray announcement would have arrived by now
     assert r.models == [str(model.resolve())]
     # force writes it and announces it.
     assert r.node.set_parameters([Parameter("force", value=True)])[0].successful
     response = r.learn()
-    assert response.success and response.message.startswith("forced despite: ")
+    result = r.node.last_result
+    assert response.success and result.written and result.refusals  # refused, yet written
     assert published == [str(model.resolve())]
     assert PolicyAlign.load(model).fit_summary_["pipeline"]["forced"]
 
@@ -147,8 +151,7 @@ def test_a_model_no_better_than_a_zero_policy_is_refused_with_the_goal_report(ri
     model = tmp_path / "model.npz"
     r = rig(168, dataset_dir=str(tmp_path / "walks"), model_path=str(model))
     response = r.learn()
-    assert not response.success and not model.exists()
-    assert "no better than a zero policy" in response.message
+    assert not response.success and not model.exists() and r.node.last_result.refused
     summary = r.node.last_result.summary
     assert summary["worse_than_zero"] and summary["goal"]["extent"] > 0
 
@@ -163,9 +166,10 @@ def test_state_and_gate_parameters_are_validated_and_a_bad_frame_is_named(rig, t
     assert not r.node.set_parameters(
         [Parameter("max_discarded_fraction", value=1.5)])[0].successful
     response = r.learn()
-    assert not response.success and response.message.startswith("learning failed")
-    assert "'arm_left_9_joint' not found" in response.message
-    assert f"available: {', '.join(arm)}" in response.message
+    assert not response.success and r.node.last_result is None
+    # The joint not found, and the ones there are.
+    assert "'arm_left_9_joint'" in response.message
+    assert all(joint in response.message for joint in arm)
     assert r.node.set_parameters([Parameter("joints", value=arm)])[0].successful
     response = r.learn()
     assert not response.success and "no_such_frame" in response.message
@@ -176,10 +180,10 @@ def test_learn_fails_cleanly_without_data(rig, tmp_path):
     (tmp_path / "empty").mkdir()
     r = rig(161, dataset_dir=str(tmp_path / "empty"), model_path=str(tmp_path / "m.npz"))
     response = r.learn()
-    assert not response.success and response.message.startswith("learning failed")
+    assert not response.success and response.message and r.node.last_result is None
     r.node.set_parameters([Parameter("dataset_dir", value=str(tmp_path / "missing"))])
     response = r.learn()
-    assert not response.success and "does not exist" in response.message
+    assert not response.success and str(tmp_path / "missing") in response.message
     assert not (tmp_path / "m.npz").exists() and r.models == []
 
 
@@ -187,7 +191,7 @@ def test_learn_fails_cleanly_with_a_single_demonstration(rig, tmp_path):
     _write_dataset(tmp_path / "one", n_demos=1)
     r = rig(162, dataset_dir=str(tmp_path / "one"), model_path=str(tmp_path / "m.npz"))
     response = r.learn()
-    assert not response.success and "at least 2 distinct demonstrations" in response.message
+    assert not response.success and r.node.last_result is None
     assert "gap_s" in response.message  # the fix for one continuous recording
 
 
@@ -240,8 +244,8 @@ def test_node_stays_responsive_and_refuses_a_second_run_while_learning(
     while not (got.done() and second.done()) and time.monotonic() < end:
         time.sleep(0.01)
     assert got.done() and got.result().values[0].string_value == "medium"
+    # Refused at once, not queued behind the running fit.
     assert second.done() and not second.result().success
-    assert "already in progress" in second.result().message
     assert not first.done()
     end = time.monotonic() + 60.0
     while not first.done() and time.monotonic() < end:
@@ -254,7 +258,7 @@ def test_sigma_parameter_is_validated(rig, tmp_path):
     assert not r.node.set_parameters([Parameter("sigma", value="huge")])[0].successful
     assert r.node.set_parameters([Parameter("sigma", value="0.5")])[0].successful
     assert parse_sigma("Narrow") == "narrow" and parse_sigma("0.25") == 0.25
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(ValueError, match=r"^sigma\b.*'-1'"):
         parse_sigma("-1")
 
 
@@ -267,7 +271,7 @@ def test_sigma_as_a_number_is_accepted_at_start_up_and_at_run_time(rig, tmp_path
     assert r.node.get_parameter("sigma").value == 0.5
     response = r.learn()
     assert response.success, response.message
-    assert "sigma^2=0.5;" in response.message
+    assert r.node.last_result.summary["sigma2"] == 0.5
     assert r.node.set_parameters([Parameter("sigma", value=2)])[0].successful
     for bad in (True, -1.0, ["medium"], None):  # None: unset, which would undeclare it
         assert not r.node.set_parameters([Parameter("sigma", value=bad)])[0].successful
@@ -312,8 +316,9 @@ def test_plot_path_draws_each_fit_and_a_bad_one_does_not_fail_the_learning(rig, 
     assert figure.read_bytes()[:4] == b"\x89PNG"
     # A figure that cannot be written is said, and the model is still the answer.
     result = r.node.set_parameters([Parameter("plot_path", value="fit.jpeg")])[0]
-    assert not result.successful and "no figure format 'jpeg'" in result.reason
+    assert not result.successful and "plot_path" in result.reason and "'jpeg'" in result.reason
     blocked = tmp_path / "model.npz" / "fit.png"  # under a file
     assert r.node.set_parameters([Parameter("plot_path", value=str(blocked))])[0].successful
     response = r.learn()
-    assert response.success and f"could not draw {blocked}" in response.message
+    assert response.success and str(blocked) in response.message  # said, not failed
+    assert not blocked.exists()

@@ -21,7 +21,11 @@ from robustness_rigs import (
     start_refused,
 )
 
+from policy_align_ros.control import ZeroCause
 from policy_align_ros.polling import wait_for
+
+#: The causes of a disarm by joint states that stopped (or stopped advancing).
+_STALE = (ZeroCause.STALE_STATE, ZeroCause.FROZEN_STAMP)
 
 
 def _fit_model(path: Path, joints: Sequence[str], center: np.ndarray) -> Path:
@@ -177,7 +181,7 @@ class _ArmedCases:
         # the message fails every attempt.
         for _ in range(3):
             r = self._attempt(case, tried, make_msg, disarms, reason)
-            stale = not exe.controller.armed and "stale" in exe.controller.zero_reason
+            stale = not exe.controller.armed and exe.controller.zero_cause in _STALE
             unseen = disarms and exe.controller.armed and not r.data.get("counted")
             if not (stale or unseen):
                 break
