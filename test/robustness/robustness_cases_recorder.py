@@ -284,9 +284,8 @@ def _recorder_dir_replaced(lab: Lab, work: Path) -> Result:
                            f"success={str(start.success).lower()}; after the new "
                            f"dataset_dir, stop: success={str(again.success).lower()} "
                            "(the 10 messages written)")
-            r.expect(not stop.success and "writing failed" in stop.message,
-                     "the failed write was not reported")
-            r.expect(not start.success and "could not be written" in start.message,
+            r.expect(not stop.success, "the failed write was not reported")
+            r.expect(not start.success,
                      "start_demo not refused while a demonstration is pending")
             r.expect(moved[0] and again.success, "the pending demonstration was not written")
         written = _messages_in(work / "moved")
