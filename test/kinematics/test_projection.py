@@ -33,13 +33,13 @@ def test_rank_deficient_and_empty() -> None:
 
 
 def test_bad_input() -> None:
-    with pytest.raises(ValueError, match="A: must have shape"):
+    with pytest.raises(ValueError, match=r"^A\b.*\(3,\)"):
         nullspace_projector(np.ones(3))
     with pytest.raises(ValueError, match="NaN"):
         nullspace_projector(np.array([[np.nan, 1.0]]))
-    with pytest.raises(ValueError, match="expected n=3"):
+    with pytest.raises(ValueError, match=r"^A\b.*\bn=3\b"):
         nullspace_projector(np.ones((1, 2)), n=3)
-    with pytest.raises(ValueError, match="needs the state dimension"):
+    with pytest.raises(ValueError, match=r"^A\b"):
         nullspace_projector([])
 
 

@@ -104,11 +104,11 @@ def test_wrong_names_list_closest() -> None:
     robot = Robot.load("ur5")
     with pytest.raises(ValueError, match="tool0"):
         robot.frame_position(robot.neutral(), "tool")
-    with pytest.raises(ValueError, match="twice"):
+    with pytest.raises(ValueError, match="'elbow_joint'"):
         Robot.load("ur5", joints=["elbow_joint", "elbow_joint"])
-    with pytest.raises(ValueError, match="does not exist"):
+    with pytest.raises(ValueError, match="/nonexistent/robot.urdf"):
         Robot.load("/nonexistent/robot.urdf")
-    with pytest.raises(ValueError, match=r"q: must have shape \(6,\)"):
+    with pytest.raises(ValueError, match=r"^q\b.*\(6,\).*\(5,\)"):
         robot.frame_position(np.zeros(5), "tool0")
 
 
@@ -118,7 +118,7 @@ def test_reference_dict_sets_locked_posture() -> None:
     straight = Robot.load("ur5", joints=["shoulder_pan_joint"]).frame_position(
         np.zeros(1), "tool0")
     assert np.linalg.norm(moved - straight) > 0.1
-    with pytest.raises(ValueError, match="reference: unknown joint"):
+    with pytest.raises(ValueError, match=r"^reference\b.*'elbow'"):
         Robot.load("ur5", reference={"elbow": 1.0})
 
 

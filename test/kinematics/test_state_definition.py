@@ -26,25 +26,25 @@ def test_definition_round_trips_and_matches_same_robot(robot: Robot) -> None:
 
 def test_definition_check_names_what_differs(robot: Robot) -> None:
     defn = FrameStateDefinition.from_robot(robot, [HAND])
-    with pytest.raises(ValueError, match=r"joints differ \(missing \['torso_2_joint'\]"):
+    with pytest.raises(ValueError, match=r"\bjoints\b.*\['torso_2_joint'\]"):
         defn.check(Robot.load("talos", joints=ARM[:-1]))
-    with pytest.raises(ValueError, match="same joints in another order"):
+    with pytest.raises(ValueError, match=r"\bjoints\b"):
         defn.check(Robot.load("talos", joints=ARM[::-1]))
-    with pytest.raises(ValueError, match=r"locked posture differs at \['arm_right_4_joint'\]"):
+    with pytest.raises(ValueError, match=r"\['arm_right_4_joint'\]"):
         defn.check(Robot.load("talos", joints=ARM, reference={"arm_right_4_joint": -1.0}))
-    with pytest.raises(ValueError, match="URDF differs"):
+    with pytest.raises(ValueError, match="URDF"):
         defn.check(Robot.load("panda"))
 
 
 @pytest.mark.parametrize(("change", "message"), [
-    ({"type": "joints"}, "field 'type' must be 'frames'"),
-    ({"frames": "gripper"}, "field 'frames' must be a non-empty list"),
-    ({"frames": []}, "field 'frames' must be a non-empty list"),
-    ({"urdf_sha256": 5}, "field 'urdf_sha256' must be a non-empty string"),
-    ({"locked_posture": {"a": ["x"]}}, r"locked_posture\['a'\] must be a list of numbers"),
-    ({"locked_posture": {"a": [float("nan")]}}, r"locked_posture\['a'\] is not finite"),
-    ({"locked_posture": None}, "field 'locked_posture' must be a dict"),
-    (None, "field 'root_frame' is missing"),
+    ({"type": "joints"}, r"'type'.*'frames'"),
+    ({"frames": "gripper"}, "'frames'.*'gripper'"),
+    ({"frames": []}, r"'frames'.*\[\]"),
+    ({"urdf_sha256": 5}, "'urdf_sha256'.*5"),
+    ({"locked_posture": {"a": ["x"]}}, r"locked_posture\['a'\].*'x'"),
+    ({"locked_posture": {"a": [float("nan")]}}, r"locked_posture\['a'\]"),
+    ({"locked_posture": None}, "'locked_posture'"),
+    (None, "'root_frame'"),
 ])
 def test_definition_from_dict_refuses_bad_fields(robot: Robot, change, message) -> None:
     data = FrameStateDefinition.from_robot(robot, [HAND]).to_dict()

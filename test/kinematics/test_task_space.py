@@ -25,11 +25,11 @@ def test_states_of_recorded_joint_trajectories_match_forward_kinematics(robot: R
 def test_states_refuse_bad_joint_rows(hand_map: TaskSpaceMap) -> None:
     Q = np.tile(hand_map.robot.neutral(), (3, 1))
     Q[2, 4] = np.nan
-    with pytest.raises(ValueError, match="Q: row 2 contains NaN"):
+    with pytest.raises(ValueError, match=r"^Q\b.*\b2\b.*NaN"):
         hand_map.states(Q)
-    with pytest.raises(ValueError, match=r"Q: must have shape \(m, 9\)"):
+    with pytest.raises(ValueError, match=r"^Q\b.*\(m, 9\)"):
         hand_map.states(np.zeros((3, 8)))
-    with pytest.raises(ValueError, match=r"q: must have shape \(9,\)"):
+    with pytest.raises(ValueError, match=r"^q\b.*\(9,\)"):
         hand_map.kinematics(np.zeros(4))
 
 
@@ -66,13 +66,13 @@ def test_root_frame_must_be_fixed_to_the_world(robot: Robot) -> None:
     base = TaskSpaceMap(robot, [HAND], root_frame="base_link")
     q = robot.neutral()
     np.testing.assert_allclose(base.states(q), robot.frame_position(q, HAND), atol=1e-12)
-    with pytest.raises(ValueError, match="root_frame: 'arm_left_2_link' moves with"):
+    with pytest.raises(ValueError, match=r"^root_frame\b.*'arm_left_2_link'"):
         TaskSpaceMap(robot, [HAND], root_frame="arm_left_2_link")
-    with pytest.raises(ValueError, match="root_frame: unknown frame 'nowhere'"):
+    with pytest.raises(ValueError, match=r"^root_frame\b.*'nowhere'"):
         TaskSpaceMap(robot, [HAND], root_frame="nowhere")
-    with pytest.raises(ValueError, match="frame: unknown frame 'hand'"):
+    with pytest.raises(ValueError, match=r"\bframe\b.*'hand'"):
         TaskSpaceMap(robot, ["hand"])
-    with pytest.raises(ValueError, match="listed twice"):
+    with pytest.raises(ValueError, match=repr(HAND)):
         TaskSpaceMap(robot, [HAND, HAND])
 
 
@@ -101,5 +101,5 @@ def test_learning_state_map_maps_positions_and_velocities(robot: Robot) -> None:
     np.testing.assert_allclose(lmap(Q[:10]), out.positions[:10])
     rest = lmap.definition()["rest"]
     np.testing.assert_allclose([rest[j] for j in ARM], (Q[-1] + Q[9]) / 2)
-    with pytest.raises(ValueError, match="trajectory d1: has 3 joints, the state map expects 9"):
+    with pytest.raises(ValueError, match=r"\bd1\b.*\b3\b.*\b9\b"):
         lmap(Trajectory(np.zeros((4, 3)), name="d1"))
