@@ -61,7 +61,7 @@ def test_task_space_potential_reaches_target() -> None:
     assert np.linalg.norm(final - target) < 0.1 * np.linalg.norm(
         robot.frame_position(robot.neutral(), "tool0") - target)
     assert np.all(np.diff(demo.potential) <= 1e-12)
-    with pytest.raises(ValueError, match=r"center: must have shape \(6,\)"):
+    with pytest.raises(ValueError, match=r"^center\b.*\(6,\)"):
         TaskSpacePotential(robot, ["tool0", "wrist_1_link"], target)
 
 
@@ -136,11 +136,11 @@ def test_task_space_expert_reaches_the_targets_and_refuses_bad_shapes(hands) -> 
     demo = task_space_rollout(q0, TaskSpaceExpert(smap, target, 1.0), None, 400, 0.01)
     final = demo.trajectory.positions[-1].reshape(2, 3) - target.reshape(2, 3)
     assert np.linalg.norm(final, axis=1).max() < 1e-3
-    with pytest.raises(ValueError, match=r"center: must have shape \(6,\) for 2 frames"):
+    with pytest.raises(ValueError, match=r"^center\b.*\(6,\).*\(3,\)"):
         TaskSpaceExpert(smap, np.zeros(3))
-    with pytest.raises(ValueError, match=r"rest: must have shape \(16,\)"):
+    with pytest.raises(ValueError, match=r"^rest\b.*\(16,\).*\(3,\)"):
         TaskSpaceExpert(smap, target, rest=np.zeros(3))
-    with pytest.raises(ValueError, match="n_samples: must be >= 2"):
+    with pytest.raises(ValueError, match=r"^n_samples\b.*\b1$"):
         task_space_rollout(q0, TaskSpaceExpert(smap, target), None, 1, 0.01)
 
 

@@ -15,9 +15,9 @@ def test_quadratic_potential_gradient_matches_finite_differences() -> None:
     fd = [(pot.value(x + eps * e) - pot.value(x - eps * e))[0] / (2 * eps) for e in np.eye(3)]
     np.testing.assert_allclose(pot.gradient(x)[0], fd, atol=1e-8)
     np.testing.assert_allclose(pot.policy(pot.center[None]), 0.0)
-    with pytest.raises(ValueError, match="weight: must be positive definite"):
+    with pytest.raises(ValueError, match=r"^weight\b"):
         QuadraticPotential([0.0, 0.0], -1.0)
-    with pytest.raises(ValueError, match=r"X: must have shape \(m, 3\)"):
+    with pytest.raises(ValueError, match=r"^X\b.*\(m, 3\).*\(2, 2\)"):
         pot.value(np.zeros((2, 2)))
 
 
