@@ -47,7 +47,7 @@ def test_dtw_of_a_diverged_rollout_is_infinite_and_bad_shapes_raise():
     b = np.zeros((6, 2))
     b[3:] = np.nan
     assert dtw_mean_cost(a, b) == np.inf
-    with pytest.raises(ValueError, match="must be non-empty"):
+    with pytest.raises(ValueError, match=r"\(4, 3\)"):  # the shape refused
         dtw_mean_cost(a, np.zeros((4, 3)))
 
 
