@@ -94,6 +94,12 @@ def test_holdout_zero_trains_on_everything_and_seed_changes_the_split(dataset, t
         (["{ds}", "--sigma", "huge"], ["--sigma", "'huge'"]),
         (["{ds}", "--sigma", "-1"], ["--sigma", "'-1'"]),
         (["{tmp}"], ["{tmp}"]),
+        # A robot that does not load, or whose joints the recorded ones are not: the model
+        # would name a robot the executor cannot load.
+        (["{ds}", "--robot", "nosuchrobot"], ["nosuchrobot", "--robot"]),
+        (["{ds}", "--robot", "panda"], ["'panda'", "shoulder", "--robot"]),
+        # A figure that cannot be written is said before the fit, not after it.
+        (["{ds}", "--plot", "{ds}/demo_0000/metadata.yaml/fit.png"], ["--plot"]),
     ],
 )
 def test_unusable_input_returns_2_with_a_message(dataset, tmp_path, capsys, argv, expected):
@@ -185,3 +191,12 @@ def test_robot_config_gives_the_model_its_robot_and_joints(tmp_path):
     assert PolicyAlign.load(tmp_path / "plain.npz").robot_ is None
     assert main(["learn", str(tmp_path / "demos"), "--out", str(tmp_path / "bad.npz"),
                  "--robot-config", "pandas"]) == 2
+
+
+def test_the_summary_names_every_joint_up_to_a_dozen():
+    from policy_align_ros.data.learn import SHOWN_JOINTS, _joint_list
+
+    names = [f"j{k}" for k in range(SHOWN_JOINTS + 3)]
+    assert _joint_list(names[:SHOWN_JOINTS]) == ", ".join(names[:SHOWN_JOINTS])
+    shown = _joint_list(names)
+    assert names[0] in shown and names[-1] not in shown and "5" in shown  # 5 more

@@ -13,16 +13,19 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from dataclasses import fields
 
 from policy_align_ros.data.fit_figure import figure_format, plot_fit
-from policy_align_ros.data.pipeline import learn_pipeline, parse_sigma
+from policy_align_ros.data.pipeline import check_writable, learn_pipeline, parse_sigma
 from policy_align_ros.data.quality import Gates
 
 __all__ = ["EXIT_REFUSED", "parse_joints", "parse_sigma", "run_learn"]
 
 #: Exit status of a fit refused as degenerate.
 EXIT_REFUSED = 1
+#: The summary line names every joint up to this many (then the first of them).
+SHOWN_JOINTS = 12
 
 
 def parse_joints(text: str | None) -> list[str] | None:
@@ -35,6 +38,25 @@ def parse_joints(text: str | None) -> list[str] | None:
     if len(set(names)) != len(names):
         raise ValueError(f"--joints: a joint is listed twice in {text!r}")
     return names
+
+
+def _say(message: str) -> None:
+    """A progress line or note of the pipeline, on stderr."""
+    print(f"policy-align learn: {message}", file=sys.stderr)
+
+
+def _warn(caught: list[warnings.WarningMessage]) -> None:
+    """The fit's warnings as lines of this command, each once (not Python's format with
+    a source path and line)."""
+    for text in dict.fromkeys(str(w.message) for w in caught):
+        print(f"policy-align learn: warning: {text}", file=sys.stderr)
+
+
+def _joint_list(joints: list[str]) -> str:
+    """The joints learnt, every one unless there are more than :data:`SHOWN_JOINTS`."""
+    if len(joints) <= SHOWN_JOINTS:
+        return ", ".join(joints)
+    return f"{', '.join(joints[:SHOWN_JOINTS - 2])}, ... ({len(joints) - SHOWN_JOINTS + 2} more)"
 
 
 def _gates(args: argparse.Namespace) -> Gates:
@@ -65,6 +87,7 @@ def run_learn(args: argparse.Namespace) -> int:
     # Imported here: the kinematics package loads Pinocchio.
     from policy_align_ros.kinematics.robot_config import learning_robot
 
+    caught: list[warnings.WarningMessage] = []
     try:
         try:
             sigma = parse_sigma(getattr(args, "sigma", "medium"))
@@ -73,50 +96,45 @@ def run_learn(args: argparse.Namespace) -> int:
         plot = getattr(args, "plot", None)
         if plot:
             figure_format(plot)  # a wrong suffix is said before the fit, not after it
+            check_writable(plot, "--plot")
         robot, joints = learning_robot(getattr(args, "robot", None),
                                        parse_joints(getattr(args, "joints", None)),
                                        getattr(args, "robot_config", None))
-        result = learn_pipeline(
-            args.inputs, args.out,
-            joints=joints,
-            sigma=sigma,
-            gap_s=float(getattr(args, "gap", 0.5)),
-            holdout_fraction=float(getattr(args, "holdout", 0.2)),
-            seed=int(getattr(args, "seed", 0)),
-            state=getattr(args, "state", "joints") or "joints",
-            robot=robot,
-            gates=_gates(args),
-            force=bool(getattr(args, "force", False)),
-            overwrite=bool(getattr(args, "overwrite", False)),
-        )
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = learn_pipeline(
+                args.inputs, args.out,
+                joints=joints,
+                sigma=sigma,
+                gap_s=float(getattr(args, "gap", 0.5)),
+                holdout_fraction=float(getattr(args, "holdout", 0.2)),
+                seed=int(getattr(args, "seed", 0)),
+                state=getattr(args, "state", "joints") or "joints",
+                robot=robot,
+                gates=_gates(args),
+                force=bool(getattr(args, "force", False)),
+                overwrite=bool(getattr(args, "overwrite", False)),
+                log=_say,
+            )
     except (ValueError, OSError) as err:
+        _warn(caught)
         print(f"policy-align learn: error: {err}", file=sys.stderr)
         return 2
+    _warn(caught)
     s = result.summary
-    if s.get("constant_joints"):
-        print(f"policy-align learn: left out constant joint(s) "
-              f"{', '.join(s['constant_joints'])}: they never move in any demonstration "
-              "(name the joints with --joints to keep them)", file=sys.stderr)
     for entry in s["skipped_bags"]:
-        print(f"policy-align learn: skipped bag {entry['bag']}: {entry['reason']}",
-              file=sys.stderr)
-    for copy, original in s["duplicate_of"].items():
-        print(f"policy-align learn: skipped duplicate {copy} (same as {original})",
-              file=sys.stderr)
+        _say(f"skipped bag {entry['bag']}: {entry['reason']}")
     if plot:
         try:
-            print(f"policy-align learn: drew the fit in "
-                  f"{plot_fit(result.model, result.train, plot, result.held)}")
+            _say(f"drew the fit in {plot_fit(result.model, result.train, plot, result.held)}")
         except (ValueError, OSError) as err:  # the model is written; the figure is extra
-            print(f"policy-align learn: could not draw {plot}: {err}", file=sys.stderr)
+            _say(f"could not draw {plot}: {err}")
     if result.refused:
-        print(f"policy-align learn: {result.line()}", file=sys.stderr)
-        return EXIT_REFUSED
-    shown = ", ".join(s["joints"][:6]) + (", ..." if len(s["joints"]) > 6 else "")
+        return EXIT_REFUSED  # the pipeline said why
     space = ("" if s["state"] == "joints" else
              f" in the positions of frames {s['state'].split(':', 1)[1]} of {s['robot']}, "
              "moved by")
-    print(f"Learnt a potential{space} over {len(s['joints'])} joints ({shown}) from "
-          f"{s['demonstrations']['found']} demonstrations found ({s['data']}): "
-          f"{result.line()}")
+    print(f"Learnt a potential{space} over {len(s['joints'])} joints "
+          f"({_joint_list(s['joints'])}) from {s['demonstrations']['found']} demonstrations "
+          f"found ({s['data']}): {result.line()}")
     return 0

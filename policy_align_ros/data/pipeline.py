@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 import os
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -86,6 +87,7 @@ __all__ = [
     "HOLDOUT_RANGE",
     "PipelineResult",
     "SIGMA_RULES",
+    "check_writable",
     "learn_pipeline",
     "parse_sigma",
     "state_name",
@@ -218,22 +220,32 @@ class PipelineResult:
                      f"{len(current['compared_on'])} of them")
         if self.refused:
             return (f"refused: {'; '.join(self.refusals)}; {self.model_path} kept unchanged "
-                    f"(set force to write it anyway) [{text}]")
+                    f"(write it anyway with --force; learner node: force:=true) [{text}]")
         prefix = f"forced despite: {'; '.join(self.refusals)}; " if self.refusals else ""
         return f"{prefix}{text}; model {self.model_path}"
 
 
-def _check_writable(path: Path) -> None:
-    """Fail before a long fit when the model file could not be written."""
+def check_writable(path: str | Path, what: str = "model_path") -> None:
+    """Fail before a long fit when the file ``path`` could not be written (``ValueError``
+    naming ``what``, the parameter or option that gave it): a directory, under a file, or
+    in a directory where no file can be created (no permission, a read-only or virtual
+    file system). Missing parent directories are fine: they are created on writing."""
+    path = Path(path)
     if path.is_dir():
-        raise ValueError(f"model_path: {path} is a directory, expected a file name")
+        raise ValueError(f"{what}: {path} is a directory, expected a file name")
     ancestor = path.parent
     while not ancestor.exists():
         ancestor = ancestor.parent
     if not ancestor.is_dir():
-        raise ValueError(f"model_path: {ancestor} is not a directory, cannot write {path}")
+        raise ValueError(f"{what}: {ancestor} is not a directory, cannot write {path}")
     if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise ValueError(f"model_path: no permission to write in {ancestor}")
+        raise ValueError(f"{what}: no permission to write in {ancestor}")
+    try:  # root passes os.access on /sys and /proc: create and remove a file to know
+        with tempfile.TemporaryFile(dir=ancestor):
+            pass
+    except OSError as err:
+        raise ValueError(f"{what}: cannot create a file in {ancestor} "
+                         f"({err.strerror or err})") from None
 
 
 def _load_frames_map(robot: str | None, frames: list[str], joints: list[str]):
@@ -412,7 +424,7 @@ def _check_arguments(inputs: str | Path | Sequence[str | Path], model_path: str 
         if not p.exists():
             raise ValueError(f"{p}: no such file or directory")
     path = Path(model_path).expanduser().resolve()
-    _check_writable(path)
+    check_writable(path)
     return _Run(paths, path, sigma, state, robot, gates, force, seed, holdout_fraction,
                 gap_s)
 
@@ -474,14 +486,18 @@ def _drop_constant_joints(demos: _Demos, say: Callable[[str], None]) -> None:
                               None if t.velocities is None else t.velocities[:, keep],
                               name=t.name) for t in demos.trajs]
     say(f"left out {len(drop)} constant joint(s) that never move in any demonstration: "
-        f"{', '.join(demos.constant)} (name the joints explicitly to keep them)")
+        f"{', '.join(demos.constant)} (name the joints to keep them: --joints; learner "
+        "node: joints)")
 
 
 def _unwrap_continuous(demos: _Demos, robot: str | None, say: Callable[[str], None]
                        ) -> None:
     """Put the continuous joints of ``robot`` (its URDF) on one turn in every demonstration
     (:mod:`~policy_align_ros.data.turns`): drivers report them modulo a turn. A joint
-    that still jumps by more than half a turn is refused (``check_jumps``)."""
+    that still jumps by more than half a turn is refused (``check_jumps``).
+
+    A ``robot`` that does not load with the demonstrations' joints is refused
+    (``ValueError``): the model file would name a robot the executor cannot load."""
     mask = np.zeros(len(demos.joints), dtype=bool)
     if robot:
         from policy_align_ros.kinematics import Robot  # Pinocchio, only with a robot
@@ -489,8 +505,11 @@ def _unwrap_continuous(demos: _Demos, robot: str | None, say: Callable[[str], No
         try:
             mask = Robot.load(robot, demos.joints).continuous
         except (ValueError, OSError) as err:
-            say(f"continuous joints left as recorded: robot {robot!r} does not load with the "
-                f"demonstrations' joints ({err})")
+            raise ValueError(
+                f"robot {robot!r} does not load with the demonstrations' joints "
+                f"({', '.join(demos.joints)}): {err}; give the robot they were recorded on "
+                "(--robot or --robot-config; learner node: robot or robot_config), or none "
+                "(the model file then names no robot)") from None
     if mask.any():
         demos.trajs = unwrap_turns(demos.trajs, mask)
         demos.continuous = [j for j, c in zip(demos.joints, mask, strict=True) if c]

@@ -14,6 +14,7 @@ import re
 import shutil
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -331,7 +332,8 @@ def test_joint_state_learning_needs_no_pinocchio(dataset, tmp_path):
     assert done.returncode == 0, done.stderr
 
 
-def test_a_model_no_better_than_a_zero_policy_is_refused_and_force_writes_it(tmp_path):
+def test_a_model_no_better_than_a_zero_policy_is_refused_and_force_writes_it(tmp_path,
+                                                                              capsys):
     rng = np.random.default_rng(5)
     walks = [np.cumsum(rng.normal(scale=0.05, size=(60, 2)), axis=0) + rng.uniform(-1, 1, 2)
              for _ in range(7)]
@@ -347,11 +349,15 @@ def test_a_model_no_better_than_a_zero_policy_is_refused_and_force_writes_it(tmp
     assert any(f"{cv['error']:.4g}" in r and f"{cv['zero_error']:.4g}" in r
                for r in result.refusals)
     args = dict(inputs=[str(data)], out=str(path), joints=None, sigma="medium", gap=0.5)
-    with pytest.warns(UserWarning):
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the command prints the fit's warnings, once each
         assert run_learn(argparse.Namespace(**args)) == 1
     assert not path.exists()
-    with pytest.warns(UserWarning):
-        assert run_learn(argparse.Namespace(**args, force=True)) == 0
+    err = capsys.readouterr().err
+    # The refusal and the fit's warning both name the two errors compared.
+    assert err.count(f"{cv['error']:.4g}") == 2 and f"{cv['zero_error']:.4g}" in err
+    assert run_learn(argparse.Namespace(**args, force=True)) == 0
     block = PolicyAlign.load(path).fit_summary_["pipeline"]
     assert block["forced"] and block["worse_than_zero"]
 

@@ -294,16 +294,28 @@ def test_observed_ncpe_is_zero_for_the_true_policy_and_positive_otherwise():
 
 
 def test_robot_config_names_the_models_robot_and_joints(rig, tmp_path):
-    _write_dataset(tmp_path / "demos", joints=JOINTS[::-1])
+    arm = ["shoulder_pan_joint", "elbow_joint"]  # two of ur5's joints, recorded reversed
+    _write_dataset(tmp_path / "demos", joints=arm[::-1])
     config = tmp_path / "arm.yaml"
-    config.write_text(f"robot: ur5\njoints: [{JOINTS[0]}, {JOINTS[1]}]\n")
+    config.write_text(f"robot: ur5\njoints: [{arm[0]}, {arm[1]}]\n")
     model = tmp_path / "model.npz"
     r = rig(199, dataset_dir=str(tmp_path / "demos"), model_path=str(model),
             robot_config=str(config))
     response = r.learn()
     assert response.success, response.message
     learnt = PolicyAlign.load(model)
-    assert learnt.robot_ == "ur5" and learnt.joint_names_ == JOINTS  # the config's order
+    assert learnt.robot_ == "ur5" and learnt.joint_names_ == arm  # the config's order
+    # A robot the demonstrations' joints are not joints of: refused, naming the robot and
+    # the joint, and no model file naming a robot the executor could not load.
+    _write_dataset(tmp_path / "other", joints=JOINTS)
+    results = r.node.set_parameters([
+        Parameter("dataset_dir", value=str(tmp_path / "other")),
+        Parameter("model_path", value=str(tmp_path / "other.npz")),
+        Parameter("robot_config", value=""), Parameter("robot", value="ur5")])
+    assert all(result.successful for result in results)
+    response = r.learn()
+    assert not response.success and "'ur5'" in response.message and "j1" in response.message
+    assert not (tmp_path / "other.npz").exists()
 
 
 def test_plot_path_draws_each_fit_and_a_bad_one_does_not_fail_the_learning(rig, tmp_path):
