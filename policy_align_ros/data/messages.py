@@ -48,6 +48,7 @@ __all__ = [
     "UNTRUSTWORTHY",
     "JointSelector",
     "StreamClock",
+    "describe_foreign",
     "describe_skips",
     "validate_joint_names",
 ]
@@ -94,6 +95,22 @@ def describe_skips(skipped: dict[str, int], lost: int) -> str:
     if lost:
         detail += f"{', ' if detail else ''}paused_while_a_write_is_pending={lost}"
     return detail
+
+
+def describe_foreign(joints: Sequence[str] | None, names: Sequence[str] | None,
+                     shown: int = 6) -> str:
+    """Why a message was skipped as ``unknown_joints`` or ``missing_joints``, in words: the
+    selected ``joints`` it lacks and the first ``shown`` of the joint ``names`` it carries
+    ("" without a selection or a message). A typo in a configured joint, or another
+    publisher's joints on the same topic, then reads as what it is."""
+    if not joints or names is None:
+        return ""
+    carried = set(names)
+    missing = [j for j in joints if j not in carried]
+    head = ", ".join(names[:shown]) + (f", ... ({len(names) - shown} more)"
+                                        if len(names) > shown else "")
+    return (f"recording joints {', '.join(joints)}; the last message skipped for its joints "
+            f"lacks {', '.join(missing) or 'none of them'} and carries {head or 'none'}")
 
 
 def validate_joint_names(joints: Sequence[str] | None) -> list[str] | None:

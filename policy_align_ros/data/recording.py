@@ -172,6 +172,10 @@ class DemoRecorder:
     lost_while_pending : int
         Messages not recorded because a continuous recording was paused while a pending
         demonstration waited to be written.
+    last_foreign : tuple of str or None
+        The joint names of the last message skipped as ``unknown_joints`` or
+        ``missing_joints`` (:func:`~policy_align_ros.data.messages.describe_foreign` says
+        what it lacks); None while there is none.
     """
 
     def __init__(
@@ -201,6 +205,7 @@ class DemoRecorder:
         self.written: list[Path] = []
         self.dropped = 0
         self.lost_while_pending = 0
+        self.last_foreign: tuple[str, ...] | None = None
         self._pending: _Demo | None = None
         self._pending_error = ""
         self._active = False
@@ -497,6 +502,8 @@ class DemoRecorder:
             picked = self._selector.select(names, positions, velocities, efforts)
             if isinstance(picked, str):
                 self.skipped[picked] += 1
+                if picked in ("unknown_joints", "missing_joints"):
+                    self.last_foreign = tuple(names)
                 return None
             if stamp_ns < 0:
                 # Before the epoch: a publisher whose clock was never set (sec = -1). A bag

@@ -73,7 +73,11 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from policy_align_ros.data.dataset_dir import check_dataset_dir, default_fallback_dirs
-from policy_align_ros.data.messages import describe_skips, validate_joint_names
+from policy_align_ros.data.messages import (
+    describe_foreign,
+    describe_skips,
+    validate_joint_names,
+)
 from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, validate_gap
 from policy_align_ros.kinematics.robot_config import load_robot_config
 from policy_align_ros.nodes._common import run_node
@@ -153,6 +157,7 @@ class RecorderNode(Node):
     def _on_joint_state(self, msg: JointState) -> None:
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         now = self.get_clock().now().nanoseconds
+        chosen = self._recorder.joints is not None
         try:
             path = self._recorder.add(stamp or now, msg.name, msg.position, msg.velocity,
                                       msg.effort, now=now * 1e-9,
@@ -167,6 +172,11 @@ class RecorderNode(Node):
                 f"could not record a message: {type(err).__name__}: {err}",
                 throttle_duration_sec=self.get_parameter("warn_period_s").value)
             return
+        if not chosen and self._recorder.joints is not None:
+            # Said once: another publisher's joints on the topic would be recorded instead.
+            self.get_logger().info(
+                f"recording joints {', '.join(self._recorder.joints)}: those of the first "
+                "message (set joints or robot_config to choose them)")
         if path is not None:
             self.get_logger().info(f"demonstration written (time gap): {path}")
 
@@ -209,6 +219,9 @@ class RecorderNode(Node):
         if path is None:
             response.success = False
             response.message = f"nothing written: {count} valid message(s) recorded"
+            foreign = describe_foreign(self._recorder.joints, self._recorder.last_foreign)
+            if foreign and not count:
+                response.message += f" ({foreign})"
         else:
             response.success, response.message = True, str(path)
             self.get_logger().info(f"demonstration written: {path} ({count} messages)")
@@ -288,6 +301,9 @@ class RecorderNode(Node):
                 self._last_warning is not None and 0 <= now - self._last_warning < period_ns):
             return
         detail = describe_skips(skipped, lost)
+        foreign = describe_foreign(self._recorder.joints, self._recorder.last_foreign)
+        if foreign and (skipped["unknown_joints"] or skipped["missing_joints"]):
+            detail += f"; {foreign}"
         self.get_logger().warning(
             f"skipped {total - self._reported_skips} joint_states message(s) "
             f"since the last report ({total} in total: {detail})"

@@ -13,6 +13,7 @@ from policy_align_ros.data.messages import (
     UNTRUSTWORTHY,
     JointSelector,
     StreamClock,
+    describe_foreign,
     describe_skips,
     validate_joint_names,
 )
@@ -105,3 +106,13 @@ def test_clock_reasons_get_a_hint_and_paused_messages_are_counted():
     assert detail.count(" (time_") == 2
     assert detail.endswith(", paused_while_a_write_is_pending=4")
     assert describe_skips({}, 4) == "paused_while_a_write_is_pending=4"
+
+
+def test_a_message_skipped_for_its_joints_is_described_by_what_it_lacks_and_carries():
+    text = describe_foreign(["joint1", "jiont7"], ["joint1", "joint7", "gripper"])
+    assert "jiont7" in text and "gripper" in text
+    lacks = text[text.index("lacks"):text.index("carries")]
+    assert "jiont7" in lacks and "joint1" not in lacks
+    many = describe_foreign(["a"], [f"x{k}" for k in range(20)], shown=3)
+    assert "x2" in many and "x3" not in many and "17" in many  # 17 more
+    assert describe_foreign(None, ["a"]) == "" and describe_foreign(["a"], None) == ""

@@ -100,6 +100,7 @@ def test_malformed_messages_skipped_and_counted(tmp_path):
         "time_not_increasing": 2,
     }
     assert rec.accepted == 2
+    assert rec.last_foreign == ("a",)  # the last message skipped for its joints
     path = rec.stop()
     msgs = list(read_joint_states(path))
     assert [list(m[3]) for m in msgs] == [[0.1, 0.2], [0.3, 0.4]]
