@@ -59,6 +59,14 @@ def _joint_list(joints: list[str]) -> str:
     return f"{', '.join(joints[:SHOWN_JOINTS - 2])}, ... ({len(joints) - SHOWN_JOINTS + 2} more)"
 
 
+def _grouped(skipped: list[dict]) -> dict[str, list[str]]:
+    """The skipped bags by reason, in order: bags of another robot share one line."""
+    out: dict[str, list[str]] = {}
+    for entry in skipped:
+        out.setdefault(entry["reason"], []).append(entry["bag"])
+    return out
+
+
 def _gates(args: argparse.Namespace) -> Gates:
     given = {f.name: getattr(args, f.name, None) for f in fields(Gates)}
     return Gates(**{k: v for k, v in given.items() if v is not None})
@@ -122,8 +130,9 @@ def run_learn(args: argparse.Namespace) -> int:
         return 2
     _warn(caught)
     s = result.summary
-    for entry in s["skipped_bags"]:
-        _say(f"skipped bag {entry['bag']}: {entry['reason']}")
+    for reason, bags in _grouped(s["skipped_bags"]).items():
+        _say(f"skipped bag {bags[0]}: {reason}" if len(bags) == 1 else
+             f"skipped {len(bags)} bags ({', '.join(bags)}): {reason}")
     if plot:
         try:
             _say(f"drew the fit in {plot_fit(result.model, result.train, plot, result.held)}")

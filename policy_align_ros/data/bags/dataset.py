@@ -336,8 +336,10 @@ class _Reading:
                 reason += "; " + _topics_text(bag)
             joints = self.selector.joints
             if not failure and own and joints and not set(joints) <= set(own):
-                # Joints chosen by vote: say first which set this bag has instead.
-                reason = f"joints {', '.join(own)}; expected {', '.join(joints)} ({reason})"
+                # Joints chosen by vote: which set this bag has instead is the whole story
+                # (the same words for every such bag, so that a summary can group them).
+                reason = (f"joints {', '.join(own)}; expected {', '.join(joints)}, the "
+                          "joints most bags have: every message skipped")
             report.skipped_bags.append((str(bag), reason))
 
     def _take(self, bag: Path, one: _BagPass, topic: str, stamp: int, names: list[str],
