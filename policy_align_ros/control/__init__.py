@@ -12,7 +12,8 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.armed`: :class:`ArmedController`, arming, joint-state stamps and ramps on the
   caller's clock;
 - :mod:`.causes`: why the command is zero, as stable identifiers (:class:`ZeroCause`);
-- :mod:`.joint_order`: model and controller joint orders;
+- :mod:`.joint_order`: model and controller joint orders, joint states lacking
+  controlled joints;
 - :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
   velocities;
 - :mod:`.loading`: a model file as the executor's joint-space policy (read once at
@@ -44,6 +45,7 @@ from policy_align_ros.control.joint_order import (
     model_permutation,
     order_check_off,
     unchecked_order_refusal,
+    unusable_state_reason,
 )
 from policy_align_ros.control.limits import (
     DEFAULT_JOINT_LIMIT_MARGIN,
@@ -64,6 +66,7 @@ from policy_align_ros.control.loading import (
     goal_margin_problem,
     learnt_goal,
     load_policy,
+    no_model_fix,
 )
 from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
 from policy_align_ros.control.resolved_rate import (
@@ -132,6 +135,7 @@ __all__ = [
     "load_policy",
     "model_permutation",
     "nearest_turn",
+    "no_model_fix",
     "order_check_off",
     "position_outside_limits",
     "policy_for_state",
@@ -143,5 +147,6 @@ __all__ = [
     "task_to_joint_velocity",
     "turn_centres",
     "unchecked_order_refusal",
+    "unusable_state_reason",
     "velocity_scale",
 ]

@@ -102,7 +102,8 @@ class ArmedController:
     Times are integer nanoseconds of the caller's clock (the executor node's clock, so
     simulated time works); nothing here reads a clock. Per control period the caller
     passes the latest valid joint state (:meth:`joint_state`), reports broken ones
-    (:meth:`reject_state`) and calls :meth:`tick`; every call returns an :class:`Output`
+    (:meth:`reject_state`) and those without every controlled joint
+    (:meth:`unusable_state`) and calls :meth:`tick`; every call returns an :class:`Output`
     whose ``command``, when not None, must be published at once. A tick sooner than one
     period after the last published command may change it by the acceleration bound
     times the time in between only, so calling :meth:`tick` more often (one step per
@@ -126,6 +127,8 @@ class ArmedController:
         accepted (rad), >= 0.
     stall : StallDetector, optional
         Stall detection while armed (None: off).
+    state_topic : str, optional
+        Where the joint states come from, for the reasons (the executor's subscription).
 
     Attributes
     ----------
@@ -166,8 +169,10 @@ class ArmedController:
         joint_names: Sequence[str] | None = None,
         state_limit_margin: float = DEFAULT_STATE_LIMIT_MARGIN,
         stall: StallDetector | None = None,
+        state_topic: str = "/joint_states",
     ) -> None:
         self.step = step
+        self.state_topic = state_topic
         self.stall = stall
         self.stalled = False
         self.last_stall: Stall | None = None
@@ -192,6 +197,9 @@ class ArmedController:
         self._q: np.ndarray | None = None
         self._rejection = ""  # why the last joint state was refused (until one is taken)
         self._rejection_cause = ZeroCause.NO_STATE
+        # Why the joint states received since the last valid one cannot be used (messages
+        # without every controlled joint); cleared by a valid one.
+        self._unusable = ""
         self._stamp_ns: int | None = None
         self._arrival_ns: int | None = None
         self._repeat_ns: int | None = None  # arrival of the last repeat of that stamp
@@ -309,7 +317,7 @@ class ArmedController:
             out.rejected = key.value
             return out
         self._q = np.asarray(q, dtype=float)
-        self._rejection = ""
+        self._rejection = self._unusable = ""
         self._stamp_ns = stamp_ns
         self._arrival_ns = int(now_ns)
         self._repeat_ns = None
@@ -328,6 +336,20 @@ class ArmedController:
         self._rejection_cause = cause
         return self.fault(reason, cause)
 
+    def unusable_state(self, reason: str) -> None:
+        """A joint-state message without every controlled joint arrived (``reason`` says
+        which are missing and what it names).
+
+        Nothing stops: such messages are normal on a topic that other publishers share,
+        and the last valid state stays in force until it goes stale. Until a valid state
+        arrives, ``reason`` is why arming is refused (cause
+        :attr:`~policy_align_ros.control.causes.ZeroCause.NO_STATE`) and is added to the
+        stale-state reason, so the refusal and :attr:`zero_reason` name the missing joints.
+        """
+        self._unusable = reason
+        if self._q is None:
+            self._rejection, self._rejection_cause = reason, ZeroCause.NO_STATE
+
     def state_problem(self, now_ns: int) -> str:
         """Why the joint states are not fresh at ``now_ns``; empty when they are."""
         return self.state_check(now_ns)[1]
@@ -336,12 +358,15 @@ class ArmedController:
         """As :meth:`state_problem`: ``(cause, reason)``, ``(None, "")`` when fresh.
 
         Without a valid state since the last one was refused, the cause is that refusal's.
+        The reasons name the topic and the parameter that bounds the age.
         """
+        topic = self.state_topic
         if self._q is None:
             if self._rejection:
-                return self._rejection_cause, (f"no valid joint state received (the last "
-                                               f"one: {self._rejection})")
-            return ZeroCause.NO_STATE, "no valid joint state received"
+                return self._rejection_cause, (f"no valid joint state received on {topic}; "
+                                               f"the last one: {self._rejection}")
+            return ZeroCause.NO_STATE, (f"no valid joint state received on {topic}: is the "
+                                        f"robot's joint state publisher running?")
         age = now_ns - self._arrival_ns
         stamp_age = now_ns - self._stamp_ns
         if age <= self._timeout_ns and stamp_age <= self._timeout_ns + self._skew_ns:
@@ -350,17 +375,26 @@ class ArmedController:
         if repeat is not None and now_ns - repeat <= self._timeout_ns:
             return ZeroCause.FROZEN_STAMP, (
                 f"joint states stale: stamp frozen at {self._stamp_ns / 1e9:.3f} s while "
-                f"messages keep arriving (the last {(now_ns - repeat) / 1e9:.3f} s ago, "
-                f"no new stamp for {age / 1e9:.3f} s): a paused simulation or a driver "
-                f"that repeats its stamp")
+                f"{topic} messages keep arriving (the last {(now_ns - repeat) / 1e9:.3f} s "
+                f"ago, no new stamp for {age / 1e9:.3f} s > state_timeout_s "
+                f"{self.state_timeout_s:g} s): a paused simulation or a driver that "
+                f"repeats its stamp")
         if age > self._timeout_ns:
-            return (ZeroCause.STALE_STATE,
-                    f"joint states stale: last received {age / 1e9:.3f} s ago")
-        return ZeroCause.STALE_STATE, f"joint states stale: last stamp {stamp_age / 1e9:.3f} s old"
+            problem = (f"joint states stale: the last valid {topic} message arrived "
+                       f"{age / 1e9:.3f} s ago (state_timeout_s {self.state_timeout_s:g} s); "
+                       f"is the robot's joint state publisher running, faster than "
+                       f"1/state_timeout_s?")
+        else:
+            problem = (f"joint states stale: the last {topic} stamp is {stamp_age / 1e9:.3f} "
+                       f"s old (> state_timeout_s + max_clock_skew_s = "
+                       f"{self.state_timeout_s + self.max_clock_skew_s:g} s)")
+        if self._unusable:
+            problem += f"; the {topic} messages since then: {self._unusable}"
+        return ZeroCause.STALE_STATE, problem
 
     def _forget_state(self) -> None:
         self._q = None
-        self._rejection = ""
+        self._rejection = self._unusable = ""
         self._stamp_ns = None
         self._arrival_ns = None
         self._repeat_ns = None

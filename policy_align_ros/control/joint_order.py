@@ -1,4 +1,5 @@
-"""Joint orders: the model's against the controller's, the controller's against the executor's."""
+"""Joint orders: the model's against the controller's, the controller's against the
+executor's, and joint-state messages against the controlled joints."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 __all__ = ["NO_ORDER_CHECK", "joint_order_problem", "model_permutation", "order_check_off",
-           "unchecked_order_refusal"]
+           "unchecked_order_refusal", "unusable_state_reason"]
 
 
 def model_permutation(model_joints: Sequence[str] | None, joints: Sequence[str]) -> np.ndarray:
@@ -61,20 +62,69 @@ def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
     Returns
     -------
     str
-        Empty when both lists are equal, else a sentence naming the difference.
+        Empty when both lists are equal, else a sentence naming the difference (only the
+        parts that differ) and the fix: the executor's ``joints`` in the controller's
+        order, or the robot config's.
     """
     theirs, mine = list(controller_joints), list(joints)
     if theirs == mine:
         return ""
+    fix = (f"restart the executor with -p joints:=[{','.join(theirs)}] (the controller's "
+           f"order) or fix joints in the robot config (robot_config)")
     missing = [j for j in mine if j not in theirs]
     extra = [j for j in theirs if j not in mine]
     if missing or extra or len(theirs) != len(mine):
-        return (f"controller {controller} has other joints than the executor: not in the "
-                f"controller {missing}, only in the controller {extra}")
+        parts = [f"{label} {names}" for label, names in (
+            ("not in the controller", missing), ("only in the controller", extra)) if names]
+        if not parts:  # the same names, one of them listed twice
+            parts = [f"{len(theirs)} joints there, {len(mine)} here"]
+        return (f"controller {controller} has other joints than the executor: "
+                f"{', '.join(parts)}; {fix}, or set controller to the node that takes "
+                f"these joints' commands")
     slot = next(i for i, (a, b) in enumerate(zip(theirs, mine, strict=True)) if a != b)
     return (f"controller {controller} orders the joints differently: command slot {slot} "
             f"is {theirs[slot]!r} there and {mine[slot]!r} here (controller order "
-            f"{theirs})")
+            f"{theirs}); {fix}")
+
+
+def _some(names: Sequence[str], shown: int = 4) -> str:
+    """The first ``shown`` of ``names``, quoted, and how many more there are."""
+    names = list(names)
+    if not names:
+        return "none"
+    text = ", ".join(map(repr, names[:shown]))
+    return text + (f" and {len(names) - shown} more" if len(names) > shown else "")
+
+
+def unusable_state_reason(reason: str, names: Sequence[str], joints: Sequence[str]) -> str:
+    """Why a joint-state message without every controlled joint cannot be used.
+
+    Parameters
+    ----------
+    reason : str
+        The converter's skip reason (:class:`~policy_align_ros.data.messages.JointSelector`):
+        ``missing_joints`` (some controlled joints absent) or ``unknown_joints`` (none).
+    names : sequence of str
+        The joint names the message carries.
+    joints : sequence of str
+        The controlled joints (the executor's ``joints``).
+
+    Returns
+    -------
+    str
+        The missing controlled joints (the first few and a count), what the message
+        names, and the fix.
+    """
+    present = set(names)
+    missing = [j for j in joints if j not in present]
+    if reason == "unknown_joints" or len(missing) == len(joints):
+        what = f"none of the {len(joints)} controlled joints ({_some(joints)})"
+    else:
+        what = (f"missing {len(missing)} of the {len(joints)} controlled joints: "
+                f"{_some(missing)}")
+    return (f"{what}; the message names {len(names)} joint(s): {_some(names)}. Publish every "
+            f"joint of the executor's joints parameter on the topic, or start the executor "
+            f"with the robot's joints (-p joints:=[...] or -p robot_config:=NAME)")
 
 
 #: The ``controller`` value that turns the joint order check off, typed on the command line

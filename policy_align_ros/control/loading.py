@@ -20,7 +20,8 @@ from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
-__all__ = ["StartModel", "goal_margin_problem", "learnt_goal", "load_policy"]
+__all__ = ["StartModel", "goal_margin_problem", "learnt_goal", "load_policy",
+           "no_model_fix"]
 
 
 class StartModel:
@@ -129,6 +130,17 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
     frames = ", ".join(policy.state_map.frames)
     return model, policy, np.arange(len(joints)), f"frames {frames}"
 
+
+
+def no_model_fix(node: str, follows_learner: bool) -> str:
+    """How to give the executor ``node`` (its full name) a model, for an enable refused
+    without one; ``follows_learner``: whether it loads the ``/learner/model``
+    announcements."""
+    fix = f"set model_path (policy-align param set {node} model_path FILE)"
+    if follows_learner:
+        return f"{fix} or run the learner, whose /learner/model the executor follows"
+    return (f"{fix}; /learner/model is not followed because model_path was given at start "
+            f"(-p follow_learner:=true follows it)")
 
 
 def learnt_goal(model: PolicyAlign) -> np.ndarray | None:

@@ -464,6 +464,11 @@ class ControlStep:
             P = projector_from_svd(sv, vt)
         if smallest >= self._min_sv:
             return None, "", P
+        if k > n:
+            return (ZeroCause.CONSTRAINTS_NEAR_SINGULAR,
+                    f"the constraints over-constrain the robot: {k} constraint rows on {n} "
+                    f"joints (more rows than joints leave no motion that keeps them all); "
+                    f"remove a constraint from the constraints parameter", None)
         return (ZeroCause.CONSTRAINTS_NEAR_SINGULAR,
                 f"constraint matrix near-singular: smallest singular value {smallest:.3g} "
                 f"< min_singular_value {self._min_sv:g} ({k} rows on {n} joints)", None)

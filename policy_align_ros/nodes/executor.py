@@ -22,11 +22,13 @@ Safety (the logic is ROS-free, :class:`policy_align_ros.control.armed.ArmedContr
 docs/executor_safety.md explains it for robot owners):
 
 * the executor is *armed* only by ``~/enable`` (std_srvs/SetBool) true, which is refused,
-  with the reason, while no model is loaded, the joint states are stale or the constraints
-  cannot be enforced at the current state (a near-singular or non-finite constraint
-  matrix: a frame that the controlled joints do not move); a disable, a model swap and any
-  fault (the policy raising included) disarm it, and it stays disarmed until enabled
-  again. Every arm and disarm is logged with the model and the constraints in force;
+  with the reason (and the fix), while no model is loaded, no valid joint state arrived
+  (naming the controlled joints the messages lack), the joint states are stale or the
+  constraints cannot be enforced at the current state (a near-singular or non-finite
+  constraint matrix: a frame that the controlled joints do not move, more constraint rows
+  than joints); a disable, a model swap and any fault (the policy raising included)
+  disarm it, and it stays disarmed until enabled again. Every arm and disarm is logged
+  with the model and the constraints in force;
 * each joint's command changes by at most ``max_acceleration * period`` per period, both
   when following the policy and when ramping down to zero after a disarm (published until
   the command is zero, then the topic is left alone), and when ``max_velocity`` is lowered
@@ -111,11 +113,13 @@ from policy_align_ros.control import (
     joint_order_problem,
     joint_velocity_bounds,
     load_policy,
+    no_model_fix,
     order_check_off,
     speed_limits,
     stall_time_problem,
     turn_centres,
     unchecked_order_refusal,
+    unusable_state_reason,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
 from policy_align_ros.kinematics import Robot, constraint_from_spec
@@ -225,8 +229,11 @@ class Executor(Node):
                 "start_enabled ignored: no model_path loaded at start; call ~/enable once "
                 "a model is loaded")
             self._arm_at_start = False
-        self.create_subscription(JointState, "/joint_states",
-                                 self._locked(self._on_joint_state), 10)
+        states = self.create_subscription(JointState, "/joint_states",
+                                          self._locked(self._on_joint_state), 10)
+        self.controller.state_topic = states.topic_name  # as remapped, for the reasons
+        # Why a message of these joint names is unusable (few distinct lists per topic).
+        self._unusable_reasons: dict[tuple[str, ...], str] = {}
         self.create_subscription(String, "/learner/model", self._locked(self._on_model),
                                  LATCHED_QOS)
         self._controller_client = None
@@ -436,10 +443,14 @@ class Executor(Node):
         now = self._now_ns()
         q = self._selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
         if isinstance(q, str):
-            self._count_rejected(q)
             if q in UNTRUSTWORTHY:
+                self._count_rejected(q)
                 self._emit(self.controller.reject_state(f"untrustworthy joint state: {q}",
                                                         ZeroCause(q)))
+            else:  # unknown_joints, missing_joints: counted, named, nothing stops
+                reason = self._unusable_reason(q, msg.name)
+                self._count_rejected(q, reason)
+                self.controller.unusable_state(reason)
             return
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         out = self.controller.joint_state(q, stamp, now)
@@ -452,6 +463,17 @@ class Executor(Node):
             # Armed like ~/enable, with the controller check, without blocking this thread.
             self._arm_at_start = False
             self.executor.create_task(self._enable_at_start)
+
+    def _unusable_reason(self, key: str, names: Sequence[str]) -> str:
+        """:func:`unusable_state_reason` of a message's joint ``names`` (cached)."""
+        names = tuple(names)
+        reason = self._unusable_reasons.get(names)
+        if reason is None:
+            if len(self._unusable_reasons) >= 64:
+                self._unusable_reasons.clear()
+            reason = self._unusable_reasons[names] = unusable_state_reason(
+                key, names, self.robot.joint_names)
+        return reason
 
     def _count_rejected(self, reason: str, hint: str = "") -> None:
         self.rejected_states[reason] += 1
@@ -494,7 +516,10 @@ class Executor(Node):
             self._enable_requests += 1
             ticket = self._enable_requests
             path = self.model_path
-            reason = self.controller.arm_refusal(self._now_ns())
+            cause, reason = self.controller.arm_check(self._now_ns())
+            if cause == ZeroCause.NO_MODEL:
+                fix = no_model_fix(self.get_fully_qualified_name(), self._follow_learner)
+                reason += f"; {fix}"
             accepted = not reason
             check = accepted and not self.controller.armed
             client = self._controller_client
@@ -521,7 +546,7 @@ class Executor(Node):
                 self._emit(out)
             model = self._model_text()
             message = (f"enabled ({model}){note}" if accepted
-                       else f"refused: {reason} ({model})")
+                       else f"refused: {reason}" + (f" ({model})" if self.model_path else ""))
             if not accepted:
                 self.get_logger().warning(f"~/enable {message}")
         return accepted, message

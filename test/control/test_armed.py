@@ -3,6 +3,8 @@
 Arming, ramps and staleness run on an injected clock (tick counts), never on wall time.
 """
 
+import re
+
 import numpy as np
 import pytest
 from control_rigs import (
@@ -250,6 +252,35 @@ def test_broken_joint_states_stop_at_once():
     assert run.arm() == (False, ZeroCause.NON_FINITE_STATE)
 
 
+def test_messages_lacking_a_controlled_joint_are_named_by_the_refusal_and_the_disarm():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N), timeout_s=0.05)
+    lacking = "missing 'joint 5' (the message names 'joint 0'-'joint 4')"
+    run.control.unusable_state(lacking)  # the executor words it (test_joint_order.py)
+    assert run.arm() == (False, ZeroCause.NO_STATE)
+    cause, reason = run.control.arm_check(run.now)
+    assert lacking in reason and run.control.state_topic in reason
+    assert run.control.state_problem(run.now) == reason  # /diagnostics' joint_states
+    # A valid state takes over; while armed such messages stop nothing (other publishers
+    # on a shared topic), until the valid ones stop coming.
+    run.state()
+    assert run.arm() == (True, None)
+    for _ in range(10):
+        run.tick()
+        run.control.unusable_state(lacking)
+    assert run.control.armed
+    outs = [run.tick(states=False) for _ in range(6)]
+    assert outs[-1].zero_cause == ZeroCause.STALE_STATE and not run.control.armed
+    assert lacking in run.control.zero_reason and lacking in outs[-1].zero_reason
+    assert "state_timeout_s" in run.control.zero_reason
+    assert run.control.state_topic in run.control.zero_reason
+    # A valid state clears it: a later staleness is only staleness.
+    run.state()
+    run.k += 6
+    assert lacking not in run.control.state_problem(run.now)
+    assert "state_timeout_s" in run.control.state_problem(run.now)
+
+
 def test_model_swap_ramps_down_and_stays_disarmed():
     step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
     run = _Run(step, np.zeros(N))
@@ -424,9 +455,14 @@ def test_a_near_singular_constraint_matrix_ramps_down_and_says_why():
         run.tick()
     _assert_ramped(run.sent[n_before - 1:], ACC * DT_NS / 1e9)
     assert not np.any(run.sent[-1]) and not run.control.armed and run.control.faulted
-    # Rows more than joints can never be independent.
-    step.constraints = [_Row(r) for r in np.eye(N + 1, N)]
-    assert step(np.zeros(N))[2] == ZeroCause.CONSTRAINTS_NEAR_SINGULAR
+    # Rows more than joints can never be independent: the reason counts rows and joints
+    # and names the parameter to remove a constraint from, not the threshold (no
+    # min_singular_value would help).
+    step.constraints = [_Row(r) for r in np.eye(N + 2, N)]
+    _, reason, cause = step(np.zeros(N))
+    assert cause == ZeroCause.CONSTRAINTS_NEAR_SINGULAR
+    assert re.search(rf"\b{N + 2}\b.*\b{N} joints\b", reason), reason
+    assert "constraints" in reason and "min_singular_value" not in reason
 
 
 @pytest.mark.parametrize("joint, value", [

@@ -5,10 +5,14 @@ import pytest
 
 from policy_align_ros.control import (
     NO_ORDER_CHECK,
+    joint_order_problem,
     model_permutation,
     order_check_off,
     unchecked_order_refusal,
+    unusable_state_reason,
 )
+
+ARM = [f"joint{i}" for i in range(1, 8)]
 
 
 def test_model_permutation_maps_controller_order_to_model_order():
@@ -34,3 +38,37 @@ def test_an_unread_joint_order_refusal_names_the_fixes():
     # The controller, what went wrong (passed through) and the parameter that opts out.
     assert "/velocity_controller" in text and why in text
     assert f"-p controller:={NO_ORDER_CHECK}" in text
+
+
+def test_a_controller_order_problem_names_the_slot_and_the_fix():
+    text = joint_order_problem(ARM[::-1], ARM, "/velocity_controller")
+    assert "'joint7'" in text and "'joint1'" in text and "/velocity_controller" in text
+    # The fix: the executor's joints in the controller's order, or the robot config.
+    assert f"-p joints:=[{','.join(ARM[::-1])}]" in text and "robot_config" in text
+    assert joint_order_problem(ARM, ARM, "/c") == ""
+
+
+@pytest.mark.parametrize("theirs, missing, extra", [
+    (ARM[:-1], ["joint7"], []),
+    ([*ARM, "gripper"], [], ["gripper"]),
+    ([*ARM[:-1], "gripper"], ["joint7"], ["gripper"]),
+])
+def test_other_controller_joints_name_only_the_parts_that_differ(theirs, missing, extra):
+    text = joint_order_problem(theirs, ARM, "/c")
+    assert "[]" not in text  # an empty side is left out
+    for names in (missing, extra):
+        assert (str(names) in text) == bool(names)
+    assert f"-p joints:=[{','.join(theirs)}]" in text
+
+
+def test_a_joint_state_lacking_controlled_joints_names_them_and_what_it_carries():
+    names = ARM[:-1]  # the robot publishes joint1..joint6
+    text = unusable_state_reason("missing_joints", names, ARM)
+    assert "'joint7'" in text and "'joint1'" in text and "6" in text
+    assert "-p joints:=" in text and "robot_config" in text  # the fixes
+    many = [f"other{i}" for i in range(20)]
+    text = unusable_state_reason("unknown_joints", many, ARM)
+    # The controlled joints the message should carry, and the first few it does, counted.
+    assert "'joint1'" in text and "'other0'" in text and "'other19'" not in text
+    assert "20" in text
+    assert unusable_state_reason("unknown_joints", [], ARM)  # no names at all

@@ -8,7 +8,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from policy_align_ros.control import StartModel, goal_margin_problem, learnt_goal, load_policy
+from policy_align_ros.control import (
+    StartModel,
+    goal_margin_problem,
+    learnt_goal,
+    load_policy,
+    no_model_fix,
+)
 from policy_align_ros.experiments.toy import make_toy_dataset
 from policy_align_ros.kinematics import Robot
 from policy_align_ros.learning import PolicyAlign, model_io
@@ -99,3 +105,11 @@ def test_a_learnt_goal_at_a_limit_is_named_by_the_executors_joint():
     # A goal in frame positions is no posture to check.
     frames = _goal_model([[0.01, 0.5]], [], state={"type": "frames"})
     assert goal_margin_problem(frames, perm, robot, 0.05) == ""
+
+
+@pytest.mark.parametrize("follows", [True, False])
+def test_an_enable_without_a_model_names_the_ways_to_load_one(follows):
+    text = no_model_fix("/ns/executor", follows)
+    assert "policy-align param set /ns/executor model_path" in text
+    assert "/learner/model" in text
+    assert ("follow_learner" in text) is not follows  # the switch, when it is off

@@ -1,6 +1,6 @@
 """The ``executor`` node: stall detection, model precedence and the messages about joint
-states that cannot be used (sim-time stamps, a frozen stamp) (own rclpy.Context, domain
-ids 224, 225, 119 and 121).
+states that cannot be used (sim-time stamps, a frozen stamp, controlled joints missing)
+(own rclpy.Context, domain ids 224, 225, 119, 121 and 124).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The logic itself is tested without a
@@ -11,7 +11,9 @@ import numpy as np
 from executor_rig import JOINTS, PERIOD, _assert_ramped, _attractor_policy, _fit_model
 from rclpy.parameter import Parameter
 from rclpy.time import Time
+from sensor_msgs.msg import JointState
 from std_msgs.msg import String
+from std_srvs.srv import SetBool
 
 from policy_align_ros.control import ZeroCause
 from policy_align_ros.control.stall import STALL_MIN_SPEED
@@ -109,3 +111,60 @@ def test_a_frozen_stamp_is_named_while_messages_keep_arriving(rig):
     # Joint states that stop altogether still read as such.
     r.spin(0.7, publish_states=False)
     assert r.node.controller.state_check(r.node._now_ns())[0] == ZeroCause.STALE_STATE
+
+
+def test_joint_states_lacking_a_controlled_joint_are_named_by_the_refusal(rig):
+    r = rig(124)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+
+    def feed(names, key):
+        """Publish messages of ``names`` until three were counted as ``key``."""
+        count = r.node.rejected_states[key] + 3
+
+        def publish():
+            msg = JointState(name=list(names), position=[0.1] * len(names))
+            msg.header.stamp = r.node.get_clock().now().to_msg()
+            r.states.publish(msg)
+            return r.node.rejected_states[key] >= count
+
+        r.spin_until(publish, publish_states=False, what=f"{key} messages")
+
+    def values():
+        return {kv.key: kv.value for kv in r.diagnostics[-1].status[0].values}
+
+    def enable():
+        """~/enable true, without the rig's (complete) joint states meanwhile."""
+        assert r.enable_client.wait_for_service(timeout_sec=5.0)
+        future = r.enable_client.call_async(SetBool.Request(data=True))
+        r.spin_until(future.done, publish_states=False, what="the ~/enable answer")
+        return future.result()
+
+    # The robot publishes six of the seven joints: the enable refusal and /diagnostics
+    # name the missing one, what the messages carry and the topic.
+    feed(JOINTS[:-1], "missing_joints")
+    response = enable()
+    assert not response.success and not r.node.controller.armed
+    assert r.node.controller.arm_check(r.node._now_ns())[0] == ZeroCause.NO_STATE
+    assert "'arm_left_7_joint'" in response.message and "'arm_left_1_joint'" in response.message
+    assert "/joint_states" in response.message
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics, publish_states=False, what="diagnostics")
+    assert "'arm_left_7_joint'" in values()["joint_states"]
+    assert "missing_joints=" in values()["rejected_joint_states"]
+    # Messages of other joints only: the controlled joints they should carry are named.
+    feed(["gripper_left", "gripper_right"], "unknown_joints")
+    response = enable()
+    assert not response.success
+    assert "'gripper_left'" in response.message and "'arm_left_1_joint'" in response.message
+    # Armed on full states, then only six joints arrive: the stale-state disarm's
+    # zero_reason names the missing joint as well.
+    r.enable_when_fresh()
+    r.spin_until(lambda: len(r.commands) >= 3, what="commands")
+    feed(JOINTS[:-1], "missing_joints")
+    r.spin_until(lambda: (feed(JOINTS[:-1], "missing_joints"),
+                          not r.node.controller.armed)[1],
+                 publish_states=False, what="the stale-state disarm")
+    control = r.node.controller
+    assert control.zero_cause == ZeroCause.STALE_STATE
+    assert "'arm_left_7_joint'" in control.zero_reason
+    assert "state_timeout_s" in control.zero_reason

@@ -1,15 +1,26 @@
 """Integration tests of the ``executor`` node: arming, ramps, staleness, parameters, models,
 diagnostics, the controller check, sim time and lockstep (own rclpy.Context, domain ids 112,
-150-156, 158, 159, 200, 201, 204, 205, 208, 210-214, 219).
+126, 150-156, 158, 159, 200, 201, 204, 205, 208, 210-214, 219).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout". The ramp, arming and staleness logic
 itself is tested without a graph in test/control/.
 """
 
+import re
+
 import numpy as np
 import pytest
-from executor_rig import ACC, JOINTS, PERIOD, Rig, _assert_ramped, _attractor_policy, _fit_model
+from executor_rig import (
+    ACC,
+    JOINTS,
+    PERIOD,
+    PLANE,
+    Rig,
+    _assert_ramped,
+    _attractor_policy,
+    _fit_model,
+)
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -32,6 +43,9 @@ def test_enable_is_refused_without_a_model_and_with_stale_joint_states(rig):
     r = rig(150)
     response = r.enable(True)
     assert not response.success and _refusal_cause(r) == ZeroCause.NO_MODEL
+    # The fixes: set model_path (the command that does it), or run the learner.
+    assert "policy-align param set /executor model_path" in response.message
+    assert "/learner/model" in response.message
     r.spin(0.2)
     assert r.commands == []  # disarmed: the topic is left alone
     r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
@@ -43,6 +57,8 @@ def test_enable_is_refused_without_a_model_and_with_stale_joint_states(rig):
     # The rig goes on publishing the old stamp while ~/enable waits: stale either way.
     assert not response.success
     assert _refusal_cause(r) in (ZeroCause.STALE_STATE, ZeroCause.FROZEN_STAMP)
+    # The topic and the parameter that bounds the age.
+    assert "/joint_states" in response.message and "state_timeout_s" in response.message
     r.stamp = None
     r.enable_when_fresh()
     r.spin_until(lambda: len(r.commands) >= 5, what="commands")
@@ -150,6 +166,25 @@ def test_bad_parameters_are_refused_with_a_reason(rig):
                                           "state_timeout_s", "max_clock_skew_s", "rate_hz",
                                           "joint_limit_margin", "max_extrapolation_rad"]):
         assert desc.description and len(desc.floating_point_range) == 1, desc.name
+
+
+def test_more_constraint_rows_than_joints_refuse_the_enable_naming_the_fix(rig):
+    # A plane (1 row) and the seven joints held (7 rows) and a second plane: 9 rows.
+    specs = (f"[{PLANE[1:-1]}, {{type: joints, joints: [{', '.join(JOINTS)}]}}, "
+             "{type: plane, frame: arm_left_7_link, normal: [1, 0, 0]}]")
+    r = rig(126, constraints=specs)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    response = r.enable(True)
+    assert not response.success and not r.node.controller.armed
+    assert _refusal_cause(r) == ZeroCause.CONSTRAINTS_NEAR_SINGULAR
+    # The rows and the joints counted, and the parameter to remove one from; the
+    # singular-value threshold is no fix here.
+    assert re.search(r"\b9\b.*\b7 joints\b", response.message), response.message
+    assert "constraints" in response.message and "min_singular_value" not in response.message
+    assert r.node.set_parameters([Parameter("constraints", value=PLANE)])[0].successful
+    assert r.enable(True).success
 
 
 def test_model_announced_on_learner_topic_is_loaded_and_checked(rig, tmp_path):
@@ -362,16 +397,24 @@ def test_enable_checks_the_controllers_joint_order(rig):
                      what="fresh joint states")
         response = r.enable(True)
         assert not response.success and not r.node.controller.armed
-        # The controller and the joints of the first slot that differs, both ways.
+        # The controller and the joints of the first slot that differs, both ways, and
+        # the fix: the executor's joints in the controller's order, or the robot config.
         assert "/velocity_controller" in response.message
         assert "'arm_left_7_joint'" in response.message
         assert "'arm_left_1_joint'" in response.message
+        assert f"-p joints:=[{','.join(JOINTS[::-1])}]" in response.message
+        assert "robot_config" in response.message
         controller.set_parameters([Parameter("joints", value=[*JOINTS[:-1], "head_1_joint"])])
         response = r.enable(True)
         assert not response.success and not r.node.controller.armed
         # The joints only one side has.
         assert "['arm_left_7_joint']" in response.message
         assert "['head_1_joint']" in response.message
+        # Only one side has extra joints: the other, empty, is left out.
+        controller.set_parameters([Parameter("joints", value=JOINTS[:-1])])
+        response = r.enable(True)
+        assert not response.success and "['arm_left_7_joint']" in response.message
+        assert "[]" not in response.message
         r.spin(0.1)
         assert r.commands == []  # refused: nothing was ever published
         controller.set_parameters([Parameter("joints", value=JOINTS)])
