@@ -66,6 +66,7 @@ from policy_align_ros.control.loading import (
     goal_margin_problem,
     learnt_goal,
     load_policy,
+    model_load_error,
     no_model_fix,
 )
 from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
@@ -133,6 +134,7 @@ __all__ = [
     "learnt_goal",
     "limit_locks",
     "load_policy",
+    "model_load_error",
     "model_permutation",
     "nearest_turn",
     "no_model_fix",

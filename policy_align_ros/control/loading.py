@@ -9,6 +9,7 @@ learner may replace at any time.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from pathlib import Path
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
 __all__ = ["StartModel", "goal_margin_problem", "learnt_goal", "load_policy",
-           "no_model_fix"]
+           "model_load_error", "no_model_fix"]
 
 
 class StartModel:
@@ -141,6 +142,23 @@ def no_model_fix(node: str, follows_learner: bool) -> str:
         return f"{fix} or run the learner, whose /learner/model the executor follows"
     return (f"{fix}; /learner/model is not followed because model_path was given at start "
             f"(-p follow_learner:=true follows it)")
+
+
+def model_load_error(path: str, err: Exception) -> str:
+    """The start-up error for a ``model_path`` that does not load: the file, why, and the
+    fix (for a missing file, where a relative path was looked for)."""
+    if isinstance(err, FileNotFoundError):
+        where = Path(path).expanduser()
+        fix = ("check the path" + ("" if where.is_absolute() else
+                                   f" (a relative path is read from {Path.cwd()})"))
+    else:
+        fix = ("give a model file learnt for this robot's joints (by policy-align learn or "
+               "the learner)")
+    why = str(err)
+    for prefix in (f"{path}: ", f"model {path}: "):  # the loaders' own naming of the file
+        why = why.removeprefix(prefix)
+    return (f"model_path: cannot load {path}: {why}; {fix}, or leave model_path unset to "
+            f"start without a model and wait for /learner/model")
 
 
 def learnt_goal(model: PolicyAlign) -> np.ndarray | None:

@@ -16,7 +16,8 @@ form::
 
 :func:`resolve_robot_setup` applies the nodes' precedence for ``robot`` and ``joints``:
 an explicit parameter, then the model file, then the robot config, then an error naming
-the fix.
+the fix. A model file whose robot or joints contradict a robot config given explicitly is
+left out (:attr:`RobotSetup.model_refused` says why): the config's robot and joints apply.
 """
 
 from __future__ import annotations
@@ -94,13 +95,16 @@ class RobotConfig:
 class RobotSetup:
     """A node's resolved robot: ``robot``, ``joints`` (command order), ``controller``,
     the config used (or None), and where ``robot`` and ``joints`` came from (``sources``:
-    ``"parameter"``, ``"model file"`` or ``"robot config NAME"``)."""
+    ``"parameter"``, ``"model file"`` or ``"robot config NAME"``). ``model_refused`` is
+    why the model file was left out (its robot or joints contradict the ``robot_config``
+    given; the node must not load it), empty otherwise."""
 
     robot: str
     joints: list[str]
     controller: str
     config: RobotConfig | None
     sources: dict[str, str]
+    model_refused: str = ""
 
     @property
     def home(self) -> list[float] | None:
@@ -252,7 +256,9 @@ def resolve_robot_setup(robot: str | None = None, joints: Sequence[str] | None =
         :data:`DEFAULT_ROBOT_CONFIG` when no robot is named anywhere.
     model : (robot, joints), optional
         The robot and joints a model file was learnt for (either may be None: a file
-        written before the robot field, or a model of unnamed positions).
+        written before the robot field, or a model of unnamed positions). Ignored, with
+        :attr:`RobotSetup.model_refused` set, when they contradict ``robot_config``'s
+        robot or joints where the explicit ``robot`` and ``joints`` leave them to it.
 
     Returns
     -------
@@ -268,8 +274,12 @@ def resolve_robot_setup(robot: str | None = None, joints: Sequence[str] | None =
     robot = robot or None
     joints = list(joints) if joints else None
     config = None
+    refused = ""
     if robot_config:
         config = load_robot_config(robot_config)
+        refused = _model_conflict(robot, joints, config, model_robot, model_joints)
+        if refused:
+            model_robot = model_joints = None  # the config's robot and joints, no model
     else:
         named = robot or model_robot
         if named is None:
@@ -304,7 +314,31 @@ def resolve_robot_setup(robot: str | None = None, joints: Sequence[str] | None =
     controller = config.controller if same else "/velocity_controller"
     return RobotSetup(robot=str(robot), joints=[str(j) for j in joints],
                       controller=controller, config=config if same else None,
-                      sources=sources)
+                      sources=sources, model_refused=refused)
+
+
+def _model_conflict(robot: str | None, joints: list[str] | None, config: RobotConfig,
+                    model_robot: str | None, model_joints: Sequence[str] | None) -> str:
+    """Why a model file's robot or joints contradict the robot config given, for the
+    fields the explicit ``robot`` and ``joints`` leave to them; empty when they agree.
+
+    The model would give the robot when ``robot`` is unset, and the joints when ``joints``
+    is unset and the config is that robot's: a model naming another robot, or other
+    joints than the config's, is a conflict (the run-time load would refuse it too).
+    """
+    robot_differs = not robot and bool(model_robot) and model_robot != config.robot
+    used = robot or model_robot or config.robot
+    joints_differ = (not joints and bool(model_joints) and used == config.robot
+                     and (model_robot is None or model_robot == used)
+                     and set(model_joints) != set(config.joints))
+    if not (robot_differs or joints_differ):
+        return ""
+    learnt = f"robot {model_robot!r}" if model_robot else "no robot"
+    return (f"the model file was learnt for {learnt} and joints {list(model_joints or [])}, "
+            f"but robot_config {config.name} names robot {config.robot!r} and joints "
+            f"{config.joints}; give a model learnt for robot_config's robot and joints, or "
+            f"leave robot_config unset (the model then sets robot and joints), or set robot "
+            f"and joints explicitly (-p robot:=NAME -p joints:=[...])")
 
 
 def learning_robot(robot: str | None, joints: Sequence[str] | None,

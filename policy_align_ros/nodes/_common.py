@@ -137,8 +137,10 @@ def declare_robot(node: Node, role: str, model_path: str | None = None,
     ``robot`` and ``joints`` default to the resolved values (explicit parameter, then the
     model file at the ``model_path`` parameter's value when given, then the robot config;
     :func:`~policy_align_ros.kinematics.robot_config.resolve_robot_setup`), so a
-    parameter get shows what the node uses. ``read_fields(path)`` reads the model file's
-    ``(robot, joints)`` (the executor passes one that reads the whole model once:
+    parameter get shows what the node uses. A model file that contradicts an explicit
+    ``robot_config`` gives neither (the returned setup's ``model_refused`` says why).
+    ``read_fields(path)`` reads the model file's ``(robot, joints)`` (the executor passes
+    one that reads the whole model once:
     :class:`~policy_align_ros.control.loading.StartModel`).
 
     Raises

@@ -7,7 +7,9 @@ At ``rate_hz`` it publishes ``qdot = s N(q) pi_hat(q)`` (rad/s, order = ``joints
 ``policy_align_ros.kinematics.constraint_from_spec``) and ``s`` keeps every joint under
 ``max_velocity`` (rad/s) and inside its limits (:mod:`policy_align_ros.control`). The robot
 and ``joints`` are the explicit parameters, else the model file's at ``model_path``, else
-the robot config's (``robot_config``; docs/design.md section 4).
+the robot config's (``robot_config``; docs/design.md section 4). A model file given at
+start whose robot or joints contradict a ``robot_config`` given is not loaded: the
+executor starts without a model and logs an error naming both and the fixes.
 
 A model learnt on frame positions (its header's state definition is ``{"type": "frames",
 ...}``) gives a task-space policy ``pi_x(x)`` (m/s) over the stacked positions ``x`` (3F,)
@@ -68,7 +70,8 @@ docs/executor_safety.md explains it for robot owners):
 A ros2_control JointGroupVelocityController holds its last command forever, so the
 executor also publishes a zero when it shuts down; pair it with a controller-side command
 timeout for the case it is killed. The model is loaded from ``model_path`` at start (a
-file that does not load stops the node) and whenever ``model_path`` is set. A
+file that does not load stops the node, with an error naming the file and the fix) and
+whenever ``model_path`` is set. A
 ``/learner/model`` (std_msgs/String, transient local) announcement sets it only when the
 executor follows the learner: ``follow_learner`` true, or no ``model_path`` given at start
 (an explicit model file wins otherwise). A model that does not load, or was trained on
@@ -88,7 +91,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
+from rclpy.exceptions import (
+    InvalidParameterValueException,
+    InvalidServiceNameException,
+    InvalidTopicNameException,
+)
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -113,6 +120,7 @@ from policy_align_ros.control import (
     joint_order_problem,
     joint_velocity_bounds,
     load_policy,
+    model_load_error,
     no_model_fix,
     order_check_off,
     speed_limits,
@@ -163,6 +171,12 @@ class Executor(Node):
         # A model loaded while validating ``model_path``, applied once the set succeeds.
         self._staged: tuple[str, PolicyAlign, Callable, np.ndarray, str] | None = None
         self._start_model = StartModel()  # read once for the robot and the policy
+        #: Why the model file given at start was not loaded (it contradicts robot_config).
+        self._model_refused = ""
+        # The start-up error of a model_path given at start that does not load.
+        self._start_error = ""
+        #: The model_path given at start (loaded or not), empty without one.
+        self._given_model_path = ""
         #: What the loaded model's state is: "joints" or "frames F1, F2".
         self.model_state = ""
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
@@ -186,13 +200,28 @@ class Executor(Node):
         setup = declare_robot(self, "controlled", model_path="model_path",
                               read_fields=self._start_model.robot_fields)
         self.robot, self._default_controller = load_robot(setup), setup.controller
+        self._model_refused = setup.model_refused
         self.declare_parameter("rate_hz", 100.0, descriptor(
             "control rate [Hz]", read_only=True, float_range=(1.0, 1000.0)))
 
     def _declare_control_parameters(self) -> None:
         """The run-time parameters (declared once the robot is loaded: their set callback
-        loads models and checks constraint specs on it)."""
-        declare_control_parameters(self, self._default_controller)
+        loads models and checks constraint specs on it).
+
+        A model file given at start that does not load stops the node with
+        :func:`~policy_align_ros.control.loading.model_load_error` (rclpy's exception
+        words it as a parameter-set failure); one that contradicts ``robot_config`` is
+        left out with an error logged, and ``model_path`` reads empty.
+        """
+        try:
+            declare_control_parameters(self, self._default_controller)
+        except InvalidParameterValueException:
+            if self._start_error:
+                raise ValueError(self._start_error) from None
+            raise
+        self._given_model_path = self.get_parameter("model_path").value
+        if self._model_refused and self._given_model_path:
+            self.set_parameters([Parameter("model_path", value="")])
 
     def _make_controller(self, joints: list[str]) -> ArmedController:
         """The armed controller from the declared parameters."""
@@ -220,9 +249,10 @@ class Executor(Node):
             self._apply_staged()
         self._update_context()
         self._arm_at_start = bool(self.get_parameter("start_enabled").value)
-        # An explicit model file wins over /learner/model unless asked to follow it.
+        # An explicit model file wins over /learner/model unless asked to follow it (also
+        # when it was refused at start: the file named is the one meant, not the learner's).
         self._follow_learner = (bool(self.get_parameter("follow_learner").value)
-                                or not self.model_path)
+                                or not self._given_model_path)
         self._lockstep = bool(self.get_parameter("step_on_joint_state").value)
         if self._arm_at_start and self.controller.step.policy is None:
             self.get_logger().warning(
@@ -338,16 +368,25 @@ class Executor(Node):
     def _stage_model(self, path: str):
         """Load ``path`` for a ``model_path`` set; a refusal result, or None when loaded."""
         self._staged = None
+        starting = self.controller is None
         if not path:
-            if self.controller is None:
+            if starting:
                 return None  # the default at start: wait for /learner/model
             return reject("model_path: empty; the loaded model stays (disable with "
                           "~/enable to stop)")
+        if starting and self._model_refused:
+            self._start_model.take(path)  # not needed: free it
+            self.get_logger().error(
+                f"model_path {path} not loaded: {self._model_refused}. The executor starts "
+                f"without a model (~/enable is refused until one loads)")
+            return None  # model_path is then set empty (_declare_control_parameters)
         try:
             model, policy, perm, state = load_policy(
                 path, self.robot, self._constraint_matrix, self._joint_bounds,
                 self._start_model.take(path))
         except (ValueError, OSError) as err:
+            if starting:
+                self._start_error = model_load_error(path, err)
             return reject(f"model_path: not loaded: {err}")
         self._staged = (path, model, policy, perm, state)
         return None
@@ -425,8 +464,8 @@ class Executor(Node):
         if not self._follow_learner:
             self.get_logger().info(
                 f"model announced on /learner/model ignored: {msg.data} (model_path "
-                f"{self.model_path} was given at start; -p follow_learner:=true follows "
-                f"the learner)")
+                f"{self._given_model_path} was given at start; -p follow_learner:=true "
+                f"follows the learner)")
             return
         result = self.set_parameters([Parameter("model_path", value=msg.data)])[0]
         if not result.successful:

@@ -13,6 +13,7 @@ from policy_align_ros.control import (
     goal_margin_problem,
     learnt_goal,
     load_policy,
+    model_load_error,
     no_model_fix,
 )
 from policy_align_ros.experiments.toy import make_toy_dataset
@@ -105,6 +106,20 @@ def test_a_learnt_goal_at_a_limit_is_named_by_the_executors_joint():
     # A goal in frame positions is no posture to check.
     frames = _goal_model([[0.01, 0.5]], [], state={"type": "frames"})
     assert goal_margin_problem(frames, perm, robot, 0.05) == ""
+
+
+def test_a_model_file_that_does_not_load_at_start_is_named_with_the_fix(tmp_path,
+                                                                         monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    try:
+        PolicyAlign.load("nosuch.npz")
+    except FileNotFoundError as err:
+        text = model_load_error("nosuch.npz", err)
+    # The parameter, the file, where a relative path was looked for, and the other way out.
+    assert text.startswith("model_path") and "nosuch.npz" in text
+    assert str(tmp_path) in text and "/learner/model" in text
+    text = model_load_error("/abs/other.npz", ValueError("trained on other joints"))
+    assert "trained on other joints" in text and str(tmp_path) not in text
 
 
 @pytest.mark.parametrize("follows", [True, False])

@@ -72,14 +72,39 @@ def test_the_model_file_comes_before_the_robot_config():
     setup = resolve_robot_setup(model=("panda", PANDA[::-1]))
     assert setup.robot == "panda" and setup.sources["joints"] == "model file"
     assert setup.joints == PANDA  # the same joints: in the config's (controller) order
-    few = resolve_robot_setup(robot_config="talos", model=("panda", PANDA[:3]))
-    assert few.robot == "panda" and few.joints == PANDA[:3]
+    few = resolve_robot_setup(model=("panda", PANDA[:3]))
+    assert few.robot == "panda" and few.joints == PANDA[:3] and not few.model_refused
     # A file written before the robot field: its joints, the explicit robot.
     old = resolve_robot_setup("panda", model=(None, PANDA[:2]))
     assert old.joints == PANDA[:2] and old.sources["joints"] == "model file"
     # A model of another robot gives no joints: the robot config's.
     other = resolve_robot_setup("panda", model=("talos", ["torso_1_joint"]))
     assert other.joints == PANDA and other.sources["joints"] == "robot config panda"
+
+
+def test_a_model_contradicting_the_robot_config_given_is_left_out():
+    talos = load_robot_config("talos")
+    # Another robot: the config's robot and joints; the reason names both sides.
+    setup = resolve_robot_setup(robot_config="talos", model=("panda", PANDA[:3]))
+    assert setup.robot == "talos" and setup.joints == talos.joints
+    assert setup.sources == {"robot": "robot config talos", "joints": "robot config talos"}
+    for item in ("'panda'", PANDA[2], "'talos'", talos.joints[-1], "robot_config",
+                 "-p robot:=", "-p joints:="):
+        assert item in setup.model_refused, item
+    # The config's robot but other joints, also from a file naming no robot, and with
+    # the robot explicit but the joints left to the model.
+    for kwargs in ({"model": ("panda", PANDA[:3])}, {"model": (None, PANDA[:3])},
+                   {"robot": "panda", "model": ("panda", PANDA[:3])}):
+        setup = resolve_robot_setup(robot_config="panda", **kwargs)
+        assert setup.joints == PANDA and PANDA[2] in setup.model_refused, kwargs
+    # No conflict: the config's joints in another order; no robot_config given; explicit
+    # joints; an explicit robot that the config is not for.
+    same = resolve_robot_setup(robot_config="panda", model=("panda", PANDA[::-1]))
+    assert same.joints == PANDA and not same.model_refused
+    explicit = resolve_robot_setup("panda", PANDA[:3], "panda", ("panda", PANDA[:3]))
+    assert explicit.joints == PANDA[:3] and not explicit.model_refused
+    other = resolve_robot_setup("panda", robot_config="talos", model=("panda", PANDA[:3]))
+    assert other.joints == PANDA[:3] and not other.model_refused
 
 
 def test_the_robot_config_comes_last_and_talos_when_nothing_is_named():

@@ -1,5 +1,5 @@
 """The ``executor`` node as its console script runs it: signals, a bad start-up (domain ids
-157, 171, 202, 203).
+127, 157, 171, 202, 203).
 
 Assertions count control ticks and messages, never wall-clock speed: waits are "until a
 condition holds, or fail after a generous timeout".
@@ -153,12 +153,27 @@ def test_a_model_path_that_does_not_load_at_start_stops_the_node(tmp_path):
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=202)
     try:
-        with pytest.raises(InvalidParameterValueException, match="missing.npz"):
+        # A ValueError of the executor's own (run_node prints it as one line), naming the
+        # parameter and the file, not rclpy's parameter-set failure.
+        with pytest.raises(ValueError, match="missing.npz") as err:
             Executor(context=context, parameter_overrides=[
                 Parameter("joints", value=JOINTS),
                 Parameter("model_path", value=str(tmp_path / "missing.npz"))])
+        assert not isinstance(err.value, InvalidParameterValueException)
+        assert str(err.value).startswith("model_path")
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_process_with_a_missing_model_file_exits_with_one_line_naming_it(node_process):
+    done = node_process("executor", 127, "model_path:=nosuch.npz")
+    assert done.returncode == 1 and "Traceback" not in done.stderr
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, done.stderr
+    # The parameter and the file, once; where a relative path was looked for; the other
+    # way out (no model_path: wait for the learner's).
+    assert "model_path" in errors[0] and errors[0].count("nosuch.npz") == 1
+    assert os.getcwd() in errors[0] and "/learner/model" in errors[0]
 
 
 def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason(node_process):

@@ -1,6 +1,7 @@
 """The executor's robot and joints: an explicit parameter, then the model file, then the
-robot config, else an error naming the fix; the model file is read once (own
-rclpy.Context, domain ids 196-198 and 228)."""
+robot config, else an error naming the fix; a model file contradicting the robot config
+given is not loaded; the model file is read once (own rclpy.Context, domain ids 196-198,
+228 and 122)."""
 
 import numpy as np
 import pytest
@@ -69,6 +70,34 @@ def test_the_model_file_gives_robot_and_joints_before_the_config(executor, tmp_p
     old = _model(tmp_path / "old.npz", PANDA[:4], np.zeros(4), None)
     legacy = executor(197, robot="panda", model_path=old)
     assert legacy.robot.joint_names == PANDA[:4] and legacy.model_path == old
+
+
+def test_a_model_file_contradicting_robot_config_is_not_loaded_at_start(executor, tmp_path,
+                                                                         capfd):
+    path = _model(tmp_path / "ur5.npz", UR5.joints, UR5.home, "ur5")
+    node = executor(122, robot_config="panda", model_path=path)
+    # The config's robot and joints, no model, and model_path saying so.
+    assert node.robot.name == "panda" and node.robot.joint_names == PANDA
+    assert node.controller.step.policy is None and node.model_path == ""
+    assert node.get_parameter("model_path").value == ""
+    # The error names the file, both robots, a joint of each and the fixes.
+    err = capfd.readouterr().err
+    line = next(text for text in err.splitlines() if path in text)
+    for item in ("'ur5'", UR5.joints[0], "'panda'", PANDA[-1], "robot_config",
+                 "-p robot:=", "-p joints:="):
+        assert item in line, item
+    # Set at run time, the same file is refused as before.
+    result = node.set_parameters([Parameter("model_path", value=path)])[0]
+    assert not result.successful and node.controller.step.policy is None
+    # The same robot with other joints (a panda model of three joints) is refused too.
+    few = _model(tmp_path / "few.npz", PANDA[:3], np.zeros(3), "panda")
+    node = executor(122, robot_config="panda", model_path=few)
+    assert node.robot.joint_names == PANDA and node.controller.step.policy is None
+    # Explicit robot and joints win over the config: the model loads.
+    node = executor(122, robot_config="panda", robot="ur5", joints=UR5.joints,
+                    model_path=path)
+    assert node.robot.name == "ur5" and node.model_path == path
+    assert node.controller.step.policy is not None
 
 
 def test_the_model_file_given_at_start_is_read_once(executor, tmp_path, monkeypatch):
