@@ -36,11 +36,13 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray
 
 from policy_align_ros.kinematics import Robot, RobotSetup, resolve_robot_setup
+from policy_align_ros.kinematics.robot import ROBOTS
 from policy_align_ros.learning.policy_file import read_robot_fields
 
 __all__ = [
     "DEFAULT_JOINTS",
     "LATCHED_QOS",
+    "ROBOT_NAMES_TEXT",
     "accept",
     "call_with_timeout",
     "declare_robot",
@@ -60,6 +62,10 @@ DEFAULT_JOINTS: list[str] = (
     + [f"arm_right_{i}_joint" for i in range(1, 8)]
     + ["head_1_joint", "head_2_joint"]
 )
+
+#: What a ``robot`` parameter takes, for its description: the names ``Robot.load`` knows
+#: (:data:`~policy_align_ros.kinematics.robot.ROBOTS`), else a URDF file.
+ROBOT_NAMES_TEXT = f"one of {', '.join(ROBOTS)} (example-robot-data), or a URDF path"
 
 #: Reliable, transient-local, depth 1: a late subscriber still gets the last message.
 LATCHED_QOS = QoSProfile(
@@ -163,8 +169,9 @@ def declare_robot(node: Node, role: str, model_path: str | None = None,
         "them) when they are not set; empty = the config named like the robot, else talos",
         read_only=True))
     node.declare_parameter("robot", setup.robot, descriptor(
-        f"example-robot-data name or URDF path of the {role} robot; unset = "
-        + ("the model file's, else " if model_path else "") + "robot_config's",
+        f"the {role} robot: {ROBOT_NAMES_TEXT}; unset = "
+        + ("the model file's (unless it contradicts robot_config), else "
+           if model_path else "") + "robot_config's",
         read_only=True))
     node.declare_parameter("joints", setup.joints, descriptor(
         f"{role} joints, in command order; unset = "

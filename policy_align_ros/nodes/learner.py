@@ -40,6 +40,7 @@ from policy_align_ros.data.quality import Gates
 from policy_align_ros.kinematics.robot_config import learning_robot
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
+    ROBOT_NAMES_TEXT,
     accept,
     descriptor,
     optional_parameter,
@@ -98,8 +99,8 @@ class Learner(Node):
         self.declare_parameter("state", "joints", descriptor(
             "state learnt in: joints, or frames:F1,F2 (stacked frame positions, m)"))
         self.declare_parameter("robot", "", descriptor(
-            "example-robot-data name or URDF path the demonstrations were recorded on, "
-            "stored in the model file (the executor takes it from there); gives the frames "
+            f"the robot the demonstrations were recorded on: {ROBOT_NAMES_TEXT}; stored "
+            "in the model file (the executor takes it from there); gives the frames "
             "of a frames: state and the continuous joints to unwrap; empty = "
             "robot_config's, else none"))
         self.declare_parameter("robot_config", "", descriptor(

@@ -9,7 +9,7 @@ import rclpy
 from executor_rig import _fit_model
 from rclpy.parameter import Parameter
 
-from policy_align_ros.kinematics.robot import robots_dir
+from policy_align_ros.kinematics.robot import ROBOTS, robots_dir
 from policy_align_ros.kinematics.robot_config import load_robot_config
 from policy_align_ros.learning import PolicyAlign, model_io
 from policy_align_ros.nodes.executor import Executor
@@ -98,6 +98,11 @@ def test_a_model_file_contradicting_robot_config_is_not_loaded_at_start(executor
                     model_path=path)
     assert node.robot.name == "ur5" and node.model_path == path
     assert node.controller.step.policy is not None
+
+
+def test_the_robot_parameter_names_the_robots_it_knows(executor):
+    desc = executor(122, robot="panda").describe_parameters(["robot"])[0]
+    assert all(name in desc.description for name in ROBOTS) and "URDF" in desc.description
 
 
 def test_the_model_file_given_at_start_is_read_once(executor, tmp_path, monkeypatch):
