@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-from robustness_harness import J2, MS, T0, Lab, Result, Run, short
+from robustness_harness import J2, MS, T0, Lab, Result, Run
 
 
 # --- writing bad bags -------------------------------------------------------------------
@@ -94,8 +94,7 @@ def _bag_case(lab: Lab, case: str, tried: str, make_bad: Callable[[Path], Path],
     r.expect(run.code == 0, f"with {n} good bags beside it: exit {run.code} ({run.line()})")
     if run.code == 0:
         used = "?" if r.lost is None else str(len(good) - r.lost)
-        note = (short(run.err.strip().splitlines()[0], 130) if run.err.strip()
-                else "nothing reported")
+        note = run.skipped(130) or "nothing reported"
         r.behaviour = f"beside {n} good bags: exit 0, {used}/{n} good demos used; {note}"
         if alone:
             r.expect(bad.name in run.err + run.out, "beside good bags it is not named")

@@ -85,14 +85,26 @@ class Run:
         return TRACEBACK in self.out or TRACEBACK in self.err
 
     def line(self, limit: int = 170) -> str:
-        """The first error line of stderr (else its first line, else stdout's), shortened."""
+        """The first error line of stderr (else its first line saying what was skipped,
+        else its first line, else stdout's), shortened."""
         for text in (self.err, self.out):
             lines = [line.strip() for line in text.splitlines() if line.strip()]
             for line in lines:
                 if "error" in line.lower() or "refused" in line or "failure" in line:
                     return short(line, limit)
+            skipped = self.skipped(limit)
+            if skipped:
+                return skipped
             if lines:
                 return short(lines[0], limit)
+        return ""
+
+    def skipped(self, limit: int = 170) -> str:
+        """The first line of stderr saying what was skipped (a bag, a duplicate), shortened;
+        "" when none does."""
+        for line in self.err.splitlines():
+            if re.search(r"\bskipped (bag|duplicate|\d+)", line):
+                return short(line, limit)
         return ""
 
 
