@@ -126,7 +126,7 @@ def test_parsers():
 
 
 def test_holdout_range_is_the_learner_nodes(dataset, tmp_path):
-    from policy_align_ros.data.pipeline import HOLDOUT_RANGE
+    from policy_align_ros.data.arguments import HOLDOUT_RANGE
 
     high = HOLDOUT_RANGE[1]
     assert main(["learn", str(dataset), "--out", str(tmp_path / "a.npz"),

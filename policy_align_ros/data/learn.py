@@ -16,8 +16,9 @@ import sys
 import warnings
 from dataclasses import fields
 
+from policy_align_ros.data.arguments import check_writable, parse_sigma
 from policy_align_ros.data.fit_figure import figure_format, plot_fit
-from policy_align_ros.data.pipeline import check_writable, learn_pipeline, parse_sigma
+from policy_align_ros.data.pipeline import learn_pipeline
 from policy_align_ros.data.quality import Gates
 
 __all__ = ["EXIT_REFUSED", "parse_joints", "parse_sigma", "run_learn"]

@@ -44,9 +44,6 @@ Imports: numpy, scipy and :mod:`policy_align_ros.learning`, and rosbags through 
 
 from __future__ import annotations
 
-import math
-import os
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -55,6 +52,12 @@ from typing import Any
 
 import numpy as np
 
+from policy_align_ros.data.arguments import (
+    HOLDOUT_RANGE,
+    check_writable,
+    parse_sigma,
+    state_name,
+)
 from policy_align_ros.data.bags.dataset import DatasetReport, load_dataset
 from policy_align_ros.data.current_model import check_replacement, current_model_check
 from policy_align_ros.data.goal_digest import goal_digest, goal_text
@@ -73,60 +76,12 @@ from policy_align_ros.data.selection import (
 from policy_align_ros.data.turns import check_jumps, unwrap_turns
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.learning.model_io import json_float, json_floats
-from policy_align_ros.learning.state_spec import parse_state_spec
 
 #: Share of the mean squared step explained by position noise from which the summary
 #: line mentions it (the fit corrects for any amount; see PolicyAlign.position_noise_).
 NOISY_STEPS = 0.1
 
-#: Allowed ``holdout_fraction`` (``--holdout``), shared by the CLI and the learner node:
-#: at least half of the distinct demonstrations always train the model.
-HOLDOUT_RANGE = (0.0, 0.5)
-
-__all__ = [
-    "HOLDOUT_RANGE",
-    "PipelineResult",
-    "SIGMA_RULES",
-    "check_writable",
-    "learn_pipeline",
-    "parse_sigma",
-    "state_name",
-]
-
-SIGMA_RULES = ("narrow", "medium", "wide")
-
-
-def parse_sigma(text: str | float) -> str | float:
-    """``"narrow" | "medium" | "wide"`` or a positive sigma^2 (squared state units).
-
-    Raises
-    ------
-    ValueError
-        For anything else, naming the value.
-    """
-    if isinstance(text, str) and text.strip().lower() in SIGMA_RULES:
-        return text.strip().lower()
-    try:
-        value = float(text)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"sigma: expected narrow, medium, wide or a positive number, got {text!r}"
-        ) from None
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"sigma: sigma^2 must be positive and finite, got {text!r}")
-    return value
-
-
-def state_name(state: str) -> str:
-    """Normalised state spec: ``"joints"`` or ``"frames:F1,F2"`` (frames checked).
-
-    Raises
-    ------
-    ValueError
-        For any other text, an empty or a repeated frame.
-    """
-    frames = parse_state_spec(state)
-    return "joints" if frames is None else "frames:" + ",".join(frames)
+__all__ = ["PipelineResult", "learn_pipeline"]
 
 
 @dataclass
@@ -223,29 +178,6 @@ class PipelineResult:
                     f"(write it anyway with --force; learner node: force:=true) [{text}]")
         prefix = f"forced despite: {'; '.join(self.refusals)}; " if self.refusals else ""
         return f"{prefix}{text}; model {self.model_path}"
-
-
-def check_writable(path: str | Path, what: str = "model_path") -> None:
-    """Fail before a long fit when the file ``path`` could not be written (``ValueError``
-    naming ``what``, the parameter or option that gave it): a directory, under a file, or
-    in a directory where no file can be created (no permission, a read-only or virtual
-    file system). Missing parent directories are fine: they are created on writing."""
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"{what}: {path} is a directory, expected a file name")
-    ancestor = path.parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise ValueError(f"{what}: {ancestor} is not a directory, cannot write {path}")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise ValueError(f"{what}: no permission to write in {ancestor}")
-    try:  # root passes os.access on /sys and /proc: create and remove a file to know
-        with tempfile.TemporaryFile(dir=ancestor):
-            pass
-    except OSError as err:
-        raise ValueError(f"{what}: cannot create a file in {ancestor} "
-                         f"({err.strerror or err})") from None
 
 
 def _load_frames_map(robot: str | None, frames: list[str], joints: list[str]):

@@ -28,14 +28,9 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from policy_align_ros.data.arguments import HOLDOUT_RANGE, parse_sigma, state_name
 from policy_align_ros.data.fit_figure import figure_format, plot_fit
-from policy_align_ros.data.pipeline import (
-    HOLDOUT_RANGE,
-    PipelineResult,
-    learn_pipeline,
-    parse_sigma,
-    state_name,
-)
+from policy_align_ros.data.pipeline import PipelineResult, learn_pipeline
 from policy_align_ros.data.quality import Gates
 from policy_align_ros.kinematics.robot_config import learning_robot
 from policy_align_ros.nodes._common import (
