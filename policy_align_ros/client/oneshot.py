@@ -12,6 +12,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.task import Future
 
+from policy_align_ros.ros_env import domain_id_problem
+
 __all__ = ["MAX_TIMEOUT_S", "open_context", "spin_until"]
 
 #: Longest ``--timeout`` [s]: rclpy's waits take int64 nanoseconds.
@@ -32,6 +34,10 @@ def open_context(command: str, timeout: float) -> rclpy.Context | None:
     if not 0 < timeout <= MAX_TIMEOUT_S:
         print(f"policy-align {command}: error: --timeout must be > 0 and <= "
               f"{MAX_TIMEOUT_S:g} s", file=sys.stderr)
+        return None
+    problem = domain_id_problem()
+    if problem:
+        print(f"policy-align {command}: error: {problem}", file=sys.stderr)
         return None
     context = rclpy.Context()
     try:

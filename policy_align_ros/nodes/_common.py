@@ -38,6 +38,7 @@ from std_msgs.msg import Float64MultiArray
 from policy_align_ros.kinematics import Robot, RobotSetup, resolve_robot_setup
 from policy_align_ros.kinematics.robot import ROBOTS
 from policy_align_ros.learning.policy_file import read_robot_fields
+from policy_align_ros.ros_env import domain_id_problem
 
 __all__ = [
     "DEFAULT_JOINTS",
@@ -277,6 +278,10 @@ def run_node(
         0 on a normal or interrupted run, 1 when the node could not start (bad parameter),
         else the result of the node's ``done`` future when it has one.
     """
+    problem = domain_id_problem()
+    if problem:  # else Fast DDS's one line about a port number, and no node
+        print(f"error: {problem}", file=sys.stderr)
+        return 1
     _STOP.clear()
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)

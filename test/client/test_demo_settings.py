@@ -40,6 +40,9 @@ def test_domain_id_honours_ros_domain_id_then_falls_back_to_a_private_one():
             pick_domain_id(None, {"ROS_DOMAIN_ID": bad})
     with pytest.raises(ValueError, match="domain_id"):
         pick_domain_id(300, {})
+    # With a Fast DDS profile, whose ports may allow it, the user's id is taken.
+    profiled = {"ROS_DOMAIN_ID": "241", "FASTRTPS_DEFAULT_PROFILES_FILE": "/tmp/dds.xml"}
+    assert pick_domain_id(None, profiled) == 241
 
 
 def test_demo_refuses_a_bad_ros_domain_id_before_starting_anything(tmp_path, monkeypatch):

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from policy_align_ros.kinematics.robot_config import RobotConfig, load_robot_config
+from policy_align_ros.ros_env import DOMAIN_RANGE, FASTDDS_PROFILES
 
 __all__ = [
     "DEFAULT_DEMOS",
@@ -146,8 +147,6 @@ def _apply_config(s: DemoSettings, config: RobotConfig) -> None:
         s.home = s.home or list(config.home or [])
 
 
-#: Fast DDS's valid domain ids (docs/design.md section 8).
-DOMAIN_RANGE = (0, 232)
 
 
 def pick_domain_id(requested: int | None, environ: Mapping[str, str] | None = None) -> int:
@@ -184,7 +183,9 @@ def pick_domain_id(requested: int | None, environ: Mapping[str, str] | None = No
         domain = int(value)
     except ValueError:
         domain = None
-    if domain is None or not low <= domain <= high:
+    # A Fast DDS profile may set ports that allow other ids: then the nodes will say.
+    profiled = name == "ROS_DOMAIN_ID" and any(environ.get(p) for p in FASTDDS_PROFILES)
+    if domain is None or not (profiled and domain >= 0 or low <= domain <= high):
         raise ValueError(f"{name}: must be an integer ROS domain id in {low}-{high}, "
                          f"got {value!r}")
     return domain
