@@ -45,7 +45,6 @@ from policy_align_ros.control.joint_order import (
     model_permutation,
     order_check_off,
     unchecked_order_refusal,
-    unusable_state_reason,
 )
 from policy_align_ros.control.limits import (
     DEFAULT_JOINT_LIMIT_MARGIN,
@@ -149,6 +148,5 @@ __all__ = [
     "task_to_joint_velocity",
     "turn_centres",
     "unchecked_order_refusal",
-    "unusable_state_reason",
     "velocity_scale",
 ]

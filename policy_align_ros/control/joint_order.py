@@ -1,5 +1,5 @@
 """Joint orders: the model's against the controller's, the controller's against the
-executor's, and joint-state messages against the controlled joints."""
+executor's."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 __all__ = ["NO_ORDER_CHECK", "joint_order_problem", "model_permutation", "order_check_off",
-           "unchecked_order_refusal", "unusable_state_reason"]
+           "unchecked_order_refusal"]
 
 
 def model_permutation(model_joints: Sequence[str] | None, joints: Sequence[str]) -> np.ndarray:
@@ -85,46 +85,6 @@ def joint_order_problem(controller_joints: Sequence[str], joints: Sequence[str],
     return (f"controller {controller} orders the joints differently: command slot {slot} "
             f"is {theirs[slot]!r} there and {mine[slot]!r} here (controller order "
             f"{theirs}); {fix}")
-
-
-def _some(names: Sequence[str], shown: int = 4) -> str:
-    """The first ``shown`` of ``names``, quoted, and how many more there are."""
-    names = list(names)
-    if not names:
-        return "none"
-    text = ", ".join(map(repr, names[:shown]))
-    return text + (f" and {len(names) - shown} more" if len(names) > shown else "")
-
-
-def unusable_state_reason(reason: str, names: Sequence[str], joints: Sequence[str]) -> str:
-    """Why a joint-state message without every controlled joint cannot be used.
-
-    Parameters
-    ----------
-    reason : str
-        The converter's skip reason (:class:`~policy_align_ros.data.messages.JointSelector`):
-        ``missing_joints`` (some controlled joints absent) or ``unknown_joints`` (none).
-    names : sequence of str
-        The joint names the message carries.
-    joints : sequence of str
-        The controlled joints (the executor's ``joints``).
-
-    Returns
-    -------
-    str
-        The missing controlled joints (the first few and a count), what the message
-        names, and the fix.
-    """
-    present = set(names)
-    missing = [j for j in joints if j not in present]
-    if reason == "unknown_joints" or len(missing) == len(joints):
-        what = f"none of the {len(joints)} controlled joints ({_some(joints)})"
-    else:
-        what = (f"missing {len(missing)} of the {len(joints)} controlled joints: "
-                f"{_some(missing)}")
-    return (f"{what}; the message names {len(names)} joint(s): {_some(names)}. Publish every "
-            f"joint of the executor's joints parameter on the topic, or start the executor "
-            f"with the robot's joints (-p joints:=[...] or -p robot_config:=NAME)")
 
 
 #: The ``controller`` value that turns the joint order check off, typed on the command line

@@ -97,20 +97,27 @@ def describe_skips(skipped: dict[str, int], lost: int) -> str:
     return detail
 
 
-def describe_foreign(joints: Sequence[str] | None, names: Sequence[str] | None,
-                     shown: int = 6) -> str:
+def _some(names: Sequence[str], shown: int = 4) -> str:
+    """The first ``shown`` of ``names``, quoted, and how many more there are."""
+    names = list(names)
+    if not names:
+        return "none"
+    text = ", ".join(map(repr, names[:shown]))
+    return text + (f" and {len(names) - shown} more" if len(names) > shown else "")
+
+
+def describe_foreign(joints: Sequence[str], names: Sequence[str]) -> str:
     """Why a message was skipped as ``unknown_joints`` or ``missing_joints``, in words: the
-    selected ``joints`` it lacks and the first ``shown`` of the joint ``names`` it carries
-    ("" without a selection or a message). A typo in a configured joint, or another
-    publisher's joints on the same topic, then reads as what it is."""
-    if not joints or names is None:
-        return ""
-    carried = set(names)
-    missing = [j for j in joints if j not in carried]
-    head = ", ".join(names[:shown]) + (f", ... ({len(names) - shown} more)"
-                                        if len(names) > shown else "")
-    return (f"recording joints {', '.join(joints)}; the last message skipped for its joints "
-            f"lacks {', '.join(missing) or 'none of them'} and carries {head or 'none'}")
+    selected ``joints`` it lacks (the first few and a count) and the joint ``names`` it
+    carries. A typo in a configured joint, or another publisher's joints on the same
+    topic, then reads as what it is. The recorder and the executor both say it."""
+    present = set(names)
+    missing = [j for j in joints if j not in present]
+    if len(missing) == len(joints):
+        what = f"none of the {len(joints)} joints ({_some(joints)})"
+    else:
+        what = f"missing {len(missing)} of the {len(joints)} joints: {_some(missing)}"
+    return f"{what}; the message names {len(names)} joint(s): {_some(names)}"
 
 
 def validate_joint_names(joints: Sequence[str] | None) -> list[str] | None:

@@ -127,9 +127,8 @@ from policy_align_ros.control import (
     stall_time_problem,
     turn_centres,
     unchecked_order_refusal,
-    unusable_state_reason,
 )
-from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector
+from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, describe_foreign
 from policy_align_ros.kinematics import Robot, constraint_from_spec
 from policy_align_ros.kinematics.constraints import parse_constraint_specs
 from policy_align_ros.learning import PolicyAlign
@@ -487,7 +486,7 @@ class Executor(Node):
                 self._emit(self.controller.reject_state(f"untrustworthy joint state: {q}",
                                                         ZeroCause(q)))
             else:  # unknown_joints, missing_joints: counted, named, nothing stops
-                reason = self._unusable_reason(q, msg.name)
+                reason = self._unusable_reason(msg.name)
                 self._count_rejected(q, reason)
                 self.controller.unusable_state(reason)
             return
@@ -503,15 +502,18 @@ class Executor(Node):
             self._arm_at_start = False
             self.executor.create_task(self._enable_at_start)
 
-    def _unusable_reason(self, key: str, names: Sequence[str]) -> str:
-        """:func:`unusable_state_reason` of a message's joint ``names`` (cached)."""
+    def _unusable_reason(self, names: Sequence[str]) -> str:
+        """Why a message of joint ``names`` without every controlled joint cannot be used
+        (:func:`~policy_align_ros.data.messages.describe_foreign`), and the fix (cached)."""
         names = tuple(names)
         reason = self._unusable_reasons.get(names)
         if reason is None:
             if len(self._unusable_reasons) >= 64:
                 self._unusable_reasons.clear()
-            reason = self._unusable_reasons[names] = unusable_state_reason(
-                key, names, self.robot.joint_names)
+            reason = self._unusable_reasons[names] = (
+                f"{describe_foreign(self.robot.joint_names, names)}. Publish every joint of "
+                "the executor's joints parameter on the topic, or start the executor with "
+                "the robot's joints (-p joints:=[...] or -p robot_config:=NAME)")
         return reason
 
     def _count_rejected(self, reason: str, hint: str = "") -> None:

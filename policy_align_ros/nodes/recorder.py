@@ -219,7 +219,7 @@ class RecorderNode(Node):
         if path is None:
             response.success = False
             response.message = f"nothing written: {count} valid message(s) recorded"
-            foreign = describe_foreign(self._recorder.joints, self._recorder.last_foreign)
+            foreign = self._foreign()
             if foreign and not count:
                 response.message += f" ({foreign})"
         else:
@@ -292,6 +292,15 @@ class RecorderNode(Node):
                     f"pending demonstration written: {path} ({count} messages)"
                     + ("; recording resumed" if self._recorder.active else ""))
 
+    def _foreign(self) -> str:
+        """What the last message skipped for its joints lacks of the recorded joints and
+        carries ("" before there is one)."""
+        joints, names = self._recorder.joints, self._recorder.last_foreign
+        if not joints or names is None:
+            return ""
+        return (f"the last message skipped for its joints, recording "
+                f"{', '.join(joints)}: {describe_foreign(joints, names)}")
+
     def _warn_skips(self, now: int) -> None:
         skipped = self._recorder.skipped
         lost = self._recorder.lost_while_pending
@@ -301,7 +310,7 @@ class RecorderNode(Node):
                 self._last_warning is not None and 0 <= now - self._last_warning < period_ns):
             return
         detail = describe_skips(skipped, lost)
-        foreign = describe_foreign(self._recorder.joints, self._recorder.last_foreign)
+        foreign = self._foreign()
         if foreign and (skipped["unknown_joints"] or skipped["missing_joints"]):
             detail += f"; {foreign}"
         self.get_logger().warning(

@@ -9,7 +9,6 @@ from policy_align_ros.control import (
     model_permutation,
     order_check_off,
     unchecked_order_refusal,
-    unusable_state_reason,
 )
 
 ARM = [f"joint{i}" for i in range(1, 8)]
@@ -59,16 +58,3 @@ def test_other_controller_joints_name_only_the_parts_that_differ(theirs, missing
     for names in (missing, extra):
         assert (str(names) in text) == bool(names)
     assert f"-p joints:=[{','.join(theirs)}]" in text
-
-
-def test_a_joint_state_lacking_controlled_joints_names_them_and_what_it_carries():
-    names = ARM[:-1]  # the robot publishes joint1..joint6
-    text = unusable_state_reason("missing_joints", names, ARM)
-    assert "'joint7'" in text and "'joint1'" in text and "6" in text
-    assert "-p joints:=" in text and "robot_config" in text  # the fixes
-    many = [f"other{i}" for i in range(20)]
-    text = unusable_state_reason("unknown_joints", many, ARM)
-    # The controlled joints the message should carry, and the first few it does, counted.
-    assert "'joint1'" in text and "'other0'" in text and "'other19'" not in text
-    assert "20" in text
-    assert unusable_state_reason("unknown_joints", [], ARM)  # no names at all

@@ -109,10 +109,18 @@ def test_clock_reasons_get_a_hint_and_paused_messages_are_counted():
 
 
 def test_a_message_skipped_for_its_joints_is_described_by_what_it_lacks_and_carries():
+    # A typo in a configured joint: the missing one is named, and what the message carries.
     text = describe_foreign(["joint1", "jiont7"], ["joint1", "joint7", "gripper"])
-    assert "jiont7" in text and "gripper" in text
-    lacks = text[text.index("lacks"):text.index("carries")]
-    assert "jiont7" in lacks and "joint1" not in lacks
-    many = describe_foreign(["a"], [f"x{k}" for k in range(20)], shown=3)
-    assert "x2" in many and "x3" not in many and "17" in many  # 17 more
-    assert describe_foreign(None, ["a"]) == "" and describe_foreign(["a"], None) == ""
+    missing, carried = text.split(";")
+    assert "'jiont7'" in missing and "'joint1'" not in missing and "1" in missing
+    assert "'gripper'" in carried and "3" in carried
+    arm = [f"joint{i}" for i in range(1, 8)]
+    text = describe_foreign(arm, arm[:-1])  # the robot publishes joint1..joint6
+    assert "'joint7'" in text and "'joint1'" in text and "6" in text
+    # Another publisher's joints only: the selected joints it should carry, and the first
+    # few it does, counted.
+    many = [f"other{i}" for i in range(20)]
+    text = describe_foreign(arm, many)
+    assert "'joint1'" in text and "'other0'" in text and "'other19'" not in text
+    assert "20" in text
+    assert describe_foreign(arm, [])  # no names at all

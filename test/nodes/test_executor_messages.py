@@ -147,6 +147,7 @@ def test_joint_states_lacking_a_controlled_joint_are_named_by_the_refusal(rig):
     assert r.node.controller.arm_check(r.node._now_ns())[0] == ZeroCause.NO_STATE
     assert "'arm_left_7_joint'" in response.message and "'arm_left_1_joint'" in response.message
     assert "/joint_states" in response.message
+    assert "-p joints:=" in response.message and "robot_config" in response.message  # fixes
     r.diagnostics.clear()
     r.spin_until(lambda: r.diagnostics, publish_states=False, what="diagnostics")
     assert "'arm_left_7_joint'" in values()["joint_states"]
