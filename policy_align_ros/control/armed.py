@@ -412,16 +412,13 @@ class ArmedController:
                           f"(restarted simulation?)", ZeroCause.CLOCK_JUMPED_BACK)
 
     # -- arming ---------------------------------------------------------------------
-    def arm_refusal(self, now_ns: int) -> str:
-        """Why :meth:`arm` at ``now_ns`` would be refused; empty when it would arm.
+    def arm_check(self, now_ns: int) -> tuple[ZeroCause | None, str]:
+        """Why :meth:`arm` at ``now_ns`` would be refused, as ``(cause, reason)``;
+        ``(None, "")`` when it would arm.
 
         No side effects, so a caller can check before a slower step (the executor node
         asks the controller for its joint order only when arming would go ahead).
         """
-        return self.arm_check(now_ns)[1]
-
-    def arm_check(self, now_ns: int) -> tuple[ZeroCause | None, str]:
-        """As :meth:`arm_refusal`: ``(cause, reason)``, ``(None, "")`` when it would arm."""
         if self.step.policy is None:
             return ZeroCause.NO_MODEL, "no model loaded"
         cause, problem = self.state_check(now_ns)

@@ -518,19 +518,15 @@ class ControlStep:
             locked |= new
         return total, P
 
-    def constraint_problem(self, q: np.ndarray) -> str:
-        """Why the constraints at ``q`` (n,) cannot be enforced; empty when they can.
+    def constraint_check(self, q: np.ndarray) -> tuple[ZeroCause | None, str]:
+        """Why the constraints at ``q`` (n,) cannot be enforced, as ``(cause, reason)``;
+        ``(None, "")`` when they can.
 
         The check :meth:`evaluate` makes every step, on the rows in force with the robot
         at rest (barriers inactive): a spec whose rows cannot be met (a frame that the
         controlled joints do not move) is refused at enable instead of disarming the
         first step.
         """
-        return self.constraint_check(q)[1]
-
-    def constraint_check(self, q: np.ndarray) -> tuple[ZeroCause | None, str]:
-        """As :meth:`constraint_problem`: ``(cause, reason)``, ``(None, "")`` when the
-        constraints at ``q`` (n,) can be enforced."""
         try:
             A = self.constraint_matrix(q, self._zeros)
         except Exception as err:  # noqa: BLE001 - a refusal, never an escaping error

@@ -105,7 +105,7 @@ class _Run:
 
     def arm(self):
         """``(accepted, cause)``: the cause of a refusal (the words are in
-        ``control.arm_refusal(now)``), None when armed."""
+        ``control.arm_check(now)[1]``), None when armed."""
         accepted, _, out = self.control.arm(self.now)
         self.keep(out)
         # The check has no side effects: at the same time it gives the refusal's cause.

@@ -489,7 +489,7 @@ def test_implausible_positions_are_refused_and_disarm_naming_joint_and_value(joi
     assert name in run.control.zero_reason and f"{value:g}" in run.control.zero_reason
     # The refusal to arm again says why there is no state to arm on.
     assert run.arm() == (False, ZeroCause.POSITION_OUTSIDE_LIMITS)
-    assert name in run.control.arm_refusal(run.now)
+    assert name in run.control.arm_check(run.now)[1]
     assert run.tick().command is None  # still implausible: nothing moves
     run.q[joint] = 0.0
     run.state()
