@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 
-__all__ = ["DOMAIN_RANGE", "FASTDDS_PROFILES", "domain_id_problem"]
+__all__ = ["DOMAIN_RANGE", "FASTDDS_PROFILES", "domain_id_problem", "fastdds_profiled"]
 
 #: The ROS domain ids Fast DDS accepts with its default ports (``docs/design.md``
 #: section 8); beyond them it prints only that a port number is too high, and exits.
@@ -20,13 +20,19 @@ DOMAIN_RANGE = (0, 232)
 FASTDDS_PROFILES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
 
+def fastdds_profiled(environ: Mapping[str, str]) -> bool:
+    """Whether ``environ`` gives Fast DDS a profile (:data:`FASTDDS_PROFILES`), whose ports
+    may allow domain ids beyond :data:`DOMAIN_RANGE`."""
+    return any(environ.get(name) for name in FASTDDS_PROFILES)
+
+
 def domain_id_problem(environ: Mapping[str, str] | None = None) -> str:
     """Why ``ROS_DOMAIN_ID`` in ``environ`` (default ``os.environ``) cannot work, naming the
     fix; "" when it can, is unset, or is left to a Fast DDS profile or to rcl (a value that
     is no integer, which rcl names itself)."""
     environ = os.environ if environ is None else environ
     value = environ.get("ROS_DOMAIN_ID", "").strip()
-    if not value or any(environ.get(name) for name in FASTDDS_PROFILES):
+    if not value or fastdds_profiled(environ):
         return ""
     try:
         domain = int(value)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from policy_align_ros.kinematics.robot_config import RobotConfig, load_robot_config
-from policy_align_ros.ros_env import DOMAIN_RANGE, FASTDDS_PROFILES
+from policy_align_ros.ros_env import DOMAIN_RANGE, fastdds_profiled
 
 __all__ = [
     "DEFAULT_DEMOS",
@@ -184,7 +184,7 @@ def pick_domain_id(requested: int | None, environ: Mapping[str, str] | None = No
     except ValueError:
         domain = None
     # A Fast DDS profile may set ports that allow other ids: then the nodes will say.
-    profiled = name == "ROS_DOMAIN_ID" and any(environ.get(p) for p in FASTDDS_PROFILES)
+    profiled = name == "ROS_DOMAIN_ID" and fastdds_profiled(environ)
     if domain is None or not (profiled and domain >= 0 or low <= domain <= high):
         raise ValueError(f"{name}: must be an integer ROS domain id in {low}-{high}, "
                          f"got {value!r}")
