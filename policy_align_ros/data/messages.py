@@ -106,18 +106,20 @@ def _some(names: Sequence[str], shown: int = 4) -> str:
     return text + (f" and {len(names) - shown} more" if len(names) > shown else "")
 
 
-def describe_foreign(joints: Sequence[str], names: Sequence[str]) -> str:
+def describe_foreign(joints: Sequence[str], names: Sequence[str], *,
+                     carrier: str = "the message names") -> str:
     """Why a message was skipped as ``unknown_joints`` or ``missing_joints``, in words: the
     selected ``joints`` it lacks (the first few and a count) and the joint ``names`` it
     carries. A typo in a configured joint, or another publisher's joints on the same
-    topic, then reads as what it is. The recorder and the executor both say it."""
+    topic, then reads as what it is. The recorder and the executor both say it, and the
+    learn pipeline of a whole bag (``carrier``: who carries the ``names``)."""
     present = set(names)
     missing = [j for j in joints if j not in present]
     if len(missing) == len(joints):
         what = f"none of the {len(joints)} joints ({_some(joints)})"
     else:
         what = f"missing {len(missing)} of the {len(joints)} joints: {_some(missing)}"
-    return f"{what}; the message names {len(names)} joint(s): {_some(names)}"
+    return f"{what}; {carrier} {len(names)} joint(s): {_some(names)}"
 
 
 def validate_joint_names(joints: Sequence[str] | None) -> list[str] | None:

@@ -197,7 +197,7 @@ def test_bags_giving_nothing_are_named_with_the_reason(tmp_path):
     reasons = dict(report.skipped_bags)
     assert set(reasons) == {str(tmp_path / n) for n in ("other", "short", "cut")}
     assert [e.split(": ")[0] for e in report.errors] == [str(cut)]  # could not be opened
-    assert all(j in reasons[str(tmp_path / "other")] for j in ("j0, j1", "knee"))
+    assert all(repr(j) in reasons[str(tmp_path / "other")] for j in ("j0", "j1", "knee"))
     assert report.demos_too_short == 1  # the one demonstration of "short"
     assert report.missing_joints == []
     with pytest.raises(ValueError, match=r"'nope'.*\bj0, j1, j2, knee\b"):
@@ -219,7 +219,7 @@ def test_a_foreign_bag_sorting_first_does_not_choose_the_joints(tmp_path):
     trajs, names, report = load_dataset(tmp_path, joints=["j1", "j2"])
     assert names == ["j1", "j2"] and len(trajs) == 8
     reason = dict(report.skipped_bags)[str(tmp_path / "bad_foreign")]
-    assert "j1, j2" in reason and "x1, x2" in reason
+    assert all(repr(j) in reason for j in ("j1", "j2", "x1", "x2"))
     # The foreign joints alone are a dataset of their own.
     trajs, names, _ = load_dataset(tmp_path / "bad_foreign")
     assert names == ["x1", "x2"] and len(trajs) == 1

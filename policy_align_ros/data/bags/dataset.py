@@ -30,6 +30,7 @@ from policy_align_ros.data.messages import (
     SKIP_REASONS,
     JointSelector,
     StreamClock,
+    describe_foreign,
 )
 from policy_align_ros.learning import Trajectory
 
@@ -495,10 +496,9 @@ def _no_demo_reason(
     parts = [f"{reason}={n}" for reason, n in counts.items() if n]
     text = f"all {n_read + undecodable} JointState message(s) skipped ({', '.join(parts)})"
     if joints and (counts["missing_joints"] or counts["unknown_joints"]):
-        missing = [j for j in joints if j not in names]
-        shown = ", ".join(names[:40]) + (f" and {len(names) - 40} more"
-                                          if len(names) > 40 else "")
-        text += f"; missing joint(s) {', '.join(missing)}; the bag has: {shown}"
+        # The words the recorder and the executor use for one such message, over every
+        # joint name the bag's messages carry.
+        text += "; " + describe_foreign(joints, names, carrier="its messages name")
     return text
 
 
