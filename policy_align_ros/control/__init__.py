@@ -12,15 +12,18 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.armed`: :class:`ArmedController`, arming, joint-state stamps and ramps on the
   caller's clock;
 - :mod:`.causes`: why the command is zero, as stable identifiers (:class:`ZeroCause`);
-- :mod:`.joint_order`: model and controller joint orders, joint states lacking
-  controlled joints;
+- :mod:`.joint_order`: model and controller joint orders (the controller's answer to
+  the order check included);
 - :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
   velocities;
 - :mod:`.loading`: a model file as the executor's joint-space policy (read once at
-  start, :class:`StartModel`);
+  start, and the decisions about it there: :class:`StartModel`), its guard and turns;
+- :mod:`.settings`: the executor's parameter values (constraint specs included) checked,
+  built into its :class:`ArmedController` and applied to it at run time;
 - :mod:`.stall`: stall detection (a joint commanded to move that does not);
 - :mod:`.stamp_hints`: joint-state stamps far from the node clock, explained;
-- :mod:`.status`: the executor's status in words (its ``/diagnostics``);
+- :mod:`.status`: the executor's status in words (its ``/diagnostics``, its ~/enable
+  answers, its notes on rejected joint states);
 - :mod:`.turns`: continuous joints' angles on the turn the model was learnt on.
 """
 
@@ -41,6 +44,7 @@ from policy_align_ros.control.guard import (
 )
 from policy_align_ros.control.joint_order import (
     NO_ORDER_CHECK,
+    controller_order_refusal,
     joint_order_problem,
     model_permutation,
     order_check_off,
@@ -65,7 +69,9 @@ from policy_align_ros.control.loading import (
     goal_margin_problem,
     learnt_goal,
     load_policy,
+    model_guard,
     model_load_error,
+    model_turn_centres,
     no_model_fix,
 )
 from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
@@ -75,6 +81,14 @@ from policy_align_ros.control.resolved_rate import (
     secondary_velocity,
     task_to_joint_velocity,
 )
+from policy_align_ros.control.settings import (
+    FLOAT_SETTINGS,
+    apply_setting,
+    build_controller,
+    constraints_from_text,
+    constraints_problem,
+    setting_problem,
+)
 from policy_align_ros.control.stall import (
     DEFAULT_STALL_TIME_S,
     Stall,
@@ -82,7 +96,12 @@ from policy_align_ros.control.stall import (
     stall_time_problem,
 )
 from policy_align_ros.control.stamp_hints import clock_mismatch_hint
-from policy_align_ros.control.status import arming_status
+from policy_align_ros.control.status import (
+    arming_status,
+    enable_answer,
+    model_text,
+    rejection_note,
+)
 from policy_align_ros.control.step import (
     DEFAULT_DRIFT_CLAMP_M,
     DEFAULT_DRIFT_GAIN,
@@ -101,6 +120,7 @@ __all__ = [
     "DEFAULT_MIN_SINGULAR_VALUE",
     "DEFAULT_STALL_TIME_S",
     "DEFAULT_STATE_LIMIT_MARGIN",
+    "FLOAT_SETTINGS",
     "IMPLAUSIBLE_POSITION",
     "NO_CAUSE",
     "NO_ORDER_CHECK",
@@ -118,12 +138,18 @@ __all__ = [
     "SupportDistance",
     "TaskSpacePolicy",
     "ZeroCause",
+    "apply_setting",
     "arming_status",
     "braking_scale",
+    "build_controller",
     "clearance_scale",
     "clock_mismatch_hint",
     "constrained_command",
+    "constraints_from_text",
+    "constraints_problem",
+    "controller_order_refusal",
     "damped_pinv",
+    "enable_answer",
     "goal_in_margin",
     "goal_margin_problem",
     "inner_limits",
@@ -133,8 +159,11 @@ __all__ = [
     "learnt_goal",
     "limit_locks",
     "load_policy",
+    "model_guard",
     "model_load_error",
     "model_permutation",
+    "model_text",
+    "model_turn_centres",
     "nearest_turn",
     "no_model_fix",
     "order_check_off",
@@ -142,7 +171,9 @@ __all__ = [
     "policy_for_state",
     "project_with_locks",
     "ramp_toward",
+    "rejection_note",
     "secondary_velocity",
+    "setting_problem",
     "speed_limits",
     "stall_time_problem",
     "task_to_joint_velocity",

@@ -7,8 +7,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["NO_ORDER_CHECK", "joint_order_problem", "model_permutation", "order_check_off",
-           "unchecked_order_refusal"]
+__all__ = ["NO_ORDER_CHECK", "controller_order_refusal", "joint_order_problem",
+           "model_permutation", "order_check_off", "unchecked_order_refusal"]
 
 
 def model_permutation(model_joints: Sequence[str] | None, joints: Sequence[str]) -> np.ndarray:
@@ -121,3 +121,32 @@ def unchecked_order_refusal(controller: str, why: str) -> str:
             f"or set controller to the node whose joints parameter lists the command "
             f"order (-p controller:=/my_controller), or opt out of the check with "
             f"-p controller:={NO_ORDER_CHECK}")
+
+
+def controller_order_refusal(controller: str, controller_joints: Sequence[str] | None,
+                             joints: Sequence[str], answered: bool, timeout_s: float) -> str:
+    """The ~/enable refusal after ``controller`` was asked for its ``joints`` parameter.
+
+    Parameters
+    ----------
+    controller : str
+        Controller node name that was asked.
+    controller_joints : sequence of str or None
+        Its ``joints`` (command order); None when it did not answer or has no
+        string-array ``joints``.
+    joints : sequence of str
+        The executor's joints, in command order.
+    answered : bool
+        Whether an answer came within ``timeout_s`` (s).
+
+    Returns
+    -------
+    str
+        :func:`joint_order_problem`, or :func:`unchecked_order_refusal` saying why the
+        order was not read; empty when the orders match (go ahead).
+    """
+    if controller_joints is None:
+        why = (f"{controller} has no string-array joints parameter" if answered
+               else f"{controller} did not answer within {timeout_s:g} s")
+        return unchecked_order_refusal(controller, why)
+    return joint_order_problem(controller_joints, joints, controller)

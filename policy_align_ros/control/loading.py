@@ -3,39 +3,66 @@
 At start the executor needs the model file twice: the robot and joints it names (to build
 the robot) and then the model (to make its policy for that robot). :class:`StartModel`
 reads the file once for both, so they also come from one version of a file that the
-learner may replace at any time.
+learner may replace at any time, and holds what the executor decides about that file
+before it runs: refused, failed to load, or given (and so preferred to the learner's).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from policy_align_ros.control.guard import (
+    ExtrapolationGuard,
+    FrameSupportDistance,
+    SupportDistance,
+)
 from policy_align_ros.control.joint_order import model_permutation
 from policy_align_ros.control.limits import goal_in_margin
 from policy_align_ros.control.task_policy import policy_for_state
+from policy_align_ros.control.turns import turn_centres
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
 __all__ = ["StartModel", "goal_margin_problem", "learnt_goal", "load_policy",
-           "model_load_error", "no_model_fix"]
+           "model_guard", "model_load_error", "model_turn_centres", "no_model_fix"]
 
 
+@dataclass
 class StartModel:
-    """The model file given at start, read once for its robot fields and its policy.
+    """The model file given at start: read once for its robot fields and its policy, and
+    the executor's decisions about it.
 
     :meth:`robot_fields` serves as the ``read_fields`` of
     :func:`~policy_align_ros.nodes._common.declare_robot`; :meth:`take` hands the model
-    read then to :func:`load_policy` when the same path is loaded.
+    read then to :func:`load_policy` when the same path is loaded. The decisions, in the
+    order the executor meets them: :meth:`refusal` (a file refused for the robot config),
+    :meth:`load_failed` (a file that does not load stops the node), :meth:`given` (the
+    ``model_path`` that was given), :meth:`follows_learner` and :meth:`ignored_announcement`
+    (whether ``/learner/model`` replaces it).
+
+    Attributes
+    ----------
+    refused : str
+        Why the file given at start is not loaded (it contradicts ``robot_config``: the
+        robot setup's ``model_refused``); empty when it is not refused.
+    given_path : str
+        The ``model_path`` given at start, loaded or not; empty without one.
+    load_error : str
+        The start-up error of a ``model_path`` given at start that does not load
+        (:func:`model_load_error`); empty when it loaded or none was given.
     """
 
-    def __init__(self) -> None:
-        self._path: str | None = None
-        self._model: PolicyAlign | None = None
+    refused: str = ""
+    given_path: str = ""
+    load_error: str = ""
+    _path: str | None = field(default=None, init=False, repr=False)
+    _model: PolicyAlign | None = field(default=None, init=False, repr=False)
 
     def robot_fields(self, path: str) -> tuple[str | None, list[str] | None]:
         """``(robot, joints)`` the model file at ``path`` names, as
@@ -63,6 +90,47 @@ class StartModel:
         model = self._model if path == self._path else None
         self._model = self._path = None
         return model
+
+    def refusal(self, path: str) -> str:
+        """The error to log when ``path``, the ``model_path`` given at start, is not loaded
+        because it contradicts the robot config (:attr:`refused`), naming the file, why
+        and what the executor does instead; empty when it is not refused (load it).
+
+        A refused file's model, read for its robot fields, is released.
+        """
+        if not self.refused:
+            return ""
+        self.take(path)
+        return (f"model_path {path} not loaded: {self.refused}. The executor starts "
+                f"without a model (~/enable is refused until one loads)")
+
+    def load_failed(self, path: str, err: Exception) -> None:
+        """Note that ``path``, given at start, did not load (``err``): the node stops with
+        :attr:`load_error` instead of rclpy's parameter-set failure."""
+        self.load_error = model_load_error(path, err)
+
+    def given(self, path: str) -> bool:
+        """Note ``path`` as the ``model_path`` given at start (empty: none given); whether
+        the parameter must then be set empty (a refused file is no model in use)."""
+        self.given_path = path
+        return bool(self.refused and path)
+
+    def follows_learner(self, follow_learner: bool) -> bool:
+        """Whether the executor loads the ``/learner/model`` announcements: when asked
+        (``follow_learner``) or when no ``model_path`` was given at start.
+
+        An explicit model file wins otherwise, also when it was refused at start: the file
+        named is the one meant, not the learner's.
+        """
+        return follow_learner or not self.given_path
+
+    def ignored_announcement(self, announced: str) -> str:
+        """The note logged for a ``/learner/model`` announcement of ``announced`` that is not
+        followed (:meth:`follows_learner` false): the model file given at start and the
+        switch that follows the learner."""
+        return (f"model announced on /learner/model ignored: {announced} (model_path "
+                f"{self.given_path} was given at start; -p follow_learner:=true follows "
+                f"the learner)")
 
 
 def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
@@ -131,6 +199,47 @@ def load_policy(path: str, robot: Robot, constraint: Callable | None = None,
     frames = ", ".join(policy.state_map.frames)
     return model, policy, np.arange(len(joints)), f"frames {frames}"
 
+
+def model_guard(model: PolicyAlign, policy: Callable, permutation: np.ndarray, state: str,
+                max_extrapolation: float, max_extrapolation_rad: float
+                ) -> tuple[ExtrapolationGuard | None, str]:
+    """The extrapolation guard of a model that :func:`load_policy` loaded.
+
+    Parameters
+    ----------
+    model, policy, permutation, state
+        As :func:`load_policy` returns them.
+    max_extrapolation, max_extrapolation_rad : float
+        The executor's parameters of the same names.
+
+    Returns
+    -------
+    (guard, problem)
+        The guard on the distance to the model's data (in joint space for a joint-state
+        model, in frame positions for a frames model) and ""; or None and why the model
+        cannot have one (the command is then not guarded).
+    """
+    try:
+        if state == "joints":
+            distance = SupportDistance(model, permutation)
+        else:
+            distance = FrameSupportDistance(model, policy.state_map)
+        return ExtrapolationGuard(distance, max_extrapolation,
+                                  max_extrapolation_rad=max_extrapolation_rad), ""
+    except (ValueError, AttributeError) as err:
+        return None, f"extrapolation guard off for this model: {err}"
+
+
+def model_turn_centres(model: PolicyAlign, state: str, robot: Robot,
+                       permutation: np.ndarray) -> np.ndarray | None:
+    """The turn each of ``robot``'s continuous joints was learnt on
+    (:func:`~policy_align_ros.control.turns.turn_centres`) for a joint-state model; None
+    for a frames model, which sees them through the kinematics on every turn alike, and
+    for a model without its support states."""
+    support = getattr(model, "support_states_", None)
+    if state != "joints" or support is None:
+        return None
+    return turn_centres(support, robot.continuous, permutation)
 
 
 def no_model_fix(node: str, follows_learner: bool) -> str:

@@ -1,4 +1,5 @@
-"""The executor's status in words, ROS-free: what its ``/diagnostics`` message says."""
+"""The executor's status in words, ROS-free: what its ``/diagnostics`` message says, its
+~/enable answers and its notes on rejected joint states."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import numpy as np
 from policy_align_ros.control.armed import ArmedController
 from policy_align_ros.control.causes import NO_CAUSE
 
-__all__ = ["ERROR", "OK", "WARN", "arming_status", "held_error_text"]
+__all__ = ["ERROR", "OK", "WARN", "arming_status", "enable_answer", "held_error_text",
+           "model_text", "rejection_note"]
 
 #: Levels of :func:`arming_status`, as diagnostic_msgs/DiagnosticStatus numbers them.
 OK, WARN, ERROR = 0, 1, 2
@@ -87,3 +89,28 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
     }
     return level, message, values
+
+
+def model_text(model_path: str) -> str:
+    """The model in force, for the ~/enable answers: its file, or that there is none."""
+    return f"model {model_path}" if model_path else "no model loaded"
+
+
+def enable_answer(accepted: bool, reason: str, note: str, model_path: str) -> str:
+    """The ~/enable answer to an enable request: ``accepted`` with the model in force and
+    ``note`` (the joint order check off), else the refusal ``reason`` (with the model,
+    when one is loaded)."""
+    model = model_text(model_path)
+    if accepted:
+        return f"enabled ({model}){note}"
+    return f"refused: {reason}" + (f" ({model})" if model_path else "")
+
+
+def rejection_note(reason: str, total: int, hint: str = "") -> tuple[bool, str]:
+    """``(routine, text)``: the note on a joint state rejected for ``reason``, the
+    ``total`` rejected so far and ``hint`` (how to fix it, may be empty); ``routine``
+    when it is worth no warning."""
+    text = f"joint state rejected: {reason} ({total} rejected so far)"
+    text += f"; {hint}" if hint else ""
+    # Another publisher's joints on the same topic are normal; everything else is not.
+    return reason == "unknown_joints", text

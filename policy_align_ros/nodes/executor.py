@@ -81,7 +81,6 @@ other joints, is refused with the reason and the current one stays.
 from __future__ import annotations
 
 import functools
-import math
 import threading
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -106,31 +105,30 @@ from std_srvs.srv import SetBool
 
 from policy_align_ros.control import (
     ArmedController,
-    ControlStep,
-    ExtrapolationGuard,
-    FrameSupportDistance,
     Output,
-    StallDetector,
     StartModel,
-    SupportDistance,
     ZeroCause,
+    apply_setting,
     arming_status,
+    build_controller,
     clock_mismatch_hint,
+    constraints_from_text,
+    constraints_problem,
+    controller_order_refusal,
+    enable_answer,
     goal_margin_problem,
-    joint_order_problem,
     joint_velocity_bounds,
     load_policy,
-    model_load_error,
+    model_guard,
+    model_text,
+    model_turn_centres,
     no_model_fix,
     order_check_off,
-    speed_limits,
-    stall_time_problem,
-    turn_centres,
-    unchecked_order_refusal,
+    rejection_note,
+    setting_problem,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, describe_foreign
-from policy_align_ros.kinematics import Robot, constraint_from_spec
-from policy_align_ros.kinematics.constraints import parse_constraint_specs
+from policy_align_ros.kinematics import Robot
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
@@ -143,10 +141,7 @@ from policy_align_ros.nodes._common import (
     reject,
     run_node,
 )
-from policy_align_ros.nodes.executor_parameters import (
-    FLOAT_PARAMETERS,
-    declare_control_parameters,
-)
+from policy_align_ros.nodes.executor_parameters import declare_control_parameters
 
 __all__ = ["Executor", "main"]
 
@@ -169,22 +164,19 @@ class Executor(Node):
         self.model_path = ""
         # A model loaded while validating ``model_path``, applied once the set succeeds.
         self._staged: tuple[str, PolicyAlign, Callable, np.ndarray, str] | None = None
-        self._start_model = StartModel()  # read once for the robot and the policy
-        #: Why the model file given at start was not loaded (it contradicts robot_config).
-        self._model_refused = ""
-        # The start-up error of a model_path given at start that does not load.
-        self._start_error = ""
-        #: The model_path given at start (loaded or not), empty without one.
-        self._given_model_path = ""
+        #: The model file given at start: read once for the robot and the policy, and
+        #: whether it was refused, failed to load or wins over /learner/model.
+        self._start_model = StartModel()
         #: What the loaded model's state is: "joints" or "frames F1, F2".
         self.model_state = ""
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
         self.add_post_set_parameters_callback(self._locked(self._after_set_parameters))
         self._declare_robot_parameters()
-        joints = list(self.robot.joint_names)
         self._declare_control_parameters()
-        self.controller = self._make_controller(joints)
-        self._selector = JointSelector(joints)
+        self.controller = build_controller(
+            self.robot, lambda name: self.get_parameter(name).value,
+            constraints_from_text(self.get_parameter("constraints").value, self.robot))
+        self._selector = JointSelector(self.robot.joint_names)
         #: Rejected joint-state messages by reason, over the node's lifetime.
         self.rejected_states: Counter[str] = Counter()
         self._last = Output(None, self.controller.zero_reason, 1.0,
@@ -199,7 +191,7 @@ class Executor(Node):
         setup = declare_robot(self, "controlled", model_path="model_path",
                               read_fields=self._start_model.robot_fields)
         self.robot, self._default_controller = load_robot(setup), setup.controller
-        self._model_refused = setup.model_refused
+        self._start_model.refused = setup.model_refused
         self.declare_parameter("rate_hz", 100.0, descriptor(
             "control rate [Hz]", read_only=True, float_range=(1.0, 1000.0)))
 
@@ -208,37 +200,18 @@ class Executor(Node):
         loads models and checks constraint specs on it).
 
         A model file given at start that does not load stops the node with
-        :func:`~policy_align_ros.control.loading.model_load_error` (rclpy's exception
+        :attr:`~policy_align_ros.control.loading.StartModel.load_error` (rclpy's exception
         words it as a parameter-set failure); one that contradicts ``robot_config`` is
         left out with an error logged, and ``model_path`` reads empty.
         """
         try:
             declare_control_parameters(self, self._default_controller)
         except InvalidParameterValueException:
-            if self._start_error:
-                raise ValueError(self._start_error) from None
+            if self._start_model.load_error:
+                raise ValueError(self._start_model.load_error) from None
             raise
-        self._given_model_path = self.get_parameter("model_path").value
-        if self._model_refused and self._given_model_path:
+        if self._start_model.given(self.get_parameter("model_path").value):
             self.set_parameters([Parameter("model_path", value="")])
-
-    def _make_controller(self, joints: list[str]) -> ArmedController:
-        """The armed controller from the declared parameters."""
-        self._period = 1.0 / self.get_parameter("rate_hz").value
-        step = ControlStep(
-            self.robot.lower, self.robot.upper, self._speed_limits(), self._period,
-            constraints=self._constraints(self.get_parameter("constraints").value),
-            drift_gain=self.get_parameter("drift_gain").value,
-            drift_clamp_m=self.get_parameter("drift_clamp_m").value,
-            min_singular_value=self.get_parameter("min_singular_value").value,
-            joint_limit_margin=self.get_parameter("joint_limit_margin").value)
-        return ArmedController(
-            step, self.get_parameter("max_acceleration").value,
-            self.get_parameter("state_timeout_s").value,
-            self.get_parameter("max_clock_skew_s").value, joint_names=joints,
-            state_limit_margin=self.get_parameter("state_limit_margin").value,
-            stall=StallDetector(len(joints), self.get_parameter("stall_time_s").value,
-                                joint_names=joints))
 
     def _create_interfaces(self) -> None:
         """Publishers, subscriptions, the ~/enable service and the timers."""
@@ -248,10 +221,8 @@ class Executor(Node):
             self._apply_staged()
         self._update_context()
         self._arm_at_start = bool(self.get_parameter("start_enabled").value)
-        # An explicit model file wins over /learner/model unless asked to follow it (also
-        # when it was refused at start: the file named is the one meant, not the learner's).
-        self._follow_learner = (bool(self.get_parameter("follow_learner").value)
-                                or not self._given_model_path)
+        self._follow_learner = self._start_model.follows_learner(
+            bool(self.get_parameter("follow_learner").value))
         self._lockstep = bool(self.get_parameter("step_on_joint_state").value)
         if self._arm_at_start and self.controller.step.policy is None:
             self.get_logger().warning(
@@ -276,7 +247,7 @@ class Executor(Node):
         self.create_service(SetBool, "~/enable", self._on_enable,
                             callback_group=ReentrantCallbackGroup())
         # Timers run on the node clock (rclpy's default), hence on /clock with use_sim_time.
-        self.create_timer(self._period, self._locked(self._on_timer))
+        self.create_timer(self.controller.step.dt, self._locked(self._on_timer))
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._locked(self.publish_diagnostics))
 
     def _locked(self, callback: Callable) -> Callable:
@@ -291,9 +262,6 @@ class Executor(Node):
         return self.get_clock().now().nanoseconds
 
     # -- parameters -------------------------------------------------------------------
-    def _speed_limits(self) -> np.ndarray:
-        return speed_limits(self.robot.velocity_limit, self.get_parameter("max_velocity").value)
-
     def _constraint_matrix(self, q: np.ndarray, qdot: np.ndarray | None = None
                            ) -> np.ndarray:
         """The constraints in force at call time (a task-space policy's ``A(q)``)."""
@@ -305,30 +273,14 @@ class Executor(Node):
         return joint_velocity_bounds(q, step.control_lower, step.control_upper,
                                      step.max_velocity, step.dt, step.max_acceleration)
 
-    def _constraints(self, text: str) -> list:
-        return [constraint_from_spec(spec, self.robot) for spec in parse_constraint_specs(text)]
-
     def _on_set_parameters(self, params: Sequence[Parameter]):
         """Validate (and load a new model); :meth:`_after_set_parameters` applies."""
         for param in params:
-            if param.name == "joints":
-                # ``joints:=[]`` on the command line arrives unset (None), not as a list.
-                if not param.value or len(set(param.value)) != len(param.value):
-                    return reject("joints: must be a non-empty list without repeats")
-            elif param.name in FLOAT_PARAMETERS:
-                if not math.isfinite(param.value):
-                    return reject(f"{param.name}: must be finite, got {param.value}")
-                if param.name == "stall_time_s" and stall_time_problem(param.value):
-                    return reject(stall_time_problem(param.value))
-            elif param.name == "constraints" and self.robot is not None:
-                try:
-                    self._constraints(param.value)
-                except Exception as err:  # noqa: BLE001 - a refusal, never a dead executor
-                    # The specs are checked to raise ValueError; anything else that slips
-                    # through must still refuse the change rather than kill the node while
-                    # the controller holds its last command.
-                    return reject(str(err) if isinstance(err, ValueError)
-                                  else f"constraints: {type(err).__name__}: {err}")
+            if problem := setting_problem(param.name, param.value):
+                return reject(problem)
+            if param.name == "constraints" and self.robot is not None:
+                if problem := constraints_problem(param.value, self.robot):
+                    return reject(problem)
             elif param.name == "model_path":
                 result = self._stage_model(param.value)
                 if result is not None:
@@ -373,11 +325,8 @@ class Executor(Node):
                 return None  # the default at start: wait for /learner/model
             return reject("model_path: empty; the loaded model stays (disable with "
                           "~/enable to stop)")
-        if starting and self._model_refused:
-            self._start_model.take(path)  # not needed: free it
-            self.get_logger().error(
-                f"model_path {path} not loaded: {self._model_refused}. The executor starts "
-                f"without a model (~/enable is refused until one loads)")
+        if starting and (refusal := self._start_model.refusal(path)):
+            self.get_logger().error(refusal)
             return None  # model_path is then set empty (_declare_control_parameters)
         try:
             model, policy, perm, state = load_policy(
@@ -385,7 +334,7 @@ class Executor(Node):
                 self._start_model.take(path))
         except (ValueError, OSError) as err:
             if starting:
-                self._start_error = model_load_error(path, err)
+                self._start_model.load_failed(path, err)
             return reject(f"model_path: not loaded: {err}")
         self._staged = (path, model, policy, perm, state)
         return None
@@ -393,31 +342,15 @@ class Executor(Node):
     def _after_set_parameters(self, params: Sequence[Parameter]) -> None:
         if self.controller is None:
             return  # still declaring: __init__ builds the controller from the values
-        control = self.controller
         for param in params:
+            if apply_setting(self.controller, param.name, param.value,
+                             self.robot.velocity_limit):
+                continue
             if param.name == "constraints":
-                control.step.constraints = self._constraints(param.value)
+                self.controller.step.constraints = constraints_from_text(param.value,
+                                                                         self.robot)
                 self._update_context()
                 self.get_logger().info(f"constraints now {param.value}")
-            elif param.name == "max_velocity":
-                control.step.max_velocity = self._speed_limits()
-            elif param.name == "max_acceleration":
-                control.max_acceleration = param.value
-            elif param.name == "state_timeout_s":
-                control.state_timeout_s = param.value
-            elif param.name == "max_clock_skew_s":
-                control.max_clock_skew_s = param.value
-            elif param.name == "state_limit_margin":
-                control.state_limit_margin = param.value
-            elif param.name == "stall_time_s":
-                control.stall.stall_time_s = param.value
-            elif param.name == "max_extrapolation" and control.step.guard is not None:
-                control.step.guard.max_extrapolation = param.value
-            elif param.name == "max_extrapolation_rad" and control.step.guard is not None:
-                control.step.guard.max_extrapolation_rad = param.value
-            elif param.name in ("drift_gain", "drift_clamp_m", "min_singular_value",
-                                "joint_limit_margin"):
-                setattr(control.step, param.name, param.value)
             elif param.name == "model_path" and self._staged is not None:
                 self._apply_staged()
             elif param.name == "controller":
@@ -430,13 +363,12 @@ class Executor(Node):
         self.model_state = state
         self._arm_at_start = False  # a swapped model is never armed without ~/enable
         out = self.controller.set_policy(policy, perm, reason=f"model swap to {path}")
-        self.controller.step.guard = self._guard(model, policy, perm, state)
-        # A joint-state model learnt its continuous joints' angles on some turn; a frames
-        # state sees them through the kinematics, on every turn alike.
-        self.controller.step.turn_centres = (
-            turn_centres(model.support_states_, self.robot.continuous, perm)
-            if state == "joints" and getattr(model, "support_states_", None) is not None
-            else None)
+        self.controller.step.guard, problem = model_guard(
+            model, policy, perm, state, self.get_parameter("max_extrapolation").value,
+            self.get_parameter("max_extrapolation_rad").value)
+        if problem:
+            self.get_logger().warning(problem)
+        self.controller.step.turn_centres = model_turn_centres(model, state, self.robot, perm)
         self.model_path = path
         self._update_context()
         self.get_logger().info(f"model loaded from {path} (state: {state})")
@@ -445,26 +377,9 @@ class Executor(Node):
             self.get_logger().warning(problem)
         self._emit(out)
 
-    def _guard(self, model: PolicyAlign, policy: Callable, perm: np.ndarray, state: str
-               ) -> ExtrapolationGuard | None:
-        """The extrapolation guard for a newly loaded model (None: the model cannot have one)."""
-        limit = self.get_parameter("max_extrapolation").value
-        cap = {"max_extrapolation_rad": self.get_parameter("max_extrapolation_rad").value}
-        try:
-            if state == "joints":
-                return ExtrapolationGuard(SupportDistance(model, perm), limit, **cap)
-            return ExtrapolationGuard(FrameSupportDistance(model, policy.state_map), limit,
-                                      **cap)
-        except (ValueError, AttributeError) as err:
-            self.get_logger().warning(f"extrapolation guard off for this model: {err}")
-            return None
-
     def _on_model(self, msg: String) -> None:
         if not self._follow_learner:
-            self.get_logger().info(
-                f"model announced on /learner/model ignored: {msg.data} (model_path "
-                f"{self._given_model_path} was given at start; -p follow_learner:=true "
-                f"follows the learner)")
+            self.get_logger().info(self._start_model.ignored_announcement(msg.data))
             return
         result = self.set_parameters([Parameter("model_path", value=msg.data)])[0]
         if not result.successful:
@@ -518,11 +433,8 @@ class Executor(Node):
 
     def _count_rejected(self, reason: str, hint: str = "") -> None:
         self.rejected_states[reason] += 1
-        total = sum(self.rejected_states.values())
-        text = f"joint state rejected: {reason} ({total} rejected so far)"
-        text += f"; {hint}" if hint else ""
-        # Another publisher's joints on the same topic are normal; everything else is not.
-        if reason == "unknown_joints":
+        routine, text = rejection_note(reason, sum(self.rejected_states.values()), hint)
+        if routine:
             self.get_logger().debug(text, throttle_duration_sec=2.0)
         else:
             self.get_logger().warning(text, throttle_duration_sec=2.0)
@@ -542,7 +454,7 @@ class Executor(Node):
             self._enable_requests += 1
             self._emit(self.controller.disarm("disabled by ~/enable", ZeroCause.DISABLED))
             response.success = True
-            response.message = f"disabled ({self._model_text()})"
+            response.message = f"disabled ({model_text(self.model_path)})"
         return response
 
     async def _enable_at_start(self) -> None:
@@ -585,15 +497,10 @@ class Executor(Node):
             if accepted:
                 accepted, reason, out = self.controller.arm(self._now_ns())
                 self._emit(out)
-            model = self._model_text()
-            message = (f"enabled ({model}){note}" if accepted
-                       else f"refused: {reason}" + (f" ({model})" if self.model_path else ""))
+            message = enable_answer(accepted, reason, note, self.model_path)
             if not accepted:
                 self.get_logger().warning(f"~/enable {message}")
         return accepted, message
-
-    def _model_text(self) -> str:
-        return f"model {self.model_path}" if self.model_path else "no model loaded"
 
     async def _check_controller(self, client) -> tuple[str, str]:
         """Compare the controller's ``joints`` with ours, asked through ``client`` (the
@@ -611,13 +518,10 @@ class Executor(Node):
         answer = await call_with_timeout(
             client, GetParameters.Request(names=["joints"]), CONTROLLER_TIMEOUT_S)
         value = answer.values[0] if answer is not None and len(answer.values) == 1 else None
-        if value is None or value.type != ParameterType.PARAMETER_STRING_ARRAY:
-            why = (f"{controller} did not answer within {CONTROLLER_TIMEOUT_S:g} s"
-                   if answer is None else f"{controller} has no string-array joints "
-                   "parameter")
-            return unchecked_order_refusal(controller, why), ""
-        return joint_order_problem(value.string_array_value, self.robot.joint_names,
-                                   controller), ""
+        order = (value.string_array_value if value is not None
+                 and value.type == ParameterType.PARAMETER_STRING_ARRAY else None)
+        return controller_order_refusal(controller, order, self.robot.joint_names,
+                                        answer is not None, CONTROLLER_TIMEOUT_S), ""
 
     # -- output -----------------------------------------------------------------------
     def _on_timer(self) -> None:

@@ -1,7 +1,8 @@
 """The executor's run-time parameters: declarations with descriptors and ranges.
 
 The node (:mod:`policy_align_ros.nodes.executor`) validates and applies them in its
-set-parameters callback; ``docs/parameters.md`` is generated from these descriptors.
+set-parameters callback (:mod:`policy_align_ros.control.settings`); ``docs/parameters.md``
+is generated from these descriptors.
 """
 
 from __future__ import annotations
@@ -20,13 +21,7 @@ from policy_align_ros.control import (
 )
 from policy_align_ros.nodes._common import descriptor
 
-__all__ = ["FLOAT_PARAMETERS", "declare_control_parameters"]
-
-#: Float parameters that must be finite (rclpy checks their ranges, not NaN handling).
-FLOAT_PARAMETERS = ("max_velocity", "max_acceleration", "state_timeout_s",
-                    "max_clock_skew_s", "max_extrapolation", "drift_gain", "drift_clamp_m",
-                    "min_singular_value", "state_limit_margin", "joint_limit_margin",
-                    "max_extrapolation_rad", "stall_time_s")
+__all__ = ["declare_control_parameters"]
 
 
 def declare_control_parameters(node: Node, default_controller: str) -> None:

@@ -5,6 +5,7 @@ import pytest
 
 from policy_align_ros.control import (
     NO_ORDER_CHECK,
+    controller_order_refusal,
     joint_order_problem,
     model_permutation,
     order_check_off,
@@ -58,3 +59,16 @@ def test_other_controller_joints_name_only_the_parts_that_differ(theirs, missing
     for names in (missing, extra):
         assert (str(names) in text) == bool(names)
     assert f"-p joints:=[{','.join(theirs)}]" in text
+
+
+def test_the_controllers_answer_refuses_an_enable_with_the_cause():
+    joints = ["a", "b"]
+    assert controller_order_refusal("/c", ["a", "b"], joints, True, 1.0) == ""
+    # Another order: the mismatch, as joint_order_problem names it.
+    assert (controller_order_refusal("/c", ["b", "a"], joints, True, 1.0)
+            == joint_order_problem(["b", "a"], joints, "/c"))
+    # No order read: refused as unchecked, told apart by whether the controller answered.
+    silent = controller_order_refusal("/c", None, joints, False, 1.0)
+    no_joints = controller_order_refusal("/c", None, joints, True, 1.0)
+    assert silent and no_joints and silent != no_joints
+    assert f"-p controller:={NO_ORDER_CHECK}" in silent  # the unchecked refusal's fixes

@@ -9,11 +9,15 @@ import numpy as np
 import pytest
 
 from policy_align_ros.control import (
+    ExtrapolationGuard,
     StartModel,
+    SupportDistance,
     goal_margin_problem,
     learnt_goal,
     load_policy,
+    model_guard,
     model_load_error,
+    model_turn_centres,
     no_model_fix,
 )
 from policy_align_ros.experiments.toy import make_toy_dataset
@@ -128,3 +132,97 @@ def test_an_enable_without_a_model_names_the_ways_to_load_one(follows):
     assert "policy-align param set /ns/executor model_path" in text
     assert "/learner/model" in text
     assert ("follow_learner" in text) is not follows  # the switch, when it is off
+
+
+# -- the executor's decisions about the model file given at start -----------------------
+def test_a_start_model_refused_for_the_robot_config_is_named_released_and_cleared(
+        model_file):
+    why = "it names robot panda, robot_config talos"
+    start = StartModel(refused=why)
+    start.robot_fields(model_file)  # read for the robot fields before the refusal
+    line = start.refusal(model_file)
+    assert model_file in line and why in line  # the file and the reason
+    assert start.take(model_file) is None  # the model read for it is released
+    assert start.given(model_file)  # model_path must then read empty
+    # Not refused: nothing to say, the model stays for the load, model_path stays.
+    kept = StartModel()
+    kept.robot_fields(model_file)
+    assert kept.refusal(model_file) == ""
+    assert isinstance(kept.take(model_file), PolicyAlign)
+    assert not kept.given(model_file)
+    # Refused, but no model_path given (the refusal came from the robot config alone).
+    assert not StartModel(refused=why).given("")
+
+
+def test_a_start_model_that_does_not_load_keeps_the_start_up_error(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    start = StartModel()
+    assert start.load_error == ""
+    try:
+        PolicyAlign.load("nosuch.npz")
+    except FileNotFoundError as err:
+        start.load_failed("nosuch.npz", err)
+    # The same error as model_load_error's, which names the file and the fix.
+    assert start.load_error and "nosuch.npz" in start.load_error
+    assert str(tmp_path) in start.load_error
+
+
+@pytest.mark.parametrize("given, follow_learner, follows", [
+    ("", False, True),  # no model_path at start: the learner's models are loaded
+    ("", True, True),
+    ("model.npz", False, False),  # an explicit model file wins
+    ("model.npz", True, True),  # unless asked to follow the learner
+])
+def test_the_learner_is_followed_unless_a_model_file_was_given_at_start(given,
+                                                                        follow_learner,
+                                                                        follows):
+    start = StartModel()
+    start.given(given)
+    assert start.given_path == given
+    assert start.follows_learner(follow_learner) is follows
+
+
+def test_a_refused_start_model_still_wins_over_the_learner(model_file):
+    # The file named is the one meant: refused for the robot config, it is not replaced
+    # by the learner's model unless asked.
+    start = StartModel(refused="contradicts robot_config")
+    assert start.given(model_file)
+    assert not start.follows_learner(False)
+    assert start.follows_learner(True)
+
+
+def test_an_ignored_announcement_names_the_model_given_and_the_switch():
+    start = StartModel()
+    start.given("mine.npz")
+    note = start.ignored_announcement("/tmp/learnt.npz")
+    assert "/tmp/learnt.npz" in note and "mine.npz" in note
+    assert "follow_learner" in note
+
+
+# -- what a newly loaded model sets up ---------------------------------------------------
+def test_a_joint_state_model_gets_a_guard_on_its_joint_space_data(model_file):
+    robot = Robot.load("panda", JOINTS)
+    model, policy, perm, state = load_policy(model_file, robot)
+    guard, problem = model_guard(model, policy, perm, state, 4.0, 0.7)
+    assert problem == "" and isinstance(guard, ExtrapolationGuard)
+    assert isinstance(guard.distance, SupportDistance)
+    assert guard.max_extrapolation == 4.0 and guard.max_extrapolation_rad == 0.7
+
+
+def test_a_model_that_cannot_have_a_guard_is_run_without_one_and_says_why():
+    # A frames model whose policy has no state map: no distance to its data.
+    guard, problem = model_guard(SimpleNamespace(), lambda x: x, np.arange(2), "frames a",
+                                 4.0, 0.7)
+    assert guard is None and problem
+
+
+def test_turn_centres_come_from_a_joint_state_models_support_only():
+    robot = SimpleNamespace(continuous=np.array([False, True]))
+    model = SimpleNamespace(support_states_=np.array([[0.0, 3.0], [1.0, 4.0]]))
+    perm = np.array([1, 0])  # the model's joints are the executor's in reverse order
+    centres = model_turn_centres(model, "joints", robot, perm)
+    # The executor's continuous second joint is the model's first, whose middle is 0.5.
+    assert np.isnan(centres[0]) and centres[1] == 0.5
+    # A frames model sees the joints through the kinematics, on every turn alike.
+    assert model_turn_centres(model, "frames a", robot, perm) is None
+    assert model_turn_centres(SimpleNamespace(), "joints", robot, perm) is None

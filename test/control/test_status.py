@@ -1,0 +1,34 @@
+"""The executor's ~/enable answers and rejected-state notes (policy_align_ros.control.status).
+ROS-free."""
+
+import pytest
+
+from policy_align_ros.control import enable_answer, model_text, rejection_note
+
+
+def test_the_model_in_force_is_named_or_said_to_be_missing():
+    assert "m.npz" in model_text("m.npz")
+    assert model_text("") and model_text("") != model_text("m.npz")
+
+
+@pytest.mark.parametrize("model_path", ["", "/tmp/m.npz"])
+def test_an_enable_answer_carries_the_note_or_the_refusal_and_the_model(model_path):
+    note = "; joint order check off (controller 'none')"
+    accepted = enable_answer(True, "", note, model_path)
+    assert accepted.endswith(note) and model_text(model_path) in accepted
+    refused = enable_answer(False, "no joint state received", note, model_path)
+    assert "no joint state received" in refused and note not in refused
+    # The model is named when one is loaded (without one, the reason says so).
+    assert (model_text(model_path) in refused) is bool(model_path)
+    assert accepted != refused
+
+
+@pytest.mark.parametrize("reason, routine", [
+    ("unknown_joints", True),  # another publisher's joints on the same topic
+    ("missing_joints", False), ("non_finite", False), ("time_not_increasing", False),
+])
+def test_only_foreign_joint_states_are_routine(reason, routine):
+    got, text = rejection_note(reason, 3, "publish them all")
+    assert got is routine
+    assert reason in text and "3" in text and "publish them all" in text
+    assert rejection_note(reason, 3)[1] in text  # the hint only adds to the note
