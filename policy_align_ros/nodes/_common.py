@@ -27,10 +27,12 @@ from rclpy.duration import Duration
 from rclpy.exceptions import (
     InvalidParameterTypeException,
     InvalidParameterValueException,
+    ParameterException,
     ParameterUninitializedException,
 )
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray
@@ -38,12 +40,18 @@ from std_msgs.msg import Float64MultiArray
 from policy_align_ros.kinematics import Robot, RobotSetup, resolve_robot_setup
 from policy_align_ros.kinematics.robot import ROBOTS
 from policy_align_ros.learning.policy_file import read_robot_fields
+from policy_align_ros.nodes.start_parameters import (
+    StartParameterError,
+    StartParameterProblem,
+    start_parameter_problem,
+)
 from policy_align_ros.ros_env import domain_id_problem
 
 __all__ = [
     "DEFAULT_JOINTS",
     "LATCHED_QOS",
     "ROBOT_NAMES_TEXT",
+    "StartNode",
     "accept",
     "call_with_timeout",
     "declare_robot",
@@ -97,6 +105,74 @@ def descriptor(
             IntegerRange(from_value=int(int_range[0]), to_value=int(int_range[1]), step=1)
         ]
     return desc
+
+
+class StartNode(Node):
+    """The base of the package's nodes: a value given at start (``-p`` or a parameters
+    file) that a parameter declaration refuses raises
+    :class:`~policy_align_ros.nodes.start_parameters.StartParameterError`, whose one line
+    names the node, the parameter, the value, the problem and the fix (the type or range
+    the parameter declares), instead of rclpy's
+    ``InvalidParameterValueException`` / ``InvalidParameterTypeException``.
+
+    :func:`run_node` prints that line; a node built without ``run_node`` (a test) gets the
+    same exception.
+    """
+
+    def declare_parameters(self, namespace: str, parameters: list[tuple],
+                           ignore_override: bool = False) -> list[Parameter]:
+        """rclpy's ``declare_parameters``, raising StartParameterError for a refused value
+        (``declare_parameter`` goes through here)."""
+        try:
+            return super().declare_parameters(namespace, parameters, ignore_override)
+        except (InvalidParameterValueException, InvalidParameterTypeException) as err:
+            problem = _declaration_problem(self, namespace, parameters, ignore_override, err)
+            raise StartParameterError(problem) from err
+
+
+def _declaration_problem(node: Node, namespace: str, parameters: list[tuple],
+                         ignore_override: bool, err: ParameterException
+                         ) -> StartParameterProblem:
+    """The refused declaration among ``parameters`` (rclpy's exceptions end in ``": NAME"``)
+    as a :class:`~policy_align_ros.nodes.start_parameters.StartParameterProblem`."""
+    names = [f"{namespace}.{t[0]}" if namespace else t[0] for t in parameters]
+    index = next((i for i, n in enumerate(names) if str(err).endswith(f": {n}")), 0)
+    name, spec = names[index], parameters[index]
+    default = spec[1] if len(spec) > 1 else None
+    desc = spec[2] if len(spec) > 2 else None
+    declared = default if isinstance(default, Parameter.Type) else None
+    # rclpy has no public accessor for the overrides (see _override); unlike _override,
+    # an override of None (``joints:=[]``) must differ from none given.
+    overrides = getattr(node, "_parameter_overrides", {})
+    override = None if ignore_override else overrides.get(name)
+    value = override.value if override is not None else (
+        None if declared is not None else default)
+    if desc is not None and desc.dynamic_typing:
+        declared = _type_of(value)  # any type is the parameter's
+    elif declared is None:
+        declared = (Parameter.Type(desc.type) if desc is not None and desc.type
+                    else _type_of(default))
+    allowed = None
+    if desc is not None and desc.floating_point_range:
+        allowed = (desc.floating_point_range[0].from_value,
+                   desc.floating_point_range[0].to_value)
+    elif desc is not None and desc.integer_range:
+        allowed = (desc.integer_range[0].from_value, desc.integer_range[0].to_value)
+    # The reason rclpy passed on (the node's check, or its own range check) sits between
+    # "Reason: " and the name it appends; all of the message when that wording changes.
+    reason = str(err).removesuffix(f": {name}")
+    reason = reason.split("Reason: ", 1)[1] if "Reason: " in reason else reason
+    return start_parameter_problem(
+        node.get_fully_qualified_name(), name, value, expected_type=declared.name,
+        given_type=_type_of(value).name, allowed=allowed, reason=reason)
+
+
+def _type_of(value: Any) -> Parameter.Type:
+    """The parameter type of ``value`` as rclpy infers it (NOT_SET for None)."""
+    try:
+        return Parameter.Type.from_parameter_value(value)
+    except TypeError:  # not a parameter value at all
+        return Parameter.Type.NOT_SET
 
 
 def accept() -> SetParametersResult:
@@ -233,6 +309,8 @@ async def call_with_timeout(client: Client, request: Any, timeout_s: float) -> A
 
 
 _STOP = threading.Event()
+#: Exit status of a node that could not start (a bad parameter), as run_node returns it.
+START_FAILED = 1
 #: Longest wait [s] for a node's destruction and the context's shutdown once the node's
 #: own clean-up is done (see :func:`run_node`).
 TEARDOWN_TIMEOUT_S = 5.0
@@ -275,8 +353,9 @@ def run_node(
     Returns
     -------
     int
-        0 on a normal or interrupted run, 1 when the node could not start (bad parameter),
-        else the result of the node's ``done`` future when it has one.
+        0 on a normal or interrupted run, 1 when the node could not start (bad parameter:
+        one line ``error: ...`` on stderr, no traceback), else the result of the node's
+        ``done`` future when it has one.
     """
     problem = domain_id_problem()
     if problem:  # else Fast DDS's one line about a port number, and no node
@@ -306,9 +385,13 @@ def run_node(
             code = int(done.result())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (InvalidParameterValueException, InvalidParameterTypeException, ValueError) as err:
+    except (ParameterException, ValueError) as err:
+        # A StartNode's refused value is a ValueError naming the node, the parameter, the
+        # value and the fix (StartParameterError); rclpy's other parameter exceptions (a
+        # node built on rclpy's Node, a parameter read before it is declared) are one line
+        # too, rather than a traceback.
         print(f"error: {err}", file=sys.stderr)
-        code = 1
+        code = START_FAILED
     finally:
         # A second signal must not interrupt the clean-up (the final zero command).
         signal.signal(signal.SIGINT, signal.SIG_IGN)

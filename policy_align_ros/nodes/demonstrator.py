@@ -46,7 +46,6 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
@@ -58,6 +57,7 @@ from policy_align_ros.data.messages import JointSelector
 from policy_align_ros.kinematics import RobotConfig
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
+    StartNode,
     accept,
     declare_robot,
     descriptor,
@@ -83,7 +83,7 @@ LATE_TICK_PERIODS = 1.5
 MOVING_STATES = ("reach", "demo")
 
 
-class Demonstrator(Node):
+class Demonstrator(StartNode):
     """The ``demonstrator`` node (see the module docstring)."""
 
     def __init__(self, **kwargs) -> None:

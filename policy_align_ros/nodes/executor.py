@@ -90,13 +90,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.exceptions import (
-    InvalidParameterValueException,
-    InvalidServiceNameException,
-    InvalidTopicNameException,
-)
+from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 from rclpy.expand_topic_name import expand_topic_name
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import JointState
@@ -132,6 +127,7 @@ from policy_align_ros.kinematics import Robot
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
+    StartNode,
     accept,
     call_with_timeout,
     declare_robot,
@@ -142,6 +138,7 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 from policy_align_ros.nodes.executor_parameters import declare_control_parameters
+from policy_align_ros.nodes.start_parameters import StartParameterError
 
 __all__ = ["Executor", "main"]
 
@@ -150,7 +147,7 @@ __all__ = ["Executor", "main"]
 DIAGNOSTICS_PERIOD_S = 1.0
 #: How long ~/enable waits for the controller's joints parameter (s, wall time).
 CONTROLLER_TIMEOUT_S = 1.0
-class Executor(Node):
+class Executor(StartNode):
     """The ``executor`` node (see the module docstring)."""
 
     def __init__(self, **kwargs) -> None:
@@ -200,13 +197,14 @@ class Executor(Node):
         loads models and checks constraint specs on it).
 
         A model file given at start that does not load stops the node with
-        :attr:`~policy_align_ros.control.loading.StartModel.load_error` (rclpy's exception
-        words it as a parameter-set failure); one that contradicts ``robot_config`` is
-        left out with an error logged, and ``model_path`` reads empty.
+        :attr:`~policy_align_ros.control.loading.StartModel.load_error`, which also says
+        where a relative path was looked for (rather than the StartParameterError of
+        any other refused value); one that contradicts ``robot_config`` is left out with
+        an error logged, and ``model_path`` reads empty.
         """
         try:
             declare_control_parameters(self, self._default_controller)
-        except InvalidParameterValueException:
+        except StartParameterError:
             if self._start_model.load_error:
                 raise ValueError(self._start_model.load_error) from None
             raise

@@ -23,7 +23,6 @@ from pathlib import Path
 
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -36,6 +35,7 @@ from policy_align_ros.kinematics.robot_config import learning_robot
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     ROBOT_NAMES_TEXT,
+    StartNode,
     accept,
     descriptor,
     optional_parameter,
@@ -65,7 +65,7 @@ _GATE_PARAMETERS = {
 _SIGMA_TYPES = (Parameter.Type.STRING, Parameter.Type.DOUBLE, Parameter.Type.INTEGER)
 
 
-class Learner(Node):
+class Learner(StartNode):
     """The ``learner`` node (see the module docstring)."""
 
     def __init__(self, **kwargs) -> None:

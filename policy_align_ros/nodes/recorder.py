@@ -66,7 +66,6 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -80,7 +79,7 @@ from policy_align_ros.data.messages import (
 )
 from policy_align_ros.data.recording import DemoRecorder, PendingWriteError, validate_gap
 from policy_align_ros.kinematics.robot_config import load_robot_config
-from policy_align_ros.nodes._common import run_node
+from policy_align_ros.nodes._common import StartNode, run_node
 
 __all__ = ["RecorderNode", "main"]
 
@@ -93,7 +92,7 @@ _RETRY_PERIOD_S = 5.0
 _MAX_STAMP_AHEAD_S = 1.0
 
 
-class RecorderNode(Node):
+class RecorderNode(StartNode):
     """Record joint-state demonstrations; see the module docstring for the interface."""
 
     def __init__(self, **kwargs) -> None:

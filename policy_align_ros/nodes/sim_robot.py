@@ -23,7 +23,6 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.clock import Clock as RclClock
 from rclpy.clock import ClockType
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
@@ -32,6 +31,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from policy_align_ros.nodes._common import (
+    StartNode,
     accept,
     declare_robot,
     descriptor,
@@ -48,7 +48,7 @@ __all__ = ["SIM_CLOCK_START_NS", "SimRobot", "main"]
 SIM_CLOCK_START_NS = 1_000_000_000
 
 
-class SimRobot(Node):
+class SimRobot(StartNode):
     """The ``sim_robot`` node (see the module docstring)."""
 
     def __init__(self, **kwargs) -> None:

@@ -10,7 +10,6 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -21,6 +20,7 @@ from std_srvs.srv import Trigger
 from policy_align_ros.kinematics import TaskSpaceMap
 from policy_align_ros.nodes.demonstrator import Demonstrator
 from policy_align_ros.nodes.sim_robot import SimRobot
+from policy_align_ros.nodes.start_parameters import Cause, StartParameterError
 
 JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
 HAND = "arm_left_7_link"
@@ -145,10 +145,11 @@ def test_bad_expert_is_refused_at_start():
     rclpy.init(context=context, domain_id=184)
     try:
         # The parameter callback refuses the value while it is declared, with the reason.
-        with pytest.raises(InvalidParameterValueException, match="expert"):
+        with pytest.raises(StartParameterError, match="expert") as err:
             Demonstrator(context=context, parameter_overrides=[
                 Parameter("robot", value="talos"), Parameter("joints", value=JOINTS),
                 Parameter("expert", value="elbows")])
+        assert err.value.problem.cause == Cause.REFUSED and err.value.problem.reason
     finally:
         rclpy.try_shutdown(context=context)
 
