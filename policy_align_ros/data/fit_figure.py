@@ -11,9 +11,10 @@ shows where the model and the demonstrations part. Four panels:
    that loops.
 2. **Runs of the learnt policy from the demonstrated starts**: the distance to the
    goal over time, beside the demonstration's own, in units of its duration. A run
-   from a held-out start is a run from a start the fit never saw.
-3. **Held-out error per CV fold** over a zero policy's: 1 is no better than standing
-   still (the learner refuses it), 0.5 the poor-fit warning.
+   from a held-out start is a run from a start the fit never saw. A run that leaves the
+   data's box widened by its extent stops there (a policy that diverges).
+3. **Held-out error per CV fold** over a zero policy's, on a log scale: 1 is no better
+   than standing still (the learner refuses it), 0.5 the poor-fit warning.
 4. **The states** (their first two principal directions): the demonstrations, the runs,
    the learnt minima and the demonstrated goal.
 """
@@ -28,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from policy_align_ros.learning.descent import data_box
 from policy_align_ros.learning.folds import POOR_FIT_RATIO
 from policy_align_ros.learning.goal import (
     GOAL_MERGE,
@@ -45,11 +47,14 @@ __all__ = ["FIGURE_FORMATS", "figure_format", "fit_views", "plot_fit", "policy_r
 FLOOR = 1e-3
 #: Points drawn per demonstration's estimate and per run's path, at most about.
 DOTS = 100
+#: Demonstrations the potential panel's legend names (the first ones).
+LEGEND_DEMOS = 8
 #: The formats :func:`plot_fit` writes, named by the path's suffix.
 FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
-def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float
+def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float,
+                bounds: tuple[np.ndarray, np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Explicit Euler runs of ``xdot = policy(x)`` from every start at once.
 
@@ -64,25 +69,34 @@ def policy_runs(policy, starts: np.ndarray, horizon: float, dt: float
         MAX_REACH_STEPS` steps, longer than ``dt`` when needed (as the goal report's runs).
     dt : float
         Step (s), the demonstrations' sample period.
+    bounds : (lower (n,), upper (n,)), optional
+        A box, state units (the data's box widened by its extent, :func:`~policy_align_ros.
+        learning.descent.data_box`, as the goal report's descents): a run that would leave
+        it stops where it was. Without it a diverging policy's runs reach 1e300 and more,
+        and the figure's axes show nothing else.
 
     Returns
     -------
     times : ndarray (steps + 1,)
         Seconds from the start, 0 first.
     states : ndarray (steps + 1, m, n)
-        The runs' states, the starts first; a run that leaves the finite numbers stops
-        where it was.
+        The runs' states, the starts first; a run that leaves the finite numbers, or
+        ``bounds``, stops where it was.
     """
     dt = max(dt, horizon / MAX_REACH_STEPS)
     steps = max(1, int(math.ceil(horizon / dt)))
     X = np.array(starts, dtype=float)
     out = np.empty((steps + 1, *X.shape))
     out[0] = X
+    moving = np.ones(len(X), dtype=bool)
     with np.errstate(over="ignore", invalid="ignore"):
         for i in range(steps):
             step = X + dt * policy(X)
             ok = np.isfinite(step).all(axis=1)
-            X = np.where(ok[:, None], step, X)
+            if bounds is not None:
+                ok &= np.all((step >= bounds[0]) & (step <= bounds[1]), axis=1)
+            moving &= ok
+            X = np.where(moving[:, None], step, X)
             out[i + 1] = X
     return dt * np.arange(steps + 1), out
 
@@ -135,9 +149,10 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
     target, measured_to = goal, "the demonstrated goal"
     if target is None and len(minima):
         target, measured_to = minima[learnt_goal_index(goal_report)], "the learnt goal"
+    X = np.concatenate([t.positions for t in trajs])
     times, paths = policy_runs(model.policy, np.array([t.positions[0] for t in trajs]),
                                REACH_TIME * max(t.duration for t in trajs),
-                               sample_period(trajs))
+                               sample_period(trajs), bounds=data_box(X, extent))
     runs = []
     for k, t in enumerate(trajs):
         end = target if target is not None else t.positions[-1]
@@ -147,7 +162,6 @@ def fit_views(model, train: Sequence[Trajectory], held: Sequence[Trajectory] = (
                      "run": np.linalg.norm(paths[:, k] - end, axis=1) / extent,
                      "demo_t": elapsed / t.duration,
                      "demo": np.linalg.norm(t.positions - end, axis=1) / extent})
-    X = np.concatenate([t.positions for t in trajs])
     mean = X.mean(axis=0)
     basis = np.linalg.svd(X - mean, full_matrices=False)[2][:2]
     ratios = (summary.get("heldout_vs_zero") or {}).get("fold_ratios") or []
@@ -219,12 +233,17 @@ def _potential_panel(ax, views: dict, colors: list[str]) -> None:
         color = colors[i % len(colors)]
         every = max(1, len(s) // DOTS)
         ax.plot(s[::every], estimate[::every], ".", ms=2, color=color, alpha=0.5)
-        ax.plot(s, learnt, "-", lw=1, color=color, label=f"demo {k}" if i < 8 else None)
+        ax.plot(s, learnt, "-", lw=1, color=color,
+                label=f"demo {k}" if i < LEGEND_DEMOS else None)
     ax.set_xlabel("time along the demonstration (normalised)")
     ax.set_ylabel("potential, each shifted to mean 0")
     ax.set_title("The potential along each demonstration:\nestimate (dots), learnt (lines)",
                  fontsize=9)
-    ax.legend(fontsize=7, ncol=2)
+    n = len(views["potential"])
+    if n:
+        ax.legend(fontsize=7, ncol=2,
+                  title=f"first {LEGEND_DEMOS} of {n}" if n > LEGEND_DEMOS else None,
+                  title_fontsize=7)
 
 
 def _runs_panel(ax, views: dict, colors: list[str]) -> None:
@@ -249,6 +268,8 @@ def _folds_panel(ax, views: dict) -> None:
         ax.bar(np.arange(len(ratios)), ratios, color="tab:blue")
     ax.axhline(1.0, color="tab:red", lw=1, label="no better than a zero policy")
     ax.axhline(POOR_FIT_RATIO, color="tab:orange", lw=1, ls="--", label="poor-fit warning")
+    # A good fit's ratios are 1e-4 and less: on a linear axis its bars would not show.
+    ax.set_yscale("log")
     ax.set_xlabel("CV fold")
     ax.set_ylabel("held-out error / zero policy's")
     ax.set_title("Held-out error along the observed motion, per CV fold", fontsize=9)
@@ -279,5 +300,6 @@ def _states_panel(ax, views: dict, train, held, colors: list[str]) -> None:
     ax.set_xlabel("first principal direction")
     ax.set_ylabel("second principal direction")
     ax.set_title("States: demonstrations (dotted), runs (solid)", fontsize=9)
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
 

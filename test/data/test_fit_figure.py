@@ -47,6 +47,18 @@ def test_policy_runs_are_euler_steps_and_stop_where_numbers_end():
     assert np.all(np.isfinite(paths)) and np.array_equal(paths[-1, 1], starts[1])
 
 
+def test_a_diverging_run_stops_at_the_box_it_is_given():
+    # A policy pushing away from the origin: runs grow by 1.5 times a step, unbounded.
+    starts = np.array([[1.0, -2.0], [0.1, 0.1]])
+    box = (np.array([-5.0, -5.0]), np.array([5.0, 5.0]))
+    _, paths = policy_runs(lambda X: 5.0 * X, starts, horizon=10.0, dt=0.1, bounds=box)
+    assert np.all(paths >= box[0]) and np.all(paths <= box[1])
+    last = paths[-1]
+    # Each run stopped at its last state inside the box: one more step would leave it.
+    assert np.all(np.abs(1.5 * last).max(axis=1) > 5.0)
+    np.testing.assert_allclose(paths[1, 0], 1.5 * starts[0])
+
+
 def test_a_good_fit_follows_its_estimates_and_every_run_arrives(fitted):
     model, train, held = fitted
     views = fit_views(model, train, held)
