@@ -34,7 +34,8 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
     keys = ("extent", "n_rests", "n_not_at_rest", "n_constrained_rests", "n_escaped",
             "goal_error", "goal_error_fraction", "fold_spread_max", "fold_spread_fraction",
             "n_starts_elsewhere", "n_starts_late", "n_heldout_late", "n_new_starts",
-            "n_new_starts_elsewhere", "n_new_starts_late")
+            "n_new_starts_elsewhere", "n_new_starts_late", "n_rest_places",
+            "rest_spread_fraction")
     out = {key: goal.get(key) for key in keys}
     out["n_minima"] = len(goal.get("minima", ()))
     # Where no demonstrations rest together this is the one measure of the learnt goal:
@@ -59,13 +60,20 @@ def goal_text(digest: dict[str, Any] | None) -> str:
         if digest["n_rests"] == 0:
             text += ", no demonstration ends at rest"
         elif digest["n_demonstrated_goals"] == 0:
-            text += ", every rest is under an active constraint"
+            # The learnt speed is large at every rest: constraints held them there, or the
+            # fit is wrong at all of them; the numbers cannot tell which.
+            text += (f", the learnt policy still moves at all {digest['n_rests']} rests "
+                     "(held by constraints, or a fit wrong there)")
         if digest.get("minimum_data_fraction") is not None:
             text += (f"; the one nearest where they end is "
                      f"{100 * digest['minimum_data_fraction']:.2g} % of the "
                      "data's extent from the nearest demonstration sample")
     if digest["fold_spread_fraction"] is not None:
         text += f" (spread over the CV folds {100 * digest['fold_spread_fraction']:.2g} %)"
+    places = digest.get("n_rest_places") or 0
+    if places > 1 and (digest.get("rest_spread_fraction") or 0.0) > 0.0:
+        text += (f"; the demonstrations rest in {places} places up to "
+                 f"{100 * digest['rest_spread_fraction']:.2g} % of the data's extent apart")
     if digest["n_escaped"]:
         text += f"; {digest['n_escaped']} descents found no minimum"
     if digest.get("n_starts_elsewhere"):

@@ -165,7 +165,8 @@ class PipelineResult:
         scales = s.get("timing_scales") or []
         if any(f != 1.0 for f in scales):
             text += (f"; demonstrations on their own clocks (factors {min(scales):.2f}-"
-                     f"{max(scales):.2f}, docs/design/timing.md)")
+                     f"{max(scales):.2f}, docs/design/timing.md)"
+                     + _odd_clocks(scales, demos["training"]))
         goal = goal_text(s.get("goal"))
         if goal:
             text += f"; {goal}"
@@ -174,10 +175,33 @@ class PipelineResult:
             text += (f", current model {current['heldout_ncpe_observed']:.4f} on "
                      f"{len(current['compared_on'])} of them")
         if self.refused:
-            return (f"refused: {'; '.join(self.refusals)}; {self.model_path} kept unchanged "
+            kept = "kept unchanged" if Path(self.model_path).exists() else "not written"
+            return (f"refused: {'; '.join(self.refusals)}; {self.model_path} {kept} "
                     f"(write it anyway with --force; learner node: force:=true) [{text}]")
         prefix = f"forced despite: {'; '.join(self.refusals)}; " if self.refusals else ""
         return f"{prefix}{text}; model {self.model_path}"
+
+
+#: A demonstration whose clock factor is off 1 by more than this factor is named in the
+#: summary: its teacher moved at a speed the others' potential does not give it.
+ODD_CLOCK = 2.0
+
+
+def _odd_clocks(scales: list[float], names: list[str]) -> str:
+    """The fastest and the slowest training demonstration, when their clock factors
+    (``timing_scales``, one per training demonstration) are off 1 by more than
+    :data:`ODD_CLOCK`; "" otherwise. A factor ``s`` scales a demonstration's potential
+    drops, which its speed sets: it moved ``1 / s`` times as fast as the model."""
+    if len(scales) != len(names):
+        return ""
+    out = []
+    fast, slow = int(np.argmin(scales)), int(np.argmax(scales))
+    if scales[fast] < 1.0 / ODD_CLOCK:
+        out.append(f"{names[fast]} moved {1.0 / scales[fast]:.2g} times as fast as the "
+                   "others' potential gives")
+    if scales[slow] > ODD_CLOCK:
+        out.append(f"{names[slow]} {1.0 / scales[slow]:.2g} times as fast")
+    return "".join(f"; {text}" for text in out)
 
 
 def _load_frames_map(robot: str | None, frames: list[str], joints: list[str]):

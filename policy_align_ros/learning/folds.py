@@ -432,7 +432,7 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
     worse = heldout is not None and heldout["error"] >= heldout["zero_error"]
     poor = heldout is not None and not worse and heldout["ratio"] >= POOR_FIT_RATIO
     no_minimum = not goal["minima"]
-    for message in _goal_messages(goal, len(parents)):
+    for message in _goal_messages(goal, [t.name for t in parents]):
         warnings.warn(message, UserWarning, stacklevel=3)
     if heldout is not None:
         # Only where the pooled error is poor: which demonstrations the others contradict.
@@ -445,11 +445,13 @@ def fit_checks(regressor, folds: Sequence[FoldModel], pieces: Sequence[Trajector
             "unfixed_goal": unfixed_goal(goal)}
 
 
-def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
+def _goal_messages(goal: dict[str, Any], names: Sequence[str | None]) -> list[str]:
     """The goal report's warnings: no minimum, starts that stop elsewhere, starts still on
-    their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` durations, and a
-    learnt goal the CV folds' models leave open (:func:`unfixed_goal`)."""
+    their way after :data:`~policy_align_ros.learning.reach.REACH_TIME` durations (naming
+    the demonstrations of ``names``, one per demonstration, whose runs did not arrive),
+    and a learnt goal the CV folds' models leave open (:func:`unfixed_goal`)."""
     extent = goal["extent"]
+    n_demos = len(names)
     # Every descent from where the demonstrations end left the data's box widened by its
     # extent: the policy has no goal to stop at (it would run to the executor's guard).
     if not goal["minima"]:
@@ -472,12 +474,16 @@ def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
             "not follow (a path that loops or crosses itself?)")
     late = goal["n_starts_late"] - elsewhere
     if late > 0:
+        ratios = goal.get("start_reach_ratios") or []
+        unarrived = [names[k] or f"#{k}" for k, r in enumerate(ratios)
+                     if r is None and k < n_demos]
         messages.append(
             f"PolicyAlign: from {late} of {n_demos} demonstrations' starts a run of the "
             f"learnt policy is still on its way to the goal after {REACH_TIME:g} times the "
             "demonstration's duration: its potential is nearly flat on the way (a teacher "
-            "who set off slowly?), where a robot would stall (fit_summary_['goal']"
-            "['start_reach_ratios'])")
+            "who set off slowly, or one much faster than the others?), where a robot would "
+            "stall (fit_summary_['goal']['start_reach_ratios']; runs not arrived: "
+            f"{_some_names(unarrived)})")
     if unfixed_goal(goal):
         entry = goal["minima"][learnt_goal_index(goal)]
         spread = entry["fold_spread"]
@@ -492,6 +498,12 @@ def _goal_messages(goal: dict[str, Any], n_demos: int) -> list[str]:
             "the nearest sample; record demonstrations that end at rest where the task "
             "ends)")
     return messages
+
+
+def _some_names(names: Sequence[str], shown: int = 4) -> str:
+    """The first ``shown`` of ``names`` and how many more there are."""
+    more = len(names) - shown
+    return ", ".join(names[:shown]) + (f" and {more} more" if more > 0 else "")
 
 
 def unfixed_goal(goal: dict[str, Any]) -> bool:
@@ -537,6 +549,7 @@ def _heldout_message(heldout: dict[str, Any], worse: bool,
         # A few demonstrations the rest contradict: motion that is not the task.
         text += (f"; the models fitted without them predict {len(against)} of "
                  f"{len(ratios)} demonstrations no better than standing still: "
-                 f"{', '.join(against)} (the ratio of errors; a recording left running "
-                 "while the teacher went back to the start?)")
+                 f"{', '.join(against)} (the ratio of errors; teachers heading for other "
+                 "places, or a recording left running while the teacher went back to the "
+                 "start?)")
     return text

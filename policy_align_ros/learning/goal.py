@@ -238,6 +238,9 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     dict
         ``extent`` (W, state units); ``typical_speed`` (state units/s); ``n_rests``
         (demonstrations that end at rest), ``n_not_at_rest``, ``n_constrained_rests``;
+        ``n_rest_places``: the rests chained closer than :data:`GOAL_MERGE` of W as one
+        place, constrained or not, and ``rest_spread_fraction``, the largest distance
+        between two places over W (0 for one place or none);
         ``rest_speed_ratio`` (learnt speed over the typical speed at every rest);
         ``demonstrated_goals`` [{``point``, ``n_rests``, ``nearest_minimum``,
         ``fraction``}] (largest cluster first; ``nearest_minimum`` is the distance to the
@@ -269,6 +272,11 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
     minima = learnt_minima(potential, gradient, starts, scale=extent, speed=speed,
                            bounds=data_box(X, extent))
     goal_points, goal_sizes = _goal_clusters(goals, GOAL_MERGE * extent)
+    # Every rest, whatever the learnt speed there: where the teacher stopped. Places apart
+    # are a sign the learnt speed cannot give when the fit is wrong at all of them.
+    places, _ = _goal_clusters(found, GOAL_MERGE * extent)
+    rest_spread = (float(np.max(np.linalg.norm(places[:, None] - places[None], axis=2)))
+                   if len(places) > 1 else 0.0)
     summary: dict[str, Any] = {
         "extent": extent,
         "typical_speed": speed,
@@ -276,6 +284,8 @@ def goal_summary(trajs: Sequence[Trajectory | np.ndarray], potential: Field,
         "n_rests": len(found),
         "n_not_at_rest": len(rests) - len(found),
         "n_constrained_rests": len(found) - len(goals),
+        "n_rest_places": len(places),
+        "rest_spread_fraction": rest_spread / extent,
         "rest_speed_ratio": [float(r) for r in ratios],
         "demonstrated_goals": [],
         "minima": [],

@@ -66,6 +66,14 @@ def test_without_a_goal_error_the_words_say_why():
     assert all("1 %" not in t for t in texts[:2])  # no goal error is claimed
 
 
+def test_rests_in_several_places_are_said_with_their_spread():
+    one = goal_text(goal_digest(_goal(n_rest_places=1, rest_spread_fraction=0.0)))
+    assert one == goal_text(goal_digest(_goal()))  # one place, or an older report: nothing
+    apart = goal_digest(_goal(n_rest_places=4, rest_spread_fraction=0.62))
+    assert apart["n_rest_places"] == 4 and apart["rest_spread_fraction"] == 0.62
+    assert "62 %" in goal_text(apart) and "62 %" not in one
+
+
 def test_without_a_demonstrated_goal_the_words_say_how_far_the_fit_extrapolated():
     # The learnt goal's distance to the nearest sample is then the one measure; with a
     # demonstrated goal its error says more, and reports written before it say nothing.

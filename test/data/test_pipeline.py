@@ -497,3 +497,16 @@ def test_a_continuous_joint_recorded_across_the_wrap_is_learnt_on_one_turn(tmp_p
     error = np.asarray(minimum["point"]) - goal
     error[0] = np.remainder(error[0] + np.pi, 2 * np.pi) - np.pi  # the same posture
     assert np.linalg.norm(error) < 0.02
+
+
+def test_a_demonstration_far_off_the_others_clock_is_named():
+    from policy_align_ros.data.pipeline import ODD_CLOCK, _odd_clocks
+
+    names = ["bag_0", "bag_1", "bag_2", "bag_3"]
+    assert _odd_clocks([0.9, 1.1, 1.0, 1.0], names) == ""  # every factor within ODD_CLOCK
+    fast = _odd_clocks([0.26, 1.34, 1.2, 1.0], names)
+    # It moved 1 / 0.26 times as fast; the slowest is within ODD_CLOCK and not named.
+    assert "bag_0" in fast and "3.8" in fast and "bag_1" not in fast
+    slow = _odd_clocks([0.9, 1.0, 1.1, 1.05 * ODD_CLOCK], names)
+    assert "bag_3" in slow and "bag_0" not in slow
+    assert _odd_clocks([0.1, 1.0], names) == ""  # not one factor per name: nothing claimed

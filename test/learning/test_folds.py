@@ -204,11 +204,16 @@ def test_the_demonstration_the_others_contradict_is_named():
 def test_runs_still_on_their_way_after_the_allowed_time_warn_and_are_counted(monkeypatch):
     # Allow each run a thousandth of its demonstration's duration: none is home by then.
     monkeypatch.setattr("policy_align_ros.learning.reach.REACH_TIME", 1e-3)
+    demos = [Trajectory(t.positions, t.times, name=f"walk{k}")
+             for k, t in enumerate(_quadratic_demos(0))]
     with pytest.warns(UserWarning) as caught:
-        model = PolicyAlign(random_state=0).fit(_quadratic_demos(0))
+        model = PolicyAlign(random_state=0).fit(demos)
     goal = model.fit_summary_["goal"]
     assert goal["n_starts_late"] == 8 and goal["start_reach_ratios"] == [None] * 8
     assert goal["n_starts_elsewhere"] == 0 and len(caught) == 1
+    # The warning names the demonstrations whose runs did not arrive, the first few.
+    message = str(caught[0].message)
+    assert all(f"walk{k}" in message for k in range(4)) and "walk7" not in message
 
 
 def test_the_goal_report_round_trips_and_files_without_it_load(quadratic, tmp_path):

@@ -99,6 +99,13 @@ def test_a_rest_under_an_active_constraint_is_not_a_demonstrated_goal():
     summary = goal_summary(free + blocked, potential, gradient)
     assert summary["n_rests"] == 5 and summary["n_constrained_rests"] == 2
     assert summary["extent"] == pytest.approx(data_extent(free + blocked))
+    # Where the teacher stopped, whatever the learnt speed: the goal, and the wall's two
+    # rests, which meet at (0, 0) as the second coordinate settles.
+    assert summary["n_rest_places"] == 2
+    rests = np.array([t.positions[-1] for t in free + blocked])
+    far = np.max(np.linalg.norm(rests[:, None] - rests[None], axis=2))
+    assert summary["rest_spread_fraction"] == pytest.approx(far / summary["extent"],
+                                                            rel=0.05)
     (goal,) = summary["demonstrated_goals"]
     assert goal["n_rests"] == 3
     (minimum,) = summary["minima"]
