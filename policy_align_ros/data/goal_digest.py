@@ -47,6 +47,13 @@ def goal_digest(goal: dict[str, Any] | None) -> dict[str, Any] | None:
     return json_floats(out)
 
 
+def _percent(fraction: float) -> str:
+    """``fraction`` in % with two significant digits, without an exponent (142, not
+    1.4e+02)."""
+    value = 100.0 * fraction
+    return f"{value:.2g}" if abs(value) < 100.0 else f"{value:.0f}"
+
+
 def goal_text(digest: dict[str, Any] | None) -> str:
     """The learnt goal in words, from :func:`goal_digest` ("" without one)."""
     if not digest:
@@ -54,7 +61,7 @@ def goal_text(digest: dict[str, Any] | None) -> str:
     k = digest["n_minima"]
     text = f"learnt goal: {k} minim{'um' if k == 1 else 'a'}"
     if digest["goal_error_fraction"] is not None:
-        text += (f", {100 * digest['goal_error_fraction']:.2g} % of the data's extent from "
+        text += (f", {_percent(digest['goal_error_fraction'])} % of the data's extent from "
                  "where the demonstrations rest")
     else:
         if digest["n_rests"] == 0:
@@ -66,14 +73,14 @@ def goal_text(digest: dict[str, Any] | None) -> str:
                      "(held by constraints, or a fit wrong there)")
         if digest.get("minimum_data_fraction") is not None:
             text += (f"; the one nearest where they end is "
-                     f"{100 * digest['minimum_data_fraction']:.2g} % of the "
+                     f"{_percent(digest['minimum_data_fraction'])} % of the "
                      "data's extent from the nearest demonstration sample")
     if digest["fold_spread_fraction"] is not None:
-        text += f" (spread over the CV folds {100 * digest['fold_spread_fraction']:.2g} %)"
+        text += f" (spread over the CV folds {_percent(digest['fold_spread_fraction'])} %)"
     places = digest.get("n_rest_places") or 0
     if places > 1 and (digest.get("rest_spread_fraction") or 0.0) > 0.0:
         text += (f"; the demonstrations rest in {places} places up to "
-                 f"{100 * digest['rest_spread_fraction']:.2g} % of the data's extent apart")
+                 f"{_percent(digest['rest_spread_fraction'])} % of the data's extent apart")
     if digest["n_escaped"]:
         text += f"; {digest['n_escaped']} descents found no minimum"
     if digest.get("n_starts_elsewhere"):

@@ -88,6 +88,8 @@ def test_without_a_demonstrated_goal_the_words_say_how_far_the_fit_extrapolated(
     text = goal_text(goal_digest(held))
     assert "21 %" in text
     assert "21 %" not in goal_text(goal_digest(_goal(minima=minima)))
+    far = [{**minima[0], "data_fraction": 1.42}]  # beyond the data by more than its extent
+    assert "142 %" in goal_text(goal_digest({**held, "minima": far}))
     older = _goal(goal_error=None, goal_error_fraction=None, demonstrated_goals=[])
     assert goal_digest(older)["minimum_data_fraction"] is None
     assert goal_text(goal_digest(older)).count(" %") == 1  # the fold spread's alone
