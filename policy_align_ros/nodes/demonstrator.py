@@ -22,6 +22,12 @@ instead (lockstep with a simulator that publishes one state per tick: the comman
 simulator integrates next is computed from the state it just published, an exact Euler
 step of the expert as long as the node keeps up).
 
+The frames and the attractor it uses, and where each came from (a parameter, the robot
+config, a default), are logged once at start. A frame that is not one of the robot's
+stops the node at start with an error naming the parameter it came from and the fix: a
+``constraint_frames`` or ``hand_frames`` given for another robot (a parameter file
+written for Talos, say) overrides the robot config's frames.
+
 It starts once the recorder's services exist and the recorder subscribes to
 ``/joint_states``. A demonstration that the recorder refuses to write at ``stop_demo`` is
 redone (``max_retries`` in total); a refused ``start_demo`` ends the run.
@@ -54,7 +60,7 @@ from std_srvs.srv import Trigger
 
 from policy_align_ros.control import speed_limits
 from policy_align_ros.data.messages import JointSelector
-from policy_align_ros.kinematics import RobotConfig
+from policy_align_ros.kinematics import Robot, RobotConfig, RobotSetup
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     StartNode,
@@ -67,6 +73,7 @@ from policy_align_ros.nodes._common import (
     reject,
     run_node,
 )
+from policy_align_ros.nodes.start_parameters import StartParameterError, start_parameter_problem
 from policy_align_ros.sim.script import (
     DEFAULT_FRAMES,
     EXPERTS,
@@ -75,12 +82,42 @@ from policy_align_ros.sim.script import (
     stale_joint_state,
 )
 
-__all__ = ["Demonstrator", "main"]
+__all__ = ["Demonstrator", "main", "unknown_frame"]
 
 #: A control tick later than this many periods after the previous one counts as late.
 LATE_TICK_PERIODS = 1.5
 #: States that command motion computed from the joint states (paused while they are stale).
 MOVING_STATES = ("reach", "demo")
+#: The robot config's key (``frames:``) behind each frame parameter's default.
+_CONFIG_KEYS = {"constraint_frames": "constraint", "hand_frames": "hands"}
+
+
+def unknown_frame(robot: Robot, frames: Sequence[str]) -> str:
+    """Why one of ``frames`` is no frame of ``robot``, with the closest names; "" when
+    every one is (an empty name, the parameters' "none", is skipped).
+
+    Parameters
+    ----------
+    robot : Robot
+    frames : sequence of str
+
+    Returns
+    -------
+    str
+    """
+    for frame in frames:
+        if not frame:
+            continue
+        try:
+            robot.frame_id(frame)
+        except ValueError as err:
+            return str(err).removeprefix("frame: ")
+    return ""
+
+
+def _shown_frames(frames: Sequence[str]) -> str:
+    names = [f for f in frames if f]
+    return f"[{', '.join(names)}]" if names else "none"
 
 
 class Demonstrator(StartNode):
@@ -95,9 +132,18 @@ class Demonstrator(StartNode):
         robot = load_robot(setup)
         joints = list(robot.joint_names)
         self.period = 1.0 / value("rate_hz").value
+        #: Where the frames and the attractor came from: "parameter", "robot config" or
+        #: "default" (Talos's hands without a robot config; the reference posture).
+        self.sources = {name: self._source(name, setup.config)
+                        for name in ("constraint_frames", "hand_frames")}
+        self._check_frames(robot, "constraint_frames", setup.config)
+        if value("expert").value == "hands":  # the joints expert never uses hand_frames
+            self._check_frames(robot, "hand_frames", setup.config)
         attractor = optional_parameter(self, "attractor")
+        self.sources["attractor"] = "parameter"
         if attractor is None:
             attractor = setup.home
+            self.sources["attractor"] = "default" if attractor is None else "robot config"
         self.script = DemonstrationScript(
             robot, attractor, value("gain").value,
             str(value("expert").value), value("constraint_frames").value,
@@ -135,6 +181,67 @@ class Demonstrator(StartNode):
         # In lockstep the joint states drive the steps; the timer still catches joint
         # states that stop coming (no step would then replace the last command).
         self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
+        self.get_logger().info(self._settings_line(setup))
+
+    def _source(self, name: str, config: RobotConfig | None) -> str:
+        """Where parameter ``name``'s value came from (see ``self.sources``)."""
+        # rclpy has no public accessor for the values given at start; a value given there
+        # is the user's, whatever the robot config says.
+        if name in getattr(self, "_parameter_overrides", {}):
+            return "parameter"
+        return "robot config" if config is not None else "default"
+
+    def _check_frames(self, robot: Robot, name: str, config: RobotConfig | None) -> None:
+        """Stop at start on a frame of parameter ``name`` that ``robot`` lacks, naming the
+        parameter, where its value came from and the fix (StartParameterError for a value
+        given at start, ValueError for a default)."""
+        frames = list(self.get_parameter(name).value)
+        problem = unknown_frame(robot, frames)
+        if not problem:
+            return
+        source = self.sources[name]
+        # No constraint frame is a choice (unconstrained demonstrations); the hands expert
+        # needs a hand frame.
+        none = " ([''] for none)" if name == "constraint_frames" else ""
+        if source == "parameter":
+            fix = f"set {name} to frames of robot {robot.name!r}{none}"
+            own = [] if config is None else (
+                config.hands if name == "hand_frames" else config.constraint_frames)
+            if own:
+                fix += (f", or leave it unset (remove it from the parameter file) so that the "
+                        f"robot config's frames ({_shown_frames(own)}) are used")
+            raise StartParameterError(start_parameter_problem(
+                self.get_fully_qualified_name(), name, frames, expected_type="STRING_ARRAY",
+                given_type="STRING_ARRAY", reason=f"{problem}; {fix}"))
+        if source == "robot config":
+            raise ValueError(
+                f"{name}: {problem}, from frames.{_CONFIG_KEYS[name]} of robot config "
+                f"{config.path}; correct it there, or set {name} to frames of this "
+                f"robot{none}")
+        raise ValueError(
+            f"{name}: {problem}; without a robot config for robot {robot.name!r} it "
+            f"defaults to Talos's hands: set {name} to frames of this robot{none}, or "
+            "robot_config")
+
+    def _settings_line(self, setup: RobotSetup) -> str:
+        """The frames and attractor used and where each came from, said once at start (a
+        value given at start and one left to the robot config look the same otherwise)."""
+        config = f"robot config {setup.config.name}" if setup.config is not None else ""
+        defaults = {"constraint_frames": "Talos's hands, no robot config",
+                    "hand_frames": "Talos's hands, no robot config",
+                    "attractor": "the robot's reference posture"}
+
+        def origin(name: str) -> str:
+            source = self.sources[name]
+            return config if source == "robot config" else (
+                defaults[name] if source == "default" else source)
+
+        hands = (f"{_shown_frames(self.script.hand_frames)} ({origin('hand_frames')})"
+                 if self.hand_expert is not None else "unused (expert joints)")
+        attractor = ", ".join(f"{x:.3f}" for x in self.attractor)
+        return (f"demonstrations on robot {self.robot.name}: constraint frames "
+                f"{_shown_frames(self.script.frames)} ({origin('constraint_frames')}), "
+                f"hand frames {hands}, attractor [{attractor}] rad ({origin('attractor')})")
 
     def _declare_parameters(self, config: RobotConfig | None) -> None:
         """The expert's and the schedule's parameters; frame lists default to those of

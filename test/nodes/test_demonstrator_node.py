@@ -1,4 +1,5 @@
-"""Integration tests of the ``demonstrator`` node (own rclpy.Context, domain ids 180-189).
+"""Integration tests of the ``demonstrator`` node (own rclpy.Context, domain ids 180-189,
+214).
 
 The robot is the real ``sim_robot`` node (left arm of Talos); the recorder is faked by
 Trigger services on a probe node, which also records the joint states in between.
@@ -6,6 +7,7 @@ Trigger services on a probe node, which also records the joint states in between
 
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,11 +20,15 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from policy_align_ros.kinematics import TaskSpaceMap
+from policy_align_ros.kinematics.robot_config import load_robot_config
 from policy_align_ros.nodes.demonstrator import Demonstrator
 from policy_align_ros.nodes.sim_robot import SimRobot
 from policy_align_ros.nodes.start_parameters import Cause, StartParameterError
 
 JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
+PARAMETER_FILE = Path(__file__).resolve().parents[2] / "config" / "demonstrator.yaml"
+#: The module's domain for the start-up tests (nodes built, never spun).
+START_DOMAIN = 214
 HAND = "arm_left_7_link"
 
 
@@ -266,3 +272,88 @@ def test_stale_joint_states_pause_with_zero_commands_and_destroy_sends_zero(doma
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+class _Log:
+    """A logger standing in for the node's: (severity, message) records."""
+
+    def __init__(self) -> None:
+        self.records: list[tuple[str, str]] = []
+
+    def __getattr__(self, severity: str):
+        return lambda message, **_: self.records.append((severity, str(message)))
+
+
+class _LoggedDemonstrator(Demonstrator):
+    """The demonstrator with its log records kept (``log.records``)."""
+
+    def get_logger(self):
+        if not hasattr(self, "log"):
+            self.log = _Log()
+        return self.log
+
+
+def _started(args=(), **params) -> Demonstrator:
+    """A demonstrator built (not spun) in its own context on START_DOMAIN, with ``args``
+    as the command line after ``--ros-args`` and ``params`` as overrides."""
+    context = rclpy.Context()
+    rclpy.init(args=["--ros-args", *args] if args else None, context=context,
+               domain_id=START_DOMAIN)
+    try:
+        demo = _LoggedDemonstrator(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+        demo.destroy_node()
+        return demo
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_the_shipped_parameter_file_leaves_the_frames_to_the_robot_config(tmp_path):
+    # The file once set Talos's frames, which overrode every other robot config's: panda,
+    # ur5 and a UR10 config of the user's stopped at start on arm_left_7_link.
+    ur10 = tmp_path / "ur10.yaml"
+    ur10.write_text(load_robot_config("ur5").path.read_text().replace(
+        "robot: ur5 ", "robot: ur10 "))
+    for config in ("panda", "ur5", str(ur10)):
+        demo = _started(["--params-file", str(PARAMETER_FILE), "-p",
+                         f"robot_config:={config}"])
+        expected = load_robot_config(config)
+        assert demo.robot.name == expected.robot
+        assert demo.script.frames == expected.constraint_frames
+        assert demo.sources == {"constraint_frames": "robot config",
+                                "hand_frames": "robot config", "attractor": "robot config"
+                                if expected.home else "default"}
+        # Said once at start: the frames used, by name.
+        said = [m for level, m in demo.log.records
+                if level == "info" and expected.constraint_frames[0] in m]
+        assert len(said) == 1
+
+
+def test_frames_of_another_robot_are_refused_naming_their_parameter(tmp_path):
+    # Given at start: the parameter, its value and the robot config's frames to fall back on.
+    with pytest.raises(StartParameterError) as err:
+        _started(robot_config="ur5", constraint_frames=["tool0", HAND])
+    problem = err.value.problem
+    assert problem.name == "constraint_frames" and problem.cause == Cause.REFUSED
+    assert problem.value == ["tool0", HAND] and HAND in problem.reason
+    assert "tool0" in problem.reason.split(HAND, 1)[1]  # the config's frames, after it
+    with pytest.raises(StartParameterError) as err:
+        _started(robot_config="ur5", expert="hands", hand_frames=[HAND])
+    assert err.value.problem.name == "hand_frames"
+    # The joints expert has no use for hand frames: they are not checked.
+    demo = _started(robot_config="ur5", hand_frames=[HAND])
+    assert demo.hand_expert is None and demo.script.frames == ["tool0"]
+    # [''] is no constraint frame, and the node says where that came from.
+    demo = _started(robot_config="ur5", constraint_frames=[""])
+    assert demo.script.frames == [] and demo.sources["constraint_frames"] == "parameter"
+    # A robot config's own bad frame names the parameter and the file.
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(load_robot_config("ur5").path.read_text().replace(
+        "constraint: [tool0]", "constraint: [no_such_link]"))
+    with pytest.raises(ValueError, match="constraint_frames") as err:
+        _started(robot_config=str(bad))
+    assert str(bad) in str(err.value) and "no_such_link" in str(err.value)
+    # No robot config (a robot none is shipped for): the default, Talos's hands, is named.
+    with pytest.raises(ValueError, match="constraint_frames") as err:
+        _started(robot="ur10", joints=["shoulder_pan_joint", "shoulder_lift_joint"])
+    assert not isinstance(err.value, StartParameterError) and HAND in str(err.value)
