@@ -55,6 +55,9 @@ class ConstraintModel(Protocol):
 
 
 _AXES = {"x": 0, "y": 1, "z": 2}
+# rcl reads a -p value as YAML: an unquoted list of mappings is no parameter type and kills
+# the node ("Unknown YAML event"), so the list goes in YAML quotes inside the shell's.
+_QUOTED_EXAMPLE = """-p 'constraints:="[{type: position, frame: tool0}]"'"""
 
 
 def barrier_active(p: np.ndarray, point: np.ndarray, normal: np.ndarray, distance: float,
@@ -342,14 +345,16 @@ def constraint_from_spec(spec: Mapping[str, Any] | Sequence[Mapping[str, Any]],
     return parts[0] if len(parts) == 1 else StackedConstraint(parts)
 
 
-def parse_constraint_specs(text: str) -> list[dict]:
+def parse_constraint_specs(text: str | Sequence[Any] | None) -> list[dict]:
     """Parse the ``constraints`` parameter: a YAML/JSON list of constraint specs.
 
     Parameters
     ----------
-    text : str
+    text : str, None or empty sequence
         For example ``"[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"``; an
-        empty string or ``[]`` means no constraint.
+        empty string, ``"[]"``, None or an empty list means no constraint (rcl passes
+        ``-p constraints:=[]`` on the command line as None: a list whose type it cannot
+        tell).
 
     Returns
     -------
@@ -358,8 +363,17 @@ def parse_constraint_specs(text: str) -> list[dict]:
     Raises
     ------
     ValueError
-        If the text is not YAML or not a list of mappings.
+        If the text is not YAML or not a list of mappings, or the value is of another
+        type than a string (a non-empty list, a number: YAML on the command line that rcl
+        read as something else), naming the parameter and the form it takes.
     """
+    if text is None or (isinstance(text, (list, tuple)) and not text):
+        return []
+    if not isinstance(text, str):
+        raise ValueError(
+            f"constraints: expected a string holding a YAML list of constraint specs, got "
+            f"{type(text).__name__} {text!r}; quote the list on the command line: "
+            f"{_QUOTED_EXAMPLE}")
     if not text.strip():
         return []
     try:
