@@ -126,6 +126,11 @@ def _build_parser() -> argparse.ArgumentParser:
                        help="relative distance under which demonstrations are duplicates "
                             "(default 1e-3)")
 
+    show = sub.add_parser("show", help="what a model file holds: robot, joints, the learn "
+                                       "summary, refusals, the learnt goal")
+    show.add_argument("model", metavar="MODEL", help="model file (.npz)")
+    show.add_argument("--json", action="store_true", help="print it as JSON")
+
     call = sub.add_parser("call", help="call a std_srvs Trigger or SetBool service")
     call.add_argument("service", help="for example /learner/learn")
     call.add_argument("--data", choices=["true", "false"], default=None,
@@ -156,6 +161,10 @@ def main(argv: list[str] | None = None) -> int:
             from policy_align_ros.data.learn import run_learn
 
             return run_learn(args)
+        if args.command == "show":
+            from policy_align_ros.data.show import run_show
+
+            return run_show(args)
         if args.command == "demo":
             from policy_align_ros.client.demo import run_demo
 
