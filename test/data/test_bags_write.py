@@ -6,6 +6,7 @@ from __future__ import annotations
 import errno
 import os
 import re
+import struct
 
 import numpy as np
 import pytest
@@ -170,3 +171,60 @@ def test_written_bag_is_durable_before_return(tmp_path, monkeypatch):
     assert any(s.endswith("metadata.yaml") for s in synced)
     assert any(s.endswith(".mcap") for s in synced)
     assert (path / "metadata.yaml").is_file()
+
+
+@pytest.mark.parametrize("layout", ["reversed", "fortran", "big_endian", "float32",
+                                    "strided_stamps"])
+def test_arrays_of_any_layout_round_trip(tmp_path, layout):
+    # The serializer views each row as contiguous native float64; views of other arrays
+    # (reversed joints, a transpose, every other stamp) and other dtypes were refused from
+    # inside rosbags, naming no bag.
+    rng = np.random.default_rng(11)
+    stamps, q, v = _demo(rng, 12)
+    joints = ["a", "b", "c"]
+    if layout == "reversed":
+        joints, q, v = joints[::-1], q[:, ::-1], v[:, ::-1]
+    elif layout == "fortran":
+        q, v = np.asfortranarray(q), np.asfortranarray(v)
+    elif layout == "big_endian":
+        q, v = q.astype(">f8"), v.astype(">f8")
+    elif layout == "float32":
+        q, v = q.astype(np.float32), v.astype(np.float32)
+    else:
+        stamps = np.repeat(stamps, 2)[::2]
+    assert layout == "float32" or not (q.flags.c_contiguous and stamps.flags.c_contiguous
+                                       and q.dtype.isnative)
+    path = write_joint_state_bag(tmp_path / "demo_0000", joints, stamps, q, v)
+    trajs, names, _ = load_dataset(path, gap_s=0)
+    assert names == joints
+    np.testing.assert_array_equal(trajs[0].positions, np.asarray(q, dtype=np.float64))
+    np.testing.assert_array_equal(trajs[0].velocities, np.asarray(v, dtype=np.float64))
+    assert [m[1] for m in read_joint_states(path)] == [int(s) for s in stamps]
+
+
+def test_errors_from_inside_the_writer_name_the_bag_and_keep_their_type(tmp_path, monkeypatch):
+    rng = np.random.default_rng(12)
+    stamps, q, _ = _demo(rng, 5)
+    bag = tmp_path / "demo_0000"
+    # Values that are no numbers.
+    with pytest.raises(ValueError) as err:
+        write_joint_state_bag(bag, ["a", "b", "c"], stamps, np.full((5, 3), "x"))
+    assert str(bag) in str(err.value)
+    # A serializer error of its own type and an OSError keep their type, errno and
+    # identity; one whose message is not its arguments is a ValueError caused by it.
+    real = bags._joint_state_cdr
+    for error, kind in ((struct.error("bad"), struct.error),
+                        (OSError(errno.ENOSPC, "No space left on device"), OSError),
+                        (OSError("disk on fire"), OSError),
+                        (UnicodeDecodeError("utf-8", b"\xff", 0, 1, "bad"), ValueError)):
+        def failing(*args, error=error):
+            raise error
+
+        monkeypatch.setattr(bags, "_joint_state_cdr", failing)
+        with pytest.raises(kind) as err:
+            write_joint_state_bag(bag, ["a", "b", "c"], stamps, q)
+        assert str(bag) in str(err.value)
+        assert err.value is error if kind is not ValueError else err.value.__cause__ is error
+        assert getattr(err.value, "errno", None) == getattr(error, "errno", None)
+    monkeypatch.setattr(bags, "_joint_state_cdr", real)
+    assert list(tmp_path.iterdir()) == []  # nothing left behind

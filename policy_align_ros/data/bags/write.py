@@ -115,9 +115,51 @@ def write_joint_state_bag(
     ------
     ValueError
         On inconsistent shapes, repeated or empty joint names, a stamp outside
-        ``[0, 2^31)`` s, or if ``path`` exists and ``unique`` is not set.
+        ``[0, 2^31)`` s, values that are not numbers, or if ``path`` exists and ``unique``
+        is not set.
+    OSError
+        When the bag cannot be written.
+
+    Every error names the bag (``path``); an error of the writer keeps its type.
     """
     final = Path(path)
+    try:
+        return _write(final, joint_names, stamps_ns, positions, velocities, has_velocity,
+                      topic, unique)
+    except Exception as err:
+        named = _name_the_bag(err, final)
+        if named is err:
+            raise
+        raise named from err
+
+
+def _name_the_bag(err: Exception, final: Path) -> Exception:
+    """``err`` with a message that names the bag ``final``; a ValueError that does when
+    its message cannot be changed.
+
+    A recorder reports a failed write by its message, and an error from deep inside the
+    writer (rosbags, numpy, the file system on the staging directory) names no bag. The
+    message is changed in place, so the exception keeps its type, its errno and its
+    identity (a caller can still tell a full disk from a bad value, or chain it).
+    """
+    text = str(err)
+    if str(final) in text:
+        return err
+    if isinstance(err, OSError) and err.errno is not None and err.strerror:
+        err.strerror = f"{err.strerror} (writing bag {final})"  # str() is made from it
+    else:
+        err.args = (f"{final}: {text}",)
+    if str(final) in str(err):
+        return err
+    # A message made from other fields than args (UnicodeDecodeError's).
+    return ValueError(f"{final}: {type(err).__name__}: {text}")
+
+
+def _write(final: Path, joint_names: Sequence[str], stamps_ns: Sequence[int] | np.ndarray,
+           positions: np.ndarray, velocities: np.ndarray | None,
+           has_velocity: Sequence[bool] | np.ndarray | None, topic: str, unique: bool
+           ) -> Path:
+    """:func:`write_joint_state_bag`'s work; its errors may not name the bag."""
     names, stamps, q, v, flags = _checked_messages(
         final, joint_names, stamps_ns, positions, velocities, has_velocity)
     n_msgs = stamps.shape[0]
@@ -166,8 +208,12 @@ def _checked_messages(
     the per-message velocity flags (N,) bool; raises ValueError naming ``final``.
     """
     names = [str(j) for j in joint_names]
-    stamps = np.asarray(stamps_ns, dtype=np.int64)
-    q = np.asarray(positions, dtype=np.float64)
+    # Contiguous native arrays: the serializer views each row's memory as float64 and
+    # refuses a row of a reversed or transposed view (Q[:, ::-1], Q.T) or another byte
+    # order. The stamps keep their dimensions (ascontiguousarray makes a scalar (1,)),
+    # so that a scalar is refused below.
+    stamps = np.asarray(stamps_ns, dtype=np.int64, order="C")
+    q = np.ascontiguousarray(positions, dtype=np.float64)
     if stamps.ndim != 1:
         raise ValueError(f"{final}: stamps_ns must have shape (N,), got {stamps.shape}")
     n_msgs = stamps.shape[0]
@@ -176,7 +222,7 @@ def _checked_messages(
             f"{final}: positions must have shape ({n_msgs}, {len(names)}) to match stamps "
             f"and joint names, got {q.shape}"
         )
-    v = None if velocities is None else np.asarray(velocities, dtype=np.float64)
+    v = None if velocities is None else np.ascontiguousarray(velocities, dtype=np.float64)
     if v is not None and v.shape != q.shape:
         raise ValueError(f"{final}: velocities must have shape {q.shape}, got {v.shape}")
     flags = (
