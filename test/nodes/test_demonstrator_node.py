@@ -1,5 +1,5 @@
 """Integration tests of the ``demonstrator`` node (own rclpy.Context, domain ids 180-189,
-214).
+216).
 
 The robot is the real ``sim_robot`` node (left arm of Talos); the recorder is faked by
 Trigger services on a probe node, which also records the joint states in between.
@@ -28,7 +28,7 @@ from policy_align_ros.nodes.start_parameters import Cause, StartParameterError
 JOINTS = [f"arm_left_{i}_joint" for i in range(1, 8)]
 PARAMETER_FILE = Path(__file__).resolve().parents[2] / "config" / "demonstrator.yaml"
 #: The module's domain for the start-up tests (nodes built, never spun).
-START_DOMAIN = 214
+START_DOMAIN = 216
 HAND = "arm_left_7_link"
 
 
