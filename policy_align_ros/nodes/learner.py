@@ -11,12 +11,19 @@ so an executor never hot-loads it. The fit runs in its own callback group on a
 multi-threaded executor, so the node keeps serving its other callbacks; a second
 ``~/learn`` while one runs is refused. Bad or missing data gives ``success=false`` with
 the reason, never a crash.
+
+The run's Python warnings (the fit's: a poor fit, a goal that is not a minimum, ...) go
+through the node's logger at WARN, each text once, not to stderr with a source file and
+line; numerical ones (numpy's overflow or invalid value, a ``RuntimeWarning``) are
+counted in one line (:func:`warning_lines`). The answer is logged once: INFO when
+written, ERROR when refused or failed.
 """
 
 from __future__ import annotations
 
 import threading
 import traceback
+import warnings
 from collections.abc import Sequence
 from dataclasses import fields
 from pathlib import Path
@@ -43,7 +50,7 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Learner", "main"]
+__all__ = ["Learner", "main", "warning_lines"]
 
 #: Gate parameters: name -> (description, range); defaults are those of :class:`Gates`.
 _GATE_PARAMETERS = {
@@ -63,6 +70,39 @@ _GATE_PARAMETERS = {
 
 #: Parameter types ``sigma`` may have (a rule name, or sigma^2 as text or a number).
 _SIGMA_TYPES = (Parameter.Type.STRING, Parameter.Type.DOUBLE, Parameter.Type.INTEGER)
+#: How :meth:`PipelineResult.line` begins for a refused fit, which the pipeline also says
+#: as progress: the node logs it once, as its answer.
+_REFUSED = "refused: "
+#: Distinct numerical warning texts named in their one line.
+_SHOWN_NUMERICAL = 3
+
+
+def warning_lines(caught: Sequence[warnings.WarningMessage]) -> list[str]:
+    """The warnings of one learning run as log lines, without source files or lines.
+
+    Parameters
+    ----------
+    caught : sequence of warnings.WarningMessage
+        As recorded by ``warnings.catch_warnings(record=True)``.
+
+    Returns
+    -------
+    list of str
+        Each text of a warning other than a ``RuntimeWarning`` once, in order; then, when
+        there are ``RuntimeWarning`` (numpy's overflow or invalid value inside a fit,
+        possibly thousands of them, which say nothing about the model the fit's own
+        checks do not), one line counting them and naming their first distinct texts.
+    """
+    numerical = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    lines = list(dict.fromkeys(str(w.message) for w in caught
+                               if not issubclass(w.category, RuntimeWarning)))
+    if numerical:
+        kinds = list(dict.fromkeys(numerical))
+        shown = "; ".join(kinds[:_SHOWN_NUMERICAL])
+        if len(kinds) > _SHOWN_NUMERICAL:
+            shown += f"; {len(kinds) - _SHOWN_NUMERICAL} other kind(s)"
+        lines.append(f"{len(numerical)} numerical warning(s) during learning ({shown})")
+    return lines
 
 
 class Learner(StartNode):
@@ -151,24 +191,30 @@ class Learner(StartNode):
             response.success = False
             response.message = "a learning run is already in progress"
             return response
-        try:
-            self.get_logger().info("learning started")
-            result = self._learn()
-        except (ValueError, OSError) as err:
-            response.success = False
-            response.message = f"learning failed: {err}"
-        except Exception as err:  # noqa: BLE001 - a service must answer, never crash
-            self.get_logger().error(traceback.format_exc())
-            response.success = False
-            response.message = f"learning failed ({type(err).__name__}): {err}"
-        else:
-            self.last_result = result
-            response.message = result.line() + self._draw(result)
-            response.success = result.written
-            if result.written:
-                self._pub.publish(String(data=str(result.model_path)))
-        finally:
-            self._busy.release()
+        # Recorded, not printed: Python's format (a source line of the package) is no
+        # message for a user, and numpy repeats one warning per element.
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                self.get_logger().info("learning started")
+                result = self._learn()
+            except (ValueError, OSError) as err:
+                response.success = False
+                response.message = f"learning failed: {err}"
+            except Exception as err:  # noqa: BLE001 - a service must answer, never crash
+                self.get_logger().error(traceback.format_exc())
+                response.success = False
+                response.message = f"learning failed ({type(err).__name__}): {err}"
+            else:
+                self.last_result = result
+                response.message = result.line() + self._draw(result)
+                response.success = result.written
+                if result.written:
+                    self._pub.publish(String(data=str(result.model_path)))
+            finally:
+                self._busy.release()
+        for line in warning_lines(caught):
+            self.get_logger().warning(line)
         # Two call sites: rclpy refuses a second severity at one logging call site.
         if response.success:
             self.get_logger().info(response.message)
@@ -210,8 +256,14 @@ class Learner(StartNode):
             gates=Gates(**{f.name: value(f.name).value for f in fields(Gates)}),
             force=value("force").value,
             overwrite=value("overwrite").value,
-            log=self.get_logger().info,
+            log=self._say,
         )
+
+    def _say(self, message: str) -> None:
+        """A progress line of the pipeline, at INFO; not its refusal, which is the answer
+        and logged once with it, at ERROR."""
+        if not message.startswith(_REFUSED):
+            self.get_logger().info(message)
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -1,8 +1,10 @@
 """Integration tests of the ``learner`` node (own rclpy.Context, domain ids 160-169,
-199, 231)."""
+199, 217, 231)."""
 
+import re
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -17,8 +19,9 @@ from std_srvs.srv import Trigger
 from policy_align_ros.data import write_joint_state_bag
 from policy_align_ros.data.pipeline import HOLDOUT_RANGE, observed_ncpe, parse_sigma
 from policy_align_ros.learning import PolicyAlign, Trajectory
+from policy_align_ros.nodes import learner as learner_module
 from policy_align_ros.nodes._common import LATCHED_QOS
-from policy_align_ros.nodes.learner import Learner
+from policy_align_ros.nodes.learner import Learner, warning_lines
 
 JOINTS = ["j1", "j2"]
 
@@ -39,10 +42,12 @@ def _write_dataset(directory, n_demos=10, seed=0, joints=JOINTS):
 
 
 class Rig:
+    node_class = Learner
+
     def __init__(self, domain_id, **params):
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = Learner(context=self.context, parameter_overrides=[
+        self.node = self.node_class(context=self.context, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
         self.probe = Node("probe", context=self.context)
         self.models: list[str] = []
@@ -334,3 +339,85 @@ def test_plot_path_draws_each_fit_and_a_bad_one_does_not_fail_the_learning(rig, 
     response = r.learn()
     assert response.success and str(blocked) in response.message  # said, not failed
     assert not blocked.exists()
+
+
+def _warning(message, category=UserWarning):
+    return warnings.WarningMessage(message, category, "fit_stages.py", 280)
+
+
+def test_warning_lines_say_each_text_once_and_count_numerical_warnings():
+    caught = [_warning("poor fit"), _warning("overflow encountered in exp", RuntimeWarning),
+              _warning("no minimum"), _warning("poor fit"),
+              *[_warning(f"numerical {k % 5}", RuntimeWarning) for k in range(40)]]
+    lines = warning_lines(caught)
+    assert lines[:2] == ["poor fit", "no minimum"] and len(lines) == 3
+    # One line for all 41: their count and the first kinds, not 41 lines.
+    assert re.search(r"\b41\b", lines[2]) and "overflow encountered in exp" in lines[2]
+    assert warning_lines([]) == []
+
+
+class _Log:
+    """A logger standing in for the node's: (severity, message) records."""
+
+    def __init__(self) -> None:
+        self.records: list[tuple[str, str]] = []
+
+    def __getattr__(self, severity: str):
+        return lambda message, **_: self.records.append((severity, str(message)))
+
+
+class _LoggedLearner(Learner):
+    """The learner with its log records kept (``log.records``)."""
+
+    def get_logger(self):
+        if not hasattr(self, "log"):
+            self.log = _Log()
+        return self.log
+
+
+class _LoggedRig(Rig):
+    node_class = _LoggedLearner
+
+
+def test_fit_warnings_and_a_refusal_are_logged_once_through_the_logger(tmp_path,
+                                                                        monkeypatch):
+    rng = np.random.default_rng(3)
+    for k in range(7):  # random walks: refused as no better than a zero policy, with warnings
+        X = np.cumsum(rng.normal(scale=0.05, size=(60, 2)), axis=0)
+        stamps = 10**18 + k * 10**10 + np.arange(60) * 50_000_000
+        write_joint_state_bag(tmp_path / "walks" / f"demo_{k:04d}", JOINTS, stamps, X)
+    real = learner_module.learn_pipeline
+
+    def noisy_pipeline(*args, **kwargs):
+        # numpy's overflow and invalid value, as inside a fit, and a warning said twice.
+        with np.errstate(over="warn", invalid="warn"):
+            for _ in range(3):
+                np.exp(np.full(4, 1000.0))
+            np.log(np.full(2, -1.0))
+        for _ in range(2):
+            warnings.warn("the same fit warning twice", UserWarning, stacklevel=1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(learner_module, "learn_pipeline", noisy_pipeline)
+    r = _LoggedRig(217, dataset_dir=str(tmp_path / "walks"), model_path=str(tmp_path / "m"))
+    try:
+        with warnings.catch_warnings(record=True) as escaped:
+            warnings.simplefilter("always")
+            response = r.learn()
+        result = r.node.last_result
+        records = list(r.node.log.records)
+    finally:
+        r.close()
+    assert not response.success and result.refused
+    # Nothing reached Python's warning output (stderr, with a source file and line).
+    assert not [w for w in escaped if issubclass(w.category, (UserWarning, RuntimeWarning))]
+    # The refusal: one record, at ERROR (the pipeline also says it as progress).
+    refusal = [(level, m) for level, m in records if result.line() in m]
+    assert [level for level, _ in refusal] == ["error"]
+    said = [m for level, m in records if level == "warning"]
+    assert len(said) == len(set(said))  # each text once
+    assert said.count("the same fit warning twice") == 1
+    # Besides those two, the fit's own (worse than a zero policy warns), by the logger.
+    assert result.summary["worse_than_zero"] and len(said) >= 3
+    numerical = [m for m in said if "overflow" in m]
+    assert len(numerical) == 1 and re.search(r"\b4\b", numerical[0])  # 3 overflows, 1 invalid
