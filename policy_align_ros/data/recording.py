@@ -35,6 +35,10 @@ must not lose the demonstration or escape into a node's callbacks either.
 
 Header stamps before the epoch (negative, e.g. ``sec = -1`` from a publisher whose clock
 was never set) are skipped as ``time_negative``: a bag stores times as unsigned integers.
+
+A bag in which the robot stood still (every joint within ``still_tolerance`` of its first
+sample) is written all the same, since a recorder never drops data, and listed in
+``still_bags``; :attr:`DemoRecorder.stoppable` says whether a stop has anything to end.
 """
 
 from __future__ import annotations
@@ -63,11 +67,17 @@ from policy_align_ros.data.messages import (
 )
 
 __all__ = [
+    "STILL_TOLERANCE",
     "DemoRecorder",
     "PendingWriteError",
     "SaveResult",
     "validate_gap",
 ]
+
+#: A demonstration whose every joint stays this close to its first sample (rad or m) is
+#: one of a robot that did not move: a few counts of a 14-bit encoder (3.8e-4 rad each),
+#: far below any motion worth learning from (1 mrad is 1 mm at 1 m).
+STILL_TOLERANCE = 1e-3
 
 
 def validate_gap(auto_split_gap_s: float) -> float:
@@ -107,6 +117,10 @@ class _Demo:
 
     def __len__(self) -> int:
         return int(self.stamps.shape[0])
+
+    def still(self, tolerance: float) -> bool:
+        """Whether every joint stays within ``tolerance`` of its first sample."""
+        return bool(np.all(np.abs(self.positions - self.positions[0]) <= tolerance))
 
     def write(self, dataset_dir: Path) -> Path:
         return write_joint_state_bag(
@@ -157,6 +171,9 @@ class DemoRecorder:
         (``clock_ns``) is skipped as ``time_in_future``: accepted, it would make every
         later, correctly stamped message of a manual demonstration "not increasing", so
         one stray stamp would lose the rest of the demonstration.
+    still_tolerance : float
+        A demonstration whose every joint stays within this of its first sample (rad or
+        m) is written and listed in ``still_bags``: the robot did not move.
 
     Attributes
     ----------
@@ -167,6 +184,8 @@ class DemoRecorder:
         Valid messages recorded over the lifetime.
     written : list of Path
         Bags written, in order.
+    still_bags : list of Path
+        Those of them in which the robot did not move (``still_tolerance``).
     dropped : int
         Demonstrations dropped for having fewer than ``min_messages`` messages.
     lost_while_pending : int
@@ -187,12 +206,17 @@ class DemoRecorder:
         topic: str = DEFAULT_TOPIC,
         min_messages: int = 2,
         max_stamp_ahead_s: float = 1.0,
+        still_tolerance: float = STILL_TOLERANCE,
     ) -> None:
         self.dataset_dir = check_dataset_dir(dataset_dir)
         ahead = float(max_stamp_ahead_s)
         if not (np.isfinite(ahead) and ahead >= 0.0):
             raise ValueError(f"max_stamp_ahead_s: must be a finite number >= 0, got {ahead}")
         self._max_ahead_ns = round(ahead * 1e9)
+        still = float(still_tolerance)
+        if not (np.isfinite(still) and still >= 0.0):
+            raise ValueError(f"still_tolerance: must be a finite number >= 0, got {still}")
+        self.still_tolerance = still
         self._selector = JointSelector(joints)
         self.auto_split_gap_s = validate_gap(auto_split_gap_s)
         self._clock = StreamClock(round(self.auto_split_gap_s * 1e9))
@@ -203,6 +227,7 @@ class DemoRecorder:
         self.skipped: Counter[str] = Counter({reason: 0 for reason in SKIP_REASONS})
         self.accepted = 0
         self.written: list[Path] = []
+        self.still_bags: list[Path] = []
         self.dropped = 0
         self.lost_while_pending = 0
         self.last_foreign: tuple[str, ...] | None = None
@@ -277,6 +302,12 @@ class DemoRecorder:
         return 0 if pending is None else len(pending)
 
     @property
+    def stoppable(self) -> bool:
+        """Whether :meth:`stop` has a demonstration to end: one being recorded, or one
+        pending. A stop without one is no empty demonstration: it was never started."""
+        return self._active or self._pending is not None
+
+    @property
     def pending_error(self) -> str:
         """Why the pending demonstration could not be written ("" when none is pending)."""
         return self._pending_error
@@ -324,7 +355,8 @@ class DemoRecorder:
         -------
         Path or None
             The bag written (complete and fsync'ed), or ``None`` if the demonstration had
-            fewer than ``min_messages`` valid messages (nothing is written).
+            fewer than ``min_messages`` valid messages, or none was started (nothing is
+            written; :attr:`stoppable` tells the two apart).
 
         Raises
         ------
@@ -404,7 +436,7 @@ class DemoRecorder:
                     except Exception as err:  # any writer error (module docstring)
                         errors.append(f"{directory}: {_error_text(err)}")
                         continue
-                    self.written.append(path)
+                    self._written(demo, path)
                     results.append(SaveResult(len(demo), path, k > 0, tuple(errors)))
                     break
                 else:
@@ -592,6 +624,12 @@ class DemoRecorder:
             self._pending_error = _error_text(err)
             raise PendingWriteError(self._pending_message()) from err
         self._pending, self._pending_error = None, ""
-        self.written.append(path)
+        self._written(demo, path)
         return path
+
+    def _written(self, demo: _Demo, path: Path) -> None:
+        """Note ``demo`` written at ``path`` (caller holds the lock)."""
+        self.written.append(path)
+        if demo.still(self.still_tolerance):
+            self.still_bags.append(path)
 

@@ -11,7 +11,11 @@ Interface (docs/design.md section 6):
   so a burst is queued rather than lost while a bag is being written);
 * services ``~/start_demo`` and ``~/stop_demo`` (``std_srvs/srv/Trigger``); ``stop_demo``
   first records the joint states still queued (they arrived before the request), and
-  answers once the bag is complete on disk, with its path as the message;
+  answers once the bag is complete on disk, with its path as the message (followed by a
+  warning, after "; ", when the robot did not move during the demonstration: every joint
+  within ``STILL_TOLERANCE`` of its first sample; the bag is written all the same).
+  Without a demonstration to end (no ``start_demo`` before it) it answers
+  ``success=false``, naming the fix;
 * parameters ``dataset_dir`` (str), ``joints`` (str[], unset = those of the first
   message), ``auto_split_gap_s`` (s, 0 = manual mode; otherwise recording starts at once
   and splits at gaps), ``qos_depth`` (read-only), ``warn_period_s``. Changes at run time
@@ -59,6 +63,7 @@ demonstration. A write that fails with any exception is handled as a failed writ
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -177,7 +182,7 @@ class RecorderNode(StartNode):
                 f"recording joints {', '.join(self._recorder.joints)}: those of the first "
                 "message (set joints or robot_config to choose them)")
         if path is not None:
-            self.get_logger().info(f"demonstration written (time gap): {path}")
+            self._said_written(path, f"demonstration written (time gap): {path}")
 
     def _future_check_clock(self, now: int) -> int | None:
         """The clock to check stamps against for ``time_in_future``, or None for no check.
@@ -205,6 +210,11 @@ class RecorderNode(StartNode):
     def _on_stop(
         self, request: Trigger.Request, response: Trigger.Response
     ) -> Trigger.Response:
+        if not self._recorder.stoppable:
+            response.success = False
+            response.message = ("not recording: call ~/start_demo first, then ~/stop_demo "
+                                "ends the demonstration and writes it")
+            return response
         if self._recorder.active:
             self._drain()
         count = self._recorder.pending or self._recorder.buffered
@@ -223,8 +233,23 @@ class RecorderNode(StartNode):
                 response.message += f" ({foreign})"
         else:
             response.success, response.message = True, str(path)
-            self.get_logger().info(f"demonstration written: {path} ({count} messages)")
+            still = self._said_written(path, f"demonstration written: {path} ({count} "
+                                             "messages)")
+            if still:
+                response.message += f"; {still}"
         return response
+
+    def _said_written(self, path: Path, text: str) -> str:
+        """Log ``text``, that the bag ``path`` was written; with a warning when the robot
+        did not move during it, which is returned ("" otherwise)."""
+        if path not in self._recorder.still_bags:
+            self.get_logger().info(text)
+            return ""
+        still = (f"warning: the robot did not move during this demonstration (every joint "
+                 f"within {self._recorder.still_tolerance:g} of its first sample); written "
+                 "anyway")
+        self.get_logger().warning(f"{text}; {still}")
+        return still
 
     def _drain(self) -> None:
         """Record the joint states already queued when ``stop_demo`` is served.
@@ -255,7 +280,7 @@ class RecorderNode(StartNode):
             self._last_retry = self.get_clock().now().nanoseconds
             return
         if path is not None:
-            self.get_logger().info(f"demonstration written (continuous mode ended): {path}")
+            self._said_written(path, f"demonstration written (continuous mode ended): {path}")
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
@@ -272,7 +297,7 @@ class RecorderNode(StartNode):
             self._last_retry = now
             path = None
         if path is not None:
-            self.get_logger().info(f"demonstration written (stream idle): {path}")
+            self._said_written(path, f"demonstration written (stream idle): {path}")
 
     def _retry_if_due(self, now: int) -> None:
         """Retry writing a pending demonstration every ``_RETRY_PERIOD_S``."""
@@ -287,8 +312,8 @@ class RecorderNode(StartNode):
             except Exception as err:  # never out of a callback: see the module docstring
                 self.get_logger().error(f"retry failed: {err}")
             else:
-                self.get_logger().info(
-                    f"pending demonstration written: {path} ({count} messages)"
+                self._said_written(
+                    path, f"pending demonstration written: {path} ({count} messages)"
                     + ("; recording resumed" if self._recorder.active else ""))
 
     def _foreign(self) -> str:
@@ -372,7 +397,8 @@ class RecorderNode(StartNode):
                     f"directory {result.path} because dataset_dir failed "
                     f"({'; '.join(result.errors)}); move it into the dataset")
             else:
-                logger.info(f"demonstration written at shutdown: {result.path}")
+                self._said_written(result.path,
+                                   f"demonstration written at shutdown: {result.path}")
         if unfinished:
             logger.warning(
                 f"discarded an unfinished demonstration of {unfinished} messages "

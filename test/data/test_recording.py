@@ -511,3 +511,65 @@ def test_a_real_full_disk_loses_nothing(tmp_path, tiny_disk):
     assert [m[1] for m in read] == stamps.tolist()
     np.testing.assert_array_equal([m[3] for m in read], q)
     np.testing.assert_array_equal([m[4] for m in read], v)
+
+
+def test_a_stop_without_a_demonstration_is_told_apart_from_an_empty_one(tmp_path,
+                                                                        monkeypatch):
+    rec = DemoRecorder(tmp_path)
+    assert not rec.stoppable and rec.stop() is None  # never started: nothing to end
+    rec.start()
+    assert rec.stoppable
+    assert rec.stop() is None and not rec.stoppable  # started, no message: nothing written
+    assert rec.written == [] and _entries(tmp_path) == []
+    # A pending demonstration (its write failed) is one a stop ends, without a start.
+    fail = [True]
+    _failing_writes(monkeypatch, OSError(errno.ENOSPC, "No space left on device"), fail)
+    rec.start()
+    _feed(rec, np.random.default_rng(30), 20, T0)
+    with pytest.raises(PendingWriteError):
+        rec.stop()
+    assert not rec.active and rec.stoppable
+    fail[0] = False
+    assert rec.stop() is not None and not rec.stoppable
+    # In continuous mode (started by the node at once) a stop ends the recording.
+    cont = DemoRecorder(tmp_path / "cont", auto_split_gap_s=0.5)
+    cont.start()
+    assert cont.stoppable
+
+
+def _still_positions(rng, count, tolerance):
+    """Positions of a robot at rest: encoder counts around one posture, within
+    ``tolerance`` of the first sample."""
+    first = rng.normal(size=3)
+    jitter = rng.uniform(-0.5, 0.5, size=(count, 3)) * tolerance
+    jitter[0] = 0.0
+    return first + jitter
+
+
+def test_a_demonstration_of_a_robot_that_did_not_move_is_written_and_listed(tmp_path):
+    rng = np.random.default_rng(31)
+    rec = DemoRecorder(tmp_path, still_tolerance=1e-3)
+    still = _still_positions(rng, 30, 1e-3)
+    moved = still.copy()
+    moved[-1, 1] += 2e-3  # one joint, once, beyond the tolerance
+    paths = []
+    for q in (still, moved, rng.normal(size=(30, 3))):
+        rec.start()
+        for k, row in enumerate(q):
+            rec.add(T0 + len(paths) * 10**9 + k * MS, JOINTS, list(row))
+        paths.append(rec.stop())
+    # Every one written (a recorder never drops data); only the first is listed as still.
+    assert rec.written == paths and all(p is not None for p in paths)
+    assert rec.still_bags == [paths[0]]
+    trajs, _, _ = load_dataset(paths[0], gap_s=0)
+    np.testing.assert_array_equal(trajs[0].positions, still)
+    # Continuous mode: a still segment written at a gap, and one saved by close().
+    cont = DemoRecorder(tmp_path / "cont", auto_split_gap_s=0.5)
+    cont.start()
+    for k, row in enumerate(np.vstack([still, still])):
+        cont.add(T0 + k * MS + (k >= len(still)) * 10**9, JOINTS, list(row))
+    saved = cont.close(keep_current=True)
+    assert len(cont.written) == 2 and cont.still_bags == cont.written
+    assert saved[0].path == cont.written[1]
+    with pytest.raises(ValueError, match="still_tolerance"):
+        DemoRecorder(tmp_path, still_tolerance=-1.0)

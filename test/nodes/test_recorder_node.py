@@ -1,5 +1,5 @@
 """ROS 2 integration tests of the ``recorder`` node: recording, splitting, skipped messages
-(domain ids 101, 102, 105, 111, 114, 115).
+(domain ids 101, 102, 105, 111, 114, 115, 218).
 
 Each test owns an ``rclpy.Context`` with its own ``domain_id`` and shuts it down.
 """
@@ -245,3 +245,38 @@ def test_negative_stamps_are_skipped_and_finished_demos_survive(tmp_path, monkey
     np.testing.assert_array_equal(trajs[0].positions, q[:5])
     np.testing.assert_array_equal(trajs[1].positions, q[10:])
     assert not (tmp_path / "ros_home" / "policy_align_recorder").exists()  # no fallback
+
+
+def test_stop_without_start_refuses_and_a_still_demonstration_is_written_with_a_warning(
+        tmp_path):
+    still = [_msg(T0 + k * 10_000_000, ["a", "b"], [0.3, -0.2]) for k in range(5)]
+    moving = [_msg(T0 + 10**9 + k * 10_000_000, ["a", "b"], [0.3 + 0.1 * k, -0.2])
+              for k in range(5)]
+    with _ros(218) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path / "ds")),
+            Parameter("joints", value=["a", "b"])])
+        harness = _Harness(ctx, recorder)
+        rec = recorder.recorder
+        try:
+            harness.ready()
+            # Nothing to stop: refused, nothing written, and the recorder is not started.
+            response = harness.call(harness.stop)
+            assert not response.success and rec.written == [] and not rec.active
+            answers = []
+            for messages in (still, moving):
+                assert harness.call(harness.start).success
+                target = rec.accepted + len(messages)
+                for msg in messages:
+                    harness.pub.publish(msg)
+                _wait(lambda t=target: rec.accepted >= t, 10.0, "the messages")
+                answers.append(harness.call(harness.stop))
+        finally:
+            harness.close()
+    # Both written (a recorder never drops data); the still one with a warning after its
+    # path, the other with its path alone.
+    assert [a.success for a in answers] == [True, True]
+    first, second = rec.written
+    assert rec.still_bags == [first]
+    assert answers[0].message.startswith(f"{first}; ") and answers[1].message == str(second)
+    assert len(load_dataset(first, gap_s=0)[0][0].positions) == len(still)
