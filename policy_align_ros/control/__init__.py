@@ -17,7 +17,10 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.resolved_rate` and :mod:`.task_policy`: task-space policies mapped to joint
   velocities;
 - :mod:`.loading`: a model file as the executor's joint-space policy (read once at
-  start, and the decisions about it there: :class:`StartModel`), its guard and turns;
+  start, and the decisions about it there: :class:`StartModel`), its guard and turns,
+  installed on the controller (:func:`install_model`);
+- :mod:`.model_checks`: what the executor checks about a model it loads (written only
+  because learn was forced);
 - :mod:`.settings`: the executor's parameter values (constraint specs included) checked,
   built into its :class:`ArmedController` and applied to it at run time;
 - :mod:`.stall`: stall detection (a joint commanded to move that does not);
@@ -67,6 +70,7 @@ from policy_align_ros.control.limits import (
 from policy_align_ros.control.loading import (
     StartModel,
     goal_margin_problem,
+    install_model,
     learnt_goal,
     load_policy,
     model_guard,
@@ -75,6 +79,11 @@ from policy_align_ros.control.loading import (
     no_model_fix,
 )
 from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
+from policy_align_ros.control.model_checks import (
+    forced_model_refusal,
+    forced_model_warning,
+    model_refusals,
+)
 from policy_align_ros.control.resolved_rate import (
     damped_pinv,
     joint_velocity_within_limits,
@@ -150,9 +159,12 @@ __all__ = [
     "controller_order_refusal",
     "damped_pinv",
     "enable_answer",
+    "forced_model_refusal",
+    "forced_model_warning",
     "goal_in_margin",
     "goal_margin_problem",
     "inner_limits",
+    "install_model",
     "joint_order_problem",
     "joint_velocity_bounds",
     "joint_velocity_within_limits",
@@ -162,13 +174,14 @@ __all__ = [
     "model_guard",
     "model_load_error",
     "model_permutation",
+    "model_refusals",
     "model_text",
     "model_turn_centres",
     "nearest_turn",
     "no_model_fix",
     "order_check_off",
-    "position_outside_limits",
     "policy_for_state",
+    "position_outside_limits",
     "project_with_locks",
     "ramp_toward",
     "rejection_note",

@@ -419,9 +419,9 @@ class ArmedController:
         No side effects, so a caller can check before a slower step (the executor node
         asks the controller for its joint order only when arming would go ahead).
         """
-        if self.step.policy is None:
-            return ZeroCause.NO_MODEL, "no model loaded"
-        cause, problem = self.state_check(now_ns)
+        cause, problem = self.step.model_check()  # none loaded, or forced and not allowed
+        if cause is None:
+            cause, problem = self.state_check(now_ns)
         if cause is not None:
             return cause, problem
         return self.step.constraint_check(self._q)
@@ -432,7 +432,7 @@ class ArmedController:
         Returns
         -------
         (accepted, reason, output)
-            Refused, with the reason, without a model or with stale joint states.
+            Refused, with the reason, when :meth:`arm_check` gives one.
         """
         jumped = self._clock(now_ns)
         cause, refusal = self.arm_check(now_ns)

@@ -10,7 +10,10 @@ better; the identifiers do not. Every place that sets a reason sets its cause:
   extrapolation guard, constraints that are not finite or near-singular);
 * :class:`~policy_align_ros.control.armed.ArmedController` sets one on every disarm
   (disabled, a model swap, a stall, stale or rejected joint states, a clock jump, a
-  control step that raised, constraints that fail during a ramp down).
+  control step that raised, constraints that fail during a ramp down);
+* its refusal to arm gives one too, the model's (none loaded, or one that learn refused
+  and wrote only because it was forced: :meth:`~policy_align_ros.control.step.
+  ControlStep.model_check`) included.
 
 The values of the stamp and position rejections are the keys the executor counts
 rejected joint states by (``rejected_joint_states`` on ``/diagnostics``), and so are those
@@ -42,6 +45,9 @@ class ZeroCause(StrEnum):
     MODEL_SWAP = "model_swap"
     #: No model is loaded.
     NO_MODEL = "no_model"
+    #: The model in force was refused by ``learn`` and written only because it was forced
+    #: (``--force``, the learner's ``force``), and ``allow_forced_model`` is off.
+    FORCED_MODEL = "forced_model"
     #: No valid joint state was received since the start or the last fault.
     NO_STATE = "no_state"
     #: The joint states stopped arriving, or their stamps are too old.

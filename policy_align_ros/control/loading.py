@@ -5,6 +5,11 @@ the robot) and then the model (to make its policy for that robot). :class:`Start
 reads the file once for both, so they also come from one version of a file that the
 learner may replace at any time, and holds what the executor decides about that file
 before it runs: refused, failed to load, or given (and so preferred to the learner's).
+
+:func:`install_model` makes a loaded model the armed controller's: its policy, guard and
+turns, and what the executor says about it (a model that ``learn`` refused and wrote only
+because it was forced: :mod:`policy_align_ros.control.model_checks`; a learnt goal in a
+joint's margin).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from policy_align_ros.control.armed import ArmedController, Output
 from policy_align_ros.control.guard import (
     ExtrapolationGuard,
     FrameSupportDistance,
@@ -22,6 +28,7 @@ from policy_align_ros.control.guard import (
 )
 from policy_align_ros.control.joint_order import model_permutation
 from policy_align_ros.control.limits import goal_in_margin
+from policy_align_ros.control.model_checks import forced_model_warning, model_refusals
 from policy_align_ros.control.task_policy import policy_for_state
 from policy_align_ros.control.turns import turn_centres
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
@@ -29,8 +36,9 @@ from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
-__all__ = ["StartModel", "goal_margin_problem", "learnt_goal", "load_policy",
-           "model_guard", "model_load_error", "model_turn_centres", "no_model_fix"]
+__all__ = ["StartModel", "goal_margin_problem", "install_model", "learnt_goal",
+           "load_policy", "model_guard", "model_load_error", "model_turn_centres",
+           "no_model_fix"]
 
 
 @dataclass
@@ -292,3 +300,38 @@ def goal_margin_problem(model: PolicyAlign, permutation: np.ndarray, robot: Robo
     q = np.empty(len(permutation))
     q[np.asarray(permutation)] = goal
     return goal_in_margin(q, robot.lower, robot.upper, margin, list(robot.joint_names))
+
+
+def install_model(controller: ArmedController, robot: Robot, path: str, model: PolicyAlign,
+                  policy: Callable, permutation: np.ndarray, state: str, *,
+                  max_extrapolation: float, max_extrapolation_rad: float) -> Output:
+    """Make ``model``, loaded from ``path`` by :func:`load_policy` (with its ``policy``,
+    ``permutation`` and ``state``), ``controller``'s (a swap: an armed controller ramps
+    down).
+
+    Sets the step's guard (:func:`model_guard`, with the executor's ``max_extrapolation``
+    and ``max_extrapolation_rad``), turn centres and the refusals of a model written only
+    because it was forced (:func:`~policy_align_ros.control.model_checks.model_refusals`,
+    which make :meth:`~policy_align_ros.control.step.ControlStep.model_check` refuse to
+    arm unless ``allow_forced_model``).
+
+    Returns
+    -------
+    Output
+        The swap's, with the load's log lines added to its events: the model loaded, and
+        warnings for a guard that cannot be made, a forced model (naming the refusals) and
+        a learnt goal within ``joint_limit_margin`` of a limit.
+    """
+    out = controller.set_policy(policy, permutation, reason=f"model swap to {path}")
+    step = controller.step
+    step.guard, guard_problem = model_guard(model, policy, permutation, state,
+                                            max_extrapolation, max_extrapolation_rad)
+    step.turn_centres = model_turn_centres(model, state, robot, permutation)
+    step.model_refusals = model_refusals(model)
+    notes = [guard_problem]
+    if step.model_refusals:
+        notes.append(forced_model_warning(path, step.model_refusals, step.allow_forced_model))
+    notes.append(goal_margin_problem(model, permutation, robot, step.joint_limit_margin))
+    out.events.append(("info", f"model loaded from {path} (state: {state})"))
+    out.events.extend(("warning", note) for note in notes if note)
+    return out

@@ -39,7 +39,8 @@ FLOAT_SETTINGS = ("max_velocity", "max_acceleration", "state_timeout_s",
 #: control step and of its extrapolation guard (when the model has one).
 _ON_CONTROLLER = ("max_acceleration", "state_timeout_s", "max_clock_skew_s",
                   "state_limit_margin")
-_ON_STEP = ("drift_gain", "drift_clamp_m", "min_singular_value", "joint_limit_margin")
+_ON_STEP = ("drift_gain", "drift_clamp_m", "min_singular_value", "joint_limit_margin",
+            "allow_forced_model")
 _ON_GUARD = ("max_extrapolation", "max_extrapolation_rad")
 
 
@@ -91,6 +92,7 @@ def build_controller(robot: Robot, value: Callable[[str], Any],
         drift_gain=value("drift_gain"), drift_clamp_m=value("drift_clamp_m"),
         min_singular_value=value("min_singular_value"),
         joint_limit_margin=value("joint_limit_margin"))
+    step.allow_forced_model = bool(value("allow_forced_model"))
     return ArmedController(
         step, value("max_acceleration"), value("state_timeout_s"),
         value("max_clock_skew_s"), joint_names=joints,
@@ -128,6 +130,7 @@ def apply_setting(controller: ArmedController, name: str, value: Any,
     elif name in _ON_CONTROLLER:
         setattr(controller, name, value)
     elif name in _ON_STEP:
+        # allow_forced_model applies at the next ~/enable: it never disarms by itself.
         setattr(step, name, value)
     elif name in _ON_GUARD:
         # A new model's guard reads the parameter when it is made (model_guard).

@@ -8,7 +8,9 @@ from collections.abc import Mapping
 import numpy as np
 
 from policy_align_ros.control.armed import ArmedController
-from policy_align_ros.control.causes import NO_CAUSE
+from policy_align_ros.control.causes import NO_CAUSE, ZeroCause
+from policy_align_ros.control.model_checks import forced_model_warning
+from policy_align_ros.control.step import ControlStep
 
 __all__ = ["ERROR", "OK", "WARN", "arming_status", "enable_answer", "held_error_text",
            "model_text", "rejection_note"]
@@ -46,33 +48,41 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
     -------
     level : int
         :data:`ERROR` when disarmed by a stall (the robot did not follow its command),
-        :data:`WARN` when disarmed by another fault, :data:`OK` otherwise (armed, or
-        disarmed by a request).
+        :data:`WARN` when disarmed by another fault and while a forced model that is not
+        allowed is loaded (it cannot be armed); :data:`OK` otherwise (armed, or disarmed
+        by a request).
     message : str
         Armed, ramping down or at zero, with the reason.
     values : dict str -> str
         Key-value pairs, in display order; ``zero_cause`` is the
         :class:`~policy_align_ros.control.causes.ZeroCause` value of ``zero_reason``, or
-        :data:`~policy_align_ros.control.causes.NO_CAUSE` while armed.
+        :data:`~policy_align_ros.control.causes.NO_CAUSE` while armed. While disarmed at
+        zero with a forced model that is not allowed they are ``forced_model`` and the
+        refusal (unless a stall's report stands).
     """
     problem = controller.state_problem(now_ns)
+    reason, cause = controller.zero_reason, controller.zero_cause
     level = OK
     if not controller.armed and controller.faulted:
         level = ERROR if controller.stalled else WARN
+    step = controller.step
+    gate_cause, gate_reason = step.model_check()
+    if (gate_cause == ZeroCause.FORCED_MODEL and not controller.armed
+            and not controller.publishing and not controller.stalled):
+        # What keeps it at zero now: ~/enable is refused until the model is allowed.
+        reason, cause, level = gate_reason, gate_cause, WARN
     if controller.armed:
         message = "armed: following the policy"
     elif controller.publishing:
-        message = f"disarmed, ramping down: {controller.zero_reason}"
+        message = f"disarmed, ramping down: {reason}"
     else:
-        message = f"disarmed, command zero: {controller.zero_reason}"
-    step = controller.step
+        message = f"disarmed, command zero: {reason}"
     values = {
         "armed": str(controller.armed).lower(),
         "model": model or "(none)",
         "model_state": model_state or "(none)",
-        "zero_reason": controller.zero_reason,
-        "zero_cause": (NO_CAUSE if controller.zero_cause is None
-                       else controller.zero_cause.value),
+        "zero_reason": reason,
+        "zero_cause": NO_CAUSE if cause is None else cause.value,
         "stalled": str(not controller.armed and controller.stalled).lower(),
         "stall_time_s": (f"{controller.stall.stall_time_s:g}" if controller.stall is not None
                          and controller.stall.enabled else "off"),
@@ -87,8 +97,24 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "joint_states": problem or "fresh",
         "rejected_joint_states": ", ".join(
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
+        **_model_values(step, model),
     }
     return level, message, values
+
+
+def _model_values(step: ControlStep, model: str) -> dict[str, str]:
+    """The ``/diagnostics`` values of what was found about the model in force when it was
+    loaded: forced (``model_forced``, ``allow_forced_model``), in words
+    (``model_warnings``)."""
+    warnings = []
+    if step.model_refusals:
+        warnings.append(forced_model_warning(model, step.model_refusals,
+                                             step.allow_forced_model))
+    return {
+        "model_forced": str(bool(step.model_refusals)).lower(),
+        "allow_forced_model": str(step.allow_forced_model).lower(),
+        "model_warnings": "; ".join(w for w in warnings if w) or "none",
+    }
 
 
 def model_text(model_path: str) -> str:

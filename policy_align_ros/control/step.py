@@ -47,6 +47,7 @@ from policy_align_ros.control.limits import (
     velocity_scale,
 )
 from policy_align_ros.control.locked_projection import project_with_locks
+from policy_align_ros.control.model_checks import forced_model_refusal
 from policy_align_ros.control.turns import nearest_turn
 from policy_align_ros.kinematics.constraints import ConstraintModel
 from policy_align_ros.kinematics.projection import nullspace_projector, projector_from_svd
@@ -129,6 +130,13 @@ class ControlStep:
         Continuous joints' angles are moved by whole turns to within half a turn of these
         (rad; NaN for the other joints) before anything else sees them
         (:mod:`~policy_align_ros.control.turns`); None: as measured.
+    model_refusals : tuple of str
+        Why ``learn`` refused the model in force, which was written only because it was
+        forced (:func:`~policy_align_ros.control.model_checks.model_refusals`); empty for
+        a model that passed. :meth:`model_check` refuses to arm such a model unless
+        ``allow_forced_model``.
+    allow_forced_model : bool
+        Whether a forced model may be armed (the executor's parameter of that name).
     """
 
     def __init__(
@@ -168,6 +176,8 @@ class ControlStep:
         self.drift_clamp_m = drift_clamp_m
         self.min_singular_value = min_singular_value
         self.turn_centres: np.ndarray | None = None
+        self.model_refusals: tuple[str, ...] = ()
+        self.allow_forced_model = False
         self.extrapolation_scale = 1.0
         self.extrapolation_distance = float("nan")
         self._zeros = np.zeros(n)
@@ -517,6 +527,17 @@ class ControlStep:
                 return total, P
             locked |= new
         return total, P
+
+    def model_check(self) -> tuple[ZeroCause | None, str]:
+        """Why the model in force may not be armed, as ``(cause, reason)``: none loaded,
+        or one that ``learn`` refused and wrote only because it was forced
+        (:attr:`model_refusals`) while :attr:`allow_forced_model` is off; ``(None, "")``
+        when it may."""
+        if self.policy is None:
+            return ZeroCause.NO_MODEL, "no model loaded"
+        if self.model_refusals and not self.allow_forced_model:
+            return ZeroCause.FORCED_MODEL, forced_model_refusal(self.model_refusals)
+        return None, ""
 
     def constraint_check(self, q: np.ndarray) -> tuple[ZeroCause | None, str]:
         """Why the constraints at ``q`` (n,) cannot be enforced, as ``(cause, reason)``;

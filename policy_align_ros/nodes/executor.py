@@ -24,7 +24,9 @@ Safety (the logic is ROS-free, :class:`policy_align_ros.control.armed.ArmedContr
 docs/executor_safety.md explains it for robot owners):
 
 * the executor is *armed* only by ``~/enable`` (std_srvs/SetBool) true, which is refused,
-  with the reason (and the fix), while no model is loaded, no valid joint state arrived
+  with the reason (and the fix), while no model is loaded or the one loaded was refused by
+  learn and written only because it was forced (unless ``allow_forced_model``; a warning
+  names the refusals at load), no valid joint state arrived
   (naming the controlled joints the messages lack), the joint states are stale or the
   constraints cannot be enforced at the current state (a near-singular or non-finite
   constraint matrix: a frame that the controlled joints do not move, more constraint rows
@@ -111,12 +113,10 @@ from policy_align_ros.control import (
     constraints_problem,
     controller_order_refusal,
     enable_answer,
-    goal_margin_problem,
+    install_model,
     joint_velocity_bounds,
     load_policy,
-    model_guard,
     model_text,
-    model_turn_centres,
     no_model_fix,
     order_check_off,
     rejection_note,
@@ -358,21 +358,14 @@ class Executor(StartNode):
     def _apply_staged(self) -> None:
         path, model, policy, perm, state = self._staged
         self._staged = None
-        self.model_state = state
         self._arm_at_start = False  # a swapped model is never armed without ~/enable
-        out = self.controller.set_policy(policy, perm, reason=f"model swap to {path}")
-        self.controller.step.guard, problem = model_guard(
-            model, policy, perm, state, self.get_parameter("max_extrapolation").value,
-            self.get_parameter("max_extrapolation_rad").value)
-        if problem:
-            self.get_logger().warning(problem)
-        self.controller.step.turn_centres = model_turn_centres(model, state, self.robot, perm)
-        self.model_path = path
+        # Its log lines (a forced model, a goal in a joint's margin) come with ``out``.
+        out = install_model(
+            self.controller, self.robot, path, model, policy, perm, state,
+            max_extrapolation=self.get_parameter("max_extrapolation").value,
+            max_extrapolation_rad=self.get_parameter("max_extrapolation_rad").value)
+        self.model_state, self.model_path = state, path
         self._update_context()
-        self.get_logger().info(f"model loaded from {path} (state: {state})")
-        margin = self.controller.step.joint_limit_margin
-        if problem := goal_margin_problem(model, perm, self.robot, margin):
-            self.get_logger().warning(problem)
         self._emit(out)
 
     def _on_model(self, msg: String) -> None:

@@ -31,6 +31,10 @@ def declare_control_parameters(node: Node, default_controller: str) -> None:
         "model file (.npz); setting it loads the model or is refused with the reason; "
         "empty at start = wait for /learner/model (given at start, it wins over "
         "/learner/model unless follow_learner)"))
+    node.declare_parameter("allow_forced_model", False, descriptor(
+        "arm a model that learn refused and wrote only because it was forced (--force, "
+        "the learner's force:=true; its file records the refusals); false = ~/enable is "
+        "refused on such a model, naming the refusals; applies at the next ~/enable"))
     node.declare_parameter("max_velocity", 0.5, descriptor(
         "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
         float_range=(0.001, 10.0)))

@@ -24,7 +24,7 @@ JOINTS = ["panda_joint1", "panda_joint2", "panda_joint4"]
 VALUES = {"rate_hz": 50.0, "max_velocity": 0.3, "max_acceleration": 1.5,
           "state_timeout_s": 0.2, "max_clock_skew_s": 0.04, "state_limit_margin": 0.1,
           "drift_gain": 2.0, "drift_clamp_m": 0.02, "min_singular_value": 0.01,
-          "joint_limit_margin": 0.03, "stall_time_s": 0.5}
+          "joint_limit_margin": 0.03, "stall_time_s": 0.5, "allow_forced_model": True}
 
 
 @pytest.fixture(scope="module")
@@ -72,6 +72,7 @@ def test_the_controller_is_built_from_the_parameter_values(robot):
     for name in ("drift_gain", "drift_clamp_m", "min_singular_value", "joint_limit_margin"):
         assert getattr(step, name) == VALUES[name], name
     assert control.stall.stall_time_s == VALUES["stall_time_s"]
+    assert step.allow_forced_model is True
     assert control.joint_names == JOINTS and not control.armed
 
 
@@ -85,7 +86,8 @@ def test_run_time_values_reach_the_controller_and_the_rest_is_left_to_the_node(r
         assert apply_setting(control, name, value, limit)
         assert getattr(control, name) == value, name
     for name, value in (("drift_gain", 1.0), ("drift_clamp_m", 0.05),
-                        ("min_singular_value", 0.02), ("joint_limit_margin", 0.04)):
+                        ("min_singular_value", 0.02), ("joint_limit_margin", 0.04),
+                        ("allow_forced_model", False)):
         assert apply_setting(control, name, value, limit)
         assert getattr(control.step, name) == value, name
     assert apply_setting(control, "stall_time_s", 0.0, limit)
