@@ -6,6 +6,8 @@ constraints in force, scaled for speed and position limits. Modules:
 - :mod:`.limits`: speed limits, joint velocity bounds, the limit scale and the
   acceleration ramp;
 - :mod:`.guard`: the extrapolation guard and its distance to the demonstrated data;
+- :mod:`.guard_hold`: the guard holding an armed robot at the data's edge, reported
+  (which limit binds, how far, the fix) and logged once;
 - :mod:`.locked_projection`: null-space projection with joints locked on their limits;
 - :mod:`.step`: one control step (:class:`ControlStep`: projection, limit locks, drift
   correction of held frames, near-singular constraints);
@@ -45,6 +47,7 @@ from policy_align_ros.control.guard import (
     FrameSupportDistance,
     SupportDistance,
 )
+from policy_align_ros.control.guard_hold import GuardHold, GuardHoldLog, guard_hold
 from policy_align_ros.control.joint_order import (
     NO_ORDER_CHECK,
     controller_order_refusal,
@@ -140,6 +143,8 @@ __all__ = [
     "DistanceFn",
     "ExtrapolationGuard",
     "FrameSupportDistance",
+    "GuardHold",
+    "GuardHoldLog",
     "Output",
     "Stall",
     "StallDetector",
@@ -163,6 +168,7 @@ __all__ = [
     "forced_model_warning",
     "goal_in_margin",
     "goal_margin_problem",
+    "guard_hold",
     "inner_limits",
     "install_model",
     "joint_order_problem",

@@ -13,7 +13,13 @@ better; the identifiers do not. Every place that sets a reason sets its cause:
   control step that raised, constraints that fail during a ramp down);
 * its refusal to arm gives one too, the model's (none loaded, or one that learn refused
   and wrote only because it was forced: :meth:`~policy_align_ros.control.step.
-  ControlStep.model_check`) included.
+  ControlStep.model_check`) included;
+* the executor's status (:func:`~policy_align_ros.control.status.arming_status`) gives
+  one while the controller is *armed* but its command is held at zero by the
+  extrapolation guard at the data's edge
+  (:func:`~policy_align_ros.control.guard_hold.guard_hold`): the controller's own cause
+  stays None then (it follows the policy, which the guard scales), and
+  ``/diagnostics`` says why the robot does not move.
 
 The values of the stamp and position rejections are the keys the executor counts
 rejected joint states by (``rejected_joint_states`` on ``/diagnostics``), and so are those
@@ -81,6 +87,10 @@ class ZeroCause(StrEnum):
     POLICY_NOT_FINITE = "policy_not_finite"
     #: The extrapolation guard could not measure the distance to the data.
     EXTRAPOLATION_GUARD = "extrapolation_guard"
+    #: Still armed, but the extrapolation guard holds the command at zero: the state is at
+    #: the edge of the demonstrated data (``max_extrapolation`` or
+    #: ``max_extrapolation_rad``) and the policy leads further out.
+    EXTRAPOLATION_HOLD = "extrapolation_hold"
     #: Computing the constraint rows raised.
     CONSTRAINTS_FAILED = "constraints_failed"
     #: The constraint rows contain NaN or inf.

@@ -181,6 +181,21 @@ class ExtrapolationGuard:
         if not (math.isfinite(min_band) and min_band > 0.0):
             raise ValueError(f"min_band: must be finite and > 0, got {min_band}")
         self.min_band = float(min_band)
+        #: ``d`` (spacings) and ``|grad d|`` (spacings per rad; NaN where it has no
+        #: direction) at the last :meth:`scale`: what the executor reports, never read by
+        #: the scaling itself.
+        self.last_distance = math.nan
+        self.last_grad_norm = math.nan
+
+    @property
+    def last_distance_rad(self) -> float:
+        """The last :meth:`scale`'s ``d`` in rad: ``d / |grad d|``, the joint motion that
+        covers it (exact for a joint-state model, to first order for a frames one); 0 on a
+        support state, NaN when unknown."""
+        if self.last_distance == 0.0:
+            return 0.0
+        norm = self.last_grad_norm
+        return self.last_distance / norm if norm > 0.0 else math.nan
 
     @property
     def max_extrapolation(self) -> float:
@@ -219,6 +234,17 @@ class ExtrapolationGuard:
         b = max(min(self.min_band, reach), stop)
         return min(self._max, max(reach - b, 0.0)), b
 
+    def edge(self, grad_norm: float, max_velocity: np.ndarray,
+             max_acceleration: float | None) -> tuple[float, str]:
+        """Where a command leading out is scaled to zero, ``d_max + b`` (spacings), for
+        ``|grad d| = grad_norm``, and the parameter that puts it there:
+        ``"max_extrapolation_rad"`` when its cap brings the edge nearer than
+        ``max_extrapolation`` and the band alone would, else ``"max_extrapolation"``."""
+        d_max, b = self.bounds(grad_norm, max_velocity, max_acceleration)
+        uncapped = self._max + self.band(grad_norm, max_velocity, max_acceleration)
+        capped = d_max + b < uncapped
+        return d_max + b, "max_extrapolation_rad" if capped else "max_extrapolation"
+
     def band(self, grad_norm: float, max_velocity: np.ndarray,
              max_acceleration: float | None) -> float:
         """Band ``b`` (spacings) for ``|grad d| = grad_norm`` (spacings per rad).
@@ -255,14 +281,20 @@ class ExtrapolationGuard:
         d = float(d)
         if not (math.isfinite(d) and d >= 0.0):
             raise ValueError(f"extrapolation distance not finite ({d})")
-        if grad is None or (self._max_rad is None and d <= self._max):
+        self.last_distance, self.last_grad_norm = d, math.nan
+        if grad is None:
             return 1.0, d
         grad = np.asarray(grad, dtype=float)
-        if grad.shape != np.shape(v) or not np.all(np.isfinite(grad)):
+        valid = grad.shape == np.shape(v) and bool(np.all(np.isfinite(grad)))
+        if valid:  # for the report in rad; the scaling below is the same without it
+            self.last_grad_norm = float(np.linalg.norm(grad))
+        if self._max_rad is None and d <= self._max:
+            return 1.0, d
+        if not valid:
             raise ValueError("extrapolation distance gradient not finite or of wrong shape")
         if float(grad @ v) <= 0.0:
             return 1.0, d  # back towards the data, or along it: never scaled
-        d_max, b = self.bounds(float(np.linalg.norm(grad)), max_velocity, max_acceleration)
+        d_max, b = self.bounds(self.last_grad_norm, max_velocity, max_acceleration)
         if d <= d_max:
             return 1.0, d
         return float(np.clip(1.0 - (d - d_max) / b, 0.0, 1.0)), d

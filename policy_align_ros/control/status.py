@@ -9,6 +9,7 @@ import numpy as np
 
 from policy_align_ros.control.armed import ArmedController
 from policy_align_ros.control.causes import NO_CAUSE, ZeroCause
+from policy_align_ros.control.guard_hold import guard_hold
 from policy_align_ros.control.model_checks import forced_model_warning
 from policy_align_ros.control.step import ControlStep
 
@@ -48,17 +49,21 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
     -------
     level : int
         :data:`ERROR` when disarmed by a stall (the robot did not follow its command),
-        :data:`WARN` when disarmed by another fault and while a forced model that is not
-        allowed is loaded (it cannot be armed); :data:`OK` otherwise (armed, or disarmed
-        by a request).
+        :data:`WARN` when disarmed by another fault, while a forced model that is not
+        allowed is loaded (it cannot be armed) and while armed but held at the data's edge
+        by the extrapolation guard; :data:`OK` otherwise (armed, or disarmed by a
+        request).
     message : str
-        Armed, ramping down or at zero, with the reason.
+        Armed, held, ramping down or at zero, with the reason.
     values : dict str -> str
         Key-value pairs, in display order; ``zero_cause`` is the
         :class:`~policy_align_ros.control.causes.ZeroCause` value of ``zero_reason``, or
-        :data:`~policy_align_ros.control.causes.NO_CAUSE` while armed. While disarmed at
-        zero with a forced model that is not allowed they are ``forced_model`` and the
-        refusal (unless a stall's report stands).
+        :data:`~policy_align_ros.control.causes.NO_CAUSE` while armed and following the
+        policy. While armed with the command held at zero by the guard
+        (:func:`~policy_align_ros.control.guard_hold.guard_hold`) they are
+        ``extrapolation_hold`` and the hold in words (``extrapolation_hold`` names the
+        limit that binds); while disarmed at zero with a forced model that is not allowed,
+        ``forced_model`` and the refusal (unless a stall's report stands).
     """
     problem = controller.state_problem(now_ns)
     reason, cause = controller.zero_reason, controller.zero_cause
@@ -66,17 +71,23 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
     if not controller.armed and controller.faulted:
         level = ERROR if controller.stalled else WARN
     step = controller.step
+    hold = guard_hold(controller)
     gate_cause, gate_reason = step.model_check()
-    if (gate_cause == ZeroCause.FORCED_MODEL and not controller.armed
-            and not controller.publishing and not controller.stalled):
+    if hold is not None:
+        reason, cause, level = hold.text, ZeroCause.EXTRAPOLATION_HOLD, WARN
+    elif (gate_cause == ZeroCause.FORCED_MODEL and not controller.armed
+          and not controller.publishing and not controller.stalled):
         # What keeps it at zero now: ~/enable is refused until the model is allowed.
         reason, cause, level = gate_reason, gate_cause, WARN
-    if controller.armed:
+    if hold is not None:
+        message = f"armed, command held at zero: {reason}"
+    elif controller.armed:
         message = "armed: following the policy"
     elif controller.publishing:
         message = f"disarmed, ramping down: {reason}"
     else:
         message = f"disarmed, command zero: {reason}"
+    guard = step.guard
     values = {
         "armed": str(controller.armed).lower(),
         "model": model or "(none)",
@@ -88,8 +99,11 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
                          and controller.stall.enabled else "off"),
         "ramp_scale": f"{controller.ramp_scale:.3f}",
         "extrapolation_scale": (f"{controller.extrapolation_scale:.3f}"
-                                if step.guard is not None else "off"),
+                                if guard is not None else "off"),
         "extrapolation_distance": f"{step.extrapolation_distance:.2f}",
+        "extrapolation_distance_rad": (f"{guard.last_distance_rad:.3f}"
+                                       if guard is not None else "off"),
+        "extrapolation_hold": "none" if hold is None else hold.limit,
         "held_frame_error_mm": held_error_text(controller),
         "max_abs_command_rad_s": f"{float(np.max(np.abs(controller.command))):.4f}",
         "max_acceleration_rad_s2": f"{controller.max_acceleration:g}",

@@ -56,7 +56,9 @@ docs/executor_safety.md explains it for robot owners):
 * the extrapolation guard scales down commands that lead further than
   ``max_extrapolation`` spacings of the training data away from it, to zero within a band
   at least the stopping distance at ``max_velocity``, and at most
-  ``max_extrapolation_rad`` from the data in joint space; frames held by position
+  ``max_extrapolation_rad`` from the data in joint space (a robot held there stays armed;
+  the log says so once and ``/diagnostics`` names the limit that binds); frames held
+  by position
   constraints are latched at enable and their drift pulled back (``drift_gain``,
   ``drift_clamp_m``); a constraint matrix whose smallest singular value falls below
   ``min_singular_value`` ramps down and disarms, with the reason;
@@ -102,6 +104,7 @@ from std_srvs.srv import SetBool
 
 from policy_align_ros.control import (
     ArmedController,
+    GuardHoldLog,
     Output,
     StartModel,
     ZeroCause,
@@ -180,6 +183,7 @@ class Executor(StartNode):
                             zero_cause=self.controller.zero_cause)
         #: The arming state the last /diagnostics status reported.
         self._diag_armed = False
+        self._hold_log = GuardHoldLog()  # says once when the guard starts holding the robot
         self._create_interfaces()
 
     def _declare_robot_parameters(self) -> None:
@@ -528,15 +532,17 @@ class Executor(StartNode):
         if out.command is not None:
             self._pub.publish(Float64MultiArray(data=out.command.tolist()))
         logger = self.get_logger()
-        for level, text in out.events:
+        held = self._hold_log.update(self.controller, self._now_ns())  # once, as it begins
+        for level, text in out.events + held:
             # One call site per severity: rclpy keys its logging context on the caller.
             if level == "warning":
                 logger.warning(text)
             else:
                 logger.info(text)
         self._last = out
-        # A disarm by a stale state or a fault must not wait for the next periodic status.
-        if self.controller.armed != self._diag_armed:
+        # A disarm by a stale state or a fault, or the guard beginning to hold the robot,
+        # must not wait for the next periodic status.
+        if self.controller.armed != self._diag_armed or held:
             self.publish_diagnostics()
 
     def publish_diagnostics(self) -> None:

@@ -1,16 +1,20 @@
 """The ``executor`` node on what a new user could not see: a model that learn refused and
-wrote only because it was forced (own rclpy.Context, domain id 210).
+wrote only because it was forced and the guard holding the robot at the data's edge
+(own rclpy.Context, domain ids 210 and 211).
 
 Assertions are on causes, flags, names and numbers, never on wording or wall-clock speed.
-The logic is tested without a graph in test/control/test_model_checks.py.
+The logic is tested without a graph in test/control/test_model_checks.py and
+test/control/test_guard_hold.py.
 """
 
 import numpy as np
-from executor_rig import JOINTS, _fit_model
+import pytest
+from executor_rig import JOINTS, _attractor_policy, _fit_model
 from rclpy.parameter import Parameter
 
-from policy_align_ros.control import ZeroCause
+from policy_align_ros.control import ExtrapolationGuard, SupportDistance, ZeroCause
 from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.nodes import executor as executor_module
 
 REFUSALS = ["no better than a zero policy: held-out error 0.31 >= a zero policy's 0.29",
             "no minimum: every descent left the data's box"]
@@ -53,3 +57,41 @@ def test_a_forced_model_is_loaded_with_a_warning_but_not_armed_unless_allowed(ri
     assert r.node.set_parameters([Parameter("allow_forced_model", value=False)])[0].successful
     assert r.node.set_parameters([Parameter("model_path", value=good)])[0].successful
     assert r.enable(True).success
+
+
+def test_a_hold_at_the_datas_edge_is_reported_at_once_with_the_limit_that_binds(rig,
+                                                                                 monkeypatch):
+    # The periodic status out of reach: a status seen while armed is the hold's.
+    monkeypatch.setattr(executor_module, "DIAGNOSTICS_PERIOD_S", 1e6)
+    r = rig(211)
+    control = r.node.controller
+    q0 = r.q.copy()
+    # Data at one posture 0.36 rad apart; the robot stands 0.52 rad from it and the policy
+    # leads further out: the rad cap holds it (1.44 spacings, far inside 6).
+    data = SimpleSupport(q0 - 0.52 * np.eye(len(JOINTS))[0], spacing=0.36)
+    control.set_policy(_attractor_policy(q0 + np.eye(len(JOINTS))[0]))
+    control.step.guard = ExtrapolationGuard(SupportDistance(data), 6.0,
+                                            max_extrapolation_rad=0.5)
+    r.enable_when_fresh()
+    r.spin_until(lambda: len(r.diagnostics) >= 2, what="the hold's status")
+    values = _values(r.diagnostics[1])
+    assert values["armed"] == "true" and values["zero_cause"] == ZeroCause.EXTRAPOLATION_HOLD
+    assert values["extrapolation_hold"] == "max_extrapolation_rad"
+    assert float(values["extrapolation_distance_rad"]) == pytest.approx(0.52, abs=1e-3)
+    assert float(values["extrapolation_distance"]) == pytest.approx(0.52 / 0.36, abs=0.01)
+    assert r.node._hold_log.holding and control.armed
+    # Once: holding on sends no further status (nothing else changes).
+    r.spin(0.3)
+    assert len(r.diagnostics) == 2 and not np.any(r.commands[-1] if r.commands else 0.0)
+
+
+class SimpleSupport:
+    """The support part of a model: one support state ``centre``, ``spacing`` apart."""
+
+    def __init__(self, centre, spacing):
+        self.centre, self.support_spacing_ = np.asarray(centre, dtype=float), spacing
+        self.n_features_in_ = len(self.centre)
+
+    def support_query(self, X):
+        d = np.linalg.norm(X - self.centre, axis=1) / self.support_spacing_
+        return d, np.tile(self.centre, (len(X), 1))
