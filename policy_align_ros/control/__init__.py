@@ -22,7 +22,7 @@ constraints in force, scaled for speed and position limits. Modules:
   start, and the decisions about it there: :class:`StartModel`), its guard and turns,
   installed on the controller (:func:`install_model`);
 - :mod:`.model_checks`: what the executor checks about a model it loads (written only
-  because learn was forced);
+  because learn was forced; a learnt goal beyond the guard's reach);
 - :mod:`.settings`: the executor's parameter values (constraint specs included) checked,
   built into its :class:`ArmedController` and applied to it at run time;
 - :mod:`.stall`: stall detection (a joint commanded to move that does not);
@@ -73,6 +73,7 @@ from policy_align_ros.control.limits import (
 from policy_align_ros.control.loading import (
     StartModel,
     goal_margin_problem,
+    goal_reach,
     install_model,
     learnt_goal,
     load_policy,
@@ -83,6 +84,7 @@ from policy_align_ros.control.loading import (
 )
 from policy_align_ros.control.locked_projection import constrained_command, project_with_locks
 from policy_align_ros.control.model_checks import (
+    GoalReach,
     forced_model_refusal,
     forced_model_warning,
     model_refusals,
@@ -143,6 +145,7 @@ __all__ = [
     "DistanceFn",
     "ExtrapolationGuard",
     "FrameSupportDistance",
+    "GoalReach",
     "GuardHold",
     "GuardHoldLog",
     "Output",
@@ -168,6 +171,7 @@ __all__ = [
     "forced_model_warning",
     "goal_in_margin",
     "goal_margin_problem",
+    "goal_reach",
     "guard_hold",
     "inner_limits",
     "install_model",

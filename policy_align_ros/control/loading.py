@@ -8,12 +8,13 @@ before it runs: refused, failed to load, or given (and so preferred to the learn
 
 :func:`install_model` makes a loaded model the armed controller's: its policy, guard and
 turns, and what the executor says about it (a model that ``learn`` refused and wrote only
-because it was forced: :mod:`policy_align_ros.control.model_checks`; a learnt goal in a
-joint's margin).
+because it was forced, a learnt goal beyond the guard's reach or in a joint's margin:
+:mod:`policy_align_ros.control.model_checks`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +29,7 @@ from policy_align_ros.control.guard import (
 )
 from policy_align_ros.control.joint_order import model_permutation
 from policy_align_ros.control.limits import goal_in_margin
-from policy_align_ros.control.model_checks import forced_model_warning, model_refusals
+from policy_align_ros.control.model_checks import GoalReach, forced_model_warning, model_refusals
 from policy_align_ros.control.task_policy import policy_for_state
 from policy_align_ros.control.turns import turn_centres
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
@@ -36,7 +37,7 @@ from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.policy_file import model_robot_fields, read_robot_fields
 
-__all__ = ["StartModel", "goal_margin_problem", "install_model", "learnt_goal",
+__all__ = ["StartModel", "goal_margin_problem", "goal_reach", "install_model", "learnt_goal",
            "load_policy", "model_guard", "model_load_error", "model_turn_centres",
            "no_model_fix"]
 
@@ -288,18 +289,47 @@ def learnt_goal(model: PolicyAlign) -> np.ndarray | None:
     return None if index is None else np.asarray(goal["minima"][index]["point"], dtype=float)
 
 
+def _goal_posture(model: PolicyAlign, permutation: np.ndarray) -> np.ndarray | None:
+    """:func:`learnt_goal` as a posture in command order (``permutation`` maps command to
+    model order); None for a model learnt on frame positions (its goal is no posture) or
+    without a learnt minimum."""
+    goal = None if getattr(model, "state_definition_", None) is not None else learnt_goal(model)
+    if goal is None or len(goal) != len(permutation):
+        return None
+    q = np.empty(len(permutation))
+    q[np.asarray(permutation)] = goal
+    return q
+
+
 def goal_margin_problem(model: PolicyAlign, permutation: np.ndarray, robot: Robot,
                         margin: float) -> str:
     """:func:`~policy_align_ros.control.limits.goal_in_margin` of ``model``'s
     :func:`learnt_goal` on ``robot``, whose joints ``permutation`` maps to the model's
     order (:func:`load_policy`); "" for a model learnt on frame positions (its goal is not
     a posture) or without a learnt minimum."""
-    goal = None if getattr(model, "state_definition_", None) is not None else learnt_goal(model)
-    if goal is None or len(goal) != len(permutation):
+    q = _goal_posture(model, permutation)
+    if q is None:
         return ""
-    q = np.empty(len(permutation))
-    q[np.asarray(permutation)] = goal
     return goal_in_margin(q, robot.lower, robot.upper, margin, list(robot.joint_names))
+
+
+def goal_reach(model: PolicyAlign, permutation: np.ndarray,
+               guard: ExtrapolationGuard | None) -> GoalReach | None:
+    """The distance of ``model``'s :func:`learnt_goal` to its data as ``guard`` measures
+    it; None without a guard or a learnt minimum, for a model learnt on frame positions
+    (the reach in rad depends on the posture there), and when the distance cannot be
+    measured."""
+    q = _goal_posture(model, permutation)
+    if q is None or guard is None:
+        return None
+    try:
+        d, grad = guard.distance(q)
+    except ValueError:
+        return None
+    norm = math.nan if grad is None else float(np.linalg.norm(grad))
+    if not math.isfinite(float(d)) or (grad is not None and not norm > 0.0):
+        return None
+    return GoalReach(float(d), norm)
 
 
 def install_model(controller: ArmedController, robot: Robot, path: str, model: PolicyAlign,
@@ -310,17 +340,19 @@ def install_model(controller: ArmedController, robot: Robot, path: str, model: P
     down).
 
     Sets the step's guard (:func:`model_guard`, with the executor's ``max_extrapolation``
-    and ``max_extrapolation_rad``), turn centres and the refusals of a model written only
+    and ``max_extrapolation_rad``), turn centres, the refusals of a model written only
     because it was forced (:func:`~policy_align_ros.control.model_checks.model_refusals`,
     which make :meth:`~policy_align_ros.control.step.ControlStep.model_check` refuse to
-    arm unless ``allow_forced_model``).
+    arm unless ``allow_forced_model``) and the learnt goal's distance to the data
+    (:func:`goal_reach`).
 
     Returns
     -------
     Output
         The swap's, with the load's log lines added to its events: the model loaded, and
-        warnings for a guard that cannot be made, a forced model (naming the refusals) and
-        a learnt goal within ``joint_limit_margin`` of a limit.
+        warnings for a guard that cannot be made, a forced model (naming the refusals), a
+        learnt goal beyond the guard's reach (both distances and the fixes) and a learnt
+        goal within ``joint_limit_margin`` of a limit.
     """
     out = controller.set_policy(policy, permutation, reason=f"model swap to {path}")
     step = controller.step
@@ -328,9 +360,13 @@ def install_model(controller: ArmedController, robot: Robot, path: str, model: P
                                             max_extrapolation, max_extrapolation_rad)
     step.turn_centres = model_turn_centres(model, state, robot, permutation)
     step.model_refusals = model_refusals(model)
+    step.goal_reach = goal_reach(model, permutation, step.guard)
     notes = [guard_problem]
     if step.model_refusals:
         notes.append(forced_model_warning(path, step.model_refusals, step.allow_forced_model))
+    if step.goal_reach is not None:
+        notes.append(step.goal_reach.problem(step.guard, step.max_velocity,
+                                             step.max_acceleration))
     notes.append(goal_margin_problem(model, permutation, robot, step.joint_limit_margin))
     out.events.append(("info", f"model loaded from {path} (state: {state})"))
     out.events.extend(("warning", note) for note in notes if note)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -118,15 +119,29 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
 
 def _model_values(step: ControlStep, model: str) -> dict[str, str]:
     """The ``/diagnostics`` values of what was found about the model in force when it was
-    loaded: forced (``model_forced``, ``allow_forced_model``), in words
-    (``model_warnings``)."""
+    loaded: forced (``model_forced``, ``allow_forced_model``), its learnt goal's distance
+    to the data and the guard's reach that way (``goal_distance_rad``,
+    ``goal_reach_rad``, ``goal_beyond_guard``; ``n/a`` when not measured) and both in
+    words (``model_warnings``)."""
     warnings = []
     if step.model_refusals:
         warnings.append(forced_model_warning(model, step.model_refusals,
                                              step.allow_forced_model))
+    goal, guard = step.goal_reach, step.guard
+    distance = reach = beyond = "n/a"
+    if goal is not None and guard is not None:
+        limits = (guard, step.max_velocity, step.max_acceleration)
+        reach_rad = goal.reach_rad(*limits)[0]
+        distance = f"{goal.distance_rad:.3f}"
+        reach = f"{reach_rad:.3f}" if math.isfinite(reach_rad) else "inf"
+        beyond = str(goal.beyond(*limits)).lower()
+        warnings.append(goal.problem(*limits))
     return {
         "model_forced": str(bool(step.model_refusals)).lower(),
         "allow_forced_model": str(step.allow_forced_model).lower(),
+        "goal_distance_rad": distance,
+        "goal_reach_rad": reach,
+        "goal_beyond_guard": beyond,
         "model_warnings": "; ".join(w for w in warnings if w) or "none",
     }
 

@@ -47,7 +47,7 @@ from policy_align_ros.control.limits import (
     velocity_scale,
 )
 from policy_align_ros.control.locked_projection import project_with_locks
-from policy_align_ros.control.model_checks import forced_model_refusal
+from policy_align_ros.control.model_checks import GoalReach, forced_model_refusal
 from policy_align_ros.control.turns import nearest_turn
 from policy_align_ros.kinematics.constraints import ConstraintModel
 from policy_align_ros.kinematics.projection import nullspace_projector, projector_from_svd
@@ -137,6 +137,9 @@ class ControlStep:
         ``allow_forced_model``.
     allow_forced_model : bool
         Whether a forced model may be armed (the executor's parameter of that name).
+    goal_reach : GoalReach or None
+        The learnt goal's distance to the data, measured by the guard when the model was
+        loaded (for the report of a goal beyond the guard's reach); None without one.
     """
 
     def __init__(
@@ -178,6 +181,7 @@ class ControlStep:
         self.turn_centres: np.ndarray | None = None
         self.model_refusals: tuple[str, ...] = ()
         self.allow_forced_model = False
+        self.goal_reach: GoalReach | None = None
         self.extrapolation_scale = 1.0
         self.extrapolation_distance = float("nan")
         self._zeros = np.zeros(n)

@@ -57,8 +57,8 @@ docs/executor_safety.md explains it for robot owners):
   ``max_extrapolation`` spacings of the training data away from it, to zero within a band
   at least the stopping distance at ``max_velocity``, and at most
   ``max_extrapolation_rad`` from the data in joint space (a robot held there stays armed;
-  the log says so once and ``/diagnostics`` names the limit that binds); frames held
-  by position
+  the log says so once and ``/diagnostics`` names the limit that binds; a learnt goal
+  beyond that reach is warned about at load); frames held by position
   constraints are latched at enable and their drift pulled back (``drift_gain``,
   ``drift_clamp_m``); a constraint matrix whose smallest singular value falls below
   ``min_singular_value`` ramps down and disarms, with the reason;
@@ -363,7 +363,7 @@ class Executor(StartNode):
         path, model, policy, perm, state = self._staged
         self._staged = None
         self._arm_at_start = False  # a swapped model is never armed without ~/enable
-        # Its log lines (a forced model, a goal in a joint's margin) come with ``out``.
+        # Its log lines (a forced model, a goal beyond the guard's reach) come with ``out``.
         out = install_model(
             self.controller, self.robot, path, model, policy, perm, state,
             max_extrapolation=self.get_parameter("max_extrapolation").value,

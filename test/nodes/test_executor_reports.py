@@ -1,6 +1,6 @@
 """The ``executor`` node on what a new user could not see: a model that learn refused and
-wrote only because it was forced and the guard holding the robot at the data's edge
-(own rclpy.Context, domain ids 210 and 211).
+wrote only because it was forced, the guard holding the robot at the data's edge and a
+learnt goal beyond the guard's reach (own rclpy.Context, domain ids 210-212).
 
 Assertions are on causes, flags, names and numbers, never on wording or wall-clock speed.
 The logic is tested without a graph in test/control/test_model_checks.py and
@@ -95,3 +95,28 @@ class SimpleSupport:
     def support_query(self, X):
         d = np.linalg.norm(X - self.centre, axis=1) / self.support_spacing_
         return d, np.tile(self.centre, (len(X), 1))
+
+
+def test_a_learnt_goal_beyond_the_guards_reach_is_reported_and_armed(rig, tmp_path):
+    good = str(_fit_model(tmp_path / "good.npz", JOINTS, np.zeros(len(JOINTS))))
+    model = PolicyAlign.load(good)
+    goal = model.fit_summary_["goal"]
+    edge = model.support_states_[np.argmax(model.support_states_[:, 0])]
+    for minimum in goal["minima"]:  # whichever is the learnt goal, 0.59 rad out
+        minimum["point"] = (edge + 0.59 * np.eye(len(edge))[0]).tolist()
+    far = str(model.save(tmp_path / "far_goal.npz"))
+    r = rig(212, model_path=far)
+    r.spin_until(lambda: r.diagnostics, what="diagnostics")
+    values = _latest(r)
+    assert values["goal_beyond_guard"] == "true"
+    assert float(values["goal_distance_rad"]) == pytest.approx(0.59, abs=1e-3)
+    assert float(values["goal_reach_rad"]) == pytest.approx(0.5, abs=1e-3)
+    assert "0.59" in values["model_warnings"]
+    # Not refused: the user may mean it.
+    r.enable_when_fresh()
+    assert r.node.controller.armed
+    # Raised at run time, the guard reaches it.
+    assert r.node.set_parameters([Parameter("max_extrapolation_rad", value=2.0)])[0].successful
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics, what="diagnostics")
+    assert _latest(r)["goal_beyond_guard"] == "false"
