@@ -115,6 +115,7 @@ from policy_align_ros.control.status import (
     enable_answer,
     model_text,
     rejection_note,
+    untrustworthy_reason,
 )
 from policy_align_ros.control.step import (
     DEFAULT_DRIFT_CLAMP_M,
@@ -202,5 +203,6 @@ __all__ = [
     "task_to_joint_velocity",
     "turn_centres",
     "unchecked_order_refusal",
+    "untrustworthy_reason",
     "velocity_scale",
 ]

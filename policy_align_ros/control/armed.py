@@ -332,7 +332,7 @@ class ArmedController:
         command goes to zero at once, with ``reason`` (words) and ``cause``.
         """
         self._forget_state()
-        self._rejection = reason
+        self._rejection = f"the last joint state on {self.state_topic} was rejected: {reason}"
         self._rejection_cause = cause
         return self.fault(reason, cause)
 
@@ -348,7 +348,8 @@ class ArmedController:
         """
         self._unusable = reason
         if self._q is None:
-            self._rejection, self._rejection_cause = reason, ZeroCause.NO_STATE
+            self._rejection = f"no valid joint state received on {self.state_topic}: {reason}"
+            self._rejection_cause = ZeroCause.NO_STATE
 
     def state_problem(self, now_ns: int) -> str:
         """Why the joint states are not fresh at ``now_ns``; empty when they are."""
@@ -357,14 +358,13 @@ class ArmedController:
     def state_check(self, now_ns: int) -> tuple[ZeroCause | None, str]:
         """As :meth:`state_problem`: ``(cause, reason)``, ``(None, "")`` when fresh.
 
-        Without a valid state since the last one was refused, the cause is that refusal's.
-        The reasons name the topic and the parameter that bounds the age.
+        Without a valid state since the last one was refused, the cause and the reason are
+        that refusal's. The reasons name the topic and the parameter that bounds the age.
         """
         topic = self.state_topic
         if self._q is None:
-            if self._rejection:
-                return self._rejection_cause, (f"no valid joint state received on {topic}; "
-                                               f"the last one: {self._rejection}")
+            if self._rejection:  # a rejected message, or ones without every joint
+                return self._rejection_cause, self._rejection
             return ZeroCause.NO_STATE, (f"no valid joint state received on {topic}: is the "
                                         f"robot's joint state publisher running?")
         age = now_ns - self._arrival_ns

@@ -4,7 +4,8 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -15,7 +16,7 @@ from policy_align_ros.control.model_checks import forced_model_warning
 from policy_align_ros.control.step import ControlStep
 
 __all__ = ["ERROR", "OK", "WARN", "arming_status", "enable_answer", "held_error_text",
-           "model_text", "rejection_note"]
+           "model_text", "rejection_note", "untrustworthy_reason"]
 
 #: Levels of :func:`arming_status`, as diagnostic_msgs/DiagnosticStatus numbers them.
 OK, WARN, ERROR = 0, 1, 2
@@ -169,3 +170,39 @@ def rejection_note(reason: str, total: int, hint: str = "") -> tuple[bool, str]:
     text += f"; {hint}" if hint else ""
     # Another publisher's joints on the same topic are normal; everything else is not.
     return reason == "unknown_joints", text
+
+
+def untrustworthy_reason(key: str, joints: Sequence[str], names: Sequence[str],
+                         positions: Sequence[float], velocities: Sequence[float] = (),
+                         efforts: Sequence[float] = ()) -> str:
+    """Why a joint-state message was rejected as broken (``key``, one of
+    :data:`~policy_align_ros.data.messages.UNTRUSTWORTHY`), naming what is broken.
+
+    Parameters
+    ----------
+    key : str
+        ``non_finite`` (then the controlled ``joints`` whose position or velocity is NaN
+        or infinite are named, with the value), ``duplicate_joints`` (the names given more
+        than once) or ``length_mismatch`` (the lengths).
+    joints : sequence of str
+        The controlled joints (only theirs are checked for finite values).
+    names, positions, velocities, efforts : sequences
+        The message's fields.
+    """
+    detail = ""
+    if key == "non_finite":
+        index = {name: i for i, name in reversed(list(enumerate(names)))}
+        bad = []
+        for joint in joints:
+            i = index.get(joint)
+            for field, values in (("position", positions), ("velocity", velocities)):
+                if i is not None and i < len(values) and not math.isfinite(values[i]):
+                    bad.append(f"{joint} {field} {values[i]}")
+        detail = ", ".join(bad)
+    elif key == "duplicate_joints":
+        detail = ", ".join(f"{name!r} {count} times"
+                           for name, count in Counter(names).items() if count > 1)
+    elif key == "length_mismatch":
+        detail = (f"{len(names)} names, {len(positions)} positions, {len(velocities)} "
+                  f"velocities, {len(efforts)} efforts")
+    return f"untrustworthy joint state: {key}" + (f": {detail}" if detail else "")

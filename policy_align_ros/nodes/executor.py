@@ -124,6 +124,7 @@ from policy_align_ros.control import (
     order_check_off,
     rejection_note,
     setting_problem,
+    untrustworthy_reason,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, describe_foreign
 from policy_align_ros.kinematics import Robot
@@ -393,8 +394,9 @@ class Executor(StartNode):
         if isinstance(q, str):
             if q in UNTRUSTWORTHY:
                 self._count_rejected(q)
-                self._emit(self.controller.reject_state(f"untrustworthy joint state: {q}",
-                                                        ZeroCause(q)))
+                self._emit(self.controller.reject_state(untrustworthy_reason(
+                    q, self.robot.joint_names, msg.name, msg.position, msg.velocity,
+                    msg.effort), ZeroCause(q)))
             else:  # unknown_joints, missing_joints: counted, named, nothing stops
                 reason = self._unusable_reason(msg.name)
                 self._count_rejected(q, reason)

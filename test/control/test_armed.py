@@ -252,6 +252,25 @@ def test_broken_joint_states_stop_at_once():
     assert run.arm() == (False, ZeroCause.NON_FINITE_STATE)
 
 
+def test_after_a_rejected_state_the_state_check_says_it_was_rejected_and_why():
+    # Valid states keep arriving at 100 Hz around one broken message: what is reported
+    # until the next one is that message's rejection, not that none was ever received.
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N))
+    never_cause, never = run.control.state_check(run.now)
+    run.state()
+    run.arm()
+    run.tick()
+    why = "untrustworthy joint state: non_finite: joint 3 position nan"
+    run.control.reject_state(why, ZeroCause.NON_FINITE_STATE)
+    cause, reason = run.control.state_check(run.now)
+    assert never_cause == ZeroCause.NO_STATE and cause == ZeroCause.NON_FINITE_STATE
+    assert why in reason and "/joint_states" in reason and reason != never
+    assert run.control.arm_check(run.now) == (cause, reason)
+    run.state()  # the next valid one: fresh again
+    assert run.control.state_check(run.now) == (None, "")
+
+
 def test_messages_lacking_a_controlled_joint_are_named_by_the_refusal_and_the_disarm():
     step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
     run = _Run(step, np.zeros(N), timeout_s=0.05)

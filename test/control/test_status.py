@@ -1,9 +1,16 @@
 """The executor's ~/enable answers and rejected-state notes (policy_align_ros.control.status).
 ROS-free."""
 
+import math
+
 import pytest
 
-from policy_align_ros.control import enable_answer, model_text, rejection_note
+from policy_align_ros.control import (
+    enable_answer,
+    model_text,
+    rejection_note,
+    untrustworthy_reason,
+)
 
 
 def test_the_model_in_force_is_named_or_said_to_be_missing():
@@ -32,3 +39,26 @@ def test_only_foreign_joint_states_are_routine(reason, routine):
     assert got is routine
     assert reason in text and "3" in text and "publish them all" in text
     assert rejection_note(reason, 3)[1] in text  # the hint only adds to the note
+
+
+JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
+
+
+def test_a_non_finite_joint_state_names_the_joint_and_the_field():
+    names = ["gripper", *JOINTS]  # another publisher's joint first, also broken
+    positions = [math.nan, 0.1, math.nan, 0.3]
+    velocities = [0.0, 0.0, 0.0, math.inf]
+    reason = untrustworthy_reason("non_finite", JOINTS, names, positions, velocities)
+    assert reason.startswith("untrustworthy joint state: non_finite")
+    assert "shoulder_lift_joint position nan" in reason and "elbow_joint velocity inf" in reason
+    # Only the controlled joints count (the message's others are not checked).
+    assert "gripper" not in reason and "shoulder_pan_joint" not in reason
+
+
+def test_duplicate_names_and_lengths_are_named_too():
+    reason = untrustworthy_reason("duplicate_joints", JOINTS, [*JOINTS, "elbow_joint"],
+                                  [0.0] * 4)
+    assert "'elbow_joint' 2 times" in reason and "shoulder_pan_joint" not in reason
+    reason = untrustworthy_reason("length_mismatch", JOINTS, JOINTS, [0.0] * 2, [0.0])
+    assert all(f"{n} {what}" in reason for n, what in ((3, "names"), (2, "positions"),
+                                                       (1, "velocities"), (0, "efforts")))

@@ -1,6 +1,7 @@
 """The ``executor`` node on what a new user could not see: a model that learn refused and
-wrote only because it was forced, the guard holding the robot at the data's edge and a
-learnt goal beyond the guard's reach (own rclpy.Context, domain ids 210-212).
+wrote only because it was forced, the guard holding the robot at the data's edge, a
+learnt goal beyond the guard's reach, and which joint a broken joint state broke (own
+rclpy.Context, domain ids 210-213).
 
 Assertions are on causes, flags, names and numbers, never on wording or wall-clock speed.
 The logic is tested without a graph in test/control/test_model_checks.py and
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 from executor_rig import JOINTS, _attractor_policy, _fit_model
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
 
 from policy_align_ros.control import ExtrapolationGuard, SupportDistance, ZeroCause
 from policy_align_ros.learning import PolicyAlign
@@ -120,3 +122,27 @@ def test_a_learnt_goal_beyond_the_guards_reach_is_reported_and_armed(rig, tmp_pa
     r.diagnostics.clear()
     r.spin_until(lambda: r.diagnostics, what="diagnostics")
     assert _latest(r)["goal_beyond_guard"] == "false"
+
+
+def test_a_broken_joint_state_names_the_joint_and_is_reported_as_rejected(rig):
+    r = rig(213)
+    r.node.controller.set_policy(_attractor_policy(r.node.robot.neutral()))
+    r.enable_when_fresh()
+    r.spin_until(lambda: len(r.diagnostics) >= 1 and _latest(r)["armed"] == "true",
+                 what="armed diagnostics")
+    position = r.q.copy()
+    position[3] = np.nan
+    msg = JointState(name=JOINTS, position=position.tolist())
+    msg.header.stamp = r.node.get_clock().now().to_msg()
+    r.states.publish(msg)
+    r.spin_until(lambda: not r.node.controller.armed, publish_states=False, what="disarm")
+    r.spin_until(lambda: _latest(r)["armed"] == "false", publish_states=False,
+                 what="the disarm's status")
+    values = _latest(r)  # published at once, before any valid state arrived again
+    assert values["zero_cause"] == ZeroCause.NON_FINITE_STATE
+    assert JOINTS[3] in values["zero_reason"] and JOINTS[2] not in values["zero_reason"]
+    assert JOINTS[3] in values["joint_states"] and values["joint_states"] != "fresh"
+    # The next valid states make them fresh again; the cause stays until enabled.
+    r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
+                 what="fresh joint states")
+    assert r.node.controller.zero_cause == ZeroCause.NON_FINITE_STATE
