@@ -137,6 +137,7 @@ from policy_align_ros.nodes._common import (
     declare_robot,
     descriptor,
     load_robot,
+    optional_parameter,
     publish_zero_command,
     reject,
     run_node,
@@ -176,7 +177,7 @@ class Executor(StartNode):
         self._declare_control_parameters()
         self.controller = build_controller(
             self.robot, lambda name: self.get_parameter(name).value,
-            constraints_from_text(self.get_parameter("constraints").value, self.robot))
+            constraints_from_text(self._constraints_text(), self.robot))
         self._selector = JointSelector(self.robot.joint_names)
         #: Rejected joint-state messages by reason, over the node's lifetime.
         self.rejected_states: Counter[str] = Counter()
@@ -382,8 +383,12 @@ class Executor(StartNode):
             self.get_logger().error(
                 f"model announced on /learner/model refused: {result.reason}")
 
+    def _constraints_text(self) -> str:
+        # ``-p constraints:=[]`` reaches rcl as no value: the parameter stays unset.
+        return optional_parameter(self, "constraints") or "[]"
+
     def _update_context(self) -> None:
-        constraints = self.get_parameter("constraints").value
+        constraints = self._constraints_text()
         self.controller.context = (f"model {self.model_path or '(none)'}; "
                                    f"constraints {constraints}")
 
@@ -552,7 +557,7 @@ class Executor(StartNode):
         control = self.controller
         level, message, values = arming_status(
             control, self._now_ns(), model=self.model_path, model_state=self.model_state,
-            constraints=self.get_parameter("constraints").value,
+            constraints=self._constraints_text(),
             rejected=self.rejected_states)
         status = DiagnosticStatus(
             level=(DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level],

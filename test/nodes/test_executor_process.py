@@ -182,3 +182,19 @@ def test_process_with_an_empty_joint_list_exits_with_status_1_and_a_reason(node_
     assert done.returncode == 1
     assert "Traceback" not in done.stderr
     assert "joints" in done.stderr  # names the parameter
+
+
+def test_an_empty_constraint_list_at_start_is_no_constraint():
+    # rcl gives ``constraints:=[]`` to rclpy as no value: the parameter stays unset.
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=222)
+    try:
+        node = Executor(context=context, parameter_overrides=[
+            Parameter("joints", value=JOINTS), Parameter("constraints", value=None)])
+        try:
+            assert node.controller.step.constraints == []
+            node.publish_diagnostics()  # reads the parameter too
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
