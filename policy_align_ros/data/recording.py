@@ -49,14 +49,19 @@ import time
 from array import array
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from policy_align_ros.data.bags.format import DEFAULT_TOPIC
-from policy_align_ros.data.bags.write import next_demo_path, write_joint_state_bag
 from policy_align_ros.data.dataset_dir import check_dataset_dir
+from policy_align_ros.data.finished_demo import (
+    STILL_TOLERANCE,
+    FinishedDemo,
+    PendingWriteError,
+    SaveResult,
+    error_text,
+)
 from policy_align_ros.data.messages import (
     NEW,
     SKIP,
@@ -74,80 +79,12 @@ __all__ = [
     "validate_gap",
 ]
 
-#: A demonstration whose every joint stays this close to its first sample (rad or m) is
-#: one of a robot that did not move: a few counts of a 14-bit encoder (3.8e-4 rad each),
-#: far below any motion worth learning from (1 mrad is 1 mm at 1 m).
-STILL_TOLERANCE = 1e-3
-
-
 def validate_gap(auto_split_gap_s: float) -> float:
     """Check a split gap in seconds (``0`` = manual mode); returns it as a float."""
     gap = float(auto_split_gap_s)
     if not (np.isfinite(gap) and gap >= 0.0):
         raise ValueError(f"auto_split_gap_s: must be a finite number >= 0, got {gap}")
     return gap
-
-
-class PendingWriteError(OSError):
-    """A demonstration could not be written and is kept in memory (the message says why)."""
-
-
-def _error_text(err: BaseException) -> str:
-    """One line saying why a write failed; the type is named when the error is unexpected.
-
-    ``OSError`` and ``ValueError`` messages name the path and the reason already; a bare
-    ``OverflowError`` message (say "int too big to convert") would be meaningless alone.
-    """
-    text = str(err)
-    if isinstance(err, (OSError, ValueError)):
-        return text or type(err).__name__
-    return f"{type(err).__name__}: {text}" if text else type(err).__name__
-
-
-@dataclass(frozen=True)
-class _Demo:
-    """One finished demonstration, ready for write_joint_state_bag (arrays own their data)."""
-
-    joints: list[str]
-    stamps: np.ndarray  # (N,) int64 ns
-    positions: np.ndarray  # (N, n)
-    velocities: np.ndarray | None  # (N, n) or None
-    has_velocity: np.ndarray | None  # (N,) bool or None
-    topic: str
-
-    def __len__(self) -> int:
-        return int(self.stamps.shape[0])
-
-    def still(self, tolerance: float) -> bool:
-        """Whether every joint stays within ``tolerance`` of its first sample."""
-        return bool(np.all(np.abs(self.positions - self.positions[0]) <= tolerance))
-
-    def write(self, dataset_dir: Path) -> Path:
-        return write_joint_state_bag(
-            next_demo_path(dataset_dir), self.joints, self.stamps, self.positions,
-            self.velocities, has_velocity=self.has_velocity, topic=self.topic, unique=True)
-
-
-@dataclass(frozen=True)
-class SaveResult:
-    """Outcome of saving one demonstration in :meth:`DemoRecorder.close`.
-
-    Attributes
-    ----------
-    messages : int
-        Messages in the demonstration.
-    path : Path or None
-        The bag written, or ``None`` if every directory failed (the demonstration is lost).
-    fallback : bool
-        Whether ``path`` is in a fallback directory rather than the dataset directory.
-    errors : tuple of str
-        One line per directory that failed, in the order tried.
-    """
-
-    messages: int
-    path: Path | None
-    fallback: bool
-    errors: tuple[str, ...]
 
 
 class DemoRecorder:
@@ -231,7 +168,7 @@ class DemoRecorder:
         self.dropped = 0
         self.lost_while_pending = 0
         self.last_foreign: tuple[str, ...] | None = None
-        self._pending: _Demo | None = None
+        self._pending: FinishedDemo | None = None
         self._pending_error = ""
         self._active = False
         self._last_rx = 0.0
@@ -434,7 +371,7 @@ class DemoRecorder:
                     try:
                         path = demo.write(directory)
                     except Exception as err:  # any writer error (module docstring)
-                        errors.append(f"{directory}: {_error_text(err)}")
+                        errors.append(f"{directory}: {error_text(err)}")
                         continue
                     self._written(demo, path)
                     results.append(SaveResult(len(demo), path, k > 0, tuple(errors)))
@@ -577,14 +514,14 @@ class DemoRecorder:
             self._has_velocity.append(1)
         self.accepted += 1
 
-    def _take_current(self) -> _Demo:
+    def _take_current(self) -> FinishedDemo:
         """The buffered demonstration as arrays that own their data (caller holds the lock)."""
         count, n = len(self._stamps), self._n
         flags = np.frombuffer(self._has_velocity, dtype=np.int8).astype(bool)
         velocities = np.frombuffer(self._velocities, dtype=np.float64).reshape(count, n)
         joints = self._selector.joints
         assert joints is not None
-        return _Demo(
+        return FinishedDemo(
             joints=list(joints),
             stamps=np.frombuffer(self._stamps, dtype=np.int64).copy(),
             positions=np.frombuffer(self._positions, dtype=np.float64).reshape(count, n).copy(),
@@ -621,13 +558,13 @@ class DemoRecorder:
         try:
             path = demo.write(self.dataset_dir)
         except Exception as err:  # any writer error (module docstring)
-            self._pending_error = _error_text(err)
+            self._pending_error = error_text(err)
             raise PendingWriteError(self._pending_message()) from err
         self._pending, self._pending_error = None, ""
         self._written(demo, path)
         return path
 
-    def _written(self, demo: _Demo, path: Path) -> None:
+    def _written(self, demo: FinishedDemo, path: Path) -> None:
         """Note ``demo`` written at ``path`` (caller holds the lock)."""
         self.written.append(path)
         if demo.still(self.still_tolerance):
