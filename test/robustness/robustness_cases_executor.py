@@ -173,16 +173,18 @@ class _ArmedCases:
         ``reason``), or accepted (``reason`` None)."""
         exe = self.exe
         # A message may meet a disarm it did not cause: on an overloaded machine the
-        # feeder thread can stall past state_timeout_s, and a disarm is silent until the
-        # next enable, so the message's own reason is then never seen. Or it may never
-        # arrive: a subscriber stalled for 0.2 s drops it from its queue of 10 under the
-        # feeder's 50 Hz (still armed, no counter moved). Neither says anything about the
-        # message, so the case is tried again (at most twice); an executor that ignores
-        # the message fails every attempt.
+        # feeder thread can stall past state_timeout_s, or one of its valid states arrive
+        # that long after its stamp (stamp_too_old), and a disarm is
+        # silent until the next enable, so the message's own reason is then never seen.
+        # Or it may never arrive: a subscriber stalled for 0.2 s drops it from its queue
+        # of 10 under the feeder's 50 Hz (still armed, no counter moved). None says
+        # anything about the message, so the case is tried again (at most twice); an
+        # executor that mishandles the message fails every attempt.
         for _ in range(3):
             r = self._attempt(case, tried, make_msg, disarms, reason)
-            stale = not exe.controller.armed and exe.controller.zero_cause in _STALE
-            unseen = disarms and exe.controller.armed and not r.data.get("counted")
+            disarmed = not exe.controller.armed
+            stale = disarmed and (exe.controller.zero_cause in _STALE or not disarms)
+            unseen = disarms and not disarmed and not r.data.get("counted")
             if not (stale or unseen):
                 break
         self.out.append(r)
