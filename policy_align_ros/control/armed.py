@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,44 +40,12 @@ from policy_align_ros.control.limits import (
     ramp_toward,
     velocity_scale,
 )
+from policy_align_ros.control.output import Output
 from policy_align_ros.control.stall import Stall, StallDetector
 from policy_align_ros.control.stamp_hints import clock_mismatch_hint
 from policy_align_ros.control.step import ControlStep, PolicyFn
 
 __all__ = ["IMPLAUSIBLE_POSITION", "STAMP_REJECTIONS", "ArmedController", "Output"]
-
-
-@dataclass
-class Output:
-    """What one call of :class:`ArmedController` asks its caller to do.
-
-    Attributes
-    ----------
-    command : ndarray, shape (n,), or None
-        Command to publish now (rad/s, controller order); None: publish nothing.
-    zero_reason : str
-        Why the command is zero or going to zero; empty while following the policy.
-    ramp_scale : float
-        Fraction of the wanted change made in the last step (1: on target).
-    events : list of (str, str)
-        ``(level, text)`` lines to log, level ``"info"`` or ``"warning"``.
-    rejected : str
-        Set by :meth:`ArmedController.joint_state` when it refused the state: one of
-        :data:`STAMP_REJECTIONS` for its stamp, or :data:`IMPLAUSIBLE_POSITION` (the log
-        line has the details).
-    extrapolation_scale : float
-        The extrapolation guard's scale at the last evaluated step (1: not scaling).
-    zero_cause : ZeroCause or None
-        ``zero_reason`` as a stable identifier; None while following the policy.
-    """
-
-    command: np.ndarray | None
-    zero_reason: str
-    ramp_scale: float
-    events: list[tuple[str, str]] = field(default_factory=list)
-    rejected: str = ""
-    extrapolation_scale: float = 1.0
-    zero_cause: ZeroCause | None = None
 
 
 #: Keys of :attr:`Output.rejected` (values of their :class:`ZeroCause`): stamp zero,
