@@ -4,7 +4,9 @@ Subscribes ``/velocity_controller/commands`` (std_msgs/Float64MultiArray, rad/s,
 ``joints``), publishes ``/joint_states`` (sensor_msgs/JointState: rad, rad/s, stamped) at
 ``rate_hz``, and offers ``~/reset`` (std_srvs/Trigger) back to ``initial_positions``.
 Commands older than ``command_timeout_s`` are dropped and the robot holds still. The
-integration itself is :class:`policy_align_ros.sim.simulator.KinematicSim`.
+integration itself is :class:`policy_align_ros.sim.simulator.KinematicSim`. With
+``wrap_continuous`` the continuous joints' positions are published on ``[-pi, pi)``, as a
+real driver reports them; the motion is still integrated without wrapping.
 
 Simulated time: with ``publish_clock`` the node owns the graph's time. Every tick advances
 it by exactly one period (``1 / rate_hz``), publishes it on ``/clock``
@@ -40,7 +42,7 @@ from policy_align_ros.nodes._common import (
     reject,
     run_node,
 )
-from policy_align_ros.sim.simulator import KinematicSim
+from policy_align_ros.sim.simulator import KinematicSim, wrap_continuous
 
 __all__ = ["SIM_CLOCK_START_NS", "SimRobot", "main"]
 
@@ -71,6 +73,9 @@ class SimRobot(StartNode):
         self.declare_parameter("real_time_factor", 1.0, descriptor(
             "with publish_clock: simulated seconds per wall-clock second", read_only=True,
             float_range=(0.1, 100.0)))
+        self.declare_parameter("wrap_continuous", False, descriptor(
+            "publish continuous joints' positions on [-pi, pi), as a real driver does",
+            read_only=True))
 
         self.robot = load_robot(setup)
         self._home = setup.home
@@ -82,6 +87,9 @@ class SimRobot(StartNode):
         )
         self._period = 1.0 / self.get_parameter("rate_hz").value
         self._sim_clock = bool(self.get_parameter("publish_clock").value)
+        # Wrapping only what is published keeps the integrated motion smooth across pi.
+        self._wrapped = (self.robot.continuous
+                         if self.get_parameter("wrap_continuous").value else None)
         self._sim_ns = SIM_CLOCK_START_NS
         self._last_step = self._now()
         self._bad_commands = 0
@@ -180,7 +188,8 @@ class SimRobot(StartNode):
         msg = JointState()
         msg.header.stamp = self._stamp()
         msg.name = list(self.robot.joint_names)
-        msg.position = q.tolist()
+        msg.position = (q if self._wrapped is None
+                        else wrap_continuous(q, self._wrapped)).tolist()
         msg.velocity = self.sim.qdot.tolist()
         self._pub.publish(msg)
 
