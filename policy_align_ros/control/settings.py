@@ -97,7 +97,8 @@ def build_controller(robot: Robot, value: Callable[[str], Any],
         step, value("max_acceleration"), value("state_timeout_s"),
         value("max_clock_skew_s"), joint_names=joints,
         state_limit_margin=value("state_limit_margin"),
-        stall=StallDetector(len(joints), value("stall_time_s"), joint_names=joints))
+        stall=StallDetector(len(joints), value("stall_time_s"), joint_names=joints,
+                            continuous=robot.continuous))
 
 
 def apply_setting(controller: ArmedController, name: str, value: Any,

@@ -18,9 +18,12 @@ the expected displacement. Differences over a whole window rather than per-sampl
 velocities make encoder noise negligible (1e-4 rad over 0.5 s is 2e-4 rad/s), and the
 lag model together with a window much longer than the lag keeps a robot that tracks with
 a delay from counting as stalled. Commands near zero (a robot settling at its goal)
-never count. Positions come from the joint states only: the ``velocity`` field of some
-drivers echoes the command (ros2_control's mock hardware does), so it cannot show that
-the joint is not moving.
+never count. A continuous joint, whose angle a driver reports modulo a turn, is followed
+across the wrap: each sample is moved by whole turns to within half a turn of the one
+before it (no joint turns half a turn in one sample period), so crossing +-pi is not a
+jump of 2 pi against the command. Positions come from the joint states only: the
+``velocity`` field of some drivers echoes the command (ros2_control's mock hardware
+does), so it cannot show that the joint is not moving.
 
 Times are integer nanoseconds of the caller's clock: command times on the node clock,
 position times by their stamps (the two differ by at most the allowed clock skew, a
@@ -35,6 +38,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from policy_align_ros.control.turns import TURN
 
 __all__ = ["DEFAULT_STALL_TIME_S", "MIN_STALL_TIME_S", "STALL_FRACTION", "STALL_LAG_S",
            "STALL_MIN_SPEED", "Stall", "StallDetector", "stall_time_problem"]
@@ -108,11 +113,15 @@ class StallDetector:
         Smallest command magnitude that counts (rad/s), > 0.
     lag_s : float
         Tracking lag assumed for the expected displacement (s), >= 0.
+    continuous : array_like of bool, shape (n,), optional
+        Which joints are continuous (``Robot.continuous``): their measured angles are
+        followed across the wrap at +-pi. None: no joint is.
     """
 
     def __init__(self, n: int, stall_time_s: float = DEFAULT_STALL_TIME_S, *,
                  joint_names: Sequence[str] | None = None, fraction: float = STALL_FRACTION,
-                 min_speed: float = STALL_MIN_SPEED, lag_s: float = STALL_LAG_S) -> None:
+                 min_speed: float = STALL_MIN_SPEED, lag_s: float = STALL_LAG_S,
+                 continuous: Sequence[bool] | np.ndarray | None = None) -> None:
         if not (0.0 < fraction < 1.0):
             raise ValueError(f"fraction: must be in (0, 1), got {fraction}")
         if not (math.isfinite(min_speed) and min_speed > 0.0):
@@ -124,6 +133,11 @@ class StallDetector:
                             else [f"joint {i}" for i in range(self.n)])
         if len(self.joint_names) != self.n:
             raise ValueError(f"joint_names: {len(self.joint_names)} names for {n} joints")
+        self.continuous = (np.zeros(self.n, dtype=bool) if continuous is None
+                           else np.asarray(continuous, dtype=bool))
+        if self.continuous.shape != (self.n,):
+            raise ValueError(f"continuous: expected {self.n} flags, got shape "
+                             f"{self.continuous.shape}")
         self.fraction = float(fraction)
         self.min_speed = float(min_speed)
         self.lag_s = float(lag_s)
@@ -197,7 +211,14 @@ class StallDetector:
                 positions.clear()  # stamps going back: start the window again
             else:
                 return
-        positions.append((stamp_ns, np.array(q, dtype=float)))
+        q = np.array(q, dtype=float)
+        if positions and self.continuous.any():
+            # Continuous joints on the turn of the sample before: the window's difference
+            # is then the motion, not the driver's wrap.
+            previous = positions[-1][1]
+            turns = np.round((previous - q) / TURN)
+            q = np.where(self.continuous, q + TURN * turns, q)
+        positions.append((stamp_ns, q))
         start = stamp_ns - self._window_ns
         while len(positions) >= 2 and positions[1][0] <= start:
             positions.popleft()

@@ -72,6 +72,8 @@ def test_the_controller_is_built_from_the_parameter_values(robot):
     for name in ("drift_gain", "drift_clamp_m", "min_singular_value", "joint_limit_margin"):
         assert getattr(step, name) == VALUES[name], name
     assert control.stall.stall_time_s == VALUES["stall_time_s"]
+    # The stall detector follows the robot's continuous joints across the wrap (none here).
+    np.testing.assert_array_equal(control.stall.continuous, robot.continuous)
     assert step.allow_forced_model is True
     assert control.joint_names == JOINTS and not control.armed
 

@@ -207,3 +207,35 @@ def test_a_joint_moving_against_its_command_stalls():
     # Caught while still ramping up: the window's mean command is below 0.2 rad/s.
     assert stalled_at is not None and control.last_stall.joints == ("j2",)
     assert control.last_stall.moved < 0.0 < control.last_stall.commanded  # moved against it
+
+
+def test_a_continuous_joint_crossing_the_wrap_is_followed_not_stalled():
+    # Joint 0 continuous, commanded 1 rad/s and moving so, read modulo a turn in [-pi, pi)
+    # as a driver reports it: it crosses +pi -> -pi within the window.
+    def wrapped(angle):
+        return (angle + np.pi) % (2 * np.pi) - np.pi
+
+    continuous = StallDetector(2, 0.5, joint_names=["a", "b"], lag_s=0.0,
+                               continuous=[True, False])
+    plain = StallDetector(2, 0.5, joint_names=["a", "b"], lag_s=0.0)
+    plain_stalls = []
+    for k in range(120):
+        t = k * DT_NS
+        q = np.array([wrapped(2.9 + k * DT), 0.0])
+        for detector in (continuous, plain):
+            detector.command(np.array([1.0, 0.0]), t)
+            detector.position(q, t)
+        assert continuous.find() is None, k
+        plain_stalls.append(plain.find())
+    # Read as a plain joint, a window holding the wrap shows a jump of 2 pi against the
+    # command: a "stall" of joint a.
+    found = [stall for stall in plain_stalls if stall is not None]
+    assert found and all(stall.joints == ("a",) and stall.moved < 0 for stall in found)
+    # A continuous joint that is blocked still stalls.
+    blocked = StallDetector(1, 0.5, lag_s=0.0, continuous=[True])
+    for k in range(60):
+        blocked.command(np.array([1.0]), k * DT_NS)
+        blocked.position(np.array([3.1]), k * DT_NS)
+    assert blocked.find() is not None
+    with pytest.raises(ValueError, match="continuous"):
+        StallDetector(2, 0.5, continuous=[True])
