@@ -18,6 +18,7 @@ from policy_align_ros.control.resolved_rate import (
     secondary_velocity,
     task_to_joint_velocity,
 )
+from policy_align_ros.control.turns import nearest_turn
 from policy_align_ros.kinematics.constraints import ConstraintModel
 from policy_align_ros.kinematics.robot import Robot
 from policy_align_ros.kinematics.state_definition import FrameStateDefinition
@@ -102,6 +103,7 @@ class TaskSpacePolicy:
         self.bounds = bounds
         self.lower = np.asarray(robot.lower, dtype=float)
         self.upper = np.asarray(robot.upper, dtype=float)
+        self._continuous = np.asarray(robot.continuous, dtype=bool)
 
     def task_policy(self, x: np.ndarray) -> np.ndarray:
         """``pi_x(x)`` (3F,) in m/s at the state ``x`` (3F,)."""
@@ -124,7 +126,10 @@ class TaskSpacePolicy:
         n = q.shape[0]
         if pi_x.shape != (J.shape[0],) or not np.all(np.isfinite(pi_x)):
             return np.full(n, np.nan)
-        z = secondary_velocity(q, self.rest, self.lower, self.upper, **self.gains)
+        # A continuous joint's rest on the turn of its measured angle (drivers report it
+        # modulo a turn): the rest term then turns it the short way, not up to a turn.
+        rest = nearest_turn(self.rest, np.where(self._continuous, q, np.nan))
+        z = secondary_velocity(q, rest, self.lower, self.upper, **self.gains)
         solve = {"threshold": self.threshold, "damping": self.damping}
         A = np.zeros((0, n))
         if self.constraint is not None:
