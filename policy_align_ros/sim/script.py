@@ -4,7 +4,10 @@ Two experts (``mode``):
 
 * ``joints``: ``pi(q) = -gain (q - attractor)`` (rad/s), the negative gradient of the
   quadratic potential ``phi = gain/2 ||q - attractor||^2`` in joint space (the paper's
-  eq. 20 with ``W = gain/2 I``); under constraint rows ``A(q)`` it commands ``N(q) pi(q)``;
+  eq. 20 with ``W = gain/2 I``); under constraint rows ``A(q)`` it commands ``N(q) pi(q)``.
+  For a continuous joint, ``q - attractor`` is the shortest angle
+  ``(q - attractor + pi) mod 2 pi - pi``: a driver reports its angle modulo a turn, and
+  the plain difference would drive it the long way round;
 * ``hands``: a potential in the stacked positions ``x`` (3F,) of ``hand_frames`` (m),
   ``phi_x = gain/2 ||x - hand_targets||^2``, ``pi_x = -grad phi_x`` (m/s). The hands move
   with ``xdot = N_x pi_x`` (``N_x`` the projector of the hand-space plane rows), realised
@@ -36,6 +39,7 @@ from policy_align_ros.control import (
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
 from policy_align_ros.sim.demonstrations import sample_start_states
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
+from policy_align_ros.sim.simulator import wrap_continuous
 
 __all__ = ["DEFAULT_FRAMES", "EXPERTS", "DemonstrationScript", "drop_roundoff_at_limits",
            "hand_plane_rows", "hands_command", "make_hand_expert", "plane_segment",
@@ -262,9 +266,20 @@ class DemonstrationScript:
             self.A_x, specs = hand_plane_rows(specs, self.hand_frames)
         self.constraints = [constraint_from_spec(s, self.robot) for s in specs]
 
+    def nearest_turn(self, q: np.ndarray) -> np.ndarray:
+        """``q`` (n,) with each continuous joint moved by whole turns to within half a turn
+        of the attractor, where the joint-space expert is evaluated; other joints as given.
+        """
+        continuous = self.robot.continuous
+        if not continuous.any():
+            return q
+        near = self.attractor + wrap_continuous(q - self.attractor, continuous)
+        return np.where(continuous, near, q)
+
     def reach_command(self, q: np.ndarray, q0: np.ndarray, gain: float) -> np.ndarray:
-        """Unconstrained ``-gain (q - q0)`` within the limits (n,), rad/s."""
-        pi = -gain * (q - q0)
+        """Unconstrained ``-gain (q - q0)`` within the limits (n,), rad/s; the shortest
+        angle for continuous joints."""
+        pi = -gain * wrap_continuous(q - q0, self.robot.continuous)
         return constrained_command(q, pi, np.zeros((0, q.size)), self.robot.lower,
                                    self.robot.upper, self.vmax, self.period)
 
@@ -272,7 +287,9 @@ class DemonstrationScript:
         """The expert's joint velocity (n,) at ``q`` under the current planes, rad/s."""
         lower, upper = self.robot.lower, self.robot.upper
         if self.hand_expert is None:
-            pi = self.expert.policy(q[None, :])[0]
+            # The potential's minimum is one angle of a continuous joint: the expert pulls
+            # towards its nearest turn, the short way round.
+            pi = self.expert.policy(self.nearest_turn(q)[None, :])[0]
             A = (np.vstack([c.matrix(q, pi) for c in self.constraints])
                  if self.constraints else np.zeros((0, q.size)))
             return constrained_command(q, pi, A, lower, upper, self.vmax, self.period)

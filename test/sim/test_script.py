@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
+from policy_align_ros.kinematics.robot import Robot, robots_dir
 from policy_align_ros.sim.script import (
+    DemonstrationScript,
     drop_roundoff_at_limits,
     hand_plane_rows,
     random_plane_specs,
@@ -63,3 +65,41 @@ def test_the_reachable_home_is_the_reference_posture_moved_inside_the_limits():
     narrow.lower, narrow.upper = np.array([0.0, -0.2, -1.0, -1.0]), np.array([0.2, 0.0, 1, 1])
     home = reachable_home(narrow, margin=0.1)
     assert np.all(home > narrow.lower) and np.all(home < narrow.upper)
+
+
+GAIN = 0.5
+# Kinova's Jaco: joints 1 and 4 are continuous, joint 2 a revolute with limits.
+KINOVA_JOINTS = ["j2s6s200_joint_1", "j2s6s200_joint_2", "j2s6s200_joint_4"]
+
+
+def _joints_script(robot: Robot, attractor) -> DemonstrationScript:
+    # Speed limits far above the expert's speeds: the command is the policy itself.
+    return DemonstrationScript(robot, attractor, GAIN, "joints", [], [], None,
+                               np.full(robot.nq, 100.0), 0.01, np.random.default_rng(0))
+
+
+@pytest.fixture(scope="module")
+def kinova():
+    path = robots_dir() / "kinova_description" / "robots" / "kinova.urdf"
+    return Robot.load(str(path), joints=KINOVA_JOINTS)
+
+
+def test_joints_expert_drives_a_wrapped_continuous_joint_the_short_way(kinova):
+    script = _joints_script(kinova, [3.0, 2.0, -3.0])
+    # Joint 1 is 0.28 rad past +pi from its attractor, reported wrapped near -pi; joint 4
+    # likewise below -pi, reported near +pi. The plain difference is -6 and +6 rad.
+    q = np.array([3.0 + 0.3 - 2 * np.pi, 2.1, -3.0 - 0.3 + 2 * np.pi])
+    qdot = script.command(q)
+    np.testing.assert_allclose(qdot, [-GAIN * 0.3, -GAIN * 0.1, GAIN * 0.3], atol=1e-12)
+    # The reach controller turns the same way towards a start across +-pi.
+    reach = script.reach_command(q, np.array([3.0, 2.0, -3.0]), GAIN)
+    np.testing.assert_allclose(reach, [-GAIN * 0.3, -GAIN * 0.1, GAIN * 0.3], atol=1e-12)
+
+
+def test_joints_expert_is_unchanged_without_continuous_joints(hands):
+    robot, _ = hands
+    rng = np.random.default_rng(7)
+    script = _joints_script(robot, None)
+    q = script.attractor + rng.uniform(-0.05, 0.05, robot.nq)
+    # The plain difference, bit for bit.
+    np.testing.assert_array_equal(script.command(q), -GAIN * (q - script.attractor))
