@@ -141,10 +141,10 @@ def run_learn(args: argparse.Namespace) -> int:
             _say(f"could not draw {plot}: {err}")
     if result.refused:
         return EXIT_REFUSED  # the pipeline said why
-    space = ("" if s["state"] == "joints" else
+    space = (" over" if s["state"] == "joints" else
              f" in the positions of frames {s['state'].split(':', 1)[1]} of {s['robot']}, "
              "moved by")
-    print(f"Learnt a potential{space} over {len(s['joints'])} joints "
+    print(f"Learnt a potential{space} {len(s['joints'])} joints "
           f"({_joint_list(s['joints'])}) from {s['demonstrations']['found']} demonstrations "
           f"found ({s['data']}): {result.line()}")
     return 0

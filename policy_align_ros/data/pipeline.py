@@ -157,7 +157,13 @@ class PipelineResult:
         if noisy is not None and noisy >= NOISY_STEPS:
             text += f"position noise {100 * noisy:.0f} % of the mean squared step (corrected); "
         text += (f"fit {s['fit_time_s']:.2f} s; held-out nCPE "
-                 + ("n/a" if ncpe is None else f"{ncpe:.4f}") + " (along observed motion)")
+                 + ("n/a" if ncpe is None else f"{ncpe:.4f}") + " (along observed motion")
+        current = s.get("current_model") or {}
+        if current.get("heldout_ncpe_observed") is not None:
+            # Beside this model's own number, which it is compared with.
+            text += (f"; the current model's {current['heldout_ncpe_observed']:.4f} on "
+                     f"{len(current['compared_on'])} of them")
+        text += ")"
         if s.get("poor_fit"):
             text += "; poor fit: it explains at most half of the held-out motion"
         if s.get("unfixed_goal"):
@@ -170,10 +176,6 @@ class PipelineResult:
         goal = goal_text(s.get("goal"))
         if goal:
             text += f"; {goal}"
-        current = s.get("current_model") or {}
-        if current.get("heldout_ncpe_observed") is not None:
-            text += (f", current model {current['heldout_ncpe_observed']:.4f} on "
-                     f"{len(current['compared_on'])} of them")
         if self.refused:
             kept = "kept unchanged" if Path(self.model_path).exists() else "not written"
             return (f"refused: {'; '.join(self.refusals)}; {self.model_path} {kept} "

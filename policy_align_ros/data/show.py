@@ -41,7 +41,9 @@ def model_report(path: str | Path) -> dict[str, Any]:
         the learner printed (None for a file written outside the learn pipeline);
         ``forced`` (bool) and ``refusals`` (list of str): written despite these;
         ``learnt_goal``: {name: value} in the state's coordinates (state units), None
-        without a minimum; ``n_minima``; ``tracking_lag_s``; ``timing_scales``.
+        without a minimum; ``n_minima``; ``tracking_lag_s``; ``timing_scales``;
+        ``continuous_joints``: the robot's continuous joints the learner put on one turn
+        (their angles, which drivers report modulo a turn, are learnt and executed there).
 
     Raises
     ------
@@ -74,6 +76,7 @@ def model_report(path: str | Path) -> dict[str, Any]:
         "n_minima": len(minima),
         "tracking_lag_s": summary.get("tracking_lag"),
         "timing_scales": summary.get("timing_scales"),
+        "continuous_joints": [str(j) for j in block.get("continuous_joints") or []],
     }
 
 
@@ -100,6 +103,9 @@ def report_lines(report: dict[str, Any]) -> list[str]:
         more = report["n_minima"] - 1
         lines.append("learnt goal: " + ", ".join(f"{k} {v:.4g}" for k, v in goal.items())
                      + (f" ({more} other minim{'um' if more == 1 else 'a'})" if more else ""))
+    if report["continuous_joints"]:
+        lines.append("continuous joints, learnt on one turn: "
+                     + ", ".join(report["continuous_joints"]))
     lag = report["tracking_lag_s"]
     if lag:
         lines.append(f"tracking lag: {1000 * lag:.0f} ms (docs/design/tracking_lag.md)")

@@ -47,6 +47,7 @@ def test_the_report_is_the_learners_summary_and_its_goal(learnt):
     report = model_report(path)
     assert report["joints"] == JOINTS and report["n_dims"] == 2
     assert not report["forced"] and report["refusals"] == []
+    assert report["continuous_joints"] == []  # no robot named: none known
     # The learn line as the learner printed it, but for the path the report starts with.
     assert result.line().startswith(report["learn_summary"])
     goal = report["learnt_goal"]
