@@ -1,4 +1,5 @@
-"""Integration tests of the ``sim_robot`` node (own rclpy.Context, domain ids 170-179)."""
+"""Integration tests of the ``sim_robot`` node (own rclpy.Context, domain ids 170-179 and
+223)."""
 
 import contextlib
 import time
@@ -13,6 +14,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from policy_align_ros.kinematics.robot import robots_dir
 from policy_align_ros.nodes.sim_robot import SimRobot
 
 JOINTS = ["arm_left_1_joint", "arm_left_2_joint", "arm_left_4_joint"]
@@ -203,3 +205,49 @@ def test_reset_on_its_own_clock_never_repeats_a_stamp():
         stamps = [s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for s in states]
         assert np.all(np.diff(stamps) > 0)
         np.testing.assert_allclose(states[-1].position, START)
+
+
+def test_wrap_continuous_publishes_continuous_joints_on_one_turn():
+    # Kinova's Jaco: joints 1 and 4 are continuous, joint 2 a revolute with limits.
+    urdf = robots_dir() / "kinova_description" / "robots" / "kinova.urdf"
+    joints = ["j2s6s200_joint_1", "j2s6s200_joint_2", "j2s6s200_joint_4"]
+    start = [np.pi - 0.02 + 2 * np.pi, 2.0, -4.0]  # joint 1 just short of 3 pi
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=223)
+    nodes = []
+    try:
+        sim = SimRobot(context=context, parameter_overrides=[
+            Parameter("robot", value=str(urdf)), Parameter("joints", value=joints),
+            Parameter("initial_positions", value=start), Parameter("rate_hz", value=100.0),
+            Parameter("wrap_continuous", value=True)])
+        probe = Node("probe", context=context)
+        nodes += [sim, probe]
+        states: list[JointState] = []
+        probe.create_subscription(JointState, "/joint_states", states.append, 1000)
+        commands = probe.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(sim)
+        executor.add_node(probe)
+        deadline = time.monotonic() + 20.0
+        while not states and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        assert states
+        np.testing.assert_allclose(states[0].position,
+                                   [np.pi - 0.02, 2.0, -4.0 + 2 * np.pi], atol=1e-12)
+        # Turn joint 1 on across +pi (a generous bound: a loaded machine only slows it).
+        deadline = time.monotonic() + 20.0
+        while states[-1].position[0] > 0.0 and time.monotonic() < deadline:
+            commands.publish(Float64MultiArray(data=[0.5, 0.0, 0.0]))
+            executor.spin_once(timeout_sec=0.005)
+        positions = np.array([s.position for s in states])
+        assert np.all(positions[:, [0, 2]] >= -np.pi) and np.all(positions[:, [0, 2]] < np.pi)
+        assert positions[-1, 0] < 0.0  # came round to -pi + a little
+        # Wrapped in what is published only: the integration went on past 3 pi, at the
+        # commanded speed.
+        assert sim.sim.q[0] > 3 * np.pi
+        assert max(s.velocity[0] for s in states) == pytest.approx(0.5)
+        np.testing.assert_allclose(positions[:, 1], 2.0)
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
