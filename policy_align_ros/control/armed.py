@@ -428,8 +428,12 @@ class ArmedController:
             self.armed = False
             self.zero_reason = reason
             self.zero_cause = cause
-            self._log("info", f"disarmed: {reason}; ramping down at "
-                              f"{self.max_acceleration:g} rad/s^2")
+            # A disarm asked for (a disable, a new model) is news; any other (constraints
+            # that over-constrain the robot, a stall) is a warning, as /diagnostics says.
+            level = "info" if cause in (ZeroCause.DISABLED, ZeroCause.MODEL_SWAP) \
+                else "warning"
+            self._log(level, f"disarmed: {reason}; ramping down at "
+                             f"{self.max_acceleration:g} rad/s^2")
         return self._output(None)
 
     def fault(self, reason: str, cause: ZeroCause) -> Output:

@@ -354,7 +354,7 @@ class Executor(StartNode):
                 self.controller.step.constraints = constraints_from_text(param.value,
                                                                          self.robot)
                 self._update_context()
-                self.get_logger().info(f"constraints now {param.value}")
+                self.get_logger().info(f"constraints now {param.value or '[]'}")
             elif param.name == "model_path" and self._staged is not None:
                 self._apply_staged()
             elif param.name == "controller":

@@ -549,3 +549,15 @@ def test_only_real_forced_changes_are_reported():
     assert run.q[0] <= UPPER[0] + 1e-12 and run.control.armed  # no fault: a report only
     forced = [text for level, text in run.events if level == "warning"]
     assert len(forced) == 1 and run.control.joint_names[0] in forced[0]
+
+
+def test_a_disarm_nobody_asked_for_is_logged_as_a_warning():
+    step = ControlStep(-np.ones(2), np.ones(2), np.full(2, 0.5), DT_NS / 1e9,
+                       policy=lambda X: -X)
+    for cause, level in ((ZeroCause.DISABLED, "info"), (ZeroCause.MODEL_SWAP, "info"),
+                         (ZeroCause.CONSTRAINTS_NEAR_SINGULAR, "warning")):
+        run = _Run(step, np.array([0.3, -0.2]))
+        run.state()
+        assert run.arm() == (True, None)
+        out = run.control.disarm("why", cause)
+        assert [lv for lv, _ in out.events] == [level], cause
