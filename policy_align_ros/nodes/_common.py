@@ -11,7 +11,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import rclpy
@@ -60,6 +60,7 @@ __all__ = [
     "optional_parameter",
     "reject",
     "run_node",
+    "start_overrides",
 ]
 
 #: Talos upper body (talos_reduced.urdf): torso, both 7-DoF arms and head. The grippers
@@ -141,10 +142,8 @@ def _declaration_problem(node: Node, namespace: str, parameters: list[tuple],
     default = spec[1] if len(spec) > 1 else None
     desc = spec[2] if len(spec) > 2 else None
     declared = default if isinstance(default, Parameter.Type) else None
-    # rclpy has no public accessor for the overrides (see _override); unlike _override,
-    # an override of None (``joints:=[]``) must differ from none given.
-    overrides = getattr(node, "_parameter_overrides", {})
-    override = None if ignore_override else overrides.get(name)
+    # Unlike _override, an override of None (``joints:=[]``) must differ from none given.
+    override = None if ignore_override else start_overrides(node).get(name)
     value = override.value if override is not None else (
         None if declared is not None else default)
     if desc is not None and desc.dynamic_typing:
@@ -202,13 +201,20 @@ def optional_parameter(node: Node, name: str) -> Any:
         return None
 
 
-def _override(node: Node, name: str) -> Any:
-    """The value given for ``name`` at start (``-p`` or a parameters file), or None.
+def start_overrides(node: Node) -> Mapping[str, Parameter]:
+    """The parameters given at start (``-p`` or a parameters file), by name.
 
     rclpy has no public accessor for the overrides before a parameter is declared; the
-    robot's parameters need them to choose their defaults.
+    robot's parameters need them to choose their defaults, a refused start value to be
+    shown, and the demonstrator to say where a value came from. This is the one place
+    that reads rclpy's private attribute.
     """
-    param = getattr(node, "_parameter_overrides", {}).get(name)
+    return getattr(node, "_parameter_overrides", {})
+
+
+def _override(node: Node, name: str) -> Any:
+    """The value given for ``name`` at start (:func:`start_overrides`), or None."""
+    param = start_overrides(node).get(name)
     return None if param is None else param.value
 
 

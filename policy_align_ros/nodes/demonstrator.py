@@ -72,6 +72,7 @@ from policy_align_ros.nodes._common import (
     publish_zero_command,
     reject,
     run_node,
+    start_overrides,
 )
 from policy_align_ros.nodes.start_parameters import StartParameterError, start_parameter_problem
 from policy_align_ros.sim.script import (
@@ -185,9 +186,8 @@ class Demonstrator(StartNode):
 
     def _source(self, name: str, config: RobotConfig | None) -> str:
         """Where parameter ``name``'s value came from (see ``self.sources``)."""
-        # rclpy has no public accessor for the values given at start; a value given there
-        # is the user's, whatever the robot config says.
-        if name in getattr(self, "_parameter_overrides", {}):
+        # A value given at start is the user's, whatever the robot config says.
+        if name in start_overrides(self):
             return "parameter"
         return "robot config" if config is not None else "default"
 
