@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from policy_align_ros.control.turns import TURN
+from policy_align_ros.control.turns import nearest_turn
 
 __all__ = ["DEFAULT_STALL_TIME_S", "MIN_STALL_TIME_S", "STALL_FRACTION", "STALL_LAG_S",
            "STALL_MIN_SPEED", "Stall", "StallDetector", "stall_time_problem"]
@@ -215,9 +215,7 @@ class StallDetector:
         if positions and self.continuous.any():
             # Continuous joints on the turn of the sample before: the window's difference
             # is then the motion, not the driver's wrap.
-            previous = positions[-1][1]
-            turns = np.round((previous - q) / TURN)
-            q = np.where(self.continuous, q + TURN * turns, q)
+            q = nearest_turn(q, np.where(self.continuous, positions[-1][1], np.nan))
         positions.append((stamp_ns, q))
         start = stamp_ns - self._window_ns
         while len(positions) >= 2 and positions[1][0] <= start:

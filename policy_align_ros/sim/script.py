@@ -34,6 +34,7 @@ from policy_align_ros.control import (
     DEFAULT_JOINT_LIMIT_MARGIN,
     constrained_command,
     inner_limits,
+    nearest_turn,
     velocity_scale,
 )
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
@@ -270,11 +271,7 @@ class DemonstrationScript:
         """``q`` (n,) with each continuous joint moved by whole turns to within half a turn
         of the attractor, where the joint-space expert is evaluated; other joints as given.
         """
-        continuous = self.robot.continuous
-        if not continuous.any():
-            return q
-        near = self.attractor + wrap_continuous(q - self.attractor, continuous)
-        return np.where(continuous, near, q)
+        return nearest_turn(q, np.where(self.robot.continuous, self.attractor, np.nan))
 
     def reach_command(self, q: np.ndarray, q0: np.ndarray, gain: float) -> np.ndarray:
         """Unconstrained ``-gain (q - q0)`` within the limits (n,), rad/s; the shortest
