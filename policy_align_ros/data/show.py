@@ -60,7 +60,7 @@ def model_report(path: str | Path) -> dict[str, Any]:
     index = learnt_goal_index(goal) if minima else None
     point = None if index is None else minima[index].get("point")
     n = int(np.asarray(model.support_states_).shape[1])
-    names = _coordinate_names(joints, block.get("state"), n)
+    names = _coordinate_names(model, n)
     refusals = [str(r) for r in block.get("refusals") or []]
     return {
         "path": str(path),
@@ -123,17 +123,12 @@ def run_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _coordinate_names(joints: list[str] | None, state: str | None, n: int) -> list[str]:
-    """A name per state coordinate: the joints for a joint state, ``frame.x/y/z`` for a
-    frames state, else ``x0 .. x{n-1}``."""
-    if state and state.startswith("frames:"):
-        frames = [f for f in state.split(":", 1)[1].split(",") if f]
-        names = [f"{f}.{axis}" for f in frames for axis in "xyz"]
-        if len(names) == n:
-            return names
-    if joints and len(joints) == n:
-        return list(joints)
-    return [f"x{k}" for k in range(n)]
+def _coordinate_names(model: PolicyAlign, n: int) -> list[str]:
+    """A name per state coordinate: those the file gives (``joint_names_``: the joints of
+    a joint state, ``frame.x/y/z`` for a frames state, as the learn pipeline wrote them),
+    else ``x0 .. x{n-1}``."""
+    names = getattr(model, "joint_names_", None)
+    return list(names) if names and len(names) == n else [f"x{k}" for k in range(n)]
 
 
 def _learn_line(block: dict[str, Any], model: PolicyAlign, path: Path) -> str:
