@@ -124,7 +124,7 @@ from policy_align_ros.control.step import (
     ControlStep,
 )
 from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_state
-from policy_align_ros.control.turns import TURN, nearest_turn, turn_centres
+from policy_align_ros.control.turns import TURN, nearest_turn, turn_centres, wrap_continuous
 
 __all__ = [
     "DEFAULT_DRIFT_CLAMP_M",
@@ -202,6 +202,7 @@ __all__ = [
     "stall_time_problem",
     "task_to_joint_velocity",
     "turn_centres",
+    "wrap_continuous",
     "unchecked_order_refusal",
     "untrustworthy_reason",
     "velocity_scale",

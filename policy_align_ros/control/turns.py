@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-__all__ = ["TURN", "nearest_turn", "turn_centres"]
+__all__ = ["TURN", "nearest_turn", "turn_centres", "wrap_continuous"]
 
 #: One turn (rad).
 TURN = 2.0 * math.pi
@@ -67,3 +67,28 @@ def nearest_turn(q: np.ndarray, centres: np.ndarray | None) -> np.ndarray:
         return q
     turns = np.round((np.nan_to_num(centres, nan=0.0) - q) / TURN)
     return np.where(np.isfinite(centres), q + TURN * turns, q)
+
+
+def wrap_continuous(q: np.ndarray, continuous: np.ndarray) -> np.ndarray:
+    """Continuous joints' angles on ``[-pi, pi)``, as a real driver reports them.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., n)
+        Joint positions (rad for the continuous joints).
+    continuous : array_like of bool, shape (n,)
+        Which joints are continuous (:attr:`policy_align_ros.kinematics.Robot.continuous`).
+
+    Returns
+    -------
+    ndarray, shape (..., n)
+        A copy of ``q`` with each continuous coordinate replaced by
+        ``(q + pi) mod 2 pi - pi``; the other coordinates unchanged. Applied to a
+        difference ``q - q_ref``, it gives the shortest angle from ``q_ref`` to ``q``.
+    """
+    out = np.array(q, dtype=float)
+    mask = np.broadcast_to(np.asarray(continuous, dtype=bool), out.shape)
+    wrapped = np.mod(out + np.pi, TURN) - np.pi
+    # mod of a tiny negative number rounds up to a whole turn, which would give +pi.
+    wrapped = np.where(wrapped >= np.pi, wrapped - TURN, wrapped)
+    return np.where(mask, wrapped, out)

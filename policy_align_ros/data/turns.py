@@ -18,11 +18,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from policy_align_ros.control.turns import TURN
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["check_jumps", "unwrap_turns"]
-
-_TURN = 2.0 * np.pi
 
 
 def unwrap_turns(trajs: Sequence[Trajectory], continuous: np.ndarray) -> list[Trajectory]:
@@ -52,7 +51,7 @@ def unwrap_turns(trajs: Sequence[Trajectory], continuous: np.ndarray) -> list[Tr
     for t in trajs:
         X = t.positions.copy()
         X[:, columns] = np.unwrap(X[:, columns], axis=0)
-        X[:, columns] += _TURN * np.round((reference - X[:, columns].mean(axis=0)) / _TURN)
+        X[:, columns] += TURN * np.round((reference - X[:, columns].mean(axis=0)) / TURN)
         out.append(Trajectory(X, t.times, t.velocities, name=t.name))
     return out
 

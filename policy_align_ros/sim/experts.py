@@ -25,6 +25,7 @@ from policy_align_ros.control.resolved_rate import (
     joint_velocity_within_limits,
     secondary_velocity,
 )
+from policy_align_ros.control.turns import nearest_turn
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, nullspace_projector
 
 __all__ = [
@@ -288,7 +289,9 @@ class TaskSpaceExpert:
         if A_q is not None:
             rows.append(np.asarray(A_q, dtype=float).reshape(-1, self.n))
         robot = self.state_map.robot
-        z = secondary_velocity(q, self.rest, robot.lower, robot.upper, **self.secondary)
+        # A continuous joint turns to its rest posture the short way: the rest on q's turn.
+        rest = nearest_turn(self.rest, np.where(robot.continuous, q, np.nan))
+        z = secondary_velocity(q, rest, robot.lower, robot.upper, **self.secondary)
         qdot = joint_velocity_within_limits(q, J, xdot, np.vstack(rows), z, robot.lower,
                                             robot.upper, max_velocity=max_velocity, dt=dt,
                                             **self.solve)

@@ -36,11 +36,11 @@ from policy_align_ros.control import (
     inner_limits,
     nearest_turn,
     velocity_scale,
+    wrap_continuous,
 )
 from policy_align_ros.kinematics import Robot, TaskSpaceMap, constraint_from_spec
 from policy_align_ros.sim.demonstrations import sample_start_states
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpaceExpert
-from policy_align_ros.sim.simulator import wrap_continuous
 
 __all__ = ["DEFAULT_FRAMES", "EXPERTS", "DemonstrationScript", "drop_roundoff_at_limits",
            "hand_plane_rows", "hands_command", "make_hand_expert", "plane_segment",

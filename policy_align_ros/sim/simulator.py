@@ -12,34 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from policy_align_ros.control.turns import wrap_continuous
+
 __all__ = ["KinematicSim", "integrate_clamped", "wrap_continuous"]
-
-_TURN = 2.0 * np.pi
-
-
-def wrap_continuous(q: np.ndarray, continuous: np.ndarray) -> np.ndarray:
-    """Continuous joints' angles on ``[-pi, pi)``, as a real driver reports them.
-
-    Parameters
-    ----------
-    q : array_like, shape (..., n)
-        Joint positions (rad for the continuous joints).
-    continuous : array_like of bool, shape (n,)
-        Which joints are continuous (:attr:`policy_align_ros.kinematics.Robot.continuous`).
-
-    Returns
-    -------
-    ndarray, shape (..., n)
-        A copy of ``q`` with each continuous coordinate replaced by
-        ``(q + pi) mod 2 pi - pi``; the other coordinates unchanged. Applied to a
-        difference ``q - q_ref``, it gives the shortest angle from ``q_ref`` to ``q``.
-    """
-    out = np.array(q, dtype=float)
-    mask = np.broadcast_to(np.asarray(continuous, dtype=bool), out.shape)
-    wrapped = np.mod(out + np.pi, _TURN) - np.pi
-    # mod of a tiny negative number rounds up to a whole turn, which would give +pi.
-    wrapped = np.where(wrapped >= np.pi, wrapped - _TURN, wrapped)
-    return np.where(mask, wrapped, out)
 
 
 def integrate_clamped(

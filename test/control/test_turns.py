@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from policy_align_ros.control import TURN, ControlStep, nearest_turn, turn_centres
+from policy_align_ros.control import (
+    TURN,
+    ControlStep,
+    nearest_turn,
+    turn_centres,
+    wrap_continuous,
+)
 
 
 def test_centres_are_the_middle_of_the_support_along_continuous_joints_in_command_order():
@@ -49,3 +55,23 @@ def test_the_step_commands_the_same_on_either_side_of_the_wrap():
     # the long way round.
     step.turn_centres = None
     assert step(wrapped)[0][0] > 0.0 > step(unwrapped)[0][0]
+
+
+def test_wrap_continuous_puts_continuous_angles_on_one_turn_and_leaves_the_rest():
+    continuous = np.array([True, True, True, True, False])
+    q = np.array([7.0, -4.0, np.pi, -np.pi, 7.0])
+    out = wrap_continuous(q, continuous)
+    np.testing.assert_allclose(out, [7.0 - 2 * np.pi, -4.0 + 2 * np.pi, -np.pi, -np.pi, 7.0])
+    np.testing.assert_array_equal(q, [7.0, -4.0, np.pi, -np.pi, 7.0])  # input untouched
+
+
+def test_wrap_continuous_stays_in_half_open_turn_for_random_and_rows():
+    rng = np.random.default_rng(3)
+    Q = rng.uniform(-50.0, 50.0, size=(200, 2))
+    Q[0, 0] = -1e-17 - np.pi  # rounds onto a whole turn inside the mod
+    out = wrap_continuous(Q, [True, False])
+    assert np.all(out[:, 0] >= -np.pi) and np.all(out[:, 0] < np.pi)
+    # Same angle: differs by whole turns.
+    turns = (Q[:, 0] - out[:, 0]) / (2 * np.pi)
+    np.testing.assert_allclose(turns, np.round(turns), atol=1e-9)
+    np.testing.assert_array_equal(out[:, 1], Q[:, 1])
