@@ -160,6 +160,7 @@ class Demonstrator(StartNode):
         self._selector = JointSelector(joints)
         self._q: np.ndarray | None = None
         self._q_received: float | None = None  # arrival of self._q [s, node clock]
+        self._rejected: str | None = None  # why the last joint state was not usable
         self._paused_at: float | None = None  # start of a pause for stale joint states
         self._state = "wait"
         self._since = self._now()
@@ -178,7 +179,8 @@ class Demonstrator(StartNode):
         self._cmd = self.create_publisher(Float64MultiArray, "/velocity_controller/commands", 10)
         self._progress = self.create_publisher(String, "~/progress", LATCHED_QOS)
         self._lockstep = bool(value("step_on_joint_state").value)
-        self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
+        self._states = self.create_subscription(JointState, "/joint_states",
+                                                self._on_joint_state, 10)
         # In lockstep the joint states drive the steps; the timer still catches joint
         # states that stop coming (no step would then replace the last command).
         self.create_timer(self.period, self._on_watchdog if self._lockstep else self._on_timer)
@@ -334,7 +336,9 @@ class Demonstrator(StartNode):
 
     def _on_joint_state(self, msg: JointState) -> None:
         q = self._selector.vector(msg.name, msg.position, msg.velocity, msg.effort)
-        if not isinstance(q, str):  # a str is why the message was rejected
+        if isinstance(q, str):  # a str is why the message was rejected
+            self._rejected = q
+        else:
             self._q = q
             self._q_received = self._now()
             if self._lockstep:
@@ -382,7 +386,8 @@ class Demonstrator(StartNode):
 
     def _recorder_listens(self) -> bool:
         recorder = "/" + self.get_parameter("recorder").value.strip("/")
-        for info in self.get_subscriptions_info_by_topic("/joint_states"):
+        # The topic as remapped, which the recorder must record from too.
+        for info in self.get_subscriptions_info_by_topic(self._states.topic_name):
             if f"{info.node_namespace.rstrip('/')}/{info.node_name}" == recorder:
                 return True
         return False
@@ -430,11 +435,27 @@ class Demonstrator(StartNode):
             if now - self._ready_since >= self.get_parameter("startup_delay_s").value:
                 self._new_start()
         elif elapsed > self.get_parameter("service_timeout_s").value:
-            self._finish(1, "no joint states or no recorder services: gave up")
+            self._finish(1, f"gave up after service_timeout_s: {self._not_ready()}")
+
+    def _not_ready(self) -> str:
+        """What the first demonstration still waits for, and what to check."""
+        topic, recorder = self._states.topic_name, self.get_parameter("recorder").value
+        missing = []
+        if self._q is None:
+            missing.append(f"no usable joint state on {topic} ("
+                           + (f"the last was rejected: {self._rejected})" if self._rejected
+                              else "none received)"))
+        missing += [f"no service {c.srv_name} (is the recorder {recorder} running?)"
+                    for c in (self._start, self._stop) if not c.service_is_ready()]
+        if not missing and not self._recorder_listens():
+            missing.append(f"{recorder} does not subscribe to {topic} (remap it the same "
+                           "way, or set the recorder parameter to its name)")
+        return "; ".join(missing)
 
     def _reach(self, q: np.ndarray, elapsed: float) -> None:
         """Move to the start; once there (or out of time), draw planes and start_demo."""
-        if np.max(np.abs(q - self._q0)) < self.get_parameter("reach_tolerance").value or \
+        tolerance = self.get_parameter("reach_tolerance").value
+        if self.script.start_distance(q, self._q0) < tolerance or \
                 elapsed > self.get_parameter("reach_timeout_s").value:
             self._send(np.zeros_like(q))
             self.script.draw_planes()

@@ -273,6 +273,11 @@ class DemonstrationScript:
         """
         return nearest_turn(q, np.where(self.robot.continuous, self.attractor, np.nan))
 
+    def start_distance(self, q: np.ndarray, q0: np.ndarray) -> float:
+        """The largest joint distance ``max |q - q0|`` (rad or m) of ``q`` (n,) from the
+        start ``q0`` (n,), continuous joints the short way (a driver wraps them)."""
+        return float(np.max(np.abs(wrap_continuous(q - q0, self.robot.continuous))))
+
     def reach_command(self, q: np.ndarray, q0: np.ndarray, gain: float) -> np.ndarray:
         """Unconstrained ``-gain (q - q0)`` within the limits (n,), rad/s; the shortest
         angle for continuous joints."""

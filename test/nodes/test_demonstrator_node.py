@@ -33,15 +33,17 @@ HAND = "arm_left_7_link"
 
 
 def _run(domain_id, refuse_start=False, num_demos=2, plane_switches=0, duration=0.6,
-         extra=()):
+         extra=(), topic="/joint_states"):
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
     nodes = []
     try:
         common = [Parameter("robot", value="talos"), Parameter("joints", value=JOINTS),
                   Parameter("rate_hz", value=100.0)]
-        sim = SimRobot(context=context, parameter_overrides=common)
-        demo = Demonstrator(context=context, parameter_overrides=common + [
+        # Both remapped as a user would remap the robot's topic (none by default).
+        remap = ["--ros-args", "-r", f"/joint_states:={topic}"]
+        sim = SimRobot(context=context, parameter_overrides=common, cli_args=remap)
+        demo = Demonstrator(context=context, cli_args=remap, parameter_overrides=common + [
             Parameter("num_demos", value=num_demos),
             Parameter("demo_duration_s", value=duration),
             Parameter("plane_switches", value=plane_switches),
@@ -71,7 +73,7 @@ def _run(domain_id, refuse_start=False, num_demos=2, plane_switches=0, duration=
 
         probe.create_service(Trigger, "~/start_demo", start)
         probe.create_service(Trigger, "~/stop_demo", stop)
-        probe.create_subscription(JointState, "/joint_states", state, 100)
+        probe.create_subscription(JointState, topic, state, 100)
         executor = SingleThreadedExecutor(context=context)
         for node in nodes:
             executor.add_node(node)
@@ -116,6 +118,14 @@ def test_planes_are_redrawn_within_a_demonstration():
     # Each third (trimmed at the switches) lies on its own plane; the whole does not.
     assert all(_planarity(hand[third == k][5:-5]) < 1e-2 for k in range(3))
     assert _planarity(hand) > 3e-2
+
+
+def test_a_remapped_joint_state_topic_is_the_one_the_recorder_must_listen_on():
+    # The robot's states on /arm/joint_states, the demonstrator and the recorder remapped
+    # to it: the demonstrator waits for the recorder on that topic, not on /joint_states.
+    demo, _, events, segments, _ = _run(100, num_demos=1, topic="/arm/joint_states")
+    assert demo.done.result() == 0 and events == ["start", "stop"]
+    assert len(segments[0]) > 10
 
 
 def test_refused_start_ends_with_status_1():

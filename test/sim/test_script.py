@@ -94,6 +94,8 @@ def test_joints_expert_drives_a_wrapped_continuous_joint_the_short_way(kinova):
     # The reach controller turns the same way towards a start across +-pi.
     reach = script.reach_command(q, np.array([3.0, 2.0, -3.0]), GAIN)
     np.testing.assert_allclose(reach, [-GAIN * 0.3, -GAIN * 0.1, GAIN * 0.3], atol=1e-12)
+    # ... and counts the start reached by the same short way (0.3 rad, not 6 rad).
+    np.testing.assert_allclose(script.start_distance(q, np.array([3.0, 2.0, -3.0])), 0.3)
 
 
 def test_joints_expert_is_unchanged_without_continuous_joints(hands):
