@@ -18,7 +18,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from policy_align_ros.control.turns import TURN
 from policy_align_ros.learning.trajectory import Trajectory
 
 __all__ = ["check_jumps", "unwrap_turns"]
@@ -51,7 +50,7 @@ def unwrap_turns(trajs: Sequence[Trajectory], continuous: np.ndarray) -> list[Tr
     for t in trajs:
         X = t.positions.copy()
         X[:, columns] = np.unwrap(X[:, columns], axis=0)
-        X[:, columns] += TURN * np.round((reference - X[:, columns].mean(axis=0)) / TURN)
+        X[:, columns] += math.tau * np.round((reference - X[:, columns].mean(axis=0)) / math.tau)
         out.append(Trajectory(X, t.times, t.velocities, name=t.name))
     return out
 

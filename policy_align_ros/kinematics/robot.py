@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-__all__ = ["Robot", "ROBOTS", "robots_dir", "closest_names"]
+__all__ = ["Robot", "ROBOTS", "check_frames", "robots_dir", "closest_names"]
 
 #: example-robot-data name -> (URDF, SRDF or None, reference posture name or None).
 ROBOTS: dict[str, tuple[str, str | None, str | None]] = {
@@ -93,6 +93,40 @@ def closest_names(name: str, valid: Sequence[str], n: int = 5) -> str:
     if not close:
         close = list(valid)[:n]
     return ", ".join(close)
+
+
+def _unknown_frame(frame: str, robot: str, names: Sequence[str]) -> ValueError:
+    return ValueError(f"frame: unknown frame {frame!r} for robot {robot!r}; closest valid "
+                      f"names: {closest_names(str(frame), names)}")
+
+
+def check_frames(name_or_urdf: str | os.PathLike, frames: Sequence[str]) -> None:
+    """Check that the robot's description has every one of ``frames``, before any joint
+    is chosen (a frame stays a frame of every reduced model).
+
+    Parameters
+    ----------
+    name_or_urdf : str or path
+        As for :meth:`Robot.load`.
+    frames : sequence of str
+
+    Raises
+    ------
+    ValueError
+        For an unknown robot, a URDF that does not parse, or the first unknown frame
+        (with the closest valid names).
+    """
+    names = [f.name for f in _parse_urdf(_resolve(name_or_urdf)[0]).frames]
+    for frame in frames:
+        if frame not in names:
+            raise _unknown_frame(frame, str(name_or_urdf), names)
+
+
+def _parse_urdf(urdf: Path) -> pin.Model:
+    try:
+        return pin.buildModelFromUrdf(str(urdf))
+    except (RuntimeError, ValueError) as err:
+        raise ValueError(f"robot: cannot parse URDF {str(urdf)!r}: {err}") from None
 
 
 def _resolve(name_or_urdf: str | os.PathLike) -> tuple[Path, Path | None, str | None]:
@@ -198,10 +232,7 @@ class Robot:
             repeated joint, a joint that is not 1-DoF, or a bad reference.
         """
         urdf, srdf, ref = _resolve(name_or_urdf)
-        try:
-            full = pin.buildModelFromUrdf(str(urdf))
-        except (RuntimeError, ValueError) as err:
-            raise ValueError(f"robot: cannot parse URDF {str(urdf)!r}: {err}") from None
+        full = _parse_urdf(urdf)
         q_full = _reference_posture(full, srdf, ref)
         q_full = _apply_reference(full, q_full, reference)
         names = [full.names[i] for i in range(1, full.njoints)]
@@ -272,10 +303,7 @@ class Robot:
         try:
             return self._frame_ids[frame]
         except KeyError:
-            raise ValueError(
-                f"frame: unknown frame {frame!r} for robot {self.name!r}; closest valid "
-                f"names: {closest_names(str(frame), self.frame_names)}"
-            ) from None
+            raise _unknown_frame(frame, self.name, self.frame_names) from None
 
     def _pin_q(self, q: np.ndarray) -> np.ndarray:
         vec = np.asarray(q, dtype=float)

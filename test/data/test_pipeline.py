@@ -315,6 +315,17 @@ def test_frames_state_round_trip(tmp_path):
     assert np.dot(pi, target - x) > 0.7 * np.linalg.norm(pi) * np.linalg.norm(target - x)
 
 
+def test_an_unknown_frame_is_refused_before_any_bag_is_read(tmp_path):
+    # An empty directory would be refused for holding no bag: the frame is named first.
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match=r"^state\b.*'nosuch'.*'talos'"):
+        learn_pipeline([tmp_path / "empty"], tmp_path / "m.npz", state="frames:nosuch",
+                       robot="talos")
+    with pytest.raises(ValueError, match=r"^state\b.*'arm_left_7_lnk'.*arm_left_7_link"):
+        learn_pipeline([tmp_path / "empty"], tmp_path / "m.npz",
+                       state="frames:arm_left_7_link,arm_left_7_lnk", robot="talos")
+
+
 def test_joint_state_learning_needs_no_pinocchio(dataset, tmp_path):
     """data/ may import learning and rosbags only; kinematics loads for frames: states."""
     code = (
