@@ -102,8 +102,8 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "ramp_scale": f"{controller.ramp_scale:.3f}",
         "extrapolation_scale": (f"{controller.extrapolation_scale:.3f}"
                                 if guard is not None else "off"),
-        "extrapolation_distance": f"{step.extrapolation_distance:.2f}",
-        "extrapolation_distance_rad": (f"{guard.last_distance_rad:.3f}"
+        "extrapolation_distance": _measured(step.extrapolation_distance, ".2f"),
+        "extrapolation_distance_rad": (_measured(guard.last_distance_rad, ".3f")
                                        if guard is not None else "off"),
         "extrapolation_hold": "none" if hold is None else hold.limit,
         "held_frame_error_mm": held_error_text(controller),
@@ -116,6 +116,11 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         **_model_values(step, model),
     }
     return level, message, values
+
+
+def _measured(value: float, spec: str) -> str:
+    """``value`` formatted, or ``n/a`` before the first step has measured it (NaN)."""
+    return format(value, spec) if math.isfinite(value) else "n/a"
 
 
 def _model_values(step: ControlStep, model: str) -> dict[str, str]:

@@ -140,6 +140,15 @@ def test_a_hold_ends_when_the_policy_leads_back_and_a_new_one_is_logged_once_per
     assert guard_hold(robot.control) is not None and len(robot.lines) == 2
 
 
+def test_the_distance_to_the_data_is_not_applicable_before_the_first_step():
+    # Armed, nothing sent yet: nothing has been measured, which is not a number.
+    robot = _Robot(_controller(spacing=0.1), 0.5 * np.eye(N)[0])
+    values = robot.status()[1]
+    assert values["extrapolation_distance"] == values["extrapolation_distance_rad"] == "n/a"
+    robot.run(DT)
+    assert float(robot.status()[1]["extrapolation_distance_rad"]) == pytest.approx(0.5, abs=0.01)
+
+
 def test_no_hold_is_reported_while_disarmed():
     robot = _Robot(_controller(spacing=0.36), np.zeros(N))
     robot.run(12.0)
