@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from collections.abc import Sequence
 from dataclasses import fields
 
 from policy_align_ros.data.arguments import check_writable, parse_sigma
@@ -21,7 +22,10 @@ from policy_align_ros.data.fit_figure import figure_format, plot_fit
 from policy_align_ros.data.pipeline import learn_pipeline
 from policy_align_ros.data.quality import Gates
 
-__all__ = ["EXIT_REFUSED", "parse_joints", "parse_sigma", "run_learn"]
+__all__ = ["EXIT_REFUSED", "parse_joints", "parse_sigma", "run_learn", "warning_lines"]
+
+#: Distinct numerical warning texts named in their one line.
+_SHOWN_NUMERICAL = 3
 
 #: Exit status of a fit refused as degenerate.
 EXIT_REFUSED = 1
@@ -46,11 +50,38 @@ def _say(message: str) -> None:
     print(f"policy-align learn: {message}", file=sys.stderr)
 
 
+def warning_lines(caught: Sequence[warnings.WarningMessage]) -> list[str]:
+    """The warnings of one learning run as log lines, without source files or lines.
+
+    Parameters
+    ----------
+    caught : sequence of warnings.WarningMessage
+        As recorded by ``warnings.catch_warnings(record=True)``.
+
+    Returns
+    -------
+    list of str
+        Each text of a warning other than a ``RuntimeWarning`` once, in order; then, when
+        there are ``RuntimeWarning`` (numpy's overflow or invalid value inside a fit,
+        possibly thousands of them, which say nothing about the model the fit's own
+        checks do not), one line counting them and naming their first distinct texts.
+    """
+    numerical = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    lines = list(dict.fromkeys(str(w.message) for w in caught
+                               if not issubclass(w.category, RuntimeWarning)))
+    if numerical:
+        kinds = list(dict.fromkeys(numerical))
+        shown = "; ".join(kinds[:_SHOWN_NUMERICAL])
+        if len(kinds) > _SHOWN_NUMERICAL:
+            shown += f"; {len(kinds) - _SHOWN_NUMERICAL} other kind(s)"
+        lines.append(f"{len(numerical)} numerical warning(s) during learning ({shown})")
+    return lines
+
+
 def _warn(caught: list[warnings.WarningMessage]) -> None:
-    """The fit's warnings as lines of this command, each once (not Python's format with
-    a source path and line)."""
-    for text in dict.fromkeys(str(w.message) for w in caught):
-        print(f"policy-align learn: warning: {text}", file=sys.stderr)
+    """The fit's warnings as lines of this command (:func:`warning_lines`)."""
+    for line in warning_lines(caught):
+        print(f"policy-align learn: warning: {line}", file=sys.stderr)
 
 
 def _joint_list(joints: list[str]) -> str:

@@ -15,8 +15,9 @@ the reason, never a crash.
 The run's Python warnings (the fit's: a poor fit, a goal that is not a minimum, ...) go
 through the node's logger at WARN, each text once, not to stderr with a source file and
 line; numerical ones (numpy's overflow or invalid value, a ``RuntimeWarning``) are
-counted in one line (:func:`warning_lines`). The answer is logged once: INFO when
-written, ERROR when refused or failed.
+counted in one line (:func:`~policy_align_ros.data.learn.warning_lines`, as ``policy-align
+learn`` says them). The answer is logged once: INFO when written, ERROR when refused or
+failed.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from std_srvs.srv import Trigger
 
 from policy_align_ros.data.arguments import HOLDOUT_RANGE, parse_sigma, state_name
 from policy_align_ros.data.fit_figure import figure_format, plot_fit
+from policy_align_ros.data.learn import warning_lines
 from policy_align_ros.data.pipeline import PipelineResult, learn_pipeline
 from policy_align_ros.data.quality import Gates
 from policy_align_ros.kinematics.robot_config import learning_robot
@@ -50,7 +52,7 @@ from policy_align_ros.nodes._common import (
     run_node,
 )
 
-__all__ = ["Learner", "main", "warning_lines"]
+__all__ = ["Learner", "main"]
 
 #: Gate parameters: name -> (description, range); defaults are those of :class:`Gates`.
 _GATE_PARAMETERS = {
@@ -73,36 +75,6 @@ _SIGMA_TYPES = (Parameter.Type.STRING, Parameter.Type.DOUBLE, Parameter.Type.INT
 #: How :meth:`PipelineResult.line` begins for a refused fit, which the pipeline also says
 #: as progress: the node logs it once, as its answer.
 _REFUSED = "refused: "
-#: Distinct numerical warning texts named in their one line.
-_SHOWN_NUMERICAL = 3
-
-
-def warning_lines(caught: Sequence[warnings.WarningMessage]) -> list[str]:
-    """The warnings of one learning run as log lines, without source files or lines.
-
-    Parameters
-    ----------
-    caught : sequence of warnings.WarningMessage
-        As recorded by ``warnings.catch_warnings(record=True)``.
-
-    Returns
-    -------
-    list of str
-        Each text of a warning other than a ``RuntimeWarning`` once, in order; then, when
-        there are ``RuntimeWarning`` (numpy's overflow or invalid value inside a fit,
-        possibly thousands of them, which say nothing about the model the fit's own
-        checks do not), one line counting them and naming their first distinct texts.
-    """
-    numerical = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
-    lines = list(dict.fromkeys(str(w.message) for w in caught
-                               if not issubclass(w.category, RuntimeWarning)))
-    if numerical:
-        kinds = list(dict.fromkeys(numerical))
-        shown = "; ".join(kinds[:_SHOWN_NUMERICAL])
-        if len(kinds) > _SHOWN_NUMERICAL:
-            shown += f"; {len(kinds) - _SHOWN_NUMERICAL} other kind(s)"
-        lines.append(f"{len(numerical)} numerical warning(s) during learning ({shown})")
-    return lines
 
 
 class Learner(StartNode):

@@ -21,7 +21,7 @@ from policy_align_ros.data.pipeline import HOLDOUT_RANGE, observed_ncpe, parse_s
 from policy_align_ros.learning import PolicyAlign, Trajectory
 from policy_align_ros.nodes import learner as learner_module
 from policy_align_ros.nodes._common import LATCHED_QOS
-from policy_align_ros.nodes.learner import Learner, warning_lines
+from policy_align_ros.nodes.learner import Learner
 
 JOINTS = ["j1", "j2"]
 
@@ -339,21 +339,6 @@ def test_plot_path_draws_each_fit_and_a_bad_one_does_not_fail_the_learning(rig, 
     response = r.learn()
     assert response.success and str(blocked) in response.message  # said, not failed
     assert not blocked.exists()
-
-
-def _warning(message, category=UserWarning):
-    return warnings.WarningMessage(message, category, "fit_stages.py", 280)
-
-
-def test_warning_lines_say_each_text_once_and_count_numerical_warnings():
-    caught = [_warning("poor fit"), _warning("overflow encountered in exp", RuntimeWarning),
-              _warning("no minimum"), _warning("poor fit"),
-              *[_warning(f"numerical {k % 5}", RuntimeWarning) for k in range(40)]]
-    lines = warning_lines(caught)
-    assert lines[:2] == ["poor fit", "no minimum"] and len(lines) == 3
-    # One line for all 41: their count and the first kinds, not 41 lines.
-    assert re.search(r"\b41\b", lines[2]) and "overflow encountered in exp" in lines[2]
-    assert warning_lines([]) == []
 
 
 class _Log:
