@@ -170,14 +170,16 @@ def test_state_and_gate_parameters_are_validated_and_a_bad_frame_is_named(rig, t
     assert not r.node.set_parameters([Parameter("state", value="hands")])[0].successful
     assert not r.node.set_parameters(
         [Parameter("max_discarded_fraction", value=1.5)])[0].successful
+    # The frame is checked before any bag is read.
+    response = r.learn()
+    assert not response.success and "no_such_frame" in response.message
+    assert r.node.set_parameters(
+        [Parameter("state", value="frames:arm_left_7_link")])[0].successful
     response = r.learn()
     assert not response.success and r.node.last_result is None
     # The joint not found, and the ones there are.
     assert "'arm_left_9_joint'" in response.message
     assert all(joint in response.message for joint in arm)
-    assert r.node.set_parameters([Parameter("joints", value=arm)])[0].successful
-    response = r.learn()
-    assert not response.success and "no_such_frame" in response.message
     assert not (tmp_path / "m.npz").exists() and r.models == []
 
 
