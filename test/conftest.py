@@ -13,6 +13,8 @@ mistake that makes a test see another's nodes when test runs overlap.
   ``-p`` parameters (for start-up refusals: exit status and stderr).
 * ``wait_for(predicate, timeout)`` -> poll until true; the timeout only bounds a failure, it
   never decides a pass, so no assertion depends on the machine's speed.
+* ``jaco_wrist`` -> Kinova's Jaco with its continuous wrist roll across the wrap from its
+  rest posture (for the rest terms that must turn it the short way).
 
 Hypothesis runs derandomized: its examples follow from each test, so every run of the suite
 draws the same ones, as every other random draw of the tests is seeded.
@@ -127,3 +129,25 @@ def hand_map(robot):
     from policy_align_ros.kinematics import TaskSpaceMap
 
     return TaskSpaceMap(robot, [HAND])
+
+
+@pytest.fixture
+def jaco_wrist():
+    """Kinova's Jaco, whose joint 6 (the wrist's roll) is continuous and which a driver
+    reports in [-pi, pi): ``(smap, six, rest, q)``, the end effector's state map, the
+    joint's index, a rest posture with it at -3.0 rad and ``q`` with it at 2.83 rad, 0.45
+    rad from the rest across the wrap (5.83 rad the long way)."""
+    import numpy as np
+
+    from policy_align_ros.kinematics import Robot, TaskSpaceMap
+    from policy_align_ros.kinematics.robot import robots_dir
+
+    robot = Robot.load(str(robots_dir() / "kinova_description" / "robots" / "kinova.urdf"))
+    smap = TaskSpaceMap(robot, ["j2s6s200_end_effector"])
+    six = robot.joint_names.index("j2s6s200_joint_6")
+    assert robot.continuous[six]
+    rest = robot.neutral()
+    rest[six] = -3.0
+    q = rest.copy()
+    q[six] = -3.0 + 2 * np.pi - 0.45
+    return smap, six, rest, q

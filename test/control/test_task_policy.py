@@ -411,21 +411,10 @@ def test_non_finite_constraint_rows_give_a_non_finite_command(hand_map: TaskSpac
     assert np.all(np.isnan(tsp.command(q)))
 
 
-def test_a_continuous_joint_turns_to_its_rest_the_short_way() -> None:
-    # Kinova's Jaco: joint 6 (the wrist's roll) is continuous, and a driver reports it in
-    # [-pi, pi). Its rest at -3.0 rad is, at a measured 2.83 rad, 0.45 rad away across the
-    # wrap; the rest term must turn it there, not 5.83 rad back the other way.
-    from policy_align_ros.kinematics.robot import robots_dir
-
-    path = robots_dir() / "kinova_description" / "robots" / "kinova.urdf"
-    robot = Robot.load(str(path))
-    smap = TaskSpaceMap(robot, ["j2s6s200_end_effector"])
-    six = robot.joint_names.index("j2s6s200_joint_6")
-    assert robot.continuous[six]
-    rest = robot.neutral()
-    rest[six] = -3.0
-    q = rest.copy()
-    q[six] = -3.0 + 2 * np.pi - 0.45  # 2.83 rad: the same angle as rest + 0.45 - a turn
+def test_a_continuous_joint_turns_to_its_rest_the_short_way(jaco_wrist) -> None:
+    # The rest term must turn the wrist 0.45 rad across the wrap to its rest, not 5.83 rad
+    # back the other way.
+    smap, six, rest, q = jaco_wrist
     hold = Attractor(smap.states(q)[0], w=0.0)  # no task motion: the rest term alone
     qdot = TaskSpacePolicy(hold.policy, smap, rest=rest).command(q)
     assert qdot[six] > 0.0  # the short way round, up to rest + a turn

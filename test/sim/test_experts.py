@@ -35,22 +35,13 @@ def test_joint_space_expert_seen_in_hand_space_is_not_the_hand_gradient(hands) -
     assert cos < 0.99
 
 
-def test_the_task_space_expert_turns_a_continuous_joint_to_its_rest_the_short_way() -> None:
-    # Kinova's Jaco: joint 6 (the wrist's roll) is continuous, and a driver reports it in
-    # [-pi, pi). Its rest at -3.0 rad is, at a measured 2.83 rad, 0.45 rad away across the
-    # wrap: the expert the demonstrator records must turn it there, not 5.83 rad back.
-    from policy_align_ros.kinematics import Robot, TaskSpaceMap
-    from policy_align_ros.kinematics.robot import robots_dir
+def test_the_task_space_expert_turns_a_continuous_joint_to_its_rest_the_short_way(
+        jaco_wrist) -> None:
+    # The expert the demonstrator records must turn the wrist 0.45 rad across the wrap to
+    # its rest, not 5.83 rad back the other way.
     from policy_align_ros.sim.experts import TaskSpaceExpert
 
-    robot = Robot.load(str(robots_dir() / "kinova_description" / "robots" / "kinova.urdf"))
-    smap = TaskSpaceMap(robot, ["j2s6s200_end_effector"])
-    six = robot.joint_names.index("j2s6s200_joint_6")
-    assert robot.continuous[six]
-    rest = robot.neutral()
-    rest[six] = -3.0
-    q = rest.copy()
-    q[six] = -3.0 + 2 * np.pi - 0.45
+    smap, six, rest, q = jaco_wrist
     expert = TaskSpaceExpert(smap, smap.states(q[None])[0], rest=rest)  # hand held: rest alone
     assert expert.command(q)[0][six] > 0.0  # the short way round, up to rest + a turn
     q[six] = -3.0 - 0.45  # on the rest's own turn: the same pull, toward the rest
