@@ -53,7 +53,7 @@ def _node(executable: str, condition=None) -> Node:
 
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
-        DeclareLaunchArgument("sim", default_value="true",
+        DeclareLaunchArgument("sim", default_value="false",
                               description="start sim_robot instead of a real robot"),
         DeclareLaunchArgument("demonstrator", default_value="false",
                               description="start the scripted expert"),

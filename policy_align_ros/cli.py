@@ -1,19 +1,6 @@
-"""The ``policy-align`` command.
-
-Sub-commands (each imports its heavy dependencies only when it runs)::
-
-    policy-align demo [--robot NAME] [--state joints|hands] [--seed N] [--out DIR]
-    policy-align learn BAG_OR_DATASET... --out MODEL [--joints a,b,..] [--sigma medium]
-        [--robot NAME --state joints|frames:F1,F2] [--robot-config NAME] [--holdout F]
-        [--seed S] [--force] [--overwrite]
-    policy-align call SERVICE [--data true|false]
-    policy-align param get|set NODE NAME [VALUE]
-    policy-align bench toy|grasp|humanoid|scale|executor|suite [--datasets N] [--jobs J]
-        [--seed S] [--out DIR] [--cases a,b] [--set NAME=VALUE]
-    policy-align bench lasa [--protocol loo|all|both] [--shapes tuning|reporting|all|multi|A,B]
-        [--methods a,b] [--demos K] [--recorded] [--hesitant] [--scattered-ends]
-        [--subsample N] [--jobs J]
-        [--out DIR] [--set NAME=VALUE]
+"""The ``policy-align`` command: ``demo``, ``learn``, ``show``, ``call``, ``param`` and
+``bench``, each importing its heavy dependencies only when it runs. Their options:
+``policy-align COMMAND --help``, and ``docs/design.md`` section 7.
 """
 
 from __future__ import annotations
@@ -29,7 +16,8 @@ def _add_bench(sub) -> None:
                        choices=["toy", "grasp", "humanoid", "scale", "executor", "suite",
                                 "lasa"])
     bench.add_argument("--datasets", type=int, default=None,
-                       help="data sets per cell (default: the paper's number)")
+                       help="data sets per cell; executor: trajectories; scale: repeats "
+                            "(default: the paper's number, or 100 and 3)")
     bench.add_argument("--jobs", type=int, default=2, help="worker processes")
     bench.add_argument("--out", default="bench_out", help="directory for tables and figures")
     bench.add_argument("--seed", type=int, default=0, help="base random seed")

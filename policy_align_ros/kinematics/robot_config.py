@@ -66,7 +66,9 @@ class RobotConfig:
     joints : list of str
         Controlled joints, in the controller's command order.
     controller : str
-        Node name of the ros2_control controller taking the commands.
+        Node name of the ros2_control controller taking the commands, whose ``joints``
+        parameter the executor checks its command order against (the commands go to
+        ``/velocity_controller/commands``; remap it for another controller).
     home : list of float or None
         Home posture (rad, one per joint); None = the robot's reference posture.
     tool : str or None

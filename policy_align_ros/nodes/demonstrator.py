@@ -261,8 +261,8 @@ class Demonstrator(StartNode):
             "of hand_frames, pi_x = -gain (x - hand_targets) realised through the "
             "Jacobian", read_only=True, constraints="joints | hands"))
         p("hand_frames", hands or [""], descriptor(
-            "frames whose stacked positions are the hands expert's state",
-            read_only=True))
+            "frames whose stacked positions are the hands expert's state; unset = "
+            "robot_config's frames.hands", read_only=True))
         p("hand_targets", Parameter.Type.DOUBLE_ARRAY, descriptor(
             "hands expert: target positions [m], 3 per hand frame in the world frame; "
             "unset = the hands' positions at the attractor posture", read_only=True))
@@ -275,7 +275,8 @@ class Demonstrator(StartNode):
                                              read_only=True, float_range=(0.1, 600.0)))
         p("constraint_frames", planes or [""], descriptor(
             "frames each restricted to a plane of random orientation per demonstration "
-            "(empty string list entry '' = unconstrained)", read_only=True))
+            "(empty string list entry '' = unconstrained); unset = robot_config's "
+            "frames.constraint", read_only=True))
         p("plane_switches", 2, descriptor(
             "times the planes are re-drawn at regular intervals within a demonstration",
             read_only=True, int_range=(0, 100)))

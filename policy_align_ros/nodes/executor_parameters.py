@@ -86,9 +86,10 @@ def declare_control_parameters(node: Node, default_controller: str) -> None:
         "YAML list of constraint specs in force, e.g. "
         "[{type: plane, frame: arm_left_7_link, normal: [0, 0, 1]}]"))
     node.declare_parameter("controller", default_controller, descriptor(
-        "node name of the ros2_control controller taking the commands; ~/enable reads "
-        "its joints parameter and refuses a different order or one it cannot read; "
-        "none = arm without the check; unset = robot_config's"))
+        "node name of the ros2_control controller whose joints parameter gives the "
+        "command order; ~/enable reads it and refuses a different order or one it cannot "
+        "read; none = arm without the check; unset = robot_config's. The commands go to "
+        "/velocity_controller/commands: remap that topic to another controller's"))
     node.declare_parameter("start_enabled", False, descriptor(
         "arm at the first fresh joint state when model_path loaded at start (else "
         "wait for ~/enable)", read_only=True))

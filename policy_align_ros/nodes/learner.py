@@ -94,7 +94,8 @@ class Learner(StartNode):
         sigma.dynamic_typing = True
         self.declare_parameter("sigma", "medium", sigma)
         self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, descriptor(
-            "state joints and their order; unset = the joints of the first message"))
+            "state joints and their order; unset = robot_config's, else the joints the "
+            "bags share (less those that never move)"))
         self.declare_parameter("holdout_fraction", 0.2, descriptor(
             "fraction of demonstrations held out to report the nCPE",
             float_range=HOLDOUT_RANGE))
