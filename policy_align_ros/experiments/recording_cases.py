@@ -7,6 +7,9 @@ expert's true minimum (computed numerically where it has no closed form):
 
 - ``lag_joint_7``: a 7-joint quadratic expert (gain 0.5-2 /s) tracked by a robot with an
   80 ms velocity lag, 1 rad/s and 5 rad/s^2 per joint, at 50 Hz;
+- ``lag_slow_7``: the same through a 250 ms lag (a compliant arm's slow velocity loop):
+  gain times lag up to 0.5, past critical damping (0.25), so the arm passes its goal along
+  its stiffest directions (by about 1 % of the start distance) and comes back;
 - ``human_timing_2``: the expert's 2-D path travelled with a minimum-jerk timing, at rest
   for 0.2-0.5 s before and 0.3-0.8 s after, 0.6-1.6 times the expert's duration;
 - ``contact_arm_7``: the suite's arm expert pushing its hand into a table (friction
@@ -117,7 +120,7 @@ def _truth_projectors(potential, constraint: ConstraintFn, X: np.ndarray, times:
 
 # -- 1. velocity tracking with lag and saturation -----------------------------------------
 
-def _lag_joint(rng: np.random.Generator) -> Problem:
+def _lag_joint(rng: np.random.Generator, tau: float = 0.08) -> Problem:
     n, hz, duration = 7, 50.0, 5.0
     centre = rng.normal(scale=0.5, size=n)
     potential = QuadraticPotential(centre, _anisotropic(n, rng, 0.25, 1.0))
@@ -129,7 +132,7 @@ def _lag_joint(rng: np.random.Generator) -> Problem:
             A = np.atleast_2d(constraint(x, t, pi)).reshape(-1, n)
             return nullspace_projector(A, n=n) @ pi
 
-        X, V, times = track_velocity(x0, command, int(hz * duration), dt, tau=0.08,
+        X, V, times = track_velocity(x0, command, int(hz * duration), dt, tau=tau,
                                      max_speed=1.0, max_accel=5.0)
         Ns, k = _truth_projectors(potential, constraint, X, times)
         return with_ground_truth(X, V, times, potential, Ns, k, name=name)
@@ -279,6 +282,7 @@ def _kinesthetic(rng: np.random.Generator) -> Problem:
 
 RECORDING_CASES = {
     "lag_joint_7": Case("lag_joint_7", 7, "50 Hz", _lag_joint),
+    "lag_slow_7": Case("lag_slow_7", 7, "50 Hz", lambda rng: _lag_joint(rng, tau=0.25)),
     "human_timing_2": Case("human_timing_2", 2, "50 Hz", _human_timing),
     "contact_arm_7": Case("contact_arm_7", 7, "25 Hz", contact_arm),
     "bumps_2": Case("bumps_2", 2, "50 Hz", _bumps_case(2, 50.0, 4.0, 30, False)),

@@ -32,6 +32,21 @@ def test_each_case_records_demonstrations_with_ground_truth(name):
     assert np.linalg.norm(problem.potential.policy(problem.minimum[None])) < 1e-4
 
 
+def test_the_slow_velocity_loop_passes_the_goal_and_the_fast_one_does_not():
+    from policy_align_ros.sim.demonstrations import no_constraint
+
+    passed = {}
+    for name in ("lag_joint_7", "lag_slow_7"):
+        problem = RECORDING_CASES[name].make(np.random.default_rng(0))
+        stiffest = np.linalg.eigh(problem.potential.W)[1][:, -1]
+        rng = np.random.default_rng(1)
+        x0 = problem.sample_starts(rng, 1)[0]
+        demo = problem.record(x0, no_constraint(7), rng, "d")
+        along = (demo.trajectory.positions - problem.minimum) @ stiffest
+        passed[name] = float(np.min(along * np.sign(along[0])))  # < 0: past the goal
+    assert passed["lag_slow_7"] < -1e-3 < 0.0 <= passed["lag_joint_7"]
+
+
 def test_the_bumps_shift_the_minimum_off_the_attractor():
     problem = RECORDING_CASES["bumps_2"].make(np.random.default_rng(0))
     assert np.linalg.norm(problem.minimum - problem.potential.centre) > 0.05
