@@ -72,12 +72,19 @@ from policy_align_ros.data.messages import (
 )
 
 __all__ = [
+    "CLOCK_RESET_S",
     "STILL_TOLERANCE",
     "DemoRecorder",
     "PendingWriteError",
     "SaveResult",
     "validate_gap",
 ]
+
+#: A stamp this many seconds or more before the last one recorded in a manual demonstration
+#: is a clock that was reset (a restarted simulation), not a message out of order: the
+#: demonstration is spoiled and discarded at ``stop`` (the rest of it would be spliced
+#: onto what came before, or lost).
+CLOCK_RESET_S = 1.0
 
 def validate_gap(auto_split_gap_s: float) -> float:
     """Check a split gap in seconds (``0`` = manual mode); returns it as a float."""
@@ -115,8 +122,9 @@ class DemoRecorder:
     Attributes
     ----------
     skipped : Counter
-        Skipped messages by reason (see :data:`SKIP_REASONS`, plus ``time_in_future`` and
-        ``time_negative`` once they happen), over the lifetime.
+        Skipped messages by reason (see :data:`SKIP_REASONS`, plus ``time_in_future``,
+        ``time_negative``, ``clock_reset`` and ``after_clock_reset`` once they happen),
+        over the lifetime.
     accepted : int
         Valid messages recorded over the lifetime.
     written : list of Path
@@ -125,6 +133,11 @@ class DemoRecorder:
         Those of them in which the robot did not move (``still_tolerance``).
     dropped : int
         Demonstrations dropped for having fewer than ``min_messages`` messages.
+    discarded : int
+        Manual demonstrations discarded at ``stop`` because the stamps jumped back by
+        :data:`CLOCK_RESET_S` or more during them.
+    last_discard : str
+        Why the last ``stop`` discarded its demonstration ("" when it did not).
     lost_while_pending : int
         Messages not recorded because a continuous recording was paused while a pending
         demonstration waited to be written.
@@ -166,6 +179,9 @@ class DemoRecorder:
         self.written: list[Path] = []
         self.still_bags: list[Path] = []
         self.dropped = 0
+        self.discarded = 0
+        self.last_discard = ""
+        self._spoiled = ""  # why the current manual demonstration cannot be kept
         self.lost_while_pending = 0
         self.last_foreign: tuple[str, ...] | None = None
         self._pending: FinishedDemo | None = None
@@ -281,6 +297,7 @@ class DemoRecorder:
                     "far); stop it first"
                 )
             self._active = True
+            self._spoiled = ""
             self._clock.reset()
             self._clear()
             self._last_rx = time.monotonic() if now is None else now
@@ -303,10 +320,16 @@ class DemoRecorder:
         """
         with self._lock:
             self._active = False
+            self.last_discard = ""
             if self._pending is not None:
                 # While one is pending nothing else is buffered (start is refused and a
                 # continuous recording pauses), so this is the only write to do.
                 return self._write_pending()
+            if self._spoiled:
+                self.last_discard, self._spoiled = self._spoiled, ""
+                self.discarded += 1
+                self._clear()
+                return None
             return self._write_current()
 
     def retry_pending(self) -> Path | None:
@@ -484,6 +507,10 @@ class DemoRecorder:
                 self.skipped["time_in_future"] += 1
                 return None
             outcome = self._clock.step(stamp_ns)
+            if self._spoiled or (outcome == SKIP and self._clock_reset(stamp_ns)):
+                self.skipped["after_clock_reset" if self._spoiled else "clock_reset"] += 1
+                self._spoiled = self._spoiled or self._reset_text(stamp_ns)
+                return None
             if outcome == SKIP:
                 self.skipped["time_not_increasing"] += 1
                 return None
@@ -499,6 +526,19 @@ class DemoRecorder:
             self._last_rx = time.monotonic() if now is None else now
             self._append(stamp_ns, *picked)
             return written
+
+    def _clock_reset(self, stamp_ns: int) -> bool:
+        """Whether ``stamp_ns``, in a manual demonstration, lies :data:`CLOCK_RESET_S` or
+        more before the last stamp recorded (a continuous recording starts a new
+        demonstration there instead: see :class:`StreamClock`)."""
+        last = self._clock.last_ns
+        return (not self.auto_split_gap_s and last is not None
+                and last - stamp_ns >= round(CLOCK_RESET_S * 1e9))
+
+    def _reset_text(self, stamp_ns: int) -> str:
+        last = self._clock.last_ns or 0
+        return (f"the joint-state stamps jumped back by {(last - stamp_ns) / 1e9:.3f} s "
+                f"after {last / 1e9:.3f} s (a clock or simulator reset?)")
 
     def _append(self, stamp_ns: int, pos: Sequence[float], vel: Sequence[float] | None
                 ) -> None:

@@ -15,7 +15,9 @@ Interface (docs/design.md section 6):
   warning, after "; ", when the robot did not move during the demonstration: every joint
   within ``STILL_TOLERANCE`` of its first sample; the bag is written all the same).
   Without a demonstration to end (no ``start_demo`` before it) it answers
-  ``success=false``, naming the fix;
+  ``success=false``, naming the fix; so it does, writing nothing, when the stamps jumped
+  back by ``CLOCK_RESET_S`` or more during the demonstration (a simulator reset): kept, it
+  would be spliced across the reset;
 * parameters ``dataset_dir`` (str), ``joints`` (str[], unset = those of the first
   message), ``auto_split_gap_s`` (s, 0 = manual mode; otherwise recording starts at once
   and splits at gaps), ``qos_depth`` (read-only), ``warn_period_s``. Changes at run time
@@ -225,7 +227,12 @@ class RecorderNode(StartNode):
             self.get_logger().error(f"stop_demo: writing failed: {err}")
             response.success, response.message = False, f"writing failed: {err}"
             return response
-        if path is None:
+        if path is None and self._recorder.last_discard:
+            response.success = False
+            response.message = (f"discarded, not written: {self._recorder.last_discard}; "
+                                f"record this demonstration again")
+            self.get_logger().warning(f"stop_demo: {response.message}")
+        elif path is None:
             response.success = False
             response.message = f"nothing written: {count} valid message(s) recorded"
             foreign = self._foreign()

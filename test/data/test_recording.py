@@ -107,6 +107,26 @@ def test_malformed_messages_skipped_and_counted(tmp_path):
     assert [len(m[4]) for m in msgs] == [2, 0]  # velocity kept only where it was sent
 
 
+def test_a_manual_demonstration_across_a_clock_reset_is_discarded_not_spliced(tmp_path):
+    # A simulator reset mid-demonstration: the stamps jump from 1.2 s back to 0.1 s and
+    # run on. Kept, the demonstration would splice 1.2 s onto the states after the stamps
+    # pass 1.2 s again (a jump of the robot between two samples), or lose its end.
+    rng = np.random.default_rng(4)
+    rec = DemoRecorder(tmp_path / "ds")
+    rec.start()
+    _feed(rec, rng, 1200, T0)
+    rec.add(T0 + 1199 * MS - 5 * MS, JOINTS, [0.0] * 3)  # out of order by 5 ms: skipped
+    _feed(rec, rng, 3000, T0 + 100 * MS)  # the reset: 1.1 s back, then on to 3.1 s
+    assert rec.skipped["time_not_increasing"] == 1 and rec.skipped["clock_reset"] == 1
+    assert rec.skipped["after_clock_reset"] == 2999
+    assert rec.stop() is None and rec.discarded == 1 and "1.1" in rec.last_discard
+    assert rec.written == [] and not (tmp_path / "ds" / "demo_0000").exists()
+    # The next demonstration is recorded as usual, and says nothing of the reset.
+    rec.start()
+    _feed(rec, rng, 50, T0 + 10 * 10**9)
+    assert rec.stop() == tmp_path / "ds" / "demo_0000" and rec.last_discard == ""
+
+
 def test_continuous_mode_splits_at_gaps(tmp_path):
     rng = np.random.default_rng(2)
     rec = DemoRecorder(tmp_path, auto_split_gap_s=0.5)

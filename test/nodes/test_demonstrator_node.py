@@ -1,4 +1,4 @@
-"""Integration tests of the ``demonstrator`` node (own rclpy.Context, domain ids 180-189,
+"""Integration tests of the ``demonstrator`` node (own rclpy.Context, domain ids 100, 180-189,
 216).
 
 The robot is the real ``sim_robot`` node (left arm of Talos); the recorder is faked by

@@ -1,5 +1,5 @@
 """ROS 2 integration tests of the ``recorder`` node: recording, splitting, skipped messages
-(domain ids 101, 102, 105, 111, 114, 115, 218).
+(domain ids 101, 102, 103, 105, 111, 114, 115, 218).
 
 Each test owns an ``rclpy.Context`` with its own ``domain_id`` and shuts it down.
 """
@@ -280,3 +280,28 @@ def test_stop_without_start_refuses_and_a_still_demonstration_is_written_with_a_
     assert rec.still_bags == [first]
     assert answers[0].message.startswith(f"{first}; ") and answers[1].message == str(second)
     assert len(load_dataset(first, gap_s=0)[0][0].positions) == len(still)
+
+
+def test_a_demonstration_across_a_clock_reset_is_refused_and_not_written(tmp_path):
+    # A simulator reset mid-demonstration: the stamps jump 2 s back and run on.
+    before = [_msg(T0 + k * 10_000_000, ["a", "b"], [0.01 * k, 0.0]) for k in range(300)]
+    after = [_msg(T0 + 10**9 + k * 10_000_000, ["a", "b"], [0.0, 0.01 * k])
+             for k in range(300)]
+    with _ros(103) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(tmp_path / "ds")),
+            Parameter("joints", value=["a", "b"])])
+        harness = _Harness(ctx, recorder)
+        rec = recorder.recorder
+        try:
+            harness.ready()
+            assert harness.call(harness.start).success
+            for msg in before + after:
+                harness.pub.publish(msg)
+            _wait(lambda: rec.accepted + sum(rec.skipped.values()) >= 600, 10.0,
+                  "the messages")
+            response = harness.call(harness.stop)
+        finally:
+            harness.close()
+    assert not response.success and rec.discarded == 1 and rec.written == []
+    assert not (tmp_path / "ds" / "demo_0000").exists()
