@@ -367,3 +367,29 @@ def test_frames_of_another_robot_are_refused_naming_their_parameter(tmp_path):
     with pytest.raises(ValueError, match="constraint_frames") as err:
         _started(robot="ur10", joints=["shoulder_pan_joint", "shoulder_lift_joint"])
     assert not isinstance(err.value, StartParameterError) and HAND in str(err.value)
+
+
+def test_a_clock_jump_back_stops_the_demonstration_under_way(monkeypatch):
+    # A simulator reset during a demonstration: the node clock goes from 10 s back to 2 s.
+    # The demonstration is stopped (the recorder discards one recorded across the reset)
+    # with a zero command, not run on for the 8 s the reset added to its elapsed time.
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=START_DOMAIN)
+    try:
+        demo = _LoggedDemonstrator(context=context, parameter_overrides=[
+            Parameter("robot", value="talos"), Parameter("joints", value=JOINTS)])
+        sent = []
+        monkeypatch.setattr(demo, "_send", lambda qdot: sent.append(np.array(qdot)))
+        monkeypatch.setattr(demo, "_now", lambda: 2.0)
+        demo._q, demo._q_received = demo.attractor.copy(), 9.99
+        demo._state, demo._since, demo._last_now = "demo", 7.0, 10.0
+        demo._on_timer()
+        assert demo._state == "stop_demo" and np.all(sent[-1] == 0.0)
+        assert any(level == "warning" for level, _ in demo.log.records)
+        # Waiting states start their wait again on the new clock.
+        demo._state, demo._since, demo._last_now = "reach", 9.0, 10.0
+        demo._on_timer()
+        assert demo._since == 2.0
+        demo.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
