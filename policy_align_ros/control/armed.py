@@ -54,6 +54,9 @@ __all__ = ["IMPLAUSIBLE_POSITION", "STAMP_REJECTIONS", "ArmedController", "Outpu
 STAMP_REJECTIONS: tuple[str, ...] = tuple(c.value for c in (
     ZeroCause.ZERO_STAMP, ZeroCause.STAMP_BACKWARDS, ZeroCause.STAMP_TOO_OLD,
     ZeroCause.STAMP_IN_FUTURE))
+#: Zero causes a restarted clock explains (stamps that then look old, early or late).
+_STAMP_CAUSES = (ZeroCause.STAMP_BACKWARDS, ZeroCause.STAMP_TOO_OLD,
+                 ZeroCause.STAMP_IN_FUTURE, ZeroCause.STALE_STATE)
 #: Key of :attr:`Output.rejected` for a position outside its limits beyond the margin.
 IMPLAUSIBLE_POSITION = ZeroCause.POSITION_OUTSIDE_LIMITS.value
 
@@ -242,12 +245,13 @@ class ArmedController:
     def joint_state(self, q: np.ndarray, stamp_ns: int, now_ns: int) -> Output:
         """Take a validated joint state ``q`` (n,) stamped ``stamp_ns``, received ``now_ns``.
 
-        A stamp that is zero, older than ``state_timeout_s + max_clock_skew_s``, more than
-        ``max_clock_skew_s`` in the future or earlier than the last one makes the state
-        untrustworthy: the command goes to zero at once and the controller disarms. A
-        stamp equal to the last one is ignored (a repeat is no news). So is a position
-        outside its joint limits by more than ``state_limit_margin``: a robot cannot be
-        there, so the state (a wrong joint map, a broken driver) cannot be trusted.
+        A stamp that is zero, earlier than the last one (told first: a stamp far back is a
+        restarted clock), older than ``state_timeout_s + max_clock_skew_s`` or more than
+        ``max_clock_skew_s`` in the future makes the state untrustworthy: the command goes
+        to zero at once and the controller disarms. A stamp equal to the last one is
+        ignored (a repeat is no news). So is a position outside its joint limits by more
+        than ``state_limit_margin``: a robot cannot be there, so the state (a wrong joint
+        map, a broken driver) cannot be trusted.
         """
         jumped = self._clock(now_ns)
         if jumped is not None:
@@ -261,6 +265,10 @@ class ArmedController:
         problem = ""
         if stamp_ns <= 0:
             key, problem = ZeroCause.ZERO_STAMP, "joint state without a header stamp"
+        elif last is not None and stamp_ns < last:
+            # Before the age: a stamp far back is a restarted clock, not a late message.
+            key = ZeroCause.STAMP_BACKWARDS
+            problem = f"joint state stamp went backwards by {(last - stamp_ns) / 1e9:.3f} s"
         elif now_ns - stamp_ns > self._timeout_ns + self._skew_ns:
             key = ZeroCause.STAMP_TOO_OLD
             problem = (f"joint state stamp {(now_ns - stamp_ns) / 1e9:.3f} s old "
@@ -269,9 +277,6 @@ class ArmedController:
             key = ZeroCause.STAMP_IN_FUTURE
             problem = (f"joint state stamp {(stamp_ns - now_ns) / 1e9:.3f} s in the future "
                        f"(> max_clock_skew_s)")
-        elif last is not None and stamp_ns < last:
-            key = ZeroCause.STAMP_BACKWARDS
-            problem = f"joint state stamp went backwards by {(last - stamp_ns) / 1e9:.3f} s"
         else:
             outside = position_outside_limits(q, self.step.lower, self.step.upper,
                                               self._state_limit_margin, self.joint_names)
@@ -375,8 +380,11 @@ class ArmedController:
         self._forget_state()
         self._forced_reported_ns = None
         self.clock_jump_s = (last - now_ns) / 1e9
-        return self.fault(f"clock jumped back by {self.clock_jump_s:.3f} s "
-                          f"(restarted simulation?)", ZeroCause.CLOCK_JUMPED_BACK)
+        reason = f"clock jumped back by {self.clock_jump_s:.3f} s (restarted simulation?)"
+        if self.zero_cause in _STAMP_CAUSES:
+            # Already at zero for a stamp the restart made look wrong: the jump is the cause.
+            self.zero_reason, self.zero_cause = reason, ZeroCause.CLOCK_JUMPED_BACK
+        return self.fault(reason, ZeroCause.CLOCK_JUMPED_BACK)
 
     # -- arming ---------------------------------------------------------------------
     def arm_check(self, now_ns: int) -> tuple[ZeroCause | None, str]:

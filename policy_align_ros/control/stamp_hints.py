@@ -4,7 +4,8 @@ A stamp seconds or more away from the node clock is rarely a slow network: it is
 on the system clock reading stamps of a simulator (seconds since the simulation
 started), a node on simulated time reading stamps of the system clock, or two computers
 whose clocks are not synchronised. Each rejects every joint state, and the first two are
-fixed by a parameter, so the refusal should name it.
+fixed by a parameter, so the refusal should name it. Between two simulator times it is a
+restarted simulation, whose stamps start again before this node's clock follows.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ CLOCK_MISMATCH_S = 10.0
 #: a simulator's (seconds since it started).
 _SYSTEM_CLOCK_NS = 1_000_000_000 * 10**9
 #: Stamp rejections (keys of ``Output.rejected``) that a clock mismatch can explain.
-CLOCK_REJECTIONS = ("stamp_too_old", "stamp_in_future")
+CLOCK_REJECTIONS = ("stamp_too_old", "stamp_in_future", "stamp_backwards")
 
 
 def clock_mismatch_hint(rejected: str, stamp_ns: int, now_ns: int) -> str:
@@ -44,6 +45,9 @@ def clock_mismatch_hint(rejected: str, stamp_ns: int, now_ns: int) -> str:
         return (f"the stamps look like system time while this node runs on simulator time "
                 f"(stamp - node clock = {-diff_s:.1f} s): start it with "
                 f"-p use_sim_time:=false, or stamp the joint states with /clock")
-    return (f"the stamps are {abs(diff_s):.1f} s {'behind' if diff_s > 0 else 'ahead of'} "
-            f"the node clock: are the clocks of the two computers synchronised, and do "
-            f"both nodes agree on use_sim_time?")
+    where = f"{abs(diff_s):.1f} s {'behind' if diff_s > 0 else 'ahead of'} the node clock"
+    if stamp_ns < _SYSTEM_CLOCK_NS and now_ns < _SYSTEM_CLOCK_NS:
+        return (f"the stamps are {where}, both simulator time: a restarted simulation? "
+                f"~/enable again once this node's clock has followed it")
+    return (f"the stamps are {where}: are the clocks of the two computers synchronised, "
+            f"and do both nodes agree on use_sim_time?")

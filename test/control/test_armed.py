@@ -178,7 +178,9 @@ def test_stale_joint_states_stop_at_once_and_the_controller_stays_disarmed():
 
 @pytest.mark.parametrize("stamp, key", [
     (0, "zero_stamp"),
-    (-10_000_000_000, "stamp_too_old"),  # relative to now: 10 s old
+    # Relative to now: 10 s old, and before the last stamp: a restarted clock (a simulator
+    # reset), told as such rather than as a late message.
+    (-10_000_000_000, "stamp_backwards"),
     (+200_000_000, "stamp_in_future"),   # 0.2 s ahead, skew allowed 0.05 s
     ("back", "stamp_backwards"),
 ])
@@ -200,6 +202,15 @@ def test_untrustworthy_stamps_stop_at_once_and_disarm(stamp, key):
     assert not run.control.armed and run.control.faulted
     assert [level for level, _ in out.events] == ["warning"]
     assert run.tick().command is None  # later good states do not re-arm it
+
+
+def test_a_first_stamp_older_than_the_timeout_is_too_old_and_arms_nothing():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, policy=_Linear(np.full(N, 0.9)))
+    run = _Run(step, np.zeros(N), timeout_s=0.05, skew_s=0.05)
+    run.k *= 1000  # a clock past 10 s
+    out = run.state(run.now - 10_000_000_000)
+    assert out.rejected == "stamp_too_old"
+    assert run.arm()[0] is False and run.tick().command is None
 
 
 def test_a_repeated_stamp_is_no_news_and_goes_stale():

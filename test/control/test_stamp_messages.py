@@ -64,3 +64,19 @@ def test_a_frozen_stamp_is_told_apart_from_messages_that_stop():
     # A new stamp clears it.
     control.joint_state(np.zeros(N), later, later)
     assert control.state_check(later) == (None, "") and control.state_problem(later) == ""
+
+
+def test_a_restarted_simulation_is_told_as_such_not_as_unsynchronised_clocks():
+    # Armed at 19 s of simulated time; the simulation restarts: the first joint state of
+    # the new run (stamped 2 s) comes before the /clock message that takes the node back.
+    control = _controller()
+    t = 19 * 10**9
+    control.joint_state(np.zeros(N), t, t)
+    assert control.arm(t)[0]
+    out = control.joint_state(np.zeros(N), 2 * 10**9, t + DT_NS)
+    assert out.rejected == "stamp_backwards" and not control.armed
+    hint = clock_mismatch_hint(out.rejected, 2 * 10**9, t + DT_NS)
+    assert hint and "use_sim_time" not in hint  # no parameter is wrong
+    # Then the node clock follows: the jump, not the stamp, is said to be the cause.
+    control.tick(2 * 10**9 + DT_NS)
+    assert control.zero_cause == ZeroCause.CLOCK_JUMPED_BACK

@@ -256,9 +256,10 @@ def test_broken_or_badly_stamped_joint_states_stop_at_once_and_are_counted(rig):
     assert not np.any(r.commands[-1])
     assert r.node.controller.zero_cause == ZeroCause.DUPLICATE_JOINTS
     assert r.node.rejected_states["duplicate_joints"] == 1
-    # NaN, then a stamp 10 s old, then a zero stamp: each one stops it.
+    # NaN, then a stamp 10 s old (before the last one: a restarted clock), then a zero
+    # stamp: each one stops it.
     for bad, key in ((dict(position=[np.nan] * len(JOINTS)), "non_finite"),
-                     (dict(stamp_age_s=10.0), "stamp_too_old"),
+                     (dict(stamp_age_s=10.0), "stamp_backwards"),
                      (dict(stamp_age_s=None), "zero_stamp")):
         moving()
         msg = JointState(name=JOINTS, position=bad.get("position", r.q.tolist()))
