@@ -64,6 +64,7 @@ from policy_align_ros.data.goal_digest import goal_digest, goal_text
 from policy_align_ros.data.quality import (
     Gates,
     observed_ncpe,
+    poorly_explained,
     refusals,
     zero_policy_comparison,
 )
@@ -166,6 +167,11 @@ class PipelineResult:
         text += ")"
         if s.get("poor_fit"):
             text += "; poor fit: it explains at most half of the held-out motion"
+        poorly = s.get("poorly_explained") or {}
+        if poorly:
+            # One demonstration unlike the others (a reset or a jump in it) shows here.
+            text += ("; held out and explained at most half (error over a zero policy's): "
+                     + ", ".join(f"{k} ({v:.2f})" for k, v in poorly.items()))
         if s.get("unfixed_goal"):
             text += "; the CV folds do not fix the goal (docs/design/goal_report.md)"
         scales = s.get("timing_scales") or []
@@ -564,6 +570,7 @@ def _summarise(demos: _Demos, train_k: list[int], test_k: list[int], states: _St
         "noise_to_step": json_float(model.fit_summary_["noise_to_step"], "null"),
         "fit_time_s": float(fit.seconds),
         "heldout_ncpe_observed": fit.ncpe,
+        "poorly_explained": poorly_explained(model.policy, held, held_names),
         "heldout_vs_zero": {"cv_folds": json_floats(model.fit_summary_.get("heldout_vs_zero")),
                             "held_out": json_floats(zero)},
         "worse_than_zero": bool(model.fit_summary_.get("worse_than_zero"))

@@ -16,12 +16,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from policy_align_ros.learning.folds import along_motion_errors
+from policy_align_ros.learning.folds import POOR_FIT_RATIO, along_motion_errors
 
 if TYPE_CHECKING:
     from policy_align_ros.learning import PolicyAlign, Trajectory
 
-__all__ = ["Gates", "observed_ncpe", "refusals", "zero_policy_comparison"]
+__all__ = ["Gates", "observed_ncpe", "poorly_explained", "refusals", "zero_policy_comparison"]
 
 
 @dataclass(frozen=True)
@@ -208,3 +208,34 @@ def zero_policy_comparison(policy: Callable[[np.ndarray], np.ndarray],
     return {"error": float(sums[0] / count), "zero_error": float(sums[1] / count),
             "ratio": float(sums[0] / sums[1]), "whole_velocity_ratio": float(sums[2] / sums[1]),
             "n_samples": int(count)}
+
+
+def poorly_explained(policy: Callable[[np.ndarray], np.ndarray],
+                     trajectories: Sequence[Trajectory], names: Sequence[str]
+                     ) -> dict[str, float]:
+    """The held-out demonstrations a policy explains at most half of: each one's error
+    along its motion over a zero policy's (:func:`zero_policy_comparison`), where it is at
+    least :data:`~policy_align_ros.learning.folds.POOR_FIT_RATIO`, the level at which a
+    fit's own held-out error is a poor fit.
+
+    Parameters
+    ----------
+    policy : callable
+        ``policy(X)`` (m, n) -> (m, n) in state units per second.
+    trajectories : sequence of Trajectory
+        Held-out demonstrations, with times (s).
+    names : sequence of str
+        Their names, in the same order.
+
+    Returns
+    -------
+    dict str -> float
+        Name -> ratio (1: no better than a zero policy), in the given order; those
+        without motion are left out.
+    """
+    out = {}
+    for name, traj in zip(names, trajectories, strict=True):
+        zero = zero_policy_comparison(policy, [traj])
+        if zero is not None and zero["ratio"] >= POOR_FIT_RATIO:
+            out[str(name)] = round(zero["ratio"], 4)
+    return out
