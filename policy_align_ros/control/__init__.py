@@ -111,6 +111,7 @@ from policy_align_ros.control.stall import (
 )
 from policy_align_ros.control.stamp_hints import clock_mismatch_hint
 from policy_align_ros.control.status import (
+    ClockWatch,
     arming_status,
     enable_answer,
     model_text,
@@ -127,6 +128,7 @@ from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_sta
 from policy_align_ros.control.turns import TURN, nearest_turn, turn_centres, wrap_continuous
 
 __all__ = [
+    "ClockWatch",
     "DEFAULT_DRIFT_CLAMP_M",
     "DEFAULT_DRIFT_GAIN",
     "DEFAULT_JOINT_LIMIT_MARGIN",

@@ -15,11 +15,41 @@ from policy_align_ros.control.guard_hold import guard_hold
 from policy_align_ros.control.model_checks import forced_model_warning
 from policy_align_ros.control.step import ControlStep
 
-__all__ = ["ERROR", "OK", "WARN", "arming_status", "enable_answer", "held_error_text",
-           "model_text", "rejection_note", "untrustworthy_reason"]
+__all__ = ["ERROR", "OK", "WARN", "ClockWatch", "arming_status", "enable_answer",
+           "held_error_text", "model_text", "rejection_note", "untrustworthy_reason"]
 
 #: Levels of :func:`arming_status`, as diagnostic_msgs/DiagnosticStatus numbers them.
 OK, WARN, ERROR = 0, 1, 2
+
+
+class ClockWatch:
+    """Whether the node clock advances, told on a steady clock: a paused simulation stops
+    the node clock (``use_sim_time``), and with it every timer on it, so the status says
+    so rather than falling silent.
+
+    Parameters
+    ----------
+    period_ns : int
+        The status period (ns, steady clock); a node clock standing still for longer is
+        reported.
+    """
+
+    def __init__(self, period_ns: int) -> None:
+        self.period_ns = int(period_ns)
+        self._node_ns: int | None = None
+        self._since_ns = 0
+
+    def update(self, node_ns: int, steady_ns: int) -> str:
+        """``"advancing"``, or for how long the node clock ``node_ns`` has stood still by
+        the steady clock ``steady_ns`` (both ns) when longer than a period."""
+        if self._node_ns is None or node_ns != self._node_ns:
+            self._node_ns, self._since_ns = int(node_ns), int(steady_ns)
+            return "advancing"
+        still = steady_ns - self._since_ns
+        if still <= self.period_ns:
+            return "advancing"
+        return (f"not advancing for {still / 1e9:.1f} s (simulation paused?): no control "
+                "step runs, and the controller holds the last command")
 
 
 def held_error_text(controller: ArmedController) -> str:

@@ -86,6 +86,7 @@ from __future__ import annotations
 
 import functools
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 
@@ -94,6 +95,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.parameter import Parameter
@@ -104,6 +106,7 @@ from std_srvs.srv import SetBool
 
 from policy_align_ros.control import (
     ArmedController,
+    ClockWatch,
     GuardHoldLog,
     Output,
     StartModel,
@@ -147,7 +150,7 @@ from policy_align_ros.nodes.start_parameters import StartParameterError
 
 __all__ = ["Executor", "main"]
 
-#: Period of the /diagnostics status (s of node clock); every arming change, by ~/enable,
+#: Period of the /diagnostics status (s, steady clock); every arming change, by ~/enable,
 #: a stale or broken state or a fault, also goes out at once (through ``_emit``).
 DIAGNOSTICS_PERIOD_S = 1.0
 #: How long ~/enable waits for the controller's joints parameter (s, wall time).
@@ -252,7 +255,11 @@ class Executor(StartNode):
                             callback_group=ReentrantCallbackGroup())
         # Timers run on the node clock (rclpy's default), hence on /clock with use_sim_time.
         self.create_timer(self.controller.step.dt, self._locked(self._on_timer))
-        self.create_timer(DIAGNOSTICS_PERIOD_S, self._locked(self.publish_diagnostics))
+        # The status alone runs on the steady clock: a paused simulation stops the node
+        # clock, and /diagnostics then says so rather than falling silent.
+        self._clock_watch = ClockWatch(round(DIAGNOSTICS_PERIOD_S * 1e9))
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self._locked(self.publish_diagnostics),
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _locked(self, callback: Callable) -> Callable:
         """``callback`` run under the node's lock (see ``_lock``)."""
@@ -559,6 +566,8 @@ class Executor(StartNode):
             control, self._now_ns(), model=self.model_path, model_state=self.model_state,
             constraints=self._constraints_text(),
             rejected=self.rejected_states)
+        values["node_clock"] = self._clock_watch.update(
+            self._now_ns(), time.monotonic_ns())
         status = DiagnosticStatus(
             level=(DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level],
             name=f"{self.get_name()}: arming", message=message,

@@ -6,6 +6,7 @@ import math
 import pytest
 
 from policy_align_ros.control import (
+    ClockWatch,
     enable_answer,
     model_text,
     rejection_note,
@@ -62,3 +63,13 @@ def test_duplicate_names_and_lengths_are_named_too():
     reason = untrustworthy_reason("length_mismatch", JOINTS, JOINTS, [0.0] * 2, [0.0])
     assert all(f"{n} {what}" in reason for n, what in ((3, "names"), (2, "positions"),
                                                        (1, "velocities"), (0, "efforts")))
+
+
+def test_a_node_clock_that_stands_still_is_told_after_a_period():
+    watch = ClockWatch(period_ns=10**9)
+    assert watch.update(5 * 10**9, 100 * 10**9) == "advancing"
+    assert watch.update(6 * 10**9, 101 * 10**9) == "advancing"
+    # Paused: the node clock stays at 6 s while the steady clock runs on.
+    assert watch.update(6 * 10**9, 101 * 10**9 + 5 * 10**8) == "advancing"
+    assert watch.update(6 * 10**9, 104 * 10**9) != "advancing"
+    assert watch.update(6 * 10**9 + 1, 104 * 10**9 + 1) == "advancing"  # resumed

@@ -327,6 +327,15 @@ def test_sim_time_drives_the_ticks_and_a_backwards_clock_disarms(rig):
     advance(10)
     assert len(r.commands) == count  # stays disarmed
 
+    # A paused simulation: wall time passes, the node clock does not. /diagnostics, on the
+    # steady clock, goes on and says so.
+    def paused() -> bool:
+        values = {kv.key: kv.value for kv in r.diagnostics[-1].status[0].values}
+        return values.get("node_clock", "advancing") != "advancing"
+
+    r.spin_until(lambda: bool(r.diagnostics) and paused(), publish_states=False,
+                 what="/diagnostics saying the clock stands still")
+
 
 def test_diagnostics_report_arming_model_zero_reason_and_ramp(rig, tmp_path):
     good = _fit_model(tmp_path / "good.npz", JOINTS, np.zeros(len(JOINTS)))
