@@ -66,10 +66,11 @@ docs/executor_safety.md explains it for robot owners):
   than a quarter of the expected motion for ``stall_time_s`` while commanded at least
   0.05 rad/s; :mod:`policy_align_ros.control.stall`) ramps down, disarms and is reported
   at ERROR level;
-* all timing uses the node clock, so ``use_sim_time`` works;
-* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second and on arming changes)
-  reports the arming state, the model, why the command is zero, the ramp scale, the
-  extrapolation scale and the held frames' error.
+* all control timing uses the node clock, so ``use_sim_time`` works;
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second of the steady clock and
+  on arming changes) reports the arming state, the model, why the command is zero, the
+  ramp scale, the extrapolation scale, the held frames' error and whether the node clock
+  advances (a paused simulation stops it, and every control step with it).
 
 A ros2_control JointGroupVelocityController holds its last command forever, so the
 executor also publishes a zero when it shuts down; pair it with a controller-side command
