@@ -89,6 +89,12 @@ def describe_skips(skipped: dict[str, int], lost: int) -> str:
     if skipped.get("time_in_future"):
         detail += (" (time_in_future: header stamps ahead of this node's clock; are the "
                    "clocks synchronised, and use_sim_time the same on every node?)")
+    if skipped.get("time_not_increasing"):
+        detail += (" (time_not_increasing: a stamp repeated or before the last one; a paused "
+                   "simulation repeats its stamp, a message out of order comes late)")
+    if skipped.get("clock_reset") or skipped.get("after_clock_reset"):
+        detail += (" (clock_reset: the stamps jumped back by a second or more, a restarted "
+                   "simulation; that demonstration is discarded at stop_demo)")
     if skipped.get("time_negative"):
         detail += (" (time_negative: header stamps before 1970; does the publisher "
                    "stamp with a clock that was never set?)")

@@ -106,6 +106,10 @@ def test_clock_reasons_get_a_hint_and_paused_messages_are_counted():
     assert detail.count(" (time_") == 2
     assert detail.endswith(", paused_while_a_write_is_pending=4")
     assert describe_skips({}, 4) == "paused_while_a_write_is_pending=4"
+    # Stamps that repeat or jump back (a paused or restarted simulation) get one each too.
+    detail = describe_skips({"time_not_increasing": 2, "clock_reset": 1}, 0)
+    assert detail.startswith("time_not_increasing=2, clock_reset=1 (")
+    assert detail.count(" (") == 2
 
 
 def test_a_message_skipped_for_its_joints_is_described_by_what_it_lacks_and_carries():
