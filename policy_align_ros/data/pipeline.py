@@ -471,16 +471,18 @@ def _unwrap_continuous(demos: _Demos, robot: str | None, say: Callable[[str], No
                        ) -> None:
     """Put the continuous joints of ``robot`` (its URDF) on one turn in every demonstration
     (:mod:`~policy_align_ros.data.turns`): drivers report them modulo a turn. A joint
-    that still jumps by more than half a turn is refused (``check_jumps``).
+    that still jumps by more than half a turn, or faster than ten times its velocity
+    limit, is refused (``check_jumps``).
 
     A ``robot`` that does not load with the demonstrations' joints is refused
     (``ValueError``): the model file would name a robot the executor cannot load."""
-    mask = np.zeros(len(demos.joints), dtype=bool)
+    mask, limits = np.zeros(len(demos.joints), dtype=bool), None
     if robot:
         from policy_align_ros.kinematics import Robot  # Pinocchio, only with a robot
 
         try:
-            mask = Robot.load(robot, demos.joints).continuous
+            loaded = Robot.load(robot, demos.joints)
+            mask, limits = loaded.continuous, loaded.velocity_limit
         except (ValueError, OSError) as err:
             raise ValueError(
                 f"robot {robot!r} does not load with the demonstrations' joints "
@@ -491,7 +493,7 @@ def _unwrap_continuous(demos: _Demos, robot: str | None, say: Callable[[str], No
         demos.trajs = unwrap_turns(demos.trajs, mask)
         demos.continuous = [j for j, c in zip(demos.joints, mask, strict=True) if c]
         say(f"continuous joint(s) {', '.join(demos.continuous)} put on one turn")
-    check_jumps(demos.trajs, demos.names, demos.joints, robot)
+    check_jumps(demos.trajs, demos.names, demos.joints, robot, limits)
 
 
 def _split(unique: list[int], fraction: float, seed: int) -> tuple[list[int], list[int]]:

@@ -8,7 +8,9 @@ demonstration's angle continuous in time (``numpy.unwrap``) and moves each demon
 whole turns to within half a turn of the angles' circular mean over all demonstrations.
 The executor brings its measurements to the same turn
 (:mod:`policy_align_ros.control.turns`). Where the joints' kinds are unknown (no robot),
-or a joint the robot does not call continuous jumps, :func:`check_jumps` refuses the data.
+or a joint the robot does not call continuous jumps, :func:`check_jumps` refuses the data;
+so it does a step faster than :data:`JUMP_SPEED_FACTOR` times the joint's velocity limit
+(a reset or a glitch in the recording: the robot cannot have moved so).
 """
 
 from __future__ import annotations
@@ -20,7 +22,12 @@ import numpy as np
 
 from policy_align_ros.learning.trajectory import Trajectory
 
-__all__ = ["check_jumps", "unwrap_turns"]
+__all__ = ["JUMP_SPEED_FACTOR", "check_jumps", "unwrap_turns"]
+
+#: A step faster than this many times its joint's velocity limit (over the demonstration's
+#: median sample period at least, so that jittered stamps do not make one) is a jump the
+#: robot did not make. Wide: a URDF's limits are sometimes lower than what the joint does.
+JUMP_SPEED_FACTOR = 10.0
 
 
 def unwrap_turns(trajs: Sequence[Trajectory], continuous: np.ndarray) -> list[Trajectory]:
@@ -56,10 +63,11 @@ def unwrap_turns(trajs: Sequence[Trajectory], continuous: np.ndarray) -> list[Tr
 
 
 def check_jumps(trajs: Sequence[Trajectory], names: Sequence[str], joints: Sequence[str],
-                robot: str | None) -> None:
+                robot: str | None, velocity_limit: np.ndarray | None = None) -> None:
     """Refuse demonstrations in which a joint moves by more than half a turn between two
     samples: no joint does that; a continuous joint reported modulo a turn, and not
-    unwrapped, does.
+    unwrapped, does. With the joints' velocity limits, refuse a step faster than
+    :data:`JUMP_SPEED_FACTOR` times its joint's limit too.
 
     Parameters
     ----------
@@ -71,6 +79,9 @@ def check_jumps(trajs: Sequence[Trajectory], names: Sequence[str], joints: Seque
         The joints of the positions' columns.
     robot : str or None
         The robot the joints' kinds came from (None: unknown).
+    velocity_limit : numpy.ndarray, shape (n,), optional
+        The joints' velocity limits (rad/s or m/s; those not finite and positive are not
+        checked).
 
     Raises
     ------
@@ -89,3 +100,26 @@ def check_jumps(trajs: Sequence[Trajectory], names: Sequence[str], joints: Seque
         raise ValueError(f"joint {joints[j]}: moves by {steps[i, j]:.3g} between two samples "
                          f"of demonstration {name} (more than half a turn): a continuous "
                          f"joint reported modulo a turn? {fix}")
+    if velocity_limit is not None:
+        for traj, name in zip(trajs, names, strict=True):
+            _check_speed(traj, name, joints, robot, np.asarray(velocity_limit, dtype=float))
+
+
+def _check_speed(traj: Trajectory, name: str, joints: Sequence[str], robot: str | None,
+                 limit: np.ndarray) -> None:
+    """Refuse a step of ``traj`` faster than :data:`JUMP_SPEED_FACTOR` times ``limit``."""
+    steps = np.abs(np.diff(traj.positions, axis=0))
+    if not steps.size:
+        return
+    dt = traj.dt
+    speed = steps / np.maximum(dt, np.median(dt))[:, None]
+    checked = np.isfinite(limit) & (limit > 0.0)
+    over = np.where(checked, speed / np.where(checked, limit, 1.0), 0.0)
+    i, j = np.unravel_index(int(np.argmax(over)), over.shape)
+    if over[i, j] <= JUMP_SPEED_FACTOR:
+        return
+    raise ValueError(
+        f"joint {joints[j]}: moves by {steps[i, j]:.3g} in {1e3 * dt[i]:.3g} ms at "
+        f"{float(np.sum(dt[:i])):.3f} s into demonstration {name}, {over[i, j]:.0f} "
+        f"times its velocity limit {limit[j]:g} in {robot}: a reset or a glitch in the "
+        "recording? leave the demonstration out")

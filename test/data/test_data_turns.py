@@ -47,3 +47,20 @@ def test_a_jump_of_more_than_half_a_turn_is_refused_naming_joint_demonstration_a
         check_jumps([calm, wrapped], ["calm", "wrapped"], ["a", "b"], None)
     with pytest.raises(ValueError, match=r"^joint b\b.*\bwrapped\b.*\bjaco\b"):
         check_jumps([calm, wrapped], ["calm", "wrapped"], ["a", "b"], "jaco")
+
+
+def test_a_step_far_faster_than_the_velocity_limit_is_refused_and_jitter_is_not():
+    # 1 kHz at 0.5 rad/s, limit 2 rad/s; stamps jittered down to 0.05 ms apart.
+    rng = np.random.default_rng(2)
+    t = np.cumsum(rng.uniform(0.00005, 0.00195, 2000))
+    calm = Trajectory(np.column_stack([0.5 * t, -0.3 * t]), t)
+    limits = np.array([2.0, 2.0])
+    check_jumps([calm], ["calm"], ["a", "b"], "panda", limits)  # jitter is no jump
+    # A reset moved the robot by 0.28 rad between two samples (a splice of two runs).
+    X = calm.positions.copy()
+    X[1000:, 1] += 0.28
+    spliced = Trajectory(X, t)
+    with pytest.raises(ValueError, match=r"^joint b\b.*\bspliced\b.*\bpanda\b"):
+        check_jumps([calm, spliced], ["calm", "spliced"], ["a", "b"], "panda", limits)
+    check_jumps([spliced], ["spliced"], ["a", "b"], "panda")  # limits unknown: not checked
+    check_jumps([spliced], ["spliced"], ["a", "b"], "panda", np.array([np.inf, 0.0]))
