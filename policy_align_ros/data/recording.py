@@ -86,6 +86,7 @@ __all__ = [
 #: onto what came before, or lost).
 CLOCK_RESET_S = 1.0
 
+
 def validate_gap(auto_split_gap_s: float) -> float:
     """Check a split gap in seconds (``0`` = manual mode); returns it as a float."""
     gap = float(auto_split_gap_s)
