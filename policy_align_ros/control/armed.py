@@ -381,9 +381,10 @@ class ArmedController:
         self._forced_reported_ns = None
         self.clock_jump_s = (last - now_ns) / 1e9
         reason = f"clock jumped back by {self.clock_jump_s:.3f} s (restarted simulation?)"
-        if self.zero_cause in _STAMP_CAUSES:
+        if self._silent and self.zero_cause in _STAMP_CAUSES:
             # Already at zero for a stamp the restart made look wrong: the jump is the cause.
             self.zero_reason, self.zero_cause = reason, ZeroCause.CLOCK_JUMPED_BACK
+            self._log("warning", f"{reason}: the joint-state fault before it came from it")
         return self.fault(reason, ZeroCause.CLOCK_JUMPED_BACK)
 
     # -- arming ---------------------------------------------------------------------

@@ -78,5 +78,6 @@ def test_a_restarted_simulation_is_told_as_such_not_as_unsynchronised_clocks():
     hint = clock_mismatch_hint(out.rejected, 2 * 10**9, t + DT_NS)
     assert hint and "use_sim_time" not in hint  # no parameter is wrong
     # Then the node clock follows: the jump, not the stamp, is said to be the cause.
-    control.tick(2 * 10**9 + DT_NS)
+    out = control.tick(2 * 10**9 + DT_NS)
     assert control.zero_cause == ZeroCause.CLOCK_JUMPED_BACK
+    assert [level for level, _ in out.events] == ["warning"]  # and it is logged
