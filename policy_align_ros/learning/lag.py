@@ -31,8 +31,10 @@ from policy_align_ros.learning.trajectory import Trajectory
 __all__ = ["LAG_GRID", "choose_lag", "kinetic_term", "lagged_potentials", "refine_minimum"]
 
 #: Time constants (s) scored by :func:`choose_lag` besides 0: velocity controllers lag by
-#: tens of milliseconds, a person's speed builds up over a few hundred.
-LAG_GRID = (0.02, 0.04, 0.08, 0.16, 0.32)
+#: tens of milliseconds (a compliant arm's slow loop by a few hundred), a person's speed
+#: builds up over a few hundred. A lag is refined between the grid points around the best
+#: score, so the last point only brackets: lags up to about half of it are found.
+LAG_GRID = (0.02, 0.04, 0.08, 0.16, 0.32, 0.64)
 
 
 def kinetic_term(traj: Trajectory) -> np.ndarray:

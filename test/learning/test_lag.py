@@ -125,6 +125,15 @@ def test_exact_gradient_flows_keep_the_papers_estimate():
     assert model.tracking_lag_ == 0.0
 
 
+def test_a_slow_loops_lag_is_bracketed_and_refined_not_stopped_at_a_grid_point():
+    # A compliant arm's 250 ms velocity loop: the score falls up to 0.32 s and rises after.
+    def slow(tau):
+        return 0.01 + (tau - 0.25) ** 2, 1e-4
+
+    tau, scores = choose_lag(slow)
+    assert max(scores) > 0.32 and tau == pytest.approx(0.25, rel=0.02)
+
+
 def test_tracking_lag_is_validated():
     demos, _ = _lagged_demos(0.08, n_demos=3)
     with pytest.raises(ValueError, match="tracking_lag"):
