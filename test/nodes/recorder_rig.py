@@ -11,6 +11,7 @@ from contextlib import contextmanager
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -84,3 +85,19 @@ def _ros(domain_id: int):
         yield ctx
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+@contextmanager
+def _ab_recorder(domain_id: int, dataset_dir):
+    """A recorder of joints ``a`` and ``b`` into ``dataset_dir`` on its own domain, and a
+    ready harness for it: ``(harness, DemoRecorder)``."""
+    with _ros(domain_id) as ctx:
+        recorder = RecorderNode(context=ctx, parameter_overrides=[
+            Parameter("dataset_dir", value=str(dataset_dir)),
+            Parameter("joints", value=["a", "b"])])
+        harness = _Harness(ctx, recorder)
+        try:
+            harness.ready()
+            yield harness, recorder.recorder
+        finally:
+            harness.close()

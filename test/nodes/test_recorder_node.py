@@ -11,7 +11,7 @@ import time
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from recorder_rig import T0, _Harness, _msg, _ros, _wait
+from recorder_rig import T0, _ab_recorder, _Harness, _msg, _ros, _wait
 from std_srvs.srv import Trigger
 
 from policy_align_ros.data import load_dataset, read_joint_states
@@ -252,27 +252,18 @@ def test_stop_without_start_refuses_and_a_still_demonstration_is_written_with_a_
     still = [_msg(T0 + k * 10_000_000, ["a", "b"], [0.3, -0.2]) for k in range(5)]
     moving = [_msg(T0 + 10**9 + k * 10_000_000, ["a", "b"], [0.3 + 0.1 * k, -0.2])
               for k in range(5)]
-    with _ros(218) as ctx:
-        recorder = RecorderNode(context=ctx, parameter_overrides=[
-            Parameter("dataset_dir", value=str(tmp_path / "ds")),
-            Parameter("joints", value=["a", "b"])])
-        harness = _Harness(ctx, recorder)
-        rec = recorder.recorder
-        try:
-            harness.ready()
-            # Nothing to stop: refused, nothing written, and the recorder is not started.
-            response = harness.call(harness.stop)
-            assert not response.success and rec.written == [] and not rec.active
-            answers = []
-            for messages in (still, moving):
-                assert harness.call(harness.start).success
-                target = rec.accepted + len(messages)
-                for msg in messages:
-                    harness.pub.publish(msg)
-                _wait(lambda t=target: rec.accepted >= t, 10.0, "the messages")
-                answers.append(harness.call(harness.stop))
-        finally:
-            harness.close()
+    with _ab_recorder(218, tmp_path / "ds") as (harness, rec):
+        # Nothing to stop: refused, nothing written, and the recorder is not started.
+        response = harness.call(harness.stop)
+        assert not response.success and rec.written == [] and not rec.active
+        answers = []
+        for messages in (still, moving):
+            assert harness.call(harness.start).success
+            target = rec.accepted + len(messages)
+            for msg in messages:
+                harness.pub.publish(msg)
+            _wait(lambda t=target: rec.accepted >= t, 10.0, "the messages")
+            answers.append(harness.call(harness.stop))
     # Both written (a recorder never drops data); the still one with a warning after its
     # path, the other with its path alone.
     assert [a.success for a in answers] == [True, True]
@@ -287,21 +278,11 @@ def test_a_demonstration_across_a_clock_reset_is_refused_and_not_written(tmp_pat
     before = [_msg(T0 + k * 10_000_000, ["a", "b"], [0.01 * k, 0.0]) for k in range(300)]
     after = [_msg(T0 + 10**9 + k * 10_000_000, ["a", "b"], [0.0, 0.01 * k])
              for k in range(300)]
-    with _ros(103) as ctx:
-        recorder = RecorderNode(context=ctx, parameter_overrides=[
-            Parameter("dataset_dir", value=str(tmp_path / "ds")),
-            Parameter("joints", value=["a", "b"])])
-        harness = _Harness(ctx, recorder)
-        rec = recorder.recorder
-        try:
-            harness.ready()
-            assert harness.call(harness.start).success
-            for msg in before + after:
-                harness.pub.publish(msg)
-            _wait(lambda: rec.accepted + sum(rec.skipped.values()) >= 600, 10.0,
-                  "the messages")
-            response = harness.call(harness.stop)
-        finally:
-            harness.close()
+    with _ab_recorder(103, tmp_path / "ds") as (harness, rec):
+        assert harness.call(harness.start).success
+        for msg in before + after:
+            harness.pub.publish(msg)
+        _wait(lambda: rec.accepted + sum(rec.skipped.values()) >= 600, 10.0, "the messages")
+        response = harness.call(harness.stop)
     assert not response.success and rec.discarded == 1 and rec.written == []
     assert not (tmp_path / "ds" / "demo_0000").exists()
