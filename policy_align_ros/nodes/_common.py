@@ -38,7 +38,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray
 
 from policy_align_ros.kinematics import Robot, RobotSetup, resolve_robot_setup
-from policy_align_ros.kinematics.robot import ROBOTS
+from policy_align_ros.kinematics.robot import ROBOTS, closest_names
 from policy_align_ros.learning.policy_file import read_robot_fields
 from policy_align_ros.nodes.start_parameters import (
     StartParameterError,
@@ -61,6 +61,7 @@ __all__ = [
     "reject",
     "run_node",
     "start_overrides",
+    "undeclared_overrides",
 ]
 
 #: Talos upper body (talos_reduced.urdf): torso, both 7-DoF arms and head. The grippers
@@ -210,6 +211,16 @@ def start_overrides(node: Node) -> Mapping[str, Parameter]:
     that reads rclpy's private attribute.
     """
     return getattr(node, "_parameter_overrides", {})
+
+
+def undeclared_overrides(node: Node) -> list[str]:
+    """The parameters given at start that ``node`` does not declare, each with the closest
+    names it does (rclpy ignores them: a misspelt limit would leave its default in force).
+    Names of rclpy's own QoS overrides (``qos_overrides.``) are left out."""
+    declared = node.list_parameters([], 0).names
+    return [f"{name!r} (closest: {closest_names(name, declared, 3)})"
+            for name in sorted(start_overrides(node))
+            if not name.startswith("qos_overrides.") and not node.has_parameter(name)]
 
 
 def _override(node: Node, name: str) -> Any:
@@ -381,6 +392,9 @@ def run_node(
     code = 0
     try:
         node = make_node()
+        for text in undeclared_overrides(node):
+            node.get_logger().warning(f"parameter {text} given at start is not one of this "
+                                      "node's: ignored")
         executor = executor_factory()
         executor.add_node(node)
         # A node that can finish (the demonstrator) exposes a ``done`` future: its exit code.

@@ -1,4 +1,5 @@
-"""Tests of policy_align_ros.nodes._common (the shared main() of the node executables)."""
+"""Tests of policy_align_ros.nodes._common (the shared main() of the node executables;
+domain ids 192 and 104)."""
 
 import os
 import subprocess
@@ -115,3 +116,21 @@ def test_a_node_main_ends_without_ignored_exceptions(factory):
     assert done.returncode == 0, done.stderr
     assert "Exception ignored" not in done.stderr, done.stderr
     assert "Traceback" not in done.stderr, done.stderr
+
+
+def test_a_parameter_given_at_start_that_the_node_does_not_declare_is_named(ros_context):
+    # rclpy ignores it: a misspelt limit would leave the default in force, unsaid.
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from policy_align_ros.nodes._common import undeclared_overrides
+
+    node = Node("typo", context=ros_context(104), parameter_overrides=[
+        Parameter("max_velocty", value=0.1), Parameter("max_velocity", value=0.1),
+        Parameter("qos_overrides./x.subscription.depth", value=5)])
+    try:
+        node.declare_parameter("max_velocity", 0.5)
+        found = undeclared_overrides(node)
+        assert len(found) == 1 and "'max_velocty'" in found[0] and "max_velocity" in found[0]
+    finally:
+        node.destroy_node()
