@@ -3,8 +3,9 @@
 :func:`~policy_align_ros.data.pipeline.learn_pipeline`, ``policy-align learn`` and the
 ``learner`` node share these rules, so that a bad value is refused with the same message,
 naming the parameter, wherever it is given: the kernel width rule or value
-(:func:`parse_sigma`), the state (:func:`state_name`), the share held out
-(:data:`HOLDOUT_RANGE`) and a file to write (:func:`check_writable`).
+(:func:`parse_sigma`), the state (:func:`state_name`) and its frames on the robot
+(:func:`check_state_frames`), the share held out (:data:`HOLDOUT_RANGE`) and a file to
+write (:func:`check_writable`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from pathlib import Path
 
 from policy_align_ros.learning.state_spec import parse_state_spec
 
-__all__ = ["HOLDOUT_RANGE", "SIGMA_RULES", "check_writable", "parse_sigma", "state_name"]
+__all__ = ["HOLDOUT_RANGE", "SIGMA_RULES", "check_state_frames", "check_writable",
+           "parse_sigma", "state_name"]
 
 #: Allowed ``holdout_fraction`` (``--holdout``), shared by the CLI and the learner node:
 #: at least half of the distinct demonstrations always train the model.
@@ -56,6 +58,32 @@ def state_name(state: str) -> str:
     """
     frames = parse_state_spec(state)
     return "joints" if frames is None else "frames:" + ",".join(frames)
+
+
+def check_state_frames(state: str, robot: str | None) -> None:
+    """A ``frames:`` state's robot and frames (``state`` as :func:`state_name` gives it),
+    before any data is read; nothing for ``"joints"``. Pinocchio is imported only here,
+    so that joint states need none.
+
+    Raises
+    ------
+    ValueError
+        Naming ``robot`` when there is none or it does not load, ``state`` for a frame the
+        robot does not have (with the closest names).
+    """
+    if state == "joints":
+        return
+    if not robot:
+        raise ValueError("robot: a frames: state needs the robot (example-robot-data name "
+                         "or URDF path) whose kinematics give the frame positions")
+    from policy_align_ros.kinematics.robot import check_frames
+
+    try:
+        check_frames(robot, state.split(":", 1)[1].split(","))
+    except ValueError as err:
+        text = str(err)
+        raise ValueError(f"state: {text.removeprefix('frame: ')}" if text.startswith("frame: ")
+                         else text) from None
 
 
 def check_writable(path: str | Path, what: str = "model_path") -> None:

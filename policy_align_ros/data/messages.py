@@ -44,6 +44,7 @@ from collections.abc import Sequence
 import numpy as np
 
 __all__ = [
+    "CLOCK_RESET_S",
     "SKIP_REASONS",
     "UNTRUSTWORTHY",
     "JointSelector",
@@ -68,6 +69,10 @@ UNTRUSTWORTHY: frozenset[str] = frozenset({"length_mismatch", "duplicate_joints"
 
 #: Outcomes of :meth:`StreamClock.step`.
 SAME, NEW, SKIP = 0, 1, 2
+#: A stamp this many seconds or more before the last one is a clock that was reset (a
+#: restarted simulation), not a message out of order: a stream split at gaps starts a new
+#: segment there, and a manual demonstration recorded across it is spoiled.
+CLOCK_RESET_S = 1.0
 
 # Bounds the per-name-list cache; real streams have one or two distinct name lists.
 _CACHE_LIMIT = 64
@@ -305,9 +310,10 @@ class StreamClock:
     ----------
     gap_ns : int
         A step forward of more than ``gap_ns`` nanoseconds starts a new segment, and so
-        does a jump backwards of more than ``gap_ns`` (a restarted clock), rather than
-        discarding the rest of the stream. ``0`` disables splitting: every step that is
-        not forward is then skipped.
+        does a jump backwards of more than ``gap_ns`` or of :data:`CLOCK_RESET_S` or more
+        (a restarted clock), rather than discarding the rest of the stream or splicing it
+        onto what came before. ``0`` disables splitting: every step that is not forward is
+        then skipped (:meth:`jumped_back` tells a reset among them).
     """
 
     def __init__(self, gap_ns: int = 0) -> None:
@@ -336,7 +342,13 @@ class StreamClock:
         gap = self.gap_ns
         if step > 0:
             return NEW if gap and step > gap else SAME
-        return NEW if gap and -step > gap else SKIP
+        return NEW if gap and (-step > gap or self.jumped_back(stamp_ns)) else SKIP
+
+    def jumped_back(self, stamp_ns: int) -> float:
+        """How far (s) ``stamp_ns`` lies before the last stamp when that is
+        :data:`CLOCK_RESET_S` or more (a reset clock); 0.0 otherwise."""
+        back = (self.last_ns - stamp_ns) / 1e9 if self.last_ns is not None else 0.0
+        return back if back >= CLOCK_RESET_S else 0.0
 
     def accept(self, stamp_ns: int) -> None:
         """Record the stamp of an accepted message."""

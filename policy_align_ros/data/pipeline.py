@@ -54,6 +54,7 @@ import numpy as np
 
 from policy_align_ros.data.arguments import (
     HOLDOUT_RANGE,
+    check_state_frames,
     check_writable,
     parse_sigma,
     state_name,
@@ -212,20 +213,6 @@ def _odd_clocks(scales: list[float], names: list[str]) -> str:
     return "".join(f"; {text}" for text in out)
 
 
-def _check_frames(robot: str | None, frames: list[str]) -> None:
-    """A ``frames:`` state's robot and frames, before any data is read (Pinocchio is
-    imported here so that joint states need none)."""
-    if not robot:
-        raise ValueError("robot: a frames: state needs the robot (example-robot-data name "
-                         "or URDF path) whose kinematics give the frame positions")
-    from policy_align_ros.kinematics.robot import check_frames
-
-    try:
-        check_frames(robot, frames)
-    except ValueError as err:
-        raise ValueError(f"state: {str(err).removeprefix('frame: ')}") from None
-
-
 def _load_frames_map(robot: str, frames: list[str], joints: list[str]):
     """The Pinocchio state map for the demonstrations' joints."""
     from policy_align_ros.kinematics import LearningStateMap, Robot
@@ -313,8 +300,8 @@ def learn_pipeline(
     say = log or (lambda _msg: None)
     run = _check_arguments(inputs, model_path, sigma, state, robot, gates or Gates(), force,
                            seed, holdout_fraction, gap_s)
-    if run.state != "joints" and state_map is None:
-        _check_frames(robot, run.state.split(":", 1)[1].split(","))
+    if state_map is None:
+        check_state_frames(run.state, robot)
     demos = _discover(run, joints, gap_s, say)
     if joints is None and run.state == "joints" and state_map is None:
         _drop_constant_joints(demos, say)

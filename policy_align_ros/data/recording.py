@@ -72,19 +72,12 @@ from policy_align_ros.data.messages import (
 )
 
 __all__ = [
-    "CLOCK_RESET_S",
     "STILL_TOLERANCE",
     "DemoRecorder",
     "PendingWriteError",
     "SaveResult",
     "validate_gap",
 ]
-
-#: A stamp this many seconds or more before the last one recorded in a manual demonstration
-#: is a clock that was reset (a restarted simulation), not a message out of order: the
-#: demonstration is spoiled and discarded at ``stop`` (the rest of it would be spliced
-#: onto what came before, or lost).
-CLOCK_RESET_S = 1.0
 
 
 def validate_gap(auto_split_gap_s: float) -> float:
@@ -136,7 +129,7 @@ class DemoRecorder:
         Demonstrations dropped for having fewer than ``min_messages`` messages.
     discarded : int
         Manual demonstrations discarded at ``stop`` because the stamps jumped back by
-        :data:`CLOCK_RESET_S` or more during them.
+        :data:`~policy_align_ros.data.messages.CLOCK_RESET_S` or more during them.
     last_discard : str
         Why the last ``stop`` discarded its demonstration ("" when it did not).
     lost_while_pending : int
@@ -230,6 +223,8 @@ class DemoRecorder:
             ending = self.auto_split_gap_s > 0 and gap == 0 and self._pending is None
             self.auto_split_gap_s = gap
             self._clock.gap_ns = round(gap * 1e9)
+            if gap:  # a continuous recording splits at a reset instead of being spoiled
+                self._spoiled = ""
             return self._write_current() if ending else None
 
     def set_dataset_dir(self, dataset_dir: str | os.PathLike[str]) -> None:
@@ -267,6 +262,7 @@ class DemoRecorder:
         return self._pending_error
 
     def _clear(self) -> None:
+        self._spoiled = ""  # the demonstration it spoiled goes with the buffer
         self._stamps = array("q")
         self._positions = array("d")
         self._velocities = array("d")
@@ -298,7 +294,6 @@ class DemoRecorder:
                     "far); stop it first"
                 )
             self._active = True
-            self._spoiled = ""
             self._clock.reset()
             self._clear()
             self._last_rx = time.monotonic() if now is None else now
@@ -327,7 +322,7 @@ class DemoRecorder:
                 # continuous recording pauses), so this is the only write to do.
                 return self._write_pending()
             if self._spoiled:
-                self.last_discard, self._spoiled = self._spoiled, ""
+                self.last_discard = self._spoiled
                 self.discarded += 1
                 self._clear()
                 return None
@@ -508,12 +503,8 @@ class DemoRecorder:
                 self.skipped["time_in_future"] += 1
                 return None
             outcome = self._clock.step(stamp_ns)
-            if self._spoiled or (outcome == SKIP and self._clock_reset(stamp_ns)):
-                self.skipped["after_clock_reset" if self._spoiled else "clock_reset"] += 1
-                self._spoiled = self._spoiled or self._reset_text(stamp_ns)
-                return None
-            if outcome == SKIP:
-                self.skipped["time_not_increasing"] += 1
+            if outcome == SKIP or self._spoiled:
+                self.skipped[self._skip_reason(stamp_ns)] += 1
                 return None
             written = None
             if outcome == NEW and self._stamps:
@@ -528,18 +519,19 @@ class DemoRecorder:
             self._append(stamp_ns, *picked)
             return written
 
-    def _clock_reset(self, stamp_ns: int) -> bool:
-        """Whether ``stamp_ns``, in a manual demonstration, lies :data:`CLOCK_RESET_S` or
-        more before the last stamp recorded (a continuous recording starts a new
-        demonstration there instead: see :class:`StreamClock`)."""
-        last = self._clock.last_ns
-        return (not self.auto_split_gap_s and last is not None
-                and last - stamp_ns >= round(CLOCK_RESET_S * 1e9))
-
-    def _reset_text(self, stamp_ns: int) -> str:
+    def _skip_reason(self, stamp_ns: int) -> str:
+        """Why a message whose stamp does not go forward, or comes after a clock reset, is
+        skipped; a manual demonstration's reset spoils it (a continuous recording starts
+        a new one there instead: :class:`StreamClock`). Caller holds the lock."""
+        if self._spoiled:
+            return "after_clock_reset"
+        back = self._clock.jumped_back(stamp_ns)
+        if not back:
+            return "time_not_increasing"
         last = self._clock.last_ns or 0
-        return (f"the joint-state stamps jumped back by {(last - stamp_ns) / 1e9:.3f} s "
-                f"after {last / 1e9:.3f} s (a clock or simulator reset?)")
+        self._spoiled = (f"the joint-state stamps jumped back by {back:.3f} s after "
+                         f"{last / 1e9:.3f} s (a clock or simulator reset?)")
+        return "clock_reset"
 
     def _append(self, stamp_ns: int, pos: Sequence[float], vel: Sequence[float] | None
                 ) -> None:

@@ -41,3 +41,16 @@ def test_a_file_is_writable_where_a_file_can_be_created(tmp_path):
         check_writable(blocker / "fit.png", "--plot")  # under a file
     assert str(blocker) in str(err.value)
     assert HOLDOUT_RANGE[0] == 0.0 and HOLDOUT_RANGE[1] <= 0.5  # half at least trains
+
+
+def test_a_frames_state_is_checked_against_its_robot_naming_the_wrong_parameter():
+    from policy_align_ros.data.arguments import check_state_frames
+
+    check_state_frames("joints", None)  # nothing to check
+    check_state_frames("frames:arm_left_7_link", "talos")
+    with pytest.raises(ValueError, match=r"^state\b.*'nosuch'"):
+        check_state_frames("frames:nosuch", "talos")
+    with pytest.raises(ValueError, match=r"^robot\b.*'tals'"):  # the robot, not the state
+        check_state_frames("frames:arm_left_7_link", "tals")
+    with pytest.raises(ValueError, match=r"^robot\b"):
+        check_state_frames("frames:arm_left_7_link", None)

@@ -127,6 +127,27 @@ def test_a_manual_demonstration_across_a_clock_reset_is_discarded_not_spliced(tm
     assert rec.stop() == tmp_path / "ds" / "demo_0000" and rec.last_discard == ""
 
 
+def test_a_clock_reset_inside_a_long_gap_splits_a_continuous_recording(tmp_path):
+    # Split at gaps of 2 s; the stamps jump back 1.5 s: a reset, not a message out of
+    # order, so the runs before and after it are two demonstrations, not one spliced.
+    rng = np.random.default_rng(5)
+    rec = DemoRecorder(tmp_path / "ds", auto_split_gap_s=2.0)
+    rec.start()
+    _feed(rec, rng, 2000, T0)
+    _feed(rec, rng, 1000, T0 + 500 * MS)
+    rec.close(keep_current=True)
+    assert [len(list(read_joint_states(p))) for p in rec.written] == [2000, 1000]
+    assert rec.skipped["clock_reset"] == rec.skipped["time_not_increasing"] == 0
+    # A spoiled manual demonstration switched to continuous mode records on.
+    rec = DemoRecorder(tmp_path / "ds2")
+    rec.start()
+    _feed(rec, rng, 100, T0 + 2 * 10**9)
+    _feed(rec, rng, 10, T0)  # 2 s back: spoiled
+    rec.set_auto_split_gap(0.5)
+    _feed(rec, rng, 10, T0 + 10 * MS)
+    assert rec.buffered == 10 and rec.skipped["after_clock_reset"] == 9
+
+
 def test_continuous_mode_splits_at_gaps(tmp_path):
     rng = np.random.default_rng(2)
     rec = DemoRecorder(tmp_path, auto_split_gap_s=0.5)
