@@ -15,14 +15,14 @@ For each of ``num_demos`` demonstrations it:
    for ``demo_duration_s`` seconds, stops the robot and calls ``stop_demo``.
 
 All timing is on the node clock, so with ``use_sim_time`` the demonstrations run on the
-simulator's ``/clock``; when it jumps back (a restarted simulation) a demonstration under
-way is stopped and done again (the recorder discards it), and a wait starts again. Control
-ticks during a demonstration that come later than 1.5 periods after the previous one are
-counted as late (the simulator then integrated an older command). With
-``step_on_joint_state`` the node steps once per received joint state instead (lockstep with
-a simulator that publishes one state per tick: the command the simulator integrates next is
-computed from the state it just published, an exact Euler step of the expert as long as the
-node keeps up).
+simulator's ``/clock``; when it jumps back by ``CLOCK_RESET_S`` or more (a restarted
+simulation) a demonstration under way is stopped and done again (the recorder discards it;
+no retry is spent), and a wait starts again. Control ticks during a demonstration that come
+later than 1.5 periods after the previous one are counted as late (the simulator then
+integrated an older command). With ``step_on_joint_state`` the node steps once per received
+joint state instead (lockstep with a simulator that publishes one state per tick: the
+command the simulator integrates next is computed from the state it just published, an exact
+Euler step of the expert as long as the node keeps up).
 
 The frames and the attractor it uses, and where each came from (a parameter, the robot
 config, a default), are logged once at start. A frame that is not one of the robot's
@@ -61,7 +61,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from policy_align_ros.control import speed_limits
-from policy_align_ros.data.messages import JointSelector
+from policy_align_ros.data.messages import CLOCK_RESET_S, JointSelector
 from policy_align_ros.kinematics import Robot, RobotConfig, RobotSetup
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
@@ -168,6 +168,7 @@ class Demonstrator(StartNode):
         self._since = self._now()
         self._last_tick: float | None = None
         self._last_now: float | None = None  # the node clock at the last step [s]
+        self._redo = False  # the demonstration was stopped for a clock reset
         self._ready_since: float | None = None
         #: Control ticks during demonstrations, and those later than LATE_TICK_PERIODS.
         self.demo_ticks = 0
@@ -402,7 +403,7 @@ class Demonstrator(StartNode):
             return  # use_sim_time and no /clock yet: time would jump at the first message
         if self._since <= 0.0:
             self._since = now
-        if self._last_now is not None and now < self._last_now:
+        if self._last_now is not None and self._last_now - now >= CLOCK_RESET_S:
             self._clock_jumped(self._last_now - now, now)
         self._last_now = now
         if not self._fresh(now):
@@ -445,15 +446,19 @@ class Demonstrator(StartNode):
             self._finish(1, f"gave up after service_timeout_s: {self._not_ready()}")
 
     def _clock_jumped(self, back: float, now: float) -> None:
-        """The node clock went back by ``back`` s (a restarted simulation): a demonstration
-        under way is stopped (the recorder discards one recorded across the reset, and it
-        is done again); any other state starts its wait again on the new clock."""
+        """The node clock went back by ``back`` s, :data:`CLOCK_RESET_S` or more (a
+        restarted simulation, as the recorder tells it): a demonstration under way is
+        stopped and done again (the recorder discards it, and no retry is spent); any
+        other state starts its wait again on the new clock."""
         self._last_tick = self._paused_at = self._ready_since = None
         self._q_received = None  # a joint state from before the reset is not fresh
+        if self._state == "done":
+            return
         if self._state == "demo":
             self.get_logger().warning(f"the clock jumped back by {back:.3f} s (a simulator "
                                       "reset?): demonstration stopped, to be done again")
             self._send(np.zeros(len(self._selector.joints)))
+            self._redo = True
             self._call(self._stop, "stop_demo")
         else:
             self.get_logger().warning(f"the clock jumped back by {back:.3f} s (a simulator "
@@ -502,7 +507,15 @@ class Demonstrator(StartNode):
         self._send(self.script.command(q))
 
     def _stopped(self, response: Trigger.Response) -> None:
-        """Count a written demonstration, or redo a refused one (``max_retries``)."""
+        """Count a written demonstration, or redo a refused one (``max_retries``, not spent
+        on one stopped for a clock reset)."""
+        redo, self._redo = self._redo, False
+        if redo and not response.success:
+            self.get_logger().warning(f"recorder discarded the demonstration cut by the "
+                                      f"reset ({response.message}); redoing demonstration "
+                                      f"{self.demos_done + 1}")
+            self._new_start()
+            return
         if not response.success:
             # The recorder kept nothing (e.g. its subscription was not matched yet):
             # redo this demonstration from a new start, a few times at most.

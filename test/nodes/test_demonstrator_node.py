@@ -386,10 +386,17 @@ def test_a_clock_jump_back_stops_the_demonstration_under_way(monkeypatch):
         demo._on_timer()
         assert demo._state == "stop_demo" and np.all(sent[-1] == 0.0)
         assert any(level == "warning" for level, _ in demo.log.records)
+        # The recorder discards it: done again from a new start, no retry spent.
+        demo._stopped(Trigger.Response(success=False, message="discarded"))
+        assert demo._state == "reach" and demo._failures == 0 and demo.demos_done == 0
         # Waiting states start their wait again on the new clock.
         demo._state, demo._since, demo._last_now = "reach", 9.0, 10.0
         demo._on_timer()
         assert demo._since == 2.0
+        # A step back under CLOCK_RESET_S (a system clock's correction) is no reset.
+        demo._state, demo._since, demo._last_now = "wait", 1.5, 2.5
+        demo._on_timer()
+        assert demo._since == 1.5
         demo.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
