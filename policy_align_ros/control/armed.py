@@ -174,6 +174,7 @@ class ArmedController:
         self._arrival_ns: int | None = None
         self._repeat_ns: int | None = None  # arrival of the last repeat of that stamp
         self._last_now_ns: int | None = None
+        self._fault_ns: int | None = None  # the clock when the last fault went to zero
         self._forced_reported_ns: int | None = None
         self._published_ns: int | None = None  # when the last ramped command went out
         self._forced_suppressed = 0
@@ -381,8 +382,11 @@ class ArmedController:
         self._forced_reported_ns = None
         self.clock_jump_s = (last - now_ns) / 1e9
         reason = f"clock jumped back by {self.clock_jump_s:.3f} s (restarted simulation?)"
-        if self._silent and self.zero_cause in _STAMP_CAUSES:
-            # Already at zero for a stamp the restart made look wrong: the jump is the cause.
+        # Already at zero for a stamp the restart made look wrong, just before it (within
+        # the joint states' timeout): the jump is the cause. An older fault stands.
+        window = self._timeout_ns + self._skew_ns
+        if (self._silent and self.zero_cause in _STAMP_CAUSES and self._fault_ns is not None
+                and last - self._fault_ns <= window):
             self.zero_reason, self.zero_cause = reason, ZeroCause.CLOCK_JUMPED_BACK
             self._log("warning", f"{reason}: the joint-state fault before it came from it")
         return self.fault(reason, ZeroCause.CLOCK_JUMPED_BACK)
@@ -454,6 +458,7 @@ class ArmedController:
         self.armed = False
         self.faulted = True
         self._silent = True
+        self._fault_ns = self._last_now_ns
         self.zero_reason = reason
         self.zero_cause = cause
         self.ramp_scale = 1.0

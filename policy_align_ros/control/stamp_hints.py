@@ -4,8 +4,9 @@ A stamp seconds or more away from the node clock is rarely a slow network: it is
 on the system clock reading stamps of a simulator (seconds since the simulation
 started), a node on simulated time reading stamps of the system clock, or two computers
 whose clocks are not synchronised. Each rejects every joint state, and the first two are
-fixed by a parameter, so the refusal should name it. Between two simulator times it is a
-restarted simulation, whose stamps start again before this node's clock follows.
+fixed by a parameter, so the refusal should name it. Between two simulator times, stamps
+behind are a restarted simulation, whose stamps start again before this node's clock
+follows; stamps ahead, a ``/clock`` that stopped reaching this node.
 """
 
 from __future__ import annotations
@@ -47,7 +48,10 @@ def clock_mismatch_hint(rejected: str, stamp_ns: int, now_ns: int) -> str:
                 f"-p use_sim_time:=false, or stamp the joint states with /clock")
     where = f"{abs(diff_s):.1f} s {'behind' if diff_s > 0 else 'ahead of'} the node clock"
     if stamp_ns < _SYSTEM_CLOCK_NS and now_ns < _SYSTEM_CLOCK_NS:
-        return (f"the stamps are {where}, both simulator time: a restarted simulation? "
-                f"~/enable again once this node's clock has followed it")
+        if diff_s > 0:
+            return (f"the stamps are {where}, both simulator time: a restarted simulation? "
+                    f"~/enable again once this node's clock has followed it")
+        return (f"the stamps are {where}, both simulator time: does /clock reach this node "
+                f"(a stalled or missing /clock publisher)?")
     return (f"the stamps are {where}: are the clocks of the two computers synchronised, "
             f"and do both nodes agree on use_sim_time?")

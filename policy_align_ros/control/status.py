@@ -44,12 +44,14 @@ class ClockWatch:
         the steady clock ``steady_ns`` (both ns) when longer than a period."""
         if self._node_ns is None or node_ns != self._node_ns:
             self._node_ns, self._since_ns = int(node_ns), int(steady_ns)
-            return "advancing"
         still = steady_ns - self._since_ns
+        if node_ns == 0:
+            return "no /clock received yet (use_sim_time): no control step runs"
         if still <= self.period_ns:
             return "advancing"
         return (f"not advancing for {still / 1e9:.1f} s (simulation paused?): no control "
-                "step runs, and the controller holds the last command")
+                "step runs, and the controller holds the last command sent (zero when "
+                "disarmed)")
 
 
 def held_error_text(controller: ArmedController) -> str:
@@ -132,7 +134,8 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "ramp_scale": f"{controller.ramp_scale:.3f}",
         "extrapolation_scale": (f"{controller.extrapolation_scale:.3f}"
                                 if guard is not None else "off"),
-        "extrapolation_distance": _measured(step.extrapolation_distance, ".2f"),
+        "extrapolation_distance": (_measured(step.extrapolation_distance, ".2f")
+                                   if guard is not None else "off"),
         "extrapolation_distance_rad": (_measured(guard.last_distance_rad, ".3f")
                                        if guard is not None else "off"),
         "extrapolation_hold": "none" if hold is None else hold.limit,

@@ -77,7 +77,23 @@ def test_a_restarted_simulation_is_told_as_such_not_as_unsynchronised_clocks():
     assert out.rejected == "stamp_backwards" and not control.armed
     hint = clock_mismatch_hint(out.rejected, 2 * 10**9, t + DT_NS)
     assert hint and "use_sim_time" not in hint  # no parameter is wrong
+    # Stamps ahead of a simulated node clock are no restart: a /clock that stalled.
+    assert clock_mismatch_hint("stamp_in_future", t + 10**10 + 1, 10**9) != hint
     # Then the node clock follows: the jump, not the stamp, is said to be the cause.
     out = control.tick(2 * 10**9 + DT_NS)
     assert control.zero_cause == ZeroCause.CLOCK_JUMPED_BACK
     assert [level for level, _ in out.events] == ["warning"]  # and it is logged
+
+
+def test_a_fault_long_before_a_restart_keeps_its_cause():
+    # The joint states stopped (stale) ten minutes before the simulation restarted: the
+    # restart did not cause that fault, and /diagnostics keeps saying what did.
+    control = _controller()
+    t = 19 * 10**9
+    control.joint_state(np.zeros(N), t, t)
+    assert control.arm(t)[0]
+    control.tick(t + 10**9)
+    assert control.zero_cause == ZeroCause.STALE_STATE
+    control.tick(t + 600 * 10**9)  # ten minutes of control periods on, still stale
+    control.tick(2 * 10**9)  # the restart
+    assert control.zero_cause == ZeroCause.STALE_STATE

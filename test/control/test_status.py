@@ -73,3 +73,5 @@ def test_a_node_clock_that_stands_still_is_told_after_a_period():
     assert watch.update(6 * 10**9, 101 * 10**9 + 5 * 10**8) == "advancing"
     assert watch.update(6 * 10**9, 104 * 10**9) != "advancing"
     assert watch.update(6 * 10**9 + 1, 104 * 10**9 + 1) == "advancing"  # resumed
+    # use_sim_time before the first /clock message: not a pause, and said at once.
+    assert ClockWatch(period_ns=10**9).update(0, 100 * 10**9) != "advancing"
