@@ -62,5 +62,8 @@ def test_a_step_far_faster_than_the_velocity_limit_is_refused_and_jitter_is_not(
     spliced = Trajectory(X, t)
     with pytest.raises(ValueError, match=r"^joint b\b.*\bspliced\b.*\bpanda\b"):
         check_jumps([calm, spliced], ["calm", "spliced"], ["a", "b"], "panda", limits)
+    # A driver at 1 kHz over encoders read at 50 Hz: 20 repeats, then a step. No jump.
+    held = np.repeat(calm.positions[::20], 20, axis=0)[:len(t)] * 3.0  # 1.5 rad/s
+    check_jumps([Trajectory(held, t)], ["held"], ["a", "b"], "panda", limits)
     check_jumps([spliced], ["spliced"], ["a", "b"], "panda")  # limits unknown: not checked
     check_jumps([spliced], ["spliced"], ["a", "b"], "panda", np.array([np.inf, 0.0]))
