@@ -121,7 +121,6 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         message = f"disarmed, ramping down: {reason}"
     else:
         message = f"disarmed, command zero: {reason}"
-    guard = step.guard
     values = {
         "armed": str(controller.armed).lower(),
         "model": model or "(none)",
@@ -132,12 +131,7 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "stall_time_s": (f"{controller.stall.stall_time_s:g}" if controller.stall is not None
                          and controller.stall.enabled else "off"),
         "ramp_scale": f"{controller.ramp_scale:.3f}",
-        "extrapolation_scale": (f"{controller.extrapolation_scale:.3f}"
-                                if guard is not None else "off"),
-        "extrapolation_distance": (_measured(step.extrapolation_distance, ".2f")
-                                   if guard is not None else "off"),
-        "extrapolation_distance_rad": (_measured(guard.last_distance_rad, ".3f")
-                                       if guard is not None else "off"),
+        **_guard_values(controller),
         "extrapolation_hold": "none" if hold is None else hold.limit,
         "held_frame_error_mm": held_error_text(controller),
         "max_abs_command_rad_s": f"{float(np.max(np.abs(controller.command))):.4f}",
@@ -149,6 +143,18 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         **_model_values(step, model),
     }
     return level, message, values
+
+
+def _guard_values(controller: ArmedController) -> dict[str, str]:
+    """The extrapolation guard's scale and distances at the last step (``off`` without a
+    guard)."""
+    guard = controller.step.guard
+    if guard is None:
+        return dict.fromkeys(("extrapolation_scale", "extrapolation_distance",
+                              "extrapolation_distance_rad"), "off")
+    return {"extrapolation_scale": f"{controller.extrapolation_scale:.3f}",
+            "extrapolation_distance": _measured(controller.step.extrapolation_distance, ".2f"),
+            "extrapolation_distance_rad": _measured(guard.last_distance_rad, ".3f")}
 
 
 def _measured(value: float, spec: str) -> str:

@@ -223,6 +223,12 @@ def undeclared_overrides(node: Node) -> list[str]:
             if not name.startswith("qos_overrides.") and not node.has_parameter(name)]
 
 
+def _warn_undeclared(node: Node) -> None:
+    for text in undeclared_overrides(node):
+        node.get_logger().warning(f"parameter {text} given at start is not one of this "
+                                  "node's: ignored")
+
+
 def _override(node: Node, name: str) -> Any:
     """The value given for ``name`` at start (:func:`start_overrides`), or None."""
     param = start_overrides(node).get(name)
@@ -392,9 +398,7 @@ def run_node(
     code = 0
     try:
         node = make_node()
-        for text in undeclared_overrides(node):
-            node.get_logger().warning(f"parameter {text} given at start is not one of this "
-                                      "node's: ignored")
+        _warn_undeclared(node)
         executor = executor_factory()
         executor.add_node(node)
         # A node that can finish (the demonstrator) exposes a ``done`` future: its exit code.
