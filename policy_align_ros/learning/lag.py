@@ -111,8 +111,9 @@ def choose_lag(score: Callable[[float], tuple[float | None, float]], period: flo
     Returns
     -------
     tau : float
-        0 unless the best lag (the grid refined by :func:`refine_minimum`) scores lower
-        than ``tau = 0`` by more than twice that score's standard error.
+        0 unless the best lag (the grid refined by :func:`refine_minimum`; the grid's last
+        lag itself is never chosen, it only brackets) scores lower than ``tau = 0`` by
+        more than twice that score's standard error.
     scores : dict
         ``{tau: score}`` of every lag scored.
     """
@@ -132,7 +133,10 @@ def choose_lag(score: Callable[[float], tuple[float | None, float]], period: flo
     if best > 0.0 and best not in scores:
         s = score(best)[0]
         scores[best] = math.inf if s is None or not math.isfinite(s) else s
-    best = min(scores, key=scores.get)
+    # The grid's last lag only brackets a minimum below it: a score still falling there
+    # measures no lag, so the best of the others stands (as before the grid reached it).
+    top = max(float(t) for t in grid) if len(grid) else math.inf
+    best = min((t for t in scores if t < max(top, period)), key=scores.get)
     # Two standard errors: a lag is a second model of the same data, kept only on clear
     # evidence (a switch's step that no rule integrates exactly can pass for a small lag).
     margin = 2.0 * error if math.isfinite(error) else 0.0

@@ -132,6 +132,10 @@ def test_a_slow_loops_lag_is_bracketed_and_refined_not_stopped_at_a_grid_point()
 
     tau, scores = choose_lag(slow)
     assert max(scores) > 0.32 and tau == pytest.approx(0.25, rel=0.02)
+    # A score still falling at the grid's last lag measures no lag there: that lag only
+    # brackets, and the best below it stands.
+    tau, scores = choose_lag(lambda t: (1.0 - t, 1e-4))
+    assert max(scores) > 0.32 and tau == 0.32
 
 
 def test_tracking_lag_is_validated():
