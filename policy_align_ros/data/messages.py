@@ -310,10 +310,18 @@ class StreamClock:
     ----------
     gap_ns : int
         A step forward of more than ``gap_ns`` nanoseconds starts a new segment, and so
-        does a jump backwards of more than ``gap_ns`` or of :data:`CLOCK_RESET_S` or more
-        (a restarted clock), rather than discarding the rest of the stream or splicing it
+        does a jump backwards of more than ``gap_ns`` or a restarted clock
+        (:attr:`restart_s`), rather than discarding the rest of the stream or splicing it
         onto what came before. ``0`` disables splitting: every step that is not forward is
-        then skipped (:meth:`jumped_back` tells a reset among them).
+        then skipped (:attr:`restart_s` tells a restart among them).
+
+    Attributes
+    ----------
+    restart_s : float
+        After :meth:`step`: how far back (s) the stream restarted, or 0.0. A stamp
+        :data:`CLOCK_RESET_S` or more before the last one is remembered, and the next one
+        that is after it and still that far back confirms the restart: one stray stamp is
+        followed by stamps ahead again, and is only skipped.
     """
 
     def __init__(self, gap_ns: int = 0) -> None:
@@ -321,10 +329,12 @@ class StreamClock:
             raise ValueError(f"gap: must be >= 0, got {gap_ns} ns")
         self.gap_ns = int(gap_ns)
         self.last_ns: int | None = None
+        self.restart_s = 0.0
+        self._back_ns: int | None = None  # a first stamp far back, not yet confirmed
 
     def reset(self) -> None:
         """Forget the last stamp: the next message starts a segment."""
-        self.last_ns = None
+        self.last_ns = self._back_ns = None
 
     def step(self, stamp_ns: int) -> int:
         """Classify a stamp without accepting it.
@@ -335,21 +345,24 @@ class StreamClock:
             ``NEW`` (first message or a gap), ``SAME`` (continues the segment) or
             ``SKIP`` (time not increasing).
         """
+        self.restart_s = 0.0
         last = self.last_ns
         if last is None:
             return NEW
         step = stamp_ns - last
         gap = self.gap_ns
         if step > 0:
+            self._back_ns = None
             return NEW if gap and step > gap else SAME
-        return NEW if gap and (-step > gap or self.jumped_back(stamp_ns)) else SKIP
-
-    def jumped_back(self, stamp_ns: int) -> float:
-        """How far (s) ``stamp_ns`` lies before the last stamp when that is
-        :data:`CLOCK_RESET_S` or more (a reset clock); 0.0 otherwise."""
-        back = (self.last_ns - stamp_ns) / 1e9 if self.last_ns is not None else 0.0
-        return back if back >= CLOCK_RESET_S else 0.0
+        if gap and -step > gap:
+            return NEW
+        if -step >= round(CLOCK_RESET_S * 1e9):
+            if self._back_ns is not None and self._back_ns < stamp_ns:
+                self.restart_s = -step / 1e9
+            self._back_ns = stamp_ns
+        return NEW if gap and self.restart_s else SKIP
 
     def accept(self, stamp_ns: int) -> None:
         """Record the stamp of an accepted message."""
         self.last_ns = stamp_ns
+        self._back_ns = None

@@ -504,7 +504,7 @@ class DemoRecorder:
                 return None
             outcome = self._clock.step(stamp_ns)
             if outcome == SKIP or self._spoiled:
-                self.skipped[self._skip_reason(stamp_ns)] += 1
+                self.skipped[self._skip_reason()] += 1
                 return None
             written = None
             if outcome == NEW and self._stamps:
@@ -519,13 +519,13 @@ class DemoRecorder:
             self._append(stamp_ns, *picked)
             return written
 
-    def _skip_reason(self, stamp_ns: int) -> str:
+    def _skip_reason(self) -> str:
         """Why a message whose stamp does not go forward, or comes after a clock reset, is
         skipped; a manual demonstration's reset spoils it (a continuous recording starts
         a new one there instead: :class:`StreamClock`). Caller holds the lock."""
         if self._spoiled:
             return "after_clock_reset"
-        back = self._clock.jumped_back(stamp_ns)
+        back = self._clock.restart_s
         if not back:
             return "time_not_increasing"
         last = self._clock.last_ns or 0
