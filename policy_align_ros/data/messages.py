@@ -69,9 +69,10 @@ UNTRUSTWORTHY: frozenset[str] = frozenset({"length_mismatch", "duplicate_joints"
 
 #: Outcomes of :meth:`StreamClock.step`.
 SAME, NEW, SKIP = 0, 1, 2
-#: A stamp this many seconds or more before the last one is a clock that was reset (a
-#: restarted simulation), not a message out of order: a stream split at gaps starts a new
-#: segment there, and a manual demonstration recorded across it is spoiled.
+#: Stamps this many seconds or more before the last one, two in a row (one stray stamp is
+#: followed by stamps ahead again), are a clock that was reset (a restarted simulation),
+#: not messages out of order: a stream split at gaps starts a new segment there, and a
+#: manual demonstration recorded across it is spoiled (:class:`StreamClock`).
 CLOCK_RESET_S = 1.0
 
 # Bounds the per-name-list cache; real streams have one or two distinct name lists.
@@ -337,7 +338,8 @@ class StreamClock:
         self.last_ns = self._back_ns = None
 
     def step(self, stamp_ns: int) -> int:
-        """Classify a stamp without accepting it.
+        """Classify a stamp without accepting it (a stamp far back is remembered, to tell
+        a restart from one stray stamp: :attr:`restart_s`).
 
         Returns
         -------
