@@ -33,6 +33,23 @@ def test_dataset_split_at_gaps(tmp_path):
     assert [len(t) for t in trajs] == [90]
 
 
+def test_a_restarted_clock_ends_a_demonstration_even_without_gap_splits(tmp_path):
+    # A bag recorded across a simulator reset: the stamps go 3 s back and run on. Spliced,
+    # the second run would be glued onto the first where its stamps pass the reset point.
+    rng = np.random.default_rng(4)
+    received, q, _ = _demo(rng, 90)
+    stamps = received.copy()
+    stamps[45:] -= 3 * 10**9  # the second half: 3 s back; received in order all the same
+    _foreign_bag(tmp_path / "demo_0000", [(int(s), ["a", "b", "c"], p, [], int(r))
+                                          for s, p, r in zip(stamps, q, received,
+                                                             strict=True)])
+    for gap in (0.0, 10.0):
+        trajs, _, _ = load_dataset(tmp_path, gap_s=gap)
+        # The first stamp back is skipped (it could have been one stray message).
+        assert [len(t) for t in trajs] == [45, 44]
+        np.testing.assert_array_equal(trajs[1].positions, q[46:])
+
+
 def test_too_short_demos_are_counted(tmp_path):
     rng = np.random.default_rng(3)
     stamps, q, _ = _demo(rng, 12)

@@ -182,7 +182,9 @@ def load_dataset(
         of the first bag voting for it); a tie goes to the set of the bag first in
         order. Bags whose joints do not cover it are skipped and named.
     gap_s : float
-        Split threshold in seconds; ``0`` never splits.
+        Split threshold in seconds; ``0`` never splits at a gap. A restarted clock
+        (stamps jumping back, :attr:`~policy_align_ros.data.messages.StreamClock.
+        restart_s`) always ends a demonstration: what follows is not spliced onto it.
     min_samples : int
         Demonstrations with fewer samples are dropped and counted as too short.
 
@@ -366,6 +368,8 @@ class _Reading:
             one.counts[picked] += 1
             return
         outcome = clock.step(stamp)
+        if outcome == SKIP and clock.restart_s:
+            outcome = NEW  # a restarted clock ends a demonstration even with no gap split
         if outcome == SKIP:
             self.counts["time_not_increasing"] += 1
             one.counts["time_not_increasing"] += 1
