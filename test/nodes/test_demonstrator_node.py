@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from log_rig import logged
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -284,23 +285,7 @@ def test_stale_joint_states_pause_with_zero_commands_and_destroy_sends_zero(doma
         rclpy.try_shutdown(context=context)
 
 
-class _Log:
-    """A logger standing in for the node's: (severity, message) records."""
-
-    def __init__(self) -> None:
-        self.records: list[tuple[str, str]] = []
-
-    def __getattr__(self, severity: str):
-        return lambda message, **_: self.records.append((severity, str(message)))
-
-
-class _LoggedDemonstrator(Demonstrator):
-    """The demonstrator with its log records kept (``log.records``)."""
-
-    def get_logger(self):
-        if not hasattr(self, "log"):
-            self.log = _Log()
-        return self.log
+_LoggedDemonstrator = logged(Demonstrator)
 
 
 def _started(args=(), **params) -> Demonstrator:

@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 import pytest
 import rclpy
+from log_rig import logged
 from rcl_interfaces.srv import GetParameters
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
@@ -343,23 +344,7 @@ def test_plot_path_draws_each_fit_and_a_bad_one_does_not_fail_the_learning(rig, 
     assert not blocked.exists()
 
 
-class _Log:
-    """A logger standing in for the node's: (severity, message) records."""
-
-    def __init__(self) -> None:
-        self.records: list[tuple[str, str]] = []
-
-    def __getattr__(self, severity: str):
-        return lambda message, **_: self.records.append((severity, str(message)))
-
-
-class _LoggedLearner(Learner):
-    """The learner with its log records kept (``log.records``)."""
-
-    def get_logger(self):
-        if not hasattr(self, "log"):
-            self.log = _Log()
-        return self.log
+_LoggedLearner = logged(Learner)
 
 
 class _LoggedRig(Rig):
