@@ -88,8 +88,8 @@ def check_jumps(trajs: Sequence[Trajectory], names: Sequence[str], joints: Seque
     ValueError
         Naming the joint, the demonstration, the jump and the fix.
     """
-    for traj, name in zip(trajs, names, strict=True):
-        steps = np.abs(np.diff(traj.positions, axis=0))
+    all_steps = [np.abs(np.diff(traj.positions, axis=0)) for traj in trajs]
+    for steps, name in zip(all_steps, names, strict=True):
         if not steps.size or steps.max() <= math.pi:
             continue
         i, j = np.unravel_index(int(np.argmax(steps)), steps.shape)
@@ -101,18 +101,19 @@ def check_jumps(trajs: Sequence[Trajectory], names: Sequence[str], joints: Seque
                          f"of demonstration {name} (more than half a turn): a continuous "
                          f"joint reported modulo a turn? {fix}")
     if velocity_limit is not None:
-        for traj, name in zip(trajs, names, strict=True):
-            _check_speed(traj, name, joints, robot, np.asarray(velocity_limit, dtype=float))
+        limit = np.asarray(velocity_limit, dtype=float)
+        for traj, steps, name in zip(trajs, all_steps, names, strict=True):
+            _check_speed(traj, steps, name, joints, robot, limit)
 
 
-def _check_speed(traj: Trajectory, name: str, joints: Sequence[str], robot: str | None,
-                 limit: np.ndarray) -> None:
-    """Refuse a step of ``traj`` faster than :data:`JUMP_SPEED_FACTOR` times ``limit``.
+def _check_speed(traj: Trajectory, steps: np.ndarray, name: str, joints: Sequence[str],
+                 robot: str | None, limit: np.ndarray) -> None:
+    """Refuse a step of ``traj`` (``steps``, its absolute position steps) faster than
+    :data:`JUMP_SPEED_FACTOR` times ``limit``.
 
     Each joint's change is timed from its previous change: a driver that publishes
     faster than its encoders are read repeats a position and then steps, which is no
     jump."""
-    steps = np.abs(np.diff(traj.positions, axis=0))
     if not steps.size:
         return
     t = np.concatenate([[0.0], np.cumsum(traj.dt)])
