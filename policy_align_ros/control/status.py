@@ -42,7 +42,7 @@ class ClockWatch:
     def update(self, node_ns: int, steady_ns: int) -> str:
         """``"advancing"``, or for how long the node clock ``node_ns`` has stood still by
         the steady clock ``steady_ns`` (both ns) when longer than a period."""
-        if self._node_ns is None or node_ns != self._node_ns:
+        if node_ns != self._node_ns:
             self._node_ns, self._since_ns = int(node_ns), int(steady_ns)
         still = steady_ns - self._since_ns
         if node_ns == 0:

@@ -454,15 +454,15 @@ class Demonstrator(StartNode):
         self._q_received = None  # a joint state from before the reset is not fresh
         if self._state == "done":
             return
+        then = ("demonstration stopped, to be done again" if self._state == "demo"
+                else f"{self._state} waits again")
+        self.get_logger().warning(f"the clock jumped back by {back:.3f} s (a simulator "
+                                  f"reset?): {then}")
         if self._state == "demo":
-            self.get_logger().warning(f"the clock jumped back by {back:.3f} s (a simulator "
-                                      "reset?): demonstration stopped, to be done again")
             self._send(np.zeros(len(self._selector.joints)))
             self._redo = True
             self._call(self._stop, "stop_demo")
         else:
-            self.get_logger().warning(f"the clock jumped back by {back:.3f} s (a simulator "
-                                      f"reset?): {self._state} waits again")
             self._since = now
 
     def _not_ready(self) -> str:
