@@ -19,7 +19,12 @@ expert's true minimum (computed numerically where it has no closed form):
   with white noise and 1 ms stamp jitter;
 - ``kinesthetic_7``: a person guiding the suite's arm expert freely to its goal: the
   expert's converged path with a minimum-jerk timing of 2-5 s, at rest before and after,
-  read at 50 Hz through the same encoder, velocities differenced.
+  read at 50 Hz through the same encoder, velocities differenced;
+- ``dynamics_arm_7``: the joint-space expert ``qdot = -(q - q_c)``, at most 1 rad/s per
+  joint, driving a rigid-body Panda (:mod:`policy_align_ros.sim.dynamics`) through joint-
+  velocity servos of 50 ms (coupled through the arm's mass matrix, within its effort
+  limits), its hand pressing into and sliding on a surface (friction coefficient 0.4),
+  recorded at 50 Hz.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ from policy_align_ros.sim.demonstrations import (
     no_constraint,
     rollout,
 )
+from policy_align_ros.sim.dynamics import ContactPlane, ServoArm
 from policy_align_ros.sim.experts import QuadraticPotential, TaskSpacePotential
 from policy_align_ros.sim.recording import (
     encoder_noise,
@@ -57,7 +63,8 @@ from policy_align_ros.sim.recording import (
     with_ground_truth,
 )
 
-__all__ = ["RECORDING_CASES", "BumpsPotential", "contact_arm", "numerical_minimum"]
+__all__ = ["RECORDING_CASES", "BumpsPotential", "contact_arm", "dynamics_arm",
+           "numerical_minimum"]
 
 
 class BumpsPotential:
@@ -280,6 +287,89 @@ def _kinesthetic(rng: np.random.Generator) -> Problem:
                    training_constraint=lambda r: free, record=record)
 
 
+# -- 7. a physical arm: rigid-body dynamics, joint-velocity servos, a surface with friction
+
+#: Time constant of ``dynamics_arm_7``'s joint-velocity servos at the reference posture, s.
+SERVO_TAU = 0.05
+#: The surface lies this far (m) from the hand at the goal, across the free paths' bulge.
+SURFACE_CLEARANCE = 0.02
+
+
+def _path_bulge(P: np.ndarray) -> np.ndarray:
+    """The hand path's (m, 3) largest deviation from its chord, as a vector (3,), m."""
+    chord = (P[-1] - P[0]) / max(float(np.linalg.norm(P[-1] - P[0])), 1e-12)
+    off = (P - P[0]) - np.outer((P - P[0]) @ chord, chord)
+    return off[np.argmax(np.linalg.norm(off, axis=1))]
+
+
+def _surface_and_home(robot, frame: str, potential: QuadraticPotential, q_c: np.ndarray,
+                      rng: np.random.Generator) -> tuple[ContactPlane, np.ndarray]:
+    """A home posture and a plane its free paths press into on their way to the goal.
+
+    Of 20 candidate homes, the one whose free hand path sags most (its bulge's downward
+    component); the plane lies ``SURFACE_CLEARANCE`` from the goal's hand against the
+    bulge, so the goal stays free and paths from around the home slide on the plane: a
+    table when the sag is straight down, a tilted desk or a wall otherwise.
+    """
+    best = None
+    for _ in range(20):
+        home = np.clip(q_c + rng.normal(scale=0.5, size=robot.nq), robot.lower, robot.upper)
+        q, hand = home.copy(), []
+        for _ in range(200):
+            hand.append(robot.frame_position(q, frame))
+            q = robot.clip(q + 0.02 * np.clip(potential.policy(q[None])[0], -1.0, 1.0))
+        bulge = _path_bulge(np.array(hand))
+        if best is None or -bulge[2] > -best[1][2]:
+            best = (home, bulge)
+    home, bulge = best
+    normal = -bulge / np.linalg.norm(bulge)
+    offset = float(normal @ robot.frame_position(q_c, frame)) - SURFACE_CLEARANCE
+    return ContactPlane(tuple(normal), offset), home
+
+
+def dynamics_arm(rng: np.random.Generator, *, mu: float = 0.4, surface: bool = True
+                 ) -> Problem:
+    """The ``dynamics_arm_7`` problem of one seed (``rng``): ``mu`` the surface's friction
+    coefficient, ``surface=False`` the same arm, starts and servos without the surface."""
+    robot, frame = _arm_robot(), "panda_hand_tcp"
+    q_c = np.clip(robot.neutral() + rng.normal(scale=0.2, size=robot.nq), robot.lower,
+                  robot.upper)
+    potential = QuadraticPotential(q_c, 0.5)  # qdot = -(q - q_c)
+    plane, home = _surface_and_home(robot, frame, potential, q_c, rng)
+    plane = replace(plane, mu=mu)
+    normal = np.asarray(plane.normal)
+    arm = ServoArm(robot, frame, [plane] if surface else [], tau=SERVO_TAU)
+    hz, duration = 50.0, 5.0
+
+    def starts(r, m):
+        out = []
+        while len(out) < m:  # starts with the hand at least 3 cm off the surface
+            q = np.clip(home + 0.2 * r.standard_normal(robot.nq), robot.lower, robot.upper)
+            if normal @ robot.frame_position(q, frame) >= plane.offset + 0.03:
+                out.append(q)
+        return np.array(out)
+
+    def record(q0, constraint, r, name) -> Demonstration:
+        def command(q, t):
+            pi = potential.policy(q[None])[0]
+            A = np.atleast_2d(constraint(q, t, pi)).reshape(-1, robot.nq)
+            return np.clip(nullspace_projector(A, n=robot.nq) @ pi, -1.0, 1.0)
+
+        Q, V, times, touching = arm.run(q0, command, int(hz * duration), 1.0 / hz)
+        Ns, k = _truth_projectors(potential, constraint, Q, times)
+        for i in np.flatnonzero(touching):  # the clean projection friction departs from
+            row = normal @ robot.frame_jacobian(Q[i], frame)
+            A = np.vstack([np.eye(robot.nq) - Ns[i], row[None]])
+            Ns[i], k[i] = nullspace_projector(A, n=robot.nq), k[i] + 1
+        return with_ground_truth(Q, V, times, potential, Ns, k, name=name)
+
+    return Problem(potential, 1.0 / hz, int(hz * duration), 40, starts,
+                   lambda r: no_constraint(robot.nq), hold_hand(robot, frame),
+                   record=record, minimum=q_c,
+                   extras={"hand": lambda q: robot.frame_position(q, frame),
+                           "surface": plane if surface else None})
+
+
 RECORDING_CASES = {
     "lag_joint_7": Case("lag_joint_7", 7, "50 Hz", _lag_joint),
     "lag_slow_7": Case("lag_slow_7", 7, "50 Hz", lambda rng: _lag_joint(rng, tau=0.25)),
@@ -288,4 +378,5 @@ RECORDING_CASES = {
     "bumps_2": Case("bumps_2", 2, "50 Hz", _bumps_case(2, 50.0, 4.0, 30, False)),
     "bumps_noisy_6": Case("bumps_noisy_6", 6, "100 Hz", _bumps_case(6, 100.0, 4.0, 40, True)),
     "kinesthetic_7": Case("kinesthetic_7", 7, "50 Hz", _kinesthetic),
+    "dynamics_arm_7": Case("dynamics_arm_7", 7, "50 Hz", dynamics_arm),
 }

@@ -1,0 +1,210 @@
+"""A rigid-body arm under a joint-velocity servo, touching planes: a physical recording.
+
+:func:`policy_align_ros.sim.recording.track_velocity` lags every joint alike and
+:func:`~policy_align_ros.sim.recording.table_contact_rollout` slides the hand on a table
+kinematically. A physical robot, or a physics simulator driving one, does neither:
+
+* each joint's servo pushes a torque ``K_v (u - v)`` through the arm's configuration-
+  dependent, coupled mass matrix (a heavy shoulder lags more than a light wrist, and one
+  joint's acceleration drags the others), within the joint's effort limit, on top of
+  gravity compensation;
+* a plane the hand touches (a table, a wall) pushes back with a stiff spring-damper, and
+  Coulomb friction opposes the hand's sliding: the servo keeps pushing into the plane, so
+  the contact force, and with it the friction, grows with the speed the plane blocks.
+
+:class:`ServoArm` integrates Pinocchio's forward dynamics (``pinocchio.aba``) with
+semi-implicit Euler steps; a recorder reads the joint positions and velocities.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+__all__ = ["ContactPlane", "ServoArm", "contact_force", "servo_gains"]
+
+#: ``command(q (n,), t [s]) -> u (n,)``: the joint velocity asked of the servo, rad/s.
+CommandFn = Callable[[np.ndarray, float], np.ndarray]
+
+
+@dataclass(frozen=True)
+class ContactPlane:
+    """A plane the hand frame cannot pass: ``normal . p >= offset`` (world frame, m).
+
+    ``stiffness`` (N/m) and ``damping`` (N s/m) make the normal force; ``mu`` is the
+    Coulomb friction coefficient (real contacts 0.2-0.6) and ``slip`` (m/s) the sliding
+    speed below which friction is regularised to a viscous force (a stiff viscous law at
+    zero speed stands in for sticking without an event-driven solver).
+    """
+
+    normal: tuple[float, float, float]
+    offset: float
+    mu: float = 0.4
+    stiffness: float = 2.0e4
+    damping: float = 300.0
+    slip: float = 0.05
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.normal, dtype=float)
+        if n.shape != (3,) or not np.isfinite(n).all() or np.linalg.norm(n) == 0:
+            raise ValueError(f"normal: must be a finite non-zero 3-vector, got {self.normal}")
+        object.__setattr__(self, "normal", tuple(n / np.linalg.norm(n)))
+        for name in ("mu", "stiffness", "damping", "slip"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0) or (name == "slip" and value == 0):
+                raise ValueError(f"{name}: must be a finite number >= 0 (slip > 0), got "
+                                 f"{value}")
+
+
+def contact_force(p: np.ndarray, pdot: np.ndarray, plane: ContactPlane) -> np.ndarray:
+    """Force (3,) in N the plane puts on a point at ``p`` (m) moving at ``pdot`` (m/s).
+
+    Zero off the plane. On it, the normal force is ``max(0, k d - c n . pdot)`` for a
+    penetration ``d`` (never pulling), and friction ``-mu f_n v_t / max(|v_t|, slip)``
+    opposes the tangential velocity ``v_t``.
+
+    Parameters
+    ----------
+    p, pdot : numpy.ndarray, shape (3,)
+    plane : ContactPlane
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+    """
+    n = np.asarray(plane.normal)
+    depth = plane.offset - float(n @ p)
+    if depth <= 0.0:
+        return np.zeros(3)
+    normal_speed = float(n @ pdot)
+    f_n = max(0.0, plane.stiffness * depth - plane.damping * normal_speed)
+    v_t = pdot - normal_speed * n
+    friction = -plane.mu * f_n * v_t / max(float(np.linalg.norm(v_t)), plane.slip)
+    return f_n * n + friction
+
+
+def servo_gains(model: pin.Model, q_ref: np.ndarray, tau: float) -> np.ndarray:
+    """Per-joint velocity gains ``K_v = M_ii(q_ref) / tau`` (N m s/rad), shape (nv,).
+
+    Constant gains, as a physics simulator's velocity actuators or a robot's joint
+    servos have: each joint tracks with time constant ``tau`` (s) at ``q_ref`` when the
+    others stand still, and with another one, coupled to the others, elsewhere.
+    """
+    if not (np.isfinite(tau) and tau > 0):
+        raise ValueError(f"tau: must be a finite number > 0, got {tau}")
+    inertia = np.diag(pin.crba(model, model.createData(), np.asarray(q_ref, dtype=float)))
+    return (inertia + np.asarray(model.rotorInertia, dtype=float)) / tau
+
+
+class ServoArm:
+    """A rigid arm (Pinocchio model) whose joints track velocity commands, touching planes.
+
+    Parameters
+    ----------
+    robot : policy_align_ros.kinematics.Robot
+        Its model's joints, in tree order and without continuous joints, are the state.
+    frame : str
+        The frame that touches the planes (the hand).
+    planes : sequence of ContactPlane
+    tau : float
+        Servo time constant at ``robot.neutral()``, s (:func:`servo_gains`).
+    step : float
+        Physics step, s (semi-implicit Euler).
+    control_period : float
+        How often the command is read, s (a multiple of ``step``).
+    """
+
+    def __init__(self, robot, frame: str, planes: Sequence[ContactPlane] = (), *,
+                 tau: float = 0.05, step: float = 5e-4, control_period: float = 1e-3) -> None:
+        model = robot.model
+        tree = [model.names[i] for i in range(1, model.njoints)]
+        if tree != list(robot.joint_names) or robot.continuous.any() or model.nq != model.nv:
+            raise ValueError("robot: ServoArm needs its joints in tree order and no "
+                             "continuous joints (load it with joints=None or in tree order)")
+        self.robot, self.model, self.data = robot, model, model.createData()
+        self.frame_id = robot.frame_id(frame)
+        self.planes = tuple(planes)
+        self.gains = servo_gains(model, robot.neutral(), tau)
+        self.effort = np.asarray(model.effortLimit, dtype=float)
+        self.damping = np.asarray(model.damping, dtype=float)
+        if not (0 < step <= control_period):
+            raise ValueError(f"step, control_period: need 0 < step <= control_period, got "
+                             f"{step}, {control_period}")
+        self.step = float(step)
+        self.substeps = max(1, int(round(control_period / step)))
+
+    def hand(self, q: np.ndarray) -> np.ndarray:
+        """World position (3,) of the contact frame at ``q``, m."""
+        pin.forwardKinematics(self.model, self.data, q)
+        return pin.updateFramePlacement(self.model, self.data, self.frame_id).translation.copy()
+
+    def _contact_torque(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, bool]:
+        p = self.hand(q)
+        if not any(np.dot(pl.normal, p) < pl.offset for pl in self.planes):
+            return np.zeros(self.model.nv), False
+        J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id,
+                                     pin.LOCAL_WORLD_ALIGNED)[:3]
+        pdot = J @ v
+        force = sum(contact_force(p, pdot, pl) for pl in self.planes)
+        return J.T @ force, True
+
+    def _accelerate(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> tuple[np.ndarray,
+                                                                               bool]:
+        servo = np.clip(self.gains * (u - v), -self.effort, self.effort)
+        contact, touching = self._contact_torque(q, v)
+        torque = (pin.computeGeneralizedGravity(self.model, self.data, q) + servo
+                  - self.damping * v + contact)
+        return pin.aba(self.model, self.data, q, v, torque), touching
+
+    def run(self, q0: np.ndarray, command: CommandFn, n_samples: int, dt: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Run from rest at ``q0`` and record every ``dt``.
+
+        Parameters
+        ----------
+        q0 : numpy.ndarray, shape (n,)
+            Start posture, rad (clipped to the limits).
+        command : callable ``(q (n,), t) -> u (n,)``
+            Joint velocity asked of the servo at the measured posture, rad/s; read every
+            control period.
+        n_samples : int
+            Samples recorded (>= 2).
+        dt : float
+            Sample period, s (a multiple of the control period).
+
+        Returns
+        -------
+        Q, V : numpy.ndarray, shape (n_samples, n)
+            Joint positions (rad) and velocities (rad/s) at the samples.
+        times : numpy.ndarray, shape (n_samples,)
+            s, from 0.
+        touching : numpy.ndarray of bool, shape (n_samples,)
+            Whether the hand touched a plane at any step since the previous sample.
+        """
+        if n_samples < 2 or not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"n_samples, dt: need n_samples >= 2 and dt > 0, got "
+                             f"{n_samples}, {dt}")
+        period = self.step * self.substeps
+        controls = max(1, int(round(dt / period)))
+        q = self.robot.clip(np.asarray(q0, dtype=float).copy())
+        v = np.zeros_like(q)
+        n = q.size
+        Q, V = np.empty((n_samples, n)), np.empty((n_samples, n))
+        touching = np.zeros(n_samples, dtype=bool)
+        lo, hi = self.robot.lower, self.robot.upper
+        for i in range(n_samples):
+            Q[i], V[i] = q, v
+            for c in range(controls):
+                u = np.asarray(command(q, (i * controls + c) * period), dtype=float)
+                for _ in range(self.substeps):
+                    a, touched = self._accelerate(q, v, u)
+                    touching[i] |= touched
+                    v = v + self.step * a
+                    q = q + self.step * v
+                    # A joint at its limit stops there (a hard end stop).
+                    stop = ((q <= lo) & (v < 0)) | ((q >= hi) & (v > 0))
+                    q, v = np.clip(q, lo, hi), np.where(stop, 0.0, v)
+        return Q, V, dt * np.arange(n_samples), touching
