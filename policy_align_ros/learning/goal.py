@@ -47,8 +47,10 @@ from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = [
     "ACTIVE_FRACTION",
+    "CREEP_CONFIDENCE",
     "GOAL_MERGE",
     "REST_FRACTION",
+    "creep_limit",
     "data_extent",
     "demonstrated_goal",
     "goal_ends",
@@ -65,6 +67,9 @@ REST_FRACTION = 0.02
 #: A rest where the learnt policy's speed exceeds this fraction of the typical demonstrated
 #: (peak) speed is a rest under an active constraint, not a goal.
 ACTIVE_FRACTION = 0.1
+#: Standard errors taken off the fitted time constant of a creeping end
+#: (:func:`creep_limit`): the limit is extrapolated only as far as the run determines it.
+CREEP_CONFIDENCE = 2.0
 #: Rest points, and the ends of demonstrations (:func:`demonstrated_goal`), closer than
 #: this fraction of the extent are one demonstrated goal: a teacher never stops twice at
 #: the same point.
@@ -189,14 +194,53 @@ def _largest_ball(points: np.ndarray, radius: float) -> np.ndarray:
 
 
 def _end_point(traj: Trajectory, first: int | None, tail: float = 0.1) -> np.ndarray:
-    """Where a demonstration ends (n,): the mean of the last ``tail`` of its final rest
-    run, which starts at sample ``first`` (:func:`_final_rest`; the flow still creeps
-    toward its minimum over the run, so its early part lags), or its last sample when it
-    ends in motion (``first`` None)."""
+    """Where a demonstration ends (n,): the :func:`creep_limit` of its final rest run,
+    which starts at sample ``first`` (:func:`_final_rest`), seen from the last ``tail`` of
+    the run, or its last sample when it ends in motion (``first`` None)."""
     if first is None:
         return traj.positions[-1]
     run = traj.n_samples - first
-    return traj.positions[-max(1, int(math.ceil(tail * run))):].mean(axis=0)
+    velocities = (traj.velocities if traj.velocities is not None else
+                  np.gradient(traj.positions, np.arange(traj.n_samples) if traj.times is None
+                              else traj.times, axis=0))
+    return creep_limit(traj.positions[first:], velocities[first:],
+                       max(1, int(math.ceil(tail * run))))
+
+
+def creep_limit(positions: np.ndarray, velocities: np.ndarray, tail: int) -> np.ndarray:
+    """Where a demonstration's final creep toward rest would stop (n,), state units.
+
+    A flow near its minimum ``g`` slows as ``xdot = -(x - g) / c``: a robot servoing to
+    its goal rests only in the limit, and a recording stops while it still creeps. The
+    time constant ``c`` (s) is fitted by least squares to the run, ``x = g - c xdot``
+    (demeaned, so ``g`` drops out), and the limit is seen from the run's last ``tail``
+    samples: their mean position plus ``c`` times their mean velocity. Only what the run
+    determines is taken: ``c`` is its lower confidence bound (estimate minus
+    ``CREEP_CONFIDENCE`` standard errors), at least 0. A run at rest, one whose velocities
+    are noise (noise differenced into velocities does not correlate with the positions it
+    came from, or correlates negatively) and one that drifts without slowing give 0, and
+    the mean position (``docs/design/goal_anchor.md``, "Ends that still creep").
+
+    Parameters
+    ----------
+    positions, velocities : numpy.ndarray, shape (m, n)
+        The final rest run's samples (state units, state units per second).
+    tail : int
+        How many of its last samples the limit is seen from (>= 1).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    X, V = np.asarray(positions, dtype=float), np.asarray(velocities, dtype=float)
+    end, v_end = X[-tail:].mean(axis=0), V[-tail:].mean(axis=0)
+    dx, dv = X - X.mean(axis=0), V - V.mean(axis=0)
+    spread = float(np.sum(dv * dv))
+    if spread <= 0.0 or dx.size < 3:
+        return end
+    c = -float(np.sum(dx * dv)) / spread
+    error = math.sqrt(float(np.sum((dx + c * dv) ** 2)) / (dx.size - 1) / spread)
+    return end + max(0.0, c - CREEP_CONFIDENCE * error) * v_end
 
 
 def typical_speed(trajs: Sequence[Trajectory]) -> float:

@@ -93,6 +93,34 @@ def test_the_kinesthetic_case_is_the_arm_expert_guided_freely_to_its_goal():
     assert np.ptp(durations) > 0.2
 
 
+def test_the_physical_arm_presses_on_its_surface_and_creeps_to_its_goal():
+    from policy_align_ros.learning.goal import demonstrated_goal
+
+    problem = RECORDING_CASES["dynamics_arm_7"].make(np.random.default_rng(0))
+    plane = problem.extras["surface"]
+    rng = np.random.default_rng(1)
+    demos = suite._demos(problem, problem.sample_starts(rng, 6), rng)
+    normal, hand = np.asarray(plane.normal), problem.extras["hand"]
+    height = np.array([normal @ hand(q) for d in demos for q in d.trajectory.positions])
+    assert height.min() > plane.offset - 5e-3  # a stiff surface
+    touched = [bool(np.any(d.n_active > 0)) for d in demos]
+    assert 0 < sum(touched)
+    # At rest by its speed (below 2 % of the peak) yet short of the goal, still creeping:
+    # the limit of the creep is the goal.
+    short = []
+    for d in demos:
+        speed = np.linalg.norm(d.trajectory.velocities, axis=1)
+        assert speed[-1] < 0.02 * speed.max()
+        short.append(np.linalg.norm(d.trajectory.positions[-1] - problem.minimum))
+    assert min(short) > 5e-3
+    trajs = [d.trajectory for d in demos]
+    assert np.linalg.norm(demonstrated_goal(trajs) - problem.minimum) < 0.2 * min(short)
+    # Without the surface: the same starts, and no contact.
+    free = recording_cases.dynamics_arm(np.random.default_rng(0), surface=False)
+    np.testing.assert_array_equal(free.sample_starts(np.random.default_rng(1), 6),
+                                  problem.sample_starts(np.random.default_rng(1), 6))
+
+
 def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
     make = RECORDING_CASES["human_timing_2"].make
     small = replace(RECORDING_CASES["human_timing_2"],

@@ -194,3 +194,44 @@ def test_the_learnt_goal_is_the_minimum_where_most_rest_else_where_they_end():
     bare = [{"point": m["point"]} for m in minima]
     assert learnt_goal_index({"minima": bare, "demonstrated_goals": []}) == 0
 
+
+
+def test_an_end_that_still_creeps_toward_its_goal_ends_at_the_limit_of_its_creep():
+    from policy_align_ros.learning.goal import demonstrated_goal, goal_ends
+
+    # A servo's approach x = g + (s - g) exp(-t / c), recorded until its speed is 1 % of
+    # its peak: every end is still 1 % of its start distance short of the goal.
+    goal, c = np.array([0.5, -1.0]), 0.8
+    t = np.arange(0.0, c * np.log(100.0), 0.02)
+    rng = np.random.default_rng(9)
+    demos = [Trajectory(goal + (s - goal) * np.exp(-t / c)[:, None], times=t)
+             for s in goal + rng.uniform(-2.0, 2.0, (6, 2))]
+    shortfall = np.linalg.norm(np.mean([d.positions[-1] for d in demos], axis=0) - goal)
+    assert shortfall > 1e-3 and len(goal_ends(demos)) == 6
+    # Velocities differenced from the positions: within a hundredth of the shortfall.
+    assert np.linalg.norm(demonstrated_goal(demos) - goal) < 0.01 * shortfall
+    # With recorded velocities, anisotropic rates (the slow one left by the end): within
+    # a tenth of the shortfall.
+    rates = np.array([1.0 / c, 3.0 / c])
+    aniso = [Trajectory(goal + (s - goal) * np.exp(-t[:, None] * rates), times=t,
+                        velocities=-(s - goal) * rates * np.exp(-t[:, None] * rates))
+             for s in goal + rng.uniform(-2.0, 2.0, (6, 2))]
+    shortfall = np.linalg.norm(np.mean([d.positions[-1] for d in aniso], axis=0) - goal)
+    assert np.linalg.norm(demonstrated_goal(aniso) - goal) < 0.1 * shortfall
+
+
+def test_a_rest_that_is_noise_or_a_drift_is_not_extrapolated():
+    from policy_align_ros.learning.goal import creep_limit
+
+    rng = np.random.default_rng(10)
+    times = 0.01 * np.arange(100)
+    still = np.array([0.3, 0.2]) + 1e-4 * rng.standard_normal((100, 2))
+    drift = still + 2e-3 * times[:, None] * np.array([1.0, 0.0])   # no slowing down
+    for X in (still, drift):
+        for V in (np.gradient(X, times, axis=0),                   # central differences
+                  np.vstack([np.zeros((1, 2)), np.diff(X, axis=0) / 0.01])):  # backward
+            tail = X[-10:].mean(axis=0)
+            assert np.linalg.norm(creep_limit(X, V, 10) - tail) < 1e-4
+    # A run at rest exactly: its position.
+    np.testing.assert_array_equal(creep_limit(np.ones((5, 2)), np.zeros((5, 2)), 2),
+                                  np.ones(2))
