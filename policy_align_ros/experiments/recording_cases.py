@@ -63,7 +63,7 @@ from policy_align_ros.sim.recording import (
     with_ground_truth,
 )
 
-__all__ = ["RECORDING_CASES", "BumpsPotential", "contact_arm", "dynamics_arm",
+__all__ = ["RECORDING_CASES", "BumpsPotential", "CappedQuadratic", "contact_arm", "dynamics_arm",
            "numerical_minimum"]
 
 
@@ -295,6 +295,23 @@ SERVO_TAU = 0.05
 SURFACE_CLEARANCE = 0.02
 
 
+class CappedQuadratic:
+    """``phi = sum_i h(x_i - c_i)``, ``h`` quadratic (``d^2 / 2``) up to ``|d| = cap`` and
+    linear beyond: the policy ``-clip(x - c, -cap, cap)``, a joint-space servo to ``c``
+    at gain 1 /s whose speed is capped at ``cap`` per joint (state units, units/s)."""
+
+    def __init__(self, centre: np.ndarray, cap: float = 1.0):
+        self.centre, self.cap, self.n = np.asarray(centre, dtype=float), float(cap), len(centre)
+
+    def value(self, X: np.ndarray) -> np.ndarray:
+        a = np.abs(np.atleast_2d(X) - self.centre)
+        return np.sum(np.where(a <= self.cap, 0.5 * a**2, self.cap * (a - 0.5 * self.cap)),
+                      axis=1)
+
+    def policy(self, X: np.ndarray) -> np.ndarray:
+        return -np.clip(np.atleast_2d(X) - self.centre, -self.cap, self.cap)
+
+
 def _path_bulge(P: np.ndarray) -> np.ndarray:
     """The hand path's (m, 3) largest deviation from its chord, as a vector (3,), m."""
     chord = (P[-1] - P[0]) / max(float(np.linalg.norm(P[-1] - P[0])), 1e-12)
@@ -302,7 +319,7 @@ def _path_bulge(P: np.ndarray) -> np.ndarray:
     return off[np.argmax(np.linalg.norm(off, axis=1))]
 
 
-def _surface_and_home(robot, frame: str, potential: QuadraticPotential, q_c: np.ndarray,
+def _surface_and_home(robot, frame: str, potential: CappedQuadratic, q_c: np.ndarray,
                       rng: np.random.Generator) -> tuple[ContactPlane, np.ndarray]:
     """A home posture and a plane its free paths press into on their way to the goal.
 
@@ -317,7 +334,7 @@ def _surface_and_home(robot, frame: str, potential: QuadraticPotential, q_c: np.
         q, hand = home.copy(), []
         for _ in range(200):
             hand.append(robot.frame_position(q, frame))
-            q = robot.clip(q + 0.02 * np.clip(potential.policy(q[None])[0], -1.0, 1.0))
+            q = robot.clip(q + 0.02 * potential.policy(q[None])[0])
         bulge = _path_bulge(np.array(hand))
         if best is None or -bulge[2] > -best[1][2]:
             best = (home, bulge)
@@ -334,7 +351,7 @@ def dynamics_arm(rng: np.random.Generator, *, mu: float = 0.4, surface: bool = T
     robot, frame = _arm_robot(), "panda_hand_tcp"
     q_c = np.clip(robot.neutral() + rng.normal(scale=0.2, size=robot.nq), robot.lower,
                   robot.upper)
-    potential = QuadraticPotential(q_c, 0.5)  # qdot = -(q - q_c)
+    potential = CappedQuadratic(q_c)  # qdot = -(q - q_c), at most 1 rad/s per joint
     plane, home = _surface_and_home(robot, frame, potential, q_c, rng)
     plane = replace(plane, mu=mu)
     normal = np.asarray(plane.normal)
@@ -353,7 +370,7 @@ def dynamics_arm(rng: np.random.Generator, *, mu: float = 0.4, surface: bool = T
         def command(q, t):
             pi = potential.policy(q[None])[0]
             A = np.atleast_2d(constraint(q, t, pi)).reshape(-1, robot.nq)
-            return np.clip(nullspace_projector(A, n=robot.nq) @ pi, -1.0, 1.0)
+            return nullspace_projector(A, n=robot.nq) @ pi
 
         Q, V, times, touching = arm.run(q0, command, int(hz * duration), 1.0 / hz)
         Ns, k = _truth_projectors(potential, constraint, Q, times)

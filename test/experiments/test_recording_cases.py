@@ -93,6 +93,17 @@ def test_the_kinesthetic_case_is_the_arm_expert_guided_freely_to_its_goal():
     assert np.ptp(durations) > 0.2
 
 
+def test_the_capped_servo_is_the_gradient_flow_of_its_potential():
+    potential = recording_cases.CappedQuadratic(np.array([0.5, -0.2]), cap=1.0)
+    X = np.array([[0.9, -0.1], [3.0, -2.5], [-1.0, 0.7]])
+    np.testing.assert_allclose(potential.policy(X[:1]), [[-0.4, -0.1]])
+    assert np.abs(potential.policy(X)).max() == 1.0  # capped far away
+    h = 1e-6
+    grad = np.stack([(potential.value(X + h * e) - potential.value(X - h * e)) / (2 * h)
+                     for e in np.eye(2)], axis=1)
+    np.testing.assert_allclose(-grad, potential.policy(X), atol=1e-6)
+
+
 def test_the_physical_arm_presses_on_its_surface_and_creeps_to_its_goal():
     from policy_align_ros.learning.goal import demonstrated_goal
 
