@@ -380,18 +380,7 @@ def run_node(
         one line ``error: ...`` on stderr, no traceback), else the result of the node's
         ``done`` future when it has one.
     """
-    problem = domain_id_problem()
-    if problem:  # else Fast DDS's one line about a port number, and no node
-        print(f"error: {problem}", file=sys.stderr)
-        return 1
-    _STOP.clear()
-    signal.signal(signal.SIGINT, _request_stop)
-    signal.signal(signal.SIGTERM, _request_stop)
-    try:
-        rclpy.init(args=list(args) if args is not None else None,
-                   signal_handler_options=SignalHandlerOptions.NO)
-    except RuntimeError as err:  # rcl's RCLError, e.g. an unreadable --params-file
-        print(f"error: {err}", file=sys.stderr)
+    if not _start_rclpy(args):
         return 1
     node = None
     executor = None
@@ -417,34 +406,59 @@ def run_node(
         print(f"error: {err}", file=sys.stderr)
         code = START_FAILED
     finally:
-        # A second signal must not interrupt the clean-up (the final zero command).
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        if node is not None and finish is not None:
-            finish(node)
-        # Ignoring signals, a teardown that never returns would need SIGKILL: Fast DDS
-        # can deadlock destroying a participant while the others vanish at once.
-        # Everything the node owes is done by then (data saved, zero command published
-        # first in destroy_node), so past the bound the process just ends.
-        watchdog = threading.Timer(TEARDOWN_TIMEOUT_S, _exit_stuck, (code,))
-        watchdog.daemon = True
-        watchdog.start()
-        # The timer is a Python thread: a teardown stuck in C++ that holds the GIL (Fast
-        # DDS spinning in DomainParticipant::set_listener) starves it. faulthandler's
-        # watchdog is a C thread: it dumps where every thread is and exits with status 1.
-        faulthandler.dump_traceback_later(2 * TEARDOWN_TIMEOUT_S, exit=True)
-        # The executor goes before the node and the context: left to the garbage
-        # collector, it destroys its signal guard condition after the context shut down
-        # (or after the collector finalised the condition itself), printing "Exception
-        # ignored in Executor.__del__ ... InvalidHandle" on the way out.
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        watchdog.cancel()
-        faulthandler.cancel_dump_traceback_later()
+        _tear_down(node, executor, finish, code)
     return code
+
+
+def _start_rclpy(args: Sequence[str] | None) -> bool:
+    """Check the domain id, install the stop flag's handlers and ``rclpy.init``; False
+    (after one line ``error: ...`` on stderr) when the node cannot start."""
+    problem = domain_id_problem()
+    if problem:  # else Fast DDS's one line about a port number, and no node
+        print(f"error: {problem}", file=sys.stderr)
+        return False
+    _STOP.clear()
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
+    try:
+        rclpy.init(args=list(args) if args is not None else None,
+                   signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as err:  # rcl's RCLError, e.g. an unreadable --params-file
+        print(f"error: {err}", file=sys.stderr)
+        return False
+    return True
+
+
+def _tear_down(node: Node | None, executor: Any, finish: Callable[[Any], None] | None,
+               code: int) -> None:
+    """``finish``, then the executor, the node and the context, bounded in time."""
+    # A second signal must not interrupt the clean-up (the final zero command).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if node is not None and finish is not None:
+        finish(node)
+    # Ignoring signals, a teardown that never returns would need SIGKILL: Fast DDS
+    # can deadlock destroying a participant while the others vanish at once.
+    # Everything the node owes is done by then (data saved, zero command published
+    # first in destroy_node), so past the bound the process just ends.
+    watchdog = threading.Timer(TEARDOWN_TIMEOUT_S, _exit_stuck, (code,))
+    watchdog.daemon = True
+    watchdog.start()
+    # The timer is a Python thread: a teardown stuck in C++ that holds the GIL (Fast
+    # DDS spinning in DomainParticipant::set_listener) starves it. faulthandler's
+    # watchdog is a C thread: it dumps where every thread is and exits with status 1.
+    faulthandler.dump_traceback_later(2 * TEARDOWN_TIMEOUT_S, exit=True)
+    # The executor goes before the node and the context: left to the garbage
+    # collector, it destroys its signal guard condition after the context shut down
+    # (or after the collector finalised the condition itself), printing "Exception
+    # ignored in Executor.__del__ ... InvalidHandle" on the way out.
+    if executor is not None:
+        executor.shutdown()
+    if node is not None:
+        node.destroy_node()
+    rclpy.try_shutdown()
+    watchdog.cancel()
+    faulthandler.cancel_dump_traceback_later()
 
 
 def _exit_stuck(code: int) -> None:
