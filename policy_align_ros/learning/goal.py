@@ -141,8 +141,9 @@ def goal_ends(trajs: Sequence[Trajectory | np.ndarray], radius: float = GOAL_MER
               ) -> np.ndarray | None:
     """The ends of the demonstrations that end together (k, n), or None.
 
-    Each demonstration ends at the last tenth of its final rest run or, when it is still
-    moving at its last sample (a recording cut as the goal is reached), at that sample.
+    Each demonstration ends at the limit of its final rest run's creep (:func:`creep_limit`)
+    or, when it is still moving at its last sample (a recording cut as the goal is
+    reached), at that sample.
     Trajectories of one potential-based policy end at its minima, whatever their timing; a
     constraint holds each demonstration at a minimum of its own, so ends far apart mean
     constraints (or demonstrations cut short). A teacher, though, never stops twice at
