@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.stats import t as student_t
 
 from policy_align_ros.learning.descent import (
     Field,
@@ -47,7 +48,7 @@ from policy_align_ros.learning.trajectory import Trajectory, as_trajectories
 
 __all__ = [
     "ACTIVE_FRACTION",
-    "CREEP_CONFIDENCE",
+    "CREEP_LEVEL",
     "GOAL_MERGE",
     "REST_FRACTION",
     "creep_limit",
@@ -67,9 +68,10 @@ REST_FRACTION = 0.02
 #: A rest where the learnt policy's speed exceeds this fraction of the typical demonstrated
 #: (peak) speed is a rest under an active constraint, not a goal.
 ACTIVE_FRACTION = 0.1
-#: Standard errors taken off the fitted time constant of a creeping end
-#: (:func:`creep_limit`): the limit is extrapolated only as far as the run determines it.
-CREEP_CONFIDENCE = 2.0
+#: One-sided confidence level of the lower bound on a creeping end's time constant
+#: (:func:`creep_limit`; two standard errors of a normal): the limit is extrapolated only
+#: as far as the run determines it.
+CREEP_LEVEL = 0.977
 #: Rest points, and the ends of demonstrations (:func:`demonstrated_goal`), closer than
 #: this fraction of the extent are one demonstrated goal: a teacher never stops twice at
 #: the same point.
@@ -197,18 +199,21 @@ def _largest_ball(points: np.ndarray, radius: float) -> np.ndarray:
 def _end_point(traj: Trajectory, first: int | None, tail: float = 0.1) -> np.ndarray:
     """Where a demonstration ends (n,): the :func:`creep_limit` of its final rest run,
     which starts at sample ``first`` (:func:`_final_rest`), seen from the last ``tail`` of
-    the run, or its last sample when it ends in motion (``first`` None)."""
+    the run and at most ``GOAL_MERGE`` of the demonstration's travel (start to end) from
+    there, or its last sample when it ends in motion (``first`` None)."""
     if first is None:
         return traj.positions[-1]
     run = traj.n_samples - first
     velocities = (traj.velocities if traj.velocities is not None else
                   np.gradient(traj.positions, np.arange(traj.n_samples) if traj.times is None
                               else traj.times, axis=0))
+    travel = float(np.linalg.norm(traj.positions[-1] - traj.positions[0]))
     return creep_limit(traj.positions[first:], velocities[first:],
-                       max(1, int(math.ceil(tail * run))))
+                       max(1, int(math.ceil(tail * run))), GOAL_MERGE * travel)
 
 
-def creep_limit(positions: np.ndarray, velocities: np.ndarray, tail: int) -> np.ndarray:
+def creep_limit(positions: np.ndarray, velocities: np.ndarray, tail: int,
+                max_step: float = math.inf) -> np.ndarray:
     """Where a demonstration's final creep toward rest would stop (n,), state units.
 
     A flow near its minimum ``g`` slows as ``xdot = -(x - g) / c``: a robot servoing to
@@ -216,11 +221,14 @@ def creep_limit(positions: np.ndarray, velocities: np.ndarray, tail: int) -> np.
     time constant ``c`` (s) is fitted by least squares to the run, ``x = g - c xdot``
     (demeaned, so ``g`` drops out), and the limit is seen from the run's last ``tail``
     samples: their mean position plus ``c`` times their mean velocity. Only what the run
-    determines is taken: ``c`` is its lower confidence bound (estimate minus
-    ``CREEP_CONFIDENCE`` standard errors), at least 0. A run at rest, one whose velocities
-    are noise (noise differenced into velocities does not correlate with the positions it
-    came from, or correlates negatively) and one that drifts without slowing give 0, and
-    the mean position (``docs/design/goal_anchor.md``, "Ends that still creep").
+    determines is taken: ``c`` is its one-sided lower confidence bound at level
+    ``CREEP_LEVEL`` (Student's t; the standard error widened by the residuals' serial
+    correlation, which a smooth model error or filtered velocities carry), at least 0,
+    and the step is at most ``max_step`` long. At rest, with velocities that are noise
+    (noise differenced into velocities does not correlate with the positions it came
+    from, or correlates negatively), or drifting without slowing, the bound is mostly 0
+    and the end the mean position (``docs/design/goal_anchor.md``, "Ends that still
+    creep").
 
     Parameters
     ----------
@@ -228,20 +236,33 @@ def creep_limit(positions: np.ndarray, velocities: np.ndarray, tail: int) -> np.
         The final rest run's samples (state units, state units per second).
     tail : int
         How many of its last samples the limit is seen from (>= 1).
+    max_step : float
+        The longest step from there (state units, >= 0).
 
     Returns
     -------
     numpy.ndarray, shape (n,)
     """
+    if tail < 1:
+        raise ValueError(f"tail: must be >= 1 sample, got {tail}")
     X, V = np.asarray(positions, dtype=float), np.asarray(velocities, dtype=float)
     end, v_end = X[-tail:].mean(axis=0), V[-tail:].mean(axis=0)
     dx, dv = X - X.mean(axis=0), V - V.mean(axis=0)
+    dof = dx.size - X.shape[1] - 1  # the n means and the slope fitted
     spread = float(np.sum(dv * dv))
-    if spread <= 0.0 or dx.size < 3:
+    if dof < 1 or spread <= 0.0:
         return end
     c = -float(np.sum(dx * dv)) / spread
-    error = math.sqrt(float(np.sum((dx + c * dv) ** 2)) / (dx.size - 1) / spread)
-    return end + max(0.0, c - CREEP_CONFIDENCE * error) * v_end
+    residual = dx + c * dv
+    energy = float(np.sum(residual * residual))
+    rho = float(np.sum(residual[1:] * residual[:-1])) / energy if energy > 0.0 else 0.0
+    if rho >= 1.0:
+        return end
+    widen = math.sqrt((1.0 + rho) / (1.0 - rho)) if rho > 0.0 else 1.0
+    error = widen * math.sqrt(energy / dof / spread)
+    step = max(0.0, c - float(student_t.ppf(CREEP_LEVEL, dof)) * error) * v_end
+    length = float(np.linalg.norm(step))
+    return end + (step if length <= max_step else step * (max_step / length))
 
 
 def typical_speed(trajs: Sequence[Trajectory]) -> float:

@@ -195,7 +195,6 @@ def test_the_learnt_goal_is_the_minimum_where_most_rest_else_where_they_end():
     assert learnt_goal_index({"minima": bare, "demonstrated_goals": []}) == 0
 
 
-
 def test_an_end_that_still_creeps_toward_its_goal_ends_at_the_limit_of_its_creep():
     from policy_align_ros.learning.goal import demonstrated_goal, goal_ends
 
@@ -232,6 +231,25 @@ def test_a_rest_that_is_noise_or_a_drift_is_not_extrapolated():
                   np.vstack([np.zeros((1, 2)), np.diff(X, axis=0) / 0.01])):  # backward
             tail = X[-10:].mean(axis=0)
             assert np.linalg.norm(creep_limit(X, V, 10) - tail) < 1e-4
+    # Short runs whose positions and recorded velocities are independent noise: the
+    # confidence bound extrapolates about as often as its level allows, not half the time.
+    moved = 0
+    for m, n in ((3, 1), (5, 1), (2, 7), (20, 2)) * 50:
+        X, V = 1e-3 * rng.standard_normal((m, n)), 1e-2 * rng.standard_normal((m, n))
+        moved += bool(np.any(creep_limit(X, V, 1) != X[-1]))
+    assert moved < 0.06 * 200
     # A run at rest exactly: its position.
     np.testing.assert_array_equal(creep_limit(np.ones((5, 2)), np.zeros((5, 2)), 2),
                                   np.ones(2))
+
+
+def test_a_creeping_end_moves_no_farther_than_allowed_and_a_bad_tail_is_named():
+    from policy_align_ros.learning.goal import creep_limit
+
+    t = np.arange(0.0, 1.0, 0.02)
+    X = (np.exp(-t) + 1.0)[:, None] * np.array([[1.0, 0.0]])       # creeping toward (1, 0)
+    V = -np.exp(-t)[:, None] * np.array([[1.0, 0.0]])
+    np.testing.assert_allclose(creep_limit(X, V, 1), [1.0, 0.0], atol=1e-9)
+    assert np.linalg.norm(creep_limit(X, V, 1, max_step=0.01) - X[-1]) == pytest.approx(0.01)
+    with pytest.raises(ValueError, match="tail"):
+        creep_limit(X, V, 0)
