@@ -300,15 +300,17 @@ class CappedQuadratic:
     linear beyond: the policy ``-clip(x - c, -cap, cap)``, a joint-space servo to ``c``
     at gain 1 /s whose speed is capped at ``cap`` per joint (state units, units/s)."""
 
-    def __init__(self, centre: np.ndarray, cap: float = 1.0):
+    def __init__(self, centre: np.ndarray, cap: float = 1.0) -> None:
         self.centre, self.cap, self.n = np.asarray(centre, dtype=float), float(cap), len(centre)
 
     def value(self, X: np.ndarray) -> np.ndarray:
+        """Potential at rows of ``X`` (m, n); returns (m,)."""
         a = np.abs(np.atleast_2d(X) - self.centre)
         return np.sum(np.where(a <= self.cap, 0.5 * a**2, self.cap * (a - 0.5 * self.cap)),
                       axis=1)
 
     def policy(self, X: np.ndarray) -> np.ndarray:
+        """``-grad phi`` at rows of ``X`` (m, n); returns (m, n), units/s."""
         return -np.clip(np.atleast_2d(X) - self.centre, -self.cap, self.cap)
 
 
@@ -323,10 +325,12 @@ def _surface_and_home(robot, frame: str, potential: CappedQuadratic, q_c: np.nda
                       rng: np.random.Generator) -> tuple[ContactPlane, np.ndarray]:
     """A home posture and a plane its free paths press into on their way to the goal.
 
-    Of 20 candidate homes, the one whose free hand path sags most (its bulge's downward
-    component); the plane lies ``SURFACE_CLEARANCE`` from the goal's hand against the
-    bulge, so the goal stays free and paths from around the home slide on the plane: a
-    table when the sag is straight down, a tilted desk or a wall otherwise.
+    Of 20 candidate homes whose free hand path bulges off its chord by more than twice
+    ``SURFACE_CLEARANCE`` (else few paths would reach the plane), the one whose path sags
+    most (its bulge's downward component; the first candidate when none bulges enough);
+    the plane lies ``SURFACE_CLEARANCE`` from the goal's hand against the bulge, so the
+    goal stays free and paths from around the home slide on the plane: a table when the
+    sag is straight down, a tilted desk or a wall otherwise, a ceiling when no path sags.
     """
     best = None
     for _ in range(20):
@@ -336,9 +340,10 @@ def _surface_and_home(robot, frame: str, potential: CappedQuadratic, q_c: np.nda
             hand.append(robot.frame_position(q, frame))
             q = robot.clip(q + 0.02 * potential.policy(q[None])[0])
         bulge = _path_bulge(np.array(hand))
-        if best is None or -bulge[2] > -best[1][2]:
-            best = (home, bulge)
-    home, bulge = best
+        enough = float(np.linalg.norm(bulge)) > 2 * SURFACE_CLEARANCE
+        if best is None or (enough, -bulge[2]) > (best[2], -best[1][2]):
+            best = (home, bulge, enough)
+    home, bulge, _ = best
     normal = -bulge / np.linalg.norm(bulge)
     offset = float(normal @ robot.frame_position(q_c, frame)) - SURFACE_CLEARANCE
     return ContactPlane(tuple(normal), offset), home
@@ -376,8 +381,9 @@ def dynamics_arm(rng: np.random.Generator, *, mu: float = 0.4, surface: bool = T
         Ns, k = _truth_projectors(potential, constraint, Q, times)
         for i in np.flatnonzero(touching):  # the clean projection friction departs from
             row = normal @ robot.frame_jacobian(Q[i], frame)
-            A = np.vstack([np.eye(robot.nq) - Ns[i], row[None]])
-            Ns[i], k[i] = nullspace_projector(A, n=robot.nq), k[i] + 1
+            Ns[i] = nullspace_projector(np.vstack([np.eye(robot.nq) - Ns[i], row[None]]),
+                                        n=robot.nq)
+            k[i] = robot.nq - int(round(np.trace(Ns[i])))
         return with_ground_truth(Q, V, times, potential, Ns, k, name=name)
 
     return Problem(potential, 1.0 / hz, int(hz * duration), 40, starts,

@@ -6,8 +6,8 @@ kinematically. A physical robot, or a physics simulator driving one, does neithe
 
 * each joint's servo pushes a torque ``K_v (u - v)`` through the arm's configuration-
   dependent, coupled mass matrix (a heavy shoulder lags more than a light wrist, and one
-  joint's acceleration drags the others), within the joint's effort limit, on top of
-  gravity compensation;
+  joint's acceleration drags the others), on top of gravity compensation, the two within
+  the joint's effort limit;
 * a plane the hand touches (a table, a wall) pushes back with a stiff spring-damper, and
   Coulomb friction opposes the hand's sliding: the servo keeps pushing into the plane, so
   the contact force, and with it the friction, grows with the speed the plane blocks.
@@ -24,6 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from policy_align_ros.kinematics import Robot
+
 __all__ = ["ContactPlane", "ServoArm", "contact_force", "servo_gains"]
 
 #: ``command(q (n,), t [s]) -> u (n,)``: the joint velocity asked of the servo, rad/s.
@@ -36,8 +38,9 @@ class ContactPlane:
 
     ``stiffness`` (N/m) and ``damping`` (N s/m) make the normal force; ``mu`` is the
     Coulomb friction coefficient (real contacts 0.2-0.6) and ``slip`` (m/s) the sliding
-    speed below which friction is regularised to a viscous force (a stiff viscous law at
-    zero speed stands in for sticking without an event-driven solver).
+    speed below which friction is viscous, ``mu f_n |v_t| / slip``: an explicit step stays
+    stable, and a hand pushed along the plane below the Coulomb force creeps slowly
+    rather than sticks (no event-driven solver).
     """
 
     normal: tuple[float, float, float]
@@ -87,16 +90,28 @@ def contact_force(p: np.ndarray, pdot: np.ndarray, plane: ContactPlane) -> np.nd
 
 
 def servo_gains(model: pin.Model, q_ref: np.ndarray, tau: float) -> np.ndarray:
-    """Per-joint velocity gains ``K_v = M_ii(q_ref) / tau`` (N m s/rad), shape (nv,).
+    """Per-joint velocity gains ``K_v = M_ii(q_ref) / tau``, shape (nv,), N m s/rad.
 
     Constant gains, as a physics simulator's velocity actuators or a robot's joint
-    servos have: each joint tracks with time constant ``tau`` (s) at ``q_ref`` when the
+    servos have: each joint tracks with time constant ``tau`` at ``q_ref`` when the
     others stand still, and with another one, coupled to the others, elsewhere.
+
+    Parameters
+    ----------
+    model : pinocchio.Model
+        The arm, with its inertias (and armature, which ``crba`` includes).
+    q_ref : numpy.ndarray, shape (nq,)
+        Reference posture, rad.
+    tau : float
+        Time constant at ``q_ref``, s (> 0).
+
+    Returns
+    -------
+    numpy.ndarray, shape (nv,)
     """
     if not (np.isfinite(tau) and tau > 0):
         raise ValueError(f"tau: must be a finite number > 0, got {tau}")
-    inertia = np.diag(pin.crba(model, model.createData(), np.asarray(q_ref, dtype=float)))
-    return (inertia + np.asarray(model.rotorInertia, dtype=float)) / tau
+    return np.diag(pin.crba(model, model.createData(), np.asarray(q_ref, dtype=float))) / tau
 
 
 class ServoArm:
@@ -117,7 +132,7 @@ class ServoArm:
         How often the command is read, s (a multiple of ``step``).
     """
 
-    def __init__(self, robot, frame: str, planes: Sequence[ContactPlane] = (), *,
+    def __init__(self, robot: Robot, frame: str, planes: Sequence[ContactPlane] = (), *,
                  tau: float = 0.05, step: float = 5e-4, control_period: float = 1e-3) -> None:
         model = robot.model
         tree = [model.names[i] for i in range(1, model.njoints)]
@@ -141,23 +156,27 @@ class ServoArm:
         pin.forwardKinematics(self.model, self.data, q)
         return pin.updateFramePlacement(self.model, self.data, self.frame_id).translation.copy()
 
-    def _contact_torque(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, bool]:
+    def on_plane(self, q: np.ndarray) -> bool:
+        """Whether the hand at ``q`` is pressed into one of the planes."""
         p = self.hand(q)
-        if not any(np.dot(pl.normal, p) < pl.offset for pl in self.planes):
-            return np.zeros(self.model.nv), False
+        return any(np.dot(plane.normal, p) < plane.offset for plane in self.planes)
+
+    def _contact_torque(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        if not self.on_plane(q):
+            return np.zeros(self.model.nv)
+        p = self.data.oMf[self.frame_id].translation.copy()
         J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id,
                                      pin.LOCAL_WORLD_ALIGNED)[:3]
         pdot = J @ v
-        force = sum(contact_force(p, pdot, pl) for pl in self.planes)
-        return J.T @ force, True
+        force = sum(contact_force(p, pdot, plane) for plane in self.planes)
+        return J.T @ force
 
-    def _accelerate(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> tuple[np.ndarray,
-                                                                               bool]:
-        servo = np.clip(self.gains * (u - v), -self.effort, self.effort)
-        contact, touching = self._contact_torque(q, v)
-        torque = (pin.computeGeneralizedGravity(self.model, self.data, q) + servo
-                  - self.damping * v + contact)
-        return pin.aba(self.model, self.data, q, v, torque), touching
+    def _accelerate(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+        # The motors saturate on what they deliver: gravity compensation and servo.
+        motor = np.clip(pin.computeGeneralizedGravity(self.model, self.data, q)
+                        + self.gains * (u - v), -self.effort, self.effort)
+        torque = motor - self.damping * v + self._contact_torque(q, v)
+        return pin.aba(self.model, self.data, q, v, torque)
 
     def run(self, q0: np.ndarray, command: CommandFn, n_samples: int, dt: float
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -182,13 +201,13 @@ class ServoArm:
         times : numpy.ndarray, shape (n_samples,)
             s, from 0.
         touching : numpy.ndarray of bool, shape (n_samples,)
-            Whether the hand touched a plane at any step since the previous sample.
+            Whether the hand is on a plane (pressed into it) at each sample.
         """
-        if n_samples < 2 or not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"n_samples, dt: need n_samples >= 2 and dt > 0, got "
-                             f"{n_samples}, {dt}")
         period = self.step * self.substeps
-        controls = max(1, int(round(dt / period)))
+        controls = int(round(dt / period)) if np.isfinite(dt) and dt > 0 else 0
+        if n_samples < 2 or controls < 1 or abs(controls * period - dt) > 1e-9 * dt:
+            raise ValueError(f"n_samples, dt: need n_samples >= 2 and dt a multiple of the "
+                             f"control period {period} s, got {n_samples}, {dt}")
         q = self.robot.clip(np.asarray(q0, dtype=float).copy())
         v = np.zeros_like(q)
         n = q.size
@@ -197,11 +216,11 @@ class ServoArm:
         lo, hi = self.robot.lower, self.robot.upper
         for i in range(n_samples):
             Q[i], V[i] = q, v
+            touching[i] = self.on_plane(q)
             for c in range(controls):
                 u = np.asarray(command(q, (i * controls + c) * period), dtype=float)
                 for _ in range(self.substeps):
-                    a, touched = self._accelerate(q, v, u)
-                    touching[i] |= touched
+                    a = self._accelerate(q, v, u)
                     v = v + self.step * a
                     q = q + self.step * v
                     # A joint at its limit stops there (a hard end stop).

@@ -39,6 +39,17 @@ def test_bad_planes_are_named():
         ContactPlane((0.0, 0.0, 1.0), 0.0, slip=0.0)
 
 
+def test_the_motors_saturate_on_gravity_and_servo_together(panda):
+    arm = ServoArm(panda, FRAME, tau=0.05)
+    q = panda.neutral()
+    # Asked for far more than the motors give: the torque is the effort limit, whatever
+    # share gravity compensation takes of it.
+    u = np.full(7, 100.0)
+    expected = pin.aba(panda.model, pin.Data(panda.model), q, np.zeros(7),
+                       arm.effort)
+    np.testing.assert_allclose(arm._accelerate(q, np.zeros(7), u), expected)
+
+
 def test_servo_gains_give_each_joint_its_time_constant_at_the_reference(panda):
     gains = servo_gains(panda.model, panda.neutral(), 0.05)
     inertia = np.diag(pin.crba(panda.model, panda.model.createData(), panda.neutral()))
@@ -95,5 +106,11 @@ def test_the_arm_stops_at_its_joint_limits(panda):
 
 def test_an_arm_out_of_tree_order_is_refused(panda):
     shuffled = Robot.load("panda", joints=[f"panda_joint{i}" for i in (2, 1, 3, 4, 5, 6, 7)])
-    with pytest.raises(ValueError, match="tree order"):
+    with pytest.raises(ValueError, match="robot"):
         ServoArm(shuffled, FRAME)
+
+
+def test_a_sample_period_off_the_control_period_is_refused(panda):
+    arm = ServoArm(panda, FRAME)
+    with pytest.raises(ValueError, match="dt"):
+        arm.run(panda.neutral(), lambda q, t: np.zeros(7), 10, 0.0105)
