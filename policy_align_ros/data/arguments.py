@@ -71,7 +71,8 @@ def check_state_frames(state: str, robot: str | None) -> None:
         Naming ``robot`` when there is none or it does not load, ``state`` for a frame the
         robot does not have (with the closest names).
     """
-    if state == "joints":
+    frames = parse_state_spec(state)
+    if frames is None:
         return
     if not robot:
         raise ValueError("robot: a frames: state needs the robot (example-robot-data name "
@@ -79,7 +80,7 @@ def check_state_frames(state: str, robot: str | None) -> None:
     from policy_align_ros.kinematics.robot import check_frames
 
     try:
-        check_frames(robot, state.split(":", 1)[1].split(","))
+        check_frames(robot, frames)
     except ValueError as err:
         text = str(err)
         raise ValueError(f"state: {text.removeprefix('frame: ')}" if text.startswith("frame: ")
