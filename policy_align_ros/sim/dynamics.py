@@ -139,8 +139,8 @@ class ServoArm:
         if tree != list(robot.joint_names) or robot.continuous.any() or model.nq != model.nv:
             raise ValueError("robot: ServoArm needs its joints in tree order and no "
                              "continuous joints (load it with joints=None or in tree order)")
-        self.robot, self.model, self.data = robot, model, model.createData()
-        self.frame_id = robot.frame_id(frame)
+        robot.frame_id(frame)  # an unknown frame is named now, not at the first step
+        self.robot, self.model, self.data, self.frame = robot, model, model.createData(), frame
         self.planes = tuple(planes)
         self.gains = servo_gains(model, robot.neutral(), tau)
         self.effort = np.asarray(model.effortLimit, dtype=float)
@@ -151,22 +151,18 @@ class ServoArm:
         self.step = float(step)
         self.substeps = max(1, int(round(control_period / step)))
 
-    def hand(self, q: np.ndarray) -> np.ndarray:
-        """World position (3,) of the contact frame at ``q``, m."""
-        pin.forwardKinematics(self.model, self.data, q)
-        return pin.updateFramePlacement(self.model, self.data, self.frame_id).translation.copy()
-
     def on_plane(self, q: np.ndarray) -> bool:
         """Whether the hand at ``q`` is pressed into one of the planes."""
-        p = self.hand(q)
+        return self._pressed(self.robot.frame_position(q, self.frame))
+
+    def _pressed(self, p: np.ndarray) -> bool:
         return any(np.dot(plane.normal, p) < plane.offset for plane in self.planes)
 
     def _contact_torque(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        if not self.on_plane(q):
+        p = self.robot.frame_position(q, self.frame)
+        if not self._pressed(p):
             return np.zeros(self.model.nv)
-        p = self.data.oMf[self.frame_id].translation.copy()
-        J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id,
-                                     pin.LOCAL_WORLD_ALIGNED)[:3]
+        J = self.robot.frame_jacobian(q, self.frame)  # LOCAL_WORLD_ALIGNED, (3, n)
         pdot = J @ v
         force = sum(contact_force(p, pdot, plane) for plane in self.planes)
         return J.T @ force
