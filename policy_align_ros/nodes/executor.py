@@ -562,13 +562,12 @@ class Executor(StartNode):
 
     def publish_diagnostics(self) -> None:
         """Publish the executor's status on ``/diagnostics``."""
-        control = self.controller
+        control, now_ns = self.controller, self._now_ns()
         level, message, values = arming_status(
-            control, self._now_ns(), model=self.model_path, model_state=self.model_state,
+            control, now_ns, model=self.model_path, model_state=self.model_state,
             constraints=self._constraints_text(),
             rejected=self.rejected_states)
-        values["node_clock"] = self._clock_watch.update(
-            self._now_ns(), time.monotonic_ns())
+        values["node_clock"] = self._clock_watch.update(now_ns, time.monotonic_ns())
         status = DiagnosticStatus(
             level=(DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level],
             name=f"{self.get_name()}: arming", message=message,
