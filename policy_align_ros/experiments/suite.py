@@ -15,7 +15,10 @@ the suite reports, for two global models fitted on the same alignment,
   ``dt`` over the horizon in which the expert from the same start gets within 1 % of its
   end point (``goal``, the expert's end point under the same constraint); the final
   distance to the goal over the start distance (``end/start``), and for the two-minima
-  case the share of rollouts that end at the expert's minimum;
+  case the share of rollouts that end at the expert's minimum; for the cases with a true
+  minimum, the same runs under the executor's default extrapolation guard, counted as
+  reaching the goal, held at the data's edge (the executor reports it) or missing
+  silently once settled (:mod:`.guarded_runs`);
 - the fit time and the median time of the policy at one state.
 
 It also checks the CV criterion: every hyperparameter candidate that the CV of
@@ -38,12 +41,20 @@ import copy
 import json
 import math
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from policy_align_ros.experiments.guarded_runs import (
+    OUTCOMES,
+    SETTLE_HORIZONS,
+    default_guard,
+    guarded_rollout,
+    run_outcome,
+)
 from policy_align_ros.experiments.pool import parallel_map
 from policy_align_ros.experiments.recording_cases import RECORDING_CASES
 from policy_align_ros.experiments.retiming import learnt_minimum
@@ -166,6 +177,10 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals
             if "hand" in problem.extras:
                 hand.append(1e3 * np.linalg.norm(problem.extras["hand"](end)
                                                   - problem.extras["hand"](goal)))
+        if problem.minimum is not None:
+            counts, silent = _guarded_outcomes(model, problem, starts, goals[label],
+                                               constraint)
+            out[f"{label}_outcomes"], out[f"{label}_silent_rel"] = counts, silent
         out[f"{label}_rel_median"] = float(np.median(rel))
         out[f"{label}_rel_max"] = float(np.max(rel))
         if hand:
@@ -177,6 +192,25 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals
                     for e, (g, _) in zip(ends, goals[label], strict=True)]
             out[f"{label}_same_minimum"] = float(np.mean(same))
     return out
+
+
+def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
+                      constraint: ConstraintFn | None) -> tuple[list[int], list[float]]:
+    """How many runs from ``starts`` reach the expert's end, are held at the data's edge,
+    or miss silently under the executor's default extrapolation guard
+    (:mod:`.guarded_runs`, in the order of ``OUTCOMES``), and where each silent one ends:
+    its distance from the expert's end over its start distance."""
+    guard = default_guard(model)
+    project = None if constraint is None else (
+        lambda x, i, v: _project(np.atleast_2d(constraint(x, i * problem.dt, v)), v))
+    found, silent = [], []
+    for x0, (goal, steps) in zip(starts, goals, strict=True):
+        end, scale = guarded_rollout(model.policy, guard, x0, problem.dt,
+                                     SETTLE_HORIZONS * steps, project)
+        found.append(run_outcome(end, scale, x0, goal))
+        if found[-1] == "silent":
+            silent.append(float(np.linalg.norm(end - goal) / np.linalg.norm(x0 - goal)))
+    return [found.count(o) for o in OUTCOMES], silent
 
 
 def _goal_report(model: PolicyAlign, problem: Problem, goals, train: list[Demonstration]
@@ -305,7 +339,11 @@ def run_case(task: tuple) -> dict:
     t0 = time.perf_counter()
     base = PolicyAlign(sigma=problem.sigma, random_state=seed,
                        regressor=TrendKernelRegression(random_state=seed, **settings))
-    base.fit(recorded, train_mask=masks)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        base.fit(recorded, train_mask=masks)
+    for held in caught:  # counted for the report, and still shown
+        warnings.warn_explicit(held.message, held.category, held.filename, held.lineno)
     total = time.perf_counter() - t0
     regression_time = base.fit_summary_["timings_s"]["regression"]
     Xd, pid, Nd = _stack(test)
@@ -314,7 +352,8 @@ def run_case(task: tuple) -> dict:
     result = {"case": name, "seed": seed, "n": case.n, "rate": case.rate,
               "n_train": problem.n_train,
               "discarded_pct": metrics.percent_discarded(base),
-              "unaligned_pct": metrics.percent_unaligned(base), "models": {}}
+              "unaligned_pct": metrics.percent_unaligned(base), "models": {},
+              "fit_warnings": sum(str(w.message).startswith("PolicyAlign") for w in caught)}
     models = {"new": (base, total)}
     previous, t_prev = _refit(base, LocalLinearRegression(random_state=seed), recorded,
                               masks)
@@ -387,7 +426,14 @@ _GOAL_COLUMNS = (("min_error", "learnt min - true min [state units]", "{:.4f}"),
                  ("min_hand_mm", "at the hand [mm]", "{:.1f}"),
                  ("free_rel_median", "free end vs expert end / start (median)", "{:.3f}"),
                  ("unseen_rel_median", "unseen end vs expert end / start (median)",
-                  "{:.3f}"))
+                  "{:.3f}"),
+                 ("free_outcomes", "free runs reached-held-silent, guarded", "{}"),
+                 ("unseen_outcomes", "unseen runs reached-held-silent, guarded", "{}"))
+
+
+def _cell(fmt: str, value) -> str:
+    """A goal-table cell: a number, or counts (a list) joined by ``-``."""
+    return "-".join(str(v) for v in value) if isinstance(value, list) else fmt.format(value)
 
 
 def _goal_table(results: list[dict]) -> list[str]:
@@ -402,17 +448,37 @@ def _goal_table(results: list[dict]) -> list[str]:
     for name in ALL_CASES:
         mine = sorted((r for r in rows if r["case"] == name), key=lambda r: r["seed"])
         for label in ("previous", "new") if mine else ():
-            cells = ["/".join(fmt.format(r["models"][label][key]) for r in mine)
+            cells = ["/".join(_cell(fmt, r["models"][label][key]) for r in mine)
                      if key in mine[0]["models"][label] else "-"
                      for key, _, fmt in _GOAL_COLUMNS]
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
-    lags = [f"{name} " + "/".join(f"{1e3 * r['chosen'].get('tracking_lag', 0.0):.0f}"
-                                  for r in sorted((r for r in rows if r["case"] == name),
-                                                  key=lambda r: r["seed"]))
-            for name in ALL_CASES if any(r["case"] == name for r in rows)]
-    lines += ["", "Tracking lag chosen by the new model (ms, per data set): "
-              + "; ".join(lags) + "."]
-    return lines
+    lags = _per_data_set(rows, lambda r: f"{1e3 * r['chosen'].get('tracking_lag', 0.0):.0f}")
+    warned = _per_data_set(rows, lambda r: str(r.get("fit_warnings", "-")))
+    return lines + ["", f"Tracking lag chosen by the new model (ms, per data set): {lags}.",
+                    "", f"Warnings of the new model's fit (per data set): {warned}.",
+                    "", "Where the new model's silent runs end (end vs expert end / start, "
+                    "median and largest over the data sets; free, unseen): "
+                    + "; ".join(_silent_ends(rows, name) for name in ALL_CASES
+                                if any(r["case"] == name for r in rows)) + "."]
+
+
+def _silent_ends(rows: list[dict], name: str) -> str:
+    """``case a (b), c (d)``: the median (largest) end of the new model's silent runs of
+    case ``name``, free then unseen; ``none`` where no run was silent."""
+    cells = []
+    for label in ("free", "unseen"):
+        ends = [e for r in rows if r["case"] == name
+                for e in r["models"]["new"].get(f"{label}_silent_rel", [])]
+        cells.append(f"{np.median(ends):.3f} ({max(ends):.3f})" if ends else "none")
+    return f"{name} " + ", ".join(cells)
+
+
+def _per_data_set(rows: list[dict], cell) -> str:
+    """``case a/b/c; ...``: ``cell(result)`` per data set of each case, in seed order."""
+    return "; ".join(
+        f"{name} " + "/".join(cell(r) for r in sorted((r for r in rows if r["case"] == name),
+                                                       key=lambda r: r["seed"]))
+        for name in ALL_CASES if any(r["case"] == name for r in rows))
 
 
 def main(args: argparse.Namespace) -> int:

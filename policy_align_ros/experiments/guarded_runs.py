@@ -1,0 +1,100 @@
+"""Closed-loop runs as the executor's extrapolation guard lets them go: each one reaches
+the expert's end, is held at the data's edge (which the executor reports), or misses
+silently.
+
+The suite's closed-loop columns run the bare policy. On the robot the executor's
+extrapolation guard (:mod:`policy_align_ros.control.guard`) scales down commands that lead
+away from the demonstrated data and holds the robot at the data's edge, reporting the hold
+on ``/diagnostics`` (:mod:`policy_align_ros.control.guard_hold`). What a user sees of a
+run from a new start is therefore one of three outcomes, counted here:
+
+Each guarded run lasts :data:`SETTLE_HORIZONS` times the expert's horizon (the steps the
+expert takes to get within 1 % of its end), so that a run still slowing into the guard's
+hold, or arriving late, has settled; how far a run gets within the expert's own horizon
+is the suite's ``end/start`` column. Then:
+
+* **reached**: the guarded run ends within :data:`REACH_TOLERANCE` of its start distance
+  from where the expert ends;
+* **held**: it does not, and the guard holds its command at the end (scale at most
+  :data:`~policy_align_ros.control.guard_hold.HOLD_SCALE`): the executor says so;
+* **silent**: it does not, and nothing holds it: the robot stops, or is still on its way,
+  somewhere the user was not warned about.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from policy_align_ros.control.guard import ExtrapolationGuard, SupportDistance
+from policy_align_ros.control.guard_hold import HOLD_SCALE
+
+__all__ = ["OUTCOMES", "REACH_TOLERANCE", "SETTLE_HORIZONS", "default_guard", "guarded_rollout",
+           "run_outcome"]
+
+#: A run reaches the expert's end within this share of its start distance (the closed-loop
+#: target of the real-recording cases).
+REACH_TOLERANCE = 0.02
+#: A guarded run lasts this many times the expert's horizon (as the LASA rollouts last 3
+#: demonstration durations).
+SETTLE_HORIZONS = 3
+#: The outcomes of :func:`run_outcome`, in report order.
+OUTCOMES = ("reached", "held", "silent")
+
+
+def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray], guard: ExtrapolationGuard,
+                    x0: np.ndarray, dt: float, steps: int,
+                    project: Callable[[np.ndarray, int, np.ndarray], np.ndarray] | None
+                    ) -> tuple[np.ndarray, float]:
+    """Explicit Euler of the guarded policy.
+
+    Parameters
+    ----------
+    policy : callable
+        ``policy(X (1, n)) -> (1, n)``, state units per s.
+    guard : ExtrapolationGuard
+        Applied as the executor applies it, without velocity or acceleration limits (its
+        band is then ``MIN_BAND``, capped by ``max_extrapolation_rad``).
+    x0 : ndarray (n,)
+        Start, state units (rad for a joint-space model).
+    dt : float
+        Step, s.
+    steps : int
+        Number of steps.
+    project : callable or None
+        ``project(x (n,), i, v (n,)) -> (n,)``: the constraint's projection of the command
+        at step ``i`` (None: free).
+
+    Returns
+    -------
+    end : ndarray (n,)
+        The state after ``steps`` steps.
+    scale : float
+        The guard's scale at the last step (1: not scaled).
+    """
+    x, scale = np.array(x0, dtype=float), 1.0
+    inf = np.full(len(x), np.inf)
+    for i in range(steps):
+        v = policy(x[None])[0]
+        if project is not None:
+            v = project(x, i, v)
+        scale, _ = guard.scale(x, v, inf, None)
+        x = x + dt * scale * v
+    return x, scale
+
+
+def run_outcome(end: np.ndarray, scale: float, x0: np.ndarray, goal: np.ndarray) -> str:
+    """``"reached"``, ``"held"`` or ``"silent"`` (see the module's docstring) for a guarded
+    run from ``x0`` (n,) that ended at ``end`` (n,) with the guard's last ``scale``, where
+    the expert ends at ``goal`` (n,)."""
+    start = max(float(np.linalg.norm(x0 - goal)), 1e-12)
+    if float(np.linalg.norm(end - goal)) <= REACH_TOLERANCE * start:
+        return "reached"
+    return "held" if scale <= HOLD_SCALE else "silent"
+
+
+def default_guard(model) -> ExtrapolationGuard:
+    """The executor's guard at its default parameters for ``model`` learnt on joint
+    positions (its states taken as rad)."""
+    return ExtrapolationGuard(SupportDistance(model))

@@ -1,0 +1,68 @@
+"""Closed-loop runs under the executor's extrapolation guard: reached, held or silent."""
+
+import numpy as np
+import pytest
+
+from policy_align_ros.control.guard import ExtrapolationGuard
+from policy_align_ros.control.guard_hold import HOLD_SCALE
+from policy_align_ros.experiments.guarded_runs import (
+    REACH_TOLERANCE,
+    guarded_rollout,
+    run_outcome,
+)
+
+SPACING = 0.1  # the data: one state at the origin, spacings of 0.1 rad
+
+
+def _distance(q):
+    r = float(np.linalg.norm(q))
+    return r / SPACING, (None if r == 0.0 else q / (r * SPACING))
+
+
+def _towards(c):
+    c = np.asarray(c, dtype=float)
+    return lambda X: -(X - c)
+
+
+def _run(centre, x0, project=None, steps=3000):
+    guard = ExtrapolationGuard(_distance)  # defaults: edge 0.5 rad from the data here
+    return guarded_rollout(_towards(centre), guard, np.asarray(x0, float), 0.01, steps,
+                           project)
+
+
+def test_a_policy_whose_goal_lies_in_the_data_reaches_it_unscaled():
+    end, scale = _run([0.05, 0.0], [0.3, 0.2])
+    assert scale == 1.0
+    assert run_outcome(end, scale, np.array([0.3, 0.2]), np.array([0.05, 0.0])) == "reached"
+
+
+def test_a_policy_leading_far_out_is_held_at_the_data_edge():
+    x0 = np.array([0.1, 0.0])
+    end, scale = _run([3.0, 0.0], x0)
+    assert scale <= HOLD_SCALE
+    assert np.linalg.norm(end) <= 0.5 + 1e-9  # never past max_extrapolation_rad
+    assert np.linalg.norm(end) > 0.35  # but it went as far as the guard lets it
+    assert run_outcome(end, scale, x0, np.array([3.0, 0.0])) == "held"
+
+
+def test_a_run_that_settles_off_the_goal_inside_the_data_is_a_silent_miss():
+    x0, expert_end = np.array([0.3, 0.0]), np.array([-0.2, 0.0])
+    end, scale = _run([0.0, 0.1], x0)  # the learnt minimum, 0.22 from the expert's end
+    assert scale == 1.0
+    assert run_outcome(end, scale, x0, expert_end) == "silent"
+
+
+def test_the_constraint_projection_is_applied_to_every_command():
+    hold_y = lambda x, i, v: np.array([v[0], 0.0])  # noqa: E731
+    end, _ = _run([0.0, 0.3], [0.2, 0.1], project=hold_y)
+    assert end[1] == pytest.approx(0.1)
+    assert end[0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_reached_is_judged_relative_to_the_start_distance():
+    goal, x0 = np.zeros(2), np.array([1.0, 0.0])
+    just_in = np.array([REACH_TOLERANCE * 0.99, 0.0])
+    just_out = np.array([REACH_TOLERANCE * 1.01, 0.0])
+    assert run_outcome(just_in, 0.0, x0, goal) == "reached"
+    assert run_outcome(just_out, 0.5, x0, goal) == "silent"
+    assert run_outcome(just_out, HOLD_SCALE, x0, goal) == "held"
