@@ -33,6 +33,9 @@ def _add_bench(sub) -> None:
     bench.add_argument("--demos", type=int, default=None, metavar="K",
                        help="suite: K training demonstrations per data set instead of "
                             "the case's own number; lasa: the first K of each shape's 7")
+    bench.add_argument("--max-extrapolation-rad", type=float, default=None, metavar="R",
+                       help="suite only: the extrapolation guard's cap for the guarded runs "
+                            "(rad; default the executor's, 0.5)")
     bench.add_argument("--protocol", default="both", choices=("loo", "all", "both"),
                        help="lasa only: leave one demonstration out, train on all 7, or both")
     bench.add_argument("--shapes", default="all",

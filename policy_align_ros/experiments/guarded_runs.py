@@ -27,7 +27,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from policy_align_ros.control.guard import ExtrapolationGuard, SupportDistance
+from policy_align_ros.control.guard import (
+    DEFAULT_MAX_EXTRAPOLATION_RAD,
+    ExtrapolationGuard,
+    SupportDistance,
+)
 from policy_align_ros.control.guard_hold import HOLD_SCALE
 
 __all__ = ["OUTCOMES", "REACH_TOLERANCE", "SETTLE_HORIZONS", "default_guard", "guarded_rollout",
@@ -94,7 +98,9 @@ def run_outcome(end: np.ndarray, scale: float, x0: np.ndarray, goal: np.ndarray)
     return "held" if scale <= HOLD_SCALE else "silent"
 
 
-def default_guard(model) -> ExtrapolationGuard:
+def default_guard(model, max_extrapolation_rad: float = DEFAULT_MAX_EXTRAPOLATION_RAD
+                  ) -> ExtrapolationGuard:
     """The executor's guard at its default parameters for ``model`` learnt on joint
-    positions (its states taken as rad)."""
-    return ExtrapolationGuard(SupportDistance(model))
+    positions (its states taken as rad), with the cap ``max_extrapolation_rad`` (rad)."""
+    return ExtrapolationGuard(SupportDistance(model),
+                              max_extrapolation_rad=max_extrapolation_rad)

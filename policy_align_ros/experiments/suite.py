@@ -32,6 +32,8 @@ reporting seeds (``--seed 0``, 3 data sets). ``--noise F`` adds white noise of R
 demonstrations (the recorded velocities, the test demonstrations and the rollouts stay
 exact), to measure how recordings from real sensors fare. ``--demos K`` trains on ``K``
 demonstrations per data set instead of the case's own number (how few are enough).
+``--max-extrapolation-rad R`` caps the guard of the guarded runs at ``R`` rad instead of
+the executor's default.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from policy_align_ros.control.guard import DEFAULT_MAX_EXTRAPOLATION_RAD
 from policy_align_ros.experiments.guarded_runs import (
     OUTCOMES,
     SETTLE_HORIZONS,
@@ -165,7 +168,8 @@ def _refit(model: PolicyAlign, regressor, trajs: list[Trajectory], masks
     return out, time.perf_counter() - t0
 
 
-def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals
+def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals,
+                 guard_rad: float = DEFAULT_MAX_EXTRAPOLATION_RAD
                  ) -> dict[str, float | list[float]]:
     out: dict[str, float | list[float]] = {}
     for label, constraint in (("free", None), ("unseen", problem.unseen_constraint)):
@@ -179,7 +183,7 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals
                                                   - problem.extras["hand"](goal)))
         if problem.minimum is not None:
             counts, silent = _guarded_outcomes(model, problem, starts, goals[label],
-                                               constraint)
+                                               constraint, guard_rad)
             out[f"{label}_outcomes"], out[f"{label}_silent_rel"] = counts, silent
         out[f"{label}_rel_median"] = float(np.median(rel))
         out[f"{label}_rel_max"] = float(np.max(rel))
@@ -195,12 +199,14 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals
 
 
 def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
-                      constraint: ConstraintFn | None) -> tuple[list[int], list[float]]:
+                      constraint: ConstraintFn | None, guard_rad: float
+                      ) -> tuple[list[int], list[float]]:
     """How many runs from ``starts`` reach the expert's end, are held at the data's edge,
     or miss silently under the executor's default extrapolation guard
-    (:mod:`.guarded_runs`, in the order of ``OUTCOMES``), and where each silent one ends:
-    its distance from the expert's end over its start distance."""
-    guard = default_guard(model)
+    (:mod:`.guarded_runs`, in the order of ``OUTCOMES``) capped at ``guard_rad`` (rad),
+    and where each silent one ends: its distance from the expert's end over its start
+    distance."""
+    guard = default_guard(model, guard_rad)
     project = None if constraint is None else (
         lambda x, i, v: _project(np.atleast_2d(constraint(x, i * problem.dt, v)), v))
     found, silent = [], []
@@ -324,6 +330,7 @@ def run_case(task: tuple) -> dict:
     settings = task[2] if len(task) > 2 else {}
     noise = task[3] if len(task) > 3 else 0.0
     n_train = task[4] if len(task) > 4 else None
+    guard_rad = task[5] if len(task) > 5 else DEFAULT_MAX_EXTRAPOLATION_RAD
     case = ALL_CASES[name]
     rng = np.random.default_rng(seed)
     problem = case.make(rng)
@@ -365,7 +372,7 @@ def run_case(task: tuple) -> dict:
             "demo_nupe": demo["nupe"], "demo_ncpe": demo["ncpe"],
             "samples_nupe": samples["nupe"], "samples_ncpe": samples["ncpe"],
             "fit_s": fit_time, "policy_us": _policy_time_us(model, Xd[0]),
-            **_closed_loop(model, problem, starts, goals),
+            **_closed_loop(model, problem, starts, goals, guard_rad),
         }
         if problem.minimum is not None:
             result["models"][label].update(_goal_report(model, problem, goals, train))
@@ -496,7 +503,12 @@ def main(args: argparse.Namespace) -> int:
     if n_train is not None and n_train < 2:
         raise ValueError(f"--demos must be at least 2 (whole demonstrations are held out "
                          f"for the CV), got {n_train}")
-    tasks = [(name, args.seed + i, settings, noise, n_train)
+    guard_rad = getattr(args, "max_extrapolation_rad", None)
+    if guard_rad is not None and not (math.isfinite(guard_rad) and guard_rad > 0.0):
+        raise ValueError(f"--max-extrapolation-rad must be a finite number > 0, got "
+                         f"{guard_rad}")
+    guard_rad = DEFAULT_MAX_EXTRAPOLATION_RAD if guard_rad is None else guard_rad
+    tasks = [(name, args.seed + i, settings, noise, n_train, guard_rad)
              for i in range(n_sets) for name in names]
     # Slow cases first, so that the worker pool stays busy.
     tasks.sort(key=lambda t: -ALL_CASES[t[0]].n)
@@ -507,6 +519,8 @@ def main(args: argparse.Namespace) -> int:
     changed = "".join(f", {k}={v}" for k, v in settings.items())
     changed += f", position noise {noise:g} median steps" if noise else ""
     changed += f", {n_train} training demonstrations per data set" if n_train else ""
+    changed += (f", guard capped at {guard_rad:g} rad"
+                if guard_rad != DEFAULT_MAX_EXTRAPOLATION_RAD else "")
     text = (f"Suite, seeds {args.seed}..{args.seed + n_sets - 1}, {len(tasks)} data sets, "
             f"{took:.0f} s with --jobs {args.jobs}{changed}\n\n{table}\n")
     print(text)

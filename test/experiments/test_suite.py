@@ -21,10 +21,12 @@ def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys, monkeypatc
 
     monkeypatch.setattr(suite, "run_case", spy)
     args = ["bench", "suite", "--cases", "quad_iso_2", "--datasets", "1", "--jobs", "1",
-            "--seed", "3", "--set", "n_centres=50", "--demos", "12", "--out", str(tmp_path)]
+            "--seed", "3", "--set", "n_centres=50", "--demos", "12",
+            "--max-extrapolation-rad", "0.8", "--out", str(tmp_path)]
     assert main(args) == 0
-    # The settings reach the case: seed 3, n_centres=50, no noise, 12 demonstrations.
-    assert tasks == [("quad_iso_2", 3, {"n_centres": 50}, 0.0, 12)]
+    # The settings reach the case: seed 3, n_centres=50, no noise, 12 demonstrations, the
+    # guarded runs' cap.
+    assert tasks == [("quad_iso_2", 3, {"n_centres": 50}, 0.0, 12, 0.8)]
     table = (tmp_path / "suite.md").read_text()
     assert "| quad_iso_2 | 2 | 50 Hz | previous |" in table
     assert "| quad_iso_2 | 2 | 50 Hz | new |" in table
@@ -42,15 +44,18 @@ def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys, monkeypatc
 
 
 @pytest.mark.parametrize("bad", [["--cases", "nope"], ["--set", "bogus=1"],
-                                 ["--noise", "-1"], ["--demos", "1"]])
+                                 ["--noise", "-1"], ["--demos", "1"],
+                                 ["--max-extrapolation-rad", "0"]])
 def test_suite_rejects_unknown_cases_and_settings(tmp_path, bad):
     assert main(["bench", "suite", *bad, "--out", str(tmp_path)]) == 2
     assert list(tmp_path.iterdir()) == []
     args = argparse.Namespace(cases=None, datasets=1, seed=0, set=None, noise=0.0,
-                              demos=None, jobs=1, out=str(tmp_path))
-    option, value = bad[0].lstrip("-"), bad[1]
+                              demos=None, max_extrapolation_rad=None, jobs=1,
+                              out=str(tmp_path))
+    option, value = bad[0].lstrip("-").replace("-", "_"), bad[1]
     setattr(args, option, value if option in ("cases", "noise") else
-            [value] if option == "set" else int(value))
+            [value] if option == "set" else
+            float(value) if option == "max_extrapolation_rad" else int(value))
     with pytest.raises(ValueError):
         suite.main(args)
     assert list(tmp_path.iterdir()) == []
