@@ -34,8 +34,8 @@ from policy_align_ros.control.guard import (
 )
 from policy_align_ros.control.guard_hold import HOLD_SCALE
 
-__all__ = ["OUTCOMES", "REACH_TOLERANCE", "SETTLE_HORIZONS", "default_guard", "guarded_rollout",
-           "run_outcome"]
+__all__ = ["OUTCOMES", "REACH_TOLERANCE", "SETTLE_HORIZONS", "default_guard", "guard_table",
+           "guarded_rollout", "run_outcome"]
 
 #: A run reaches the expert's end within this share of its start distance (the closed-loop
 #: target of the real-recording cases).
@@ -104,3 +104,31 @@ def default_guard(model, max_extrapolation_rad: float = DEFAULT_MAX_EXTRAPOLATIO
     positions (its states taken as rad), with the cap ``max_extrapolation_rad`` (rad)."""
     return ExtrapolationGuard(SupportDistance(model),
                               max_extrapolation_rad=max_extrapolation_rad)
+
+
+def guard_table(results: list[dict], order: list[str]) -> list[str]:
+    """Markdown lines of the suite's guarded runs (``results`` of ``suite.run_case``, cases
+    in ``order``): per case, the new model's runs reached-held-silent per data set, in seed
+    order, where its silent runs end (over their start distance: median and largest over
+    the data sets) and its fit's warnings per data set."""
+    rows = [r for r in results if "free_outcomes" in r["models"]["new"]]
+    if not rows:
+        return []
+    lines = ["", "Runs from new starts under the executor's default extrapolation guard "
+             "(new model; per data set, in seed order):", "",
+             "| case | free runs reached-held-silent, guarded | unseen runs reached-held-"
+             "silent, guarded | silent free runs end (median, largest) | silent unseen runs "
+             "end | fit warnings |", "|---|---|---|---|---|---|"]
+    for name in order:
+        mine = sorted((r for r in rows if r["case"] == name), key=lambda r: r["seed"])
+        if not mine:
+            continue
+        new = [r["models"]["new"] for r in mine]
+        cells = ["/".join("-".join(str(c) for c in m[f"{label}_outcomes"]) for m in new)
+                 for label in ("free", "unseen")]
+        for label in ("free", "unseen"):
+            ends = [e for m in new for e in m[f"{label}_silent_rel"]]
+            cells.append(f"{np.median(ends):.3f} ({max(ends):.3f})" if ends else "-")
+        cells.append("/".join(str(r.get("fit_warnings", "-")) for r in mine))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines

@@ -15,10 +15,10 @@ the suite reports, for two global models fitted on the same alignment,
   ``dt`` over the horizon in which the expert from the same start gets within 1 % of its
   end point (``goal``, the expert's end point under the same constraint); the final
   distance to the goal over the start distance (``end/start``), and for the two-minima
-  case the share of rollouts that end at the expert's minimum; for the cases with a true
-  minimum, the same runs under the executor's default extrapolation guard, counted as
-  reaching the goal, held at the data's edge (the executor reports it) or missing
-  silently once settled (:mod:`.guarded_runs`);
+  case the share of rollouts that end at the expert's minimum; the same runs under the
+  executor's default extrapolation guard, counted as reaching the goal, held at the data's
+  edge (the executor reports it) or missing silently once settled (:mod:`.guarded_runs`),
+  beside the new model's fit warnings;
 - the fit time and the median time of the policy at one state.
 
 It also checks the CV criterion: every hyperparameter candidate that the CV of
@@ -55,6 +55,7 @@ from policy_align_ros.experiments.guarded_runs import (
     OUTCOMES,
     SETTLE_HORIZONS,
     default_guard,
+    guard_table,
     guarded_rollout,
     run_outcome,
 )
@@ -169,8 +170,9 @@ def _refit(model: PolicyAlign, regressor, trajs: list[Trajectory], masks
 
 
 def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals,
-                 guard_rad: float = DEFAULT_MAX_EXTRAPOLATION_RAD
-                 ) -> dict[str, float | list[float]]:
+                 guard_rad: float | None = None) -> dict[str, float | list[float]]:
+    """The bare runs' ends; with ``guard_rad`` (rad), also their outcomes under the guard
+    capped there (:func:`_guarded_outcomes`)."""
     out: dict[str, float | list[float]] = {}
     for label, constraint in (("free", None), ("unseen", problem.unseen_constraint)):
         rel, ends, hand = [], [], []
@@ -181,7 +183,7 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals,
             if "hand" in problem.extras:
                 hand.append(1e3 * np.linalg.norm(problem.extras["hand"](end)
                                                   - problem.extras["hand"](goal)))
-        if problem.minimum is not None:
+        if guard_rad is not None:
             counts, silent = _guarded_outcomes(model, problem, starts, goals[label],
                                                constraint, guard_rad)
             out[f"{label}_outcomes"], out[f"{label}_silent_rel"] = counts, silent
@@ -372,7 +374,8 @@ def run_case(task: tuple) -> dict:
             "demo_nupe": demo["nupe"], "demo_ncpe": demo["ncpe"],
             "samples_nupe": samples["nupe"], "samples_ncpe": samples["ncpe"],
             "fit_s": fit_time, "policy_us": _policy_time_us(model, Xd[0]),
-            **_closed_loop(model, problem, starts, goals, guard_rad),
+            **_closed_loop(model, problem, starts, goals,
+                           guard_rad if label == "new" else None),
         }
         if problem.minimum is not None:
             result["models"][label].update(_goal_report(model, problem, goals, train))
@@ -419,6 +422,7 @@ def format_table(results: list[dict]) -> str:
             lines.append(f"| {name} | {rows[0]['n']} | {rows[0]['rate']} | {label} | "
                          + " | ".join(cells) + f" | {'; '.join(extra)} |")
     lines += _goal_table(results)
+    lines += guard_table(results, list(ALL_CASES))
     good = [r["cv"]["pick_within_20pct"] for r in results]
     lines.append("")
     excess = [r["cv"]["picked_nupe"] - r["cv"]["best_candidate_nupe"] for r in results]
@@ -433,14 +437,7 @@ _GOAL_COLUMNS = (("min_error", "learnt min - true min [state units]", "{:.4f}"),
                  ("min_hand_mm", "at the hand [mm]", "{:.1f}"),
                  ("free_rel_median", "free end vs expert end / start (median)", "{:.3f}"),
                  ("unseen_rel_median", "unseen end vs expert end / start (median)",
-                  "{:.3f}"),
-                 ("free_outcomes", "free runs reached-held-silent, guarded", "{}"),
-                 ("unseen_outcomes", "unseen runs reached-held-silent, guarded", "{}"))
-
-
-def _cell(fmt: str, value) -> str:
-    """A goal-table cell: a number, or counts (a list) joined by ``-``."""
-    return "-".join(str(v) for v in value) if isinstance(value, list) else fmt.format(value)
+                  "{:.3f}"))
 
 
 def _goal_table(results: list[dict]) -> list[str]:
@@ -455,37 +452,16 @@ def _goal_table(results: list[dict]) -> list[str]:
     for name in ALL_CASES:
         mine = sorted((r for r in rows if r["case"] == name), key=lambda r: r["seed"])
         for label in ("previous", "new") if mine else ():
-            cells = ["/".join(_cell(fmt, r["models"][label][key]) for r in mine)
+            cells = ["/".join(fmt.format(r["models"][label][key]) for r in mine)
                      if key in mine[0]["models"][label] else "-"
                      for key, _, fmt in _GOAL_COLUMNS]
             lines.append(f"| {name} | {label} | " + " | ".join(cells) + " |")
-    lags = _per_data_set(rows, lambda r: f"{1e3 * r['chosen'].get('tracking_lag', 0.0):.0f}")
-    warned = _per_data_set(rows, lambda r: str(r.get("fit_warnings", "-")))
-    return lines + ["", f"Tracking lag chosen by the new model (ms, per data set): {lags}.",
-                    "", f"Warnings of the new model's fit (per data set): {warned}.",
-                    "", "Where the new model's silent runs end (end vs expert end / start, "
-                    "median and largest over the data sets; free, unseen): "
-                    + "; ".join(_silent_ends(rows, name) for name in ALL_CASES
-                                if any(r["case"] == name for r in rows)) + "."]
-
-
-def _silent_ends(rows: list[dict], name: str) -> str:
-    """``case a (b), c (d)``: the median (largest) end of the new model's silent runs of
-    case ``name``, free then unseen; ``none`` where no run was silent."""
-    cells = []
-    for label in ("free", "unseen"):
-        ends = [e for r in rows if r["case"] == name
-                for e in r["models"]["new"].get(f"{label}_silent_rel", [])]
-        cells.append(f"{np.median(ends):.3f} ({max(ends):.3f})" if ends else "none")
-    return f"{name} " + ", ".join(cells)
-
-
-def _per_data_set(rows: list[dict], cell) -> str:
-    """``case a/b/c; ...``: ``cell(result)`` per data set of each case, in seed order."""
-    return "; ".join(
-        f"{name} " + "/".join(cell(r) for r in sorted((r for r in rows if r["case"] == name),
-                                                       key=lambda r: r["seed"]))
+    lags = "; ".join(
+        f"{name} " + "/".join(f"{1e3 * r['chosen'].get('tracking_lag', 0.0):.0f}"
+                              for r in sorted((r for r in rows if r["case"] == name),
+                                              key=lambda r: r["seed"]))
         for name in ALL_CASES if any(r["case"] == name for r in rows))
+    return lines + ["", f"Tracking lag chosen by the new model (ms, per data set): {lags}."]
 
 
 def main(args: argparse.Namespace) -> int:

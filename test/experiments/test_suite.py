@@ -36,6 +36,9 @@ def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys, monkeypatc
     new = result["models"]["new"]
     # A 2-D quadratic from new starts: the new model must be accurate and settle at the goal.
     assert new["demo_nupe"] < 0.05 and new["free_rel_max"] < 0.05
+    # Under the executor's guard, capped at 0.8 rad, every free run still reaches the goal.
+    assert new["free_outcomes"] == [suite.N_ROLLOUTS, 0, 0]
+    assert "free_outcomes" not in result["models"]["previous"]
     assert result["cv"]["best_candidate_nupe"] <= result["cv"]["picked_nupe"]
     assert result["cv"]["pick_within_20pct"] == (
         result["cv"]["picked_nupe"] <= 1.2 * result["cv"]["best_candidate_nupe"])
