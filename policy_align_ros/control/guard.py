@@ -36,8 +36,9 @@ DEFAULT_MAX_EXTRAPOLATION = 6.0
 #: Default ``max_extrapolation_rad`` (rad, joint-space 2-norm): how far beyond the data a
 #: wrong model may take the robot. On the Talos demonstrations, runs from new starts of
 #: their own distribution start up to 1.8 rad from the data but only approach it, which is
-#: never scaled; from 8 demonstrations in 7 joints, 0.43-0.60 rad apart, 20 of 100 such
-#: runs lead further out and are held at the edge (docs/executor_safety.md).
+#: never scaled. Sparser data are another matter: from a Panda's 8 free demonstrations,
+#: 0.43-0.60 rad apart, 20 of 100 runs from their starts lead further out than the cap
+#: and are held at the edge (docs/executor_safety.md).
 DEFAULT_MAX_EXTRAPOLATION_RAD = 0.5
 #: Smallest band of the guard (spacings), whatever the stopping distance.
 MIN_BAND = 1.0

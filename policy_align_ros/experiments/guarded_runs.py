@@ -6,19 +6,20 @@ The suite's closed-loop columns run the bare policy. On the robot the executor's
 extrapolation guard (:mod:`policy_align_ros.control.guard`) scales down commands that lead
 away from the demonstrated data and holds the robot at the data's edge, reporting the hold
 on ``/diagnostics`` (:mod:`policy_align_ros.control.guard_hold`). What a user sees of a
-run from a new start is therefore one of three outcomes, counted here:
+run from a new start is therefore one of three outcomes.
 
 Each guarded run lasts :data:`SETTLE_HORIZONS` times the expert's horizon (the steps the
 expert takes to get within 1 % of its end), so that a run still slowing into the guard's
 hold, or arriving late, has settled; how far a run gets within the expert's own horizon
-is the suite's ``end/start`` column. Then:
+is the suite's ``end/start`` column. The outcomes:
 
 * **reached**: the guarded run ends within :data:`REACH_TOLERANCE` of its start distance
   from where the expert ends;
 * **held**: it does not, and the guard holds its command at the end (scale at most
   :data:`~policy_align_ros.control.guard_hold.HOLD_SCALE`): the executor says so;
-* **silent**: it does not, and nothing holds it: the robot stops, or is still on its way,
-  somewhere the user was not warned about.
+* **silent**: it does not, and the guard does not hold it: the robot settles, crawls on
+  under a guard that slows it, or is still on its way, somewhere the user was not warned
+  about.
 """
 
 from __future__ import annotations
@@ -58,8 +59,10 @@ def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray], guard: Extrapola
     policy : callable
         ``policy(X (1, n)) -> (1, n)``, state units per s.
     guard : ExtrapolationGuard
-        Applied as the executor applies it, without velocity or acceleration limits (its
-        band is then ``MIN_BAND``, capped by ``max_extrapolation_rad``).
+        Applied as the executor applies it, after the projection, without the executor's
+        velocity and acceleration limits: they widen the guard's band, not its edge,
+        wherever the data's spacing is above about 0.07 rad (0.5 rad cap, 7 joints at the
+        default 0.5 rad/s and 2 rad/s^2).
     x0 : ndarray (n,)
         Start, state units (rad for a joint-space model).
     dt : float
@@ -114,8 +117,10 @@ def guard_table(results: list[dict], order: list[str]) -> list[str]:
     rows = [r for r in results if "free_outcomes" in r["models"]["new"]]
     if not rows:
         return []
-    lines = ["", "Runs from new starts under the executor's default extrapolation guard "
-             "(new model; per data set, in seed order):", "",
+    caps = sorted({r.get("guard_rad", DEFAULT_MAX_EXTRAPOLATION_RAD) for r in rows})
+    lines = ["", "Runs from new starts under the executor's extrapolation guard, capped at "
+             + "/".join(f"{c:g}" for c in caps) + " rad (new model; per data set, in seed "
+             "order):", "",
              "| case | free runs reached-held-silent, guarded | unseen runs reached-held-"
              "silent, guarded | silent free runs end (median, largest) | silent unseen runs "
              "end | fit warnings |", "|---|---|---|---|---|---|"]

@@ -86,6 +86,9 @@ HOLDOUT = 0.2
 #: The expert's end point is where it is after this many demonstration durations.
 EXPERT_DURATIONS = 5.0
 CLOSE = 0.01
+#: Where the fit warnings the suite records are shown again: each once per worker and
+#: location, as Python's default action would have shown them.
+_SHOWN: dict = {}
 
 
 # -- evaluation -------------------------------------------------------------------------
@@ -217,7 +220,8 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
                                      SETTLE_HORIZONS * steps, project)
         found.append(run_outcome(end, scale, x0, goal))
         if found[-1] == "silent":
-            silent.append(float(np.linalg.norm(end - goal) / np.linalg.norm(x0 - goal)))
+            silent.append(float(np.linalg.norm(end - goal)
+                                / max(float(np.linalg.norm(x0 - goal)), 1e-12)))
     return [found.count(o) for o in OUTCOMES], silent
 
 
@@ -351,8 +355,9 @@ def run_case(task: tuple) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         base.fit(recorded, train_mask=masks)
-    for held in caught:  # counted for the report, and still shown
-        warnings.warn_explicit(held.message, held.category, held.filename, held.lineno)
+    for held in caught:  # counted for the report, and still shown once per location
+        warnings.warn_explicit(held.message, held.category, held.filename, held.lineno,
+                               registry=_SHOWN)
     total = time.perf_counter() - t0
     regression_time = base.fit_summary_["timings_s"]["regression"]
     Xd, pid, Nd = _stack(test)
@@ -362,7 +367,9 @@ def run_case(task: tuple) -> dict:
               "n_train": problem.n_train,
               "discarded_pct": metrics.percent_discarded(base),
               "unaligned_pct": metrics.percent_unaligned(base), "models": {},
-              "fit_warnings": sum(str(w.message).startswith("PolicyAlign") for w in caught)}
+              "fit_warnings": len({str(w.message) for w in caught
+                                   if str(w.message).startswith("PolicyAlign")}),
+              "guard_rad": guard_rad}
     models = {"new": (base, total)}
     previous, t_prev = _refit(base, LocalLinearRegression(random_state=seed), recorded,
                               masks)

@@ -40,8 +40,9 @@ def test_a_policy_leading_far_out_is_held_at_the_data_edge():
     x0 = np.array([0.1, 0.0])
     end, scale = _run([3.0, 0.0], x0)
     assert scale <= HOLD_SCALE
-    assert np.linalg.norm(end) <= 0.5 + 1e-9  # never past max_extrapolation_rad
-    assert np.linalg.norm(end) > 0.35  # but it went as far as the guard lets it
+    # It went as far as the guard lets it: max_extrapolation_rad, within a step.
+    assert np.linalg.norm(end) == pytest.approx(0.5, abs=0.01)
+    assert np.linalg.norm(end) <= 0.5 + 1e-9
     assert run_outcome(end, scale, x0, np.array([3.0, 0.0])) == "held"
 
 
@@ -57,6 +58,25 @@ def test_the_constraint_projection_is_applied_to_every_command():
     end, _ = _run([0.0, 0.3], [0.2, 0.1], project=hold_y)
     assert end[1] == pytest.approx(0.1)
     assert end[0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_the_guard_sees_the_projected_command_not_the_policy():
+    # The data: the segment from (0, 0) to (0, 1). The policy leads away from it along x;
+    # the constraint lets the robot move along y only, parallel to the data. Guarded before
+    # the projection it would be held at the start; after it, it moves on unscaled.
+    def distance(q):
+        support = np.array([[0.0, 0.0], [0.0, 1.0]])
+        near = support[np.argmin(np.linalg.norm(support - q, axis=1))]
+        gap = q - near if abs(q[1] - 0.5) > 0.5 else np.array([q[0], 0.0])
+        r = float(np.linalg.norm(gap))
+        return r / SPACING, (None if r == 0.0 else gap / (r * SPACING))
+
+    only_y = lambda x, i, v: np.array([0.0, v[1]])  # noqa: E731
+    policy = lambda X: np.array([[3.0, 1.0]])  # noqa: E731
+    x0 = np.array([0.6, 0.0])  # beyond the edge (0.5 rad) already
+    end, scale = guarded_rollout(policy, ExtrapolationGuard(distance), x0, 0.01, 50, only_y)
+    assert scale == 1.0
+    assert end == pytest.approx([0.6, 0.5])
 
 
 def test_reached_is_judged_relative_to_the_start_distance():

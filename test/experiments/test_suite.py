@@ -37,6 +37,7 @@ def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys, monkeypatc
     # A 2-D quadratic from new starts: the new model must be accurate and settle at the goal.
     assert new["demo_nupe"] < 0.05 and new["free_rel_max"] < 0.05
     # Under the executor's guard, capped at 0.8 rad, every free run still reaches the goal.
+    assert result["guard_rad"] == 0.8
     assert new["free_outcomes"] == [suite.N_ROLLOUTS, 0, 0]
     assert "free_outcomes" not in result["models"]["previous"]
     assert result["cv"]["best_candidate_nupe"] <= result["cv"]["picked_nupe"]
@@ -48,7 +49,9 @@ def test_suite_reports_both_models_and_the_cv_check(tmp_path, capsys, monkeypatc
 
 @pytest.mark.parametrize("bad", [["--cases", "nope"], ["--set", "bogus=1"],
                                  ["--noise", "-1"], ["--demos", "1"],
-                                 ["--max-extrapolation-rad", "0"]])
+                                 ["--max-extrapolation-rad", "0"],
+                                 ["--max-extrapolation-rad", "nan"],
+                                 ["--max-extrapolation-rad", "inf"]])
 def test_suite_rejects_unknown_cases_and_settings(tmp_path, bad):
     assert main(["bench", "suite", *bad, "--out", str(tmp_path)]) == 2
     assert list(tmp_path.iterdir()) == []
