@@ -204,9 +204,7 @@ def _end_point(traj: Trajectory, first: int | None, tail: float = 0.1) -> np.nda
     if first is None:
         return traj.positions[-1]
     run = traj.n_samples - first
-    velocities = (traj.velocities if traj.velocities is not None else
-                  np.gradient(traj.positions, np.arange(traj.n_samples) if traj.times is None
-                              else traj.times, axis=0))
+    velocities = traj.velocity_estimate()
     travel = float(np.linalg.norm(traj.positions[-1] - traj.positions[0]))
     return creep_limit(traj.positions[first:], velocities[first:],
                        max(1, int(math.ceil(tail * run))), GOAL_MERGE * travel)

@@ -43,10 +43,7 @@ def kinetic_term(traj: Trajectory) -> np.ndarray:
     ``v`` is the trajectory's recorded velocity when it has one, else the central
     difference of its positions over its times (one-sided at the ends).
     """
-    if traj.velocities is not None:
-        v = np.asarray(traj.velocities, dtype=float)
-    else:
-        v = np.gradient(traj.positions, traj.times, axis=0)
+    v = traj.velocity_estimate()
     k = 0.5 * np.einsum("ij,ij->i", v, v)
     return k - k[0]
 

@@ -111,6 +111,15 @@ class Trajectory:
             return float(self.n_samples - 1)
         return float(self.times[-1] - self.times[0])
 
+    def velocity_estimate(self) -> np.ndarray:
+        """``xdot_i`` (N, n): the recorded velocities when there are any, else central
+        differences of the positions over the times (one-sided at the ends; per step
+        without times)."""
+        if self.velocities is not None:
+            return self.velocities
+        steps = np.arange(self.n_samples) if self.times is None else self.times
+        return np.gradient(self.positions, steps, axis=0)
+
     def __len__(self) -> int:
         return self.n_samples
 

@@ -73,3 +73,15 @@ def test_unnamed_trajectories_are_named_by_their_index_without_mutating_the_inpu
     assert out[0] is named  # named ones are returned as given
     assert unnamed.name is None and out[1] is not unnamed
     assert out[1].positions is unnamed.positions  # a shallow copy: no data copied
+
+
+def test_velocity_estimate_is_the_recorded_velocity_or_central_differences():
+    t = np.array([0.0, 0.5, 1.5, 2.0])
+    X = np.stack([t**2, 3.0 * t], axis=1)
+    v = Trajectory(X, t).velocity_estimate()
+    assert np.allclose(v[:, 1], 3.0)  # exact for a line, on uneven steps
+    assert np.allclose(v[1:-1, 0], 2.0 * t[1:-1])  # exact for a parabola inside
+    per_step = Trajectory(X).velocity_estimate()
+    assert np.allclose(per_step, np.gradient(X, axis=0))
+    recorded = np.ones_like(X)
+    assert np.array_equal(Trajectory(X, t, recorded).velocity_estimate(), recorded)
