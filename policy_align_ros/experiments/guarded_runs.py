@@ -48,21 +48,22 @@ SETTLE_HORIZONS = 3
 OUTCOMES = ("reached", "held", "silent")
 
 
-def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray], guard: ExtrapolationGuard,
+def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray],
+                    guard: ExtrapolationGuard | None,
                     x0: np.ndarray, dt: float, steps: int,
                     project: Callable[[np.ndarray, int, np.ndarray], np.ndarray] | None
                     ) -> tuple[np.ndarray, float]:
-    """Explicit Euler of the guarded policy.
+    """Explicit Euler of the policy, guarded or bare.
 
     Parameters
     ----------
     policy : callable
         ``policy(X (1, n)) -> (1, n)``, state units per s.
-    guard : ExtrapolationGuard
-        Applied as the executor applies it, after the projection, without the executor's
-        velocity and acceleration limits: they widen the guard's band, not its edge,
-        wherever the data's spacing is above about 0.07 rad (0.5 rad cap, 7 joints at the
-        default 0.5 rad/s and 2 rad/s^2).
+    guard : ExtrapolationGuard or None
+        None: the bare policy. Else applied as the executor applies it, after the
+        projection, without the executor's velocity and acceleration limits: they widen
+        the guard's band, not its edge, wherever the data's spacing is above about
+        0.07 rad (0.5 rad cap, 7 joints at the default 0.5 rad/s and 2 rad/s^2).
     x0 : ndarray (n,)
         Start, state units (rad for a joint-space model).
     dt : float
@@ -86,7 +87,8 @@ def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray], guard: Extrapola
         v = policy(x[None])[0]
         if project is not None:
             v = project(x, i, v)
-        scale, _ = guard.scale(x, v, inf, None)
+        if guard is not None:
+            scale, _ = guard.scale(x, v, inf, None)
         x = x + dt * scale * v
     return x, scale
 

@@ -128,15 +128,19 @@ def _expert_goal(problem: Problem, x0: np.ndarray, constraint: ConstraintFn | No
     return goal, int(close[0]) if len(close) else steps
 
 
+def _projection(problem: Problem, constraint: ConstraintFn | None):
+    """``project(x, i, v)``: ``v`` at step ``i`` projected onto ``constraint``'s null space
+    (None: free), for :func:`~.guarded_runs.guarded_rollout`."""
+    if constraint is None:
+        return None
+    return lambda x, i, v: _project(np.atleast_2d(constraint(x, i * problem.dt, v)), v)
+
+
 def _rollout_policy(policy, problem: Problem, x0: np.ndarray, steps: int,
                     constraint: ConstraintFn | None) -> np.ndarray:
-    x = x0.copy()
-    for i in range(steps):
-        v = policy(x[None])[0]
-        if constraint is not None:
-            v = _project(np.atleast_2d(constraint(x, i * problem.dt, v)), v)
-        x = x + problem.dt * v
-    return x
+    """The bare policy's run (no guard) from ``x0``: its state after ``steps`` steps."""
+    return guarded_rollout(policy, None, x0, problem.dt, steps,
+                           _projection(problem, constraint))[0]
 
 
 def _errors(model: PolicyAlign, X, pi, N) -> dict[str, float]:
@@ -212,8 +216,7 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
     and where each silent one ends: its distance from the expert's end over its start
     distance."""
     guard = default_guard(model, guard_rad)
-    project = None if constraint is None else (
-        lambda x, i, v: _project(np.atleast_2d(constraint(x, i * problem.dt, v)), v))
+    project = _projection(problem, constraint)
     found, silent = [], []
     for x0, (goal, steps) in zip(starts, goals, strict=True):
         end, scale = guarded_rollout(model.policy, guard, x0, problem.dt,
