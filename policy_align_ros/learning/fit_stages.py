@@ -224,6 +224,8 @@ class FitStages:
         for name in ("regressor_", "integration_", "offsets_", "aligned_potentials_",
                      "timing_scales_"):
             setattr(self, name, fit[name])
+        # Kept for a run's own check of where it stops (learning/fold_stops.py).
+        self.fold_regressors_ = [f.regressor for f in fit["folds"]]
         est.phi = fit["phi"]
 
     def _choose_clocks(self, est: Estimates, table: LocalModelTable, template,

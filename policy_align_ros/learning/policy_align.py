@@ -186,6 +186,11 @@ class PolicyAlign(FitStages, BaseEstimator):
         ``unfixed_goal`` (:func:`~policy_align_ros.learning.folds.fit_checks`: a
         ``UserWarning`` when the held-out error is at least half of a zero policy's, and
         when the CV folds' models put the minimum more than 5 % of the extent apart).
+    fold_regressors_ : list
+        The CV folds' global models, each fitted without some demonstrations
+        (:func:`~policy_align_ros.learning.folds.fold_models`), saved with the model
+        (files without them load with none): where they stop a run elsewhere than the
+        model does, its stop is uncertain (:mod:`~policy_align_ros.learning.fold_stops`).
     state_definition_ : dict or None
         What the state ``x`` is when it is not the joint positions: ``None`` for joint
         states; for task-space states the JSON-able definition (robot, joints, frames,

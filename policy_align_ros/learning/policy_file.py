@@ -28,6 +28,8 @@ def write_model(model, path: str | Path) -> Path:
     :meth:`PolicyAlign.save <policy_align_ros.learning.policy_align.PolicyAlign.save>`)."""
     check_is_fitted(model, "regressor_")
     reg_arrays, reg_meta = model.regressor_.get_state()
+    folds = getattr(model, "fold_regressors_", [])
+    fold_states = [r.get_state() for r in folds]
     params = {k: v for k, v in model.get_params(deep=False).items() if k != "regressor"}
     if isinstance(params["random_state"], np.random.Generator):
         params["random_state"] = None  # a file cannot hold its state
@@ -51,6 +53,8 @@ def write_model(model, path: str | Path) -> Path:
         "sigma2": model.sigma2_,
         "params": params,
         "regressor": {"class": type(model.regressor_).__name__, "meta": reg_meta},
+        "folds": [{"class": type(r).__name__, "meta": m} for r, (_, m) in
+                  zip(folds, fold_states, strict=True)],
         "training": model.fit_summary_,
         "support_spacing": model.support_spacing_,
         # Exact (fit_summary_ holds its square root) and the Euler rule's factor.
@@ -66,6 +70,7 @@ def write_model(model, path: str | Path) -> Path:
         "aligned_potentials": np.concatenate(model.aligned_potentials_),
         "support_states": model.support_states_,
         **{f"regressor.{k}": v for k, v in reg_arrays.items()},
+        **{f"fold{i}.{k}": v for i, (a, _) in enumerate(fold_states) for k, v in a.items()},
     }
     return model_io.save_npz(path, header, arrays)
 
@@ -127,19 +132,23 @@ def _read_header(model, header: dict, arrays: dict[str, np.ndarray], params: dic
     """The header's attributes of ``model``, and its regressor (KeyError, TypeError or
     ValueError when malformed)."""
     regressor = _field(header, "regressor", dict)
-    reg_arrays = {
-        k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("regressor.")
-    }
-    reg_class = regressor_class(_field(regressor, "class", str))
-    model.regressor_ = reg_class.from_state(reg_arrays, _field(regressor, "meta", dict))
+    model.regressor_ = _regressor(regressor, arrays, "regressor")
+    # Files written before the fold models were kept have none.
+    folds = header.get("folds", [])
+    if not isinstance(folds, list):
+        raise ValueError(f"folds must be a JSON array, got {type(folds).__name__}")
+    model.fold_regressors_ = [_regressor(_field({"folds": f}, "folds", dict), arrays,
+                                         f"fold{i}") for i, f in enumerate(folds)]
     model.sigma2_ = float(header["sigma2"])
     n = _field(header, "n_features", int)
     if n < 1:
         raise ValueError(f"n_features must be positive, got {n}")
     model.n_features_in_ = n
-    reg_n = getattr(model.regressor_, "n_features_in_", n)
-    if reg_n != n:
-        raise ValueError(f"the regressor takes {reg_n} features, n_features is {n}")
+    for name, reg in [("the regressor", model.regressor_)] + [
+            (f"fold model {i}", r) for i, r in enumerate(model.fold_regressors_)]:
+        reg_n = getattr(reg, "n_features_in_", n)
+        if reg_n != n:
+            raise ValueError(f"{name} takes {reg_n} features, n_features is {n}")
     model.joint_names_ = header["joint_names"]
     if model.joint_names_ is not None and (
             not isinstance(model.joint_names_, list) or len(model.joint_names_) != n):
@@ -194,6 +203,14 @@ def _read_arrays(model, header: dict, arrays: dict[str, np.ndarray]) -> None:
                          f"columns, n_features is {n}")
     model.support_spacing_ = float(header["support_spacing"])
     model._support_tree = None
+
+
+def _regressor(entry: dict, arrays: dict[str, np.ndarray], prefix: str):
+    """The regressor a header ``entry`` (``class`` and ``meta``) names, from its arrays
+    ``<prefix>.<name>``."""
+    own = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith(prefix + ".")}
+    reg_class = regressor_class(_field(entry, "class", str))
+    return reg_class.from_state(own, _field(entry, "meta", dict))
 
 
 def _field(mapping: dict, key: str, kind: type) -> Any:

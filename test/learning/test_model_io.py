@@ -223,6 +223,8 @@ def _set(mapping, key, value):
     (None, lambda a: _set(a, "groups", np.zeros(3, dtype=int)), r"groups'.*\b3\b"),
     (None, lambda a: _set(a, "support_states", np.zeros((4, 3))),
      r"support_states\b.*\b3\b.*n_features\b.*\b2\b"),
+    (lambda h: _set(h, "folds", {"class": "x"}), None, r"\bfolds\b.*\barray\b"),
+    (lambda h: _set(h, "folds", [1]), None, r"\bfolds\b.*\bobject\b"),
 ])
 def test_malformed_model_files_name_the_file_and_the_problem(model, tmp_path, header,
                                                              arrays, message):
@@ -314,6 +316,22 @@ def test_an_old_file_without_the_robot_field_still_loads(model, tmp_path):
     bad = _rewrite(tmp_path, source, header=lambda h: _set(h, "robot", ["panda"]))
     with pytest.raises(ValueError, match=r"bad.npz.*\brobot\b"):
         PolicyAlign.load(bad)
+
+
+def test_fold_models_round_trip_and_old_files_load_without_them(model, tmp_path):
+    assert len(model.fold_regressors_) >= 2
+    source = model.save(tmp_path / "model.npz")
+    loaded = PolicyAlign.load(source)
+    X = np.random.default_rng(2).uniform(-2, 2, size=(7, 2))
+    assert len(loaded.fold_regressors_) == len(model.fold_regressors_)
+    for mine, theirs in zip(model.fold_regressors_, loaded.fold_regressors_, strict=True):
+        np.testing.assert_array_equal(theirs.gradient(X), mine.gradient(X))
+    # Not the model's own regressor: each fold model was fitted without some data.
+    assert not np.allclose(loaded.fold_regressors_[0].gradient(X), loaded.policy(X) * -1)
+    old = _rewrite(tmp_path, source,
+                   header=lambda h: {k: v for k, v in h.items() if k != "folds"},
+                   arrays=lambda a: {k: v for k, v in a.items() if not k.startswith("fold")})
+    assert PolicyAlign.load(old).fold_regressors_ == []
 
 
 def test_json_floats_makes_non_finite_floats_null_in_nested_dicts():
