@@ -1,6 +1,6 @@
 """Closed-loop runs as the executor's extrapolation guard lets them go: each one reaches
-the expert's end, is held at the data's edge (which the executor reports), or misses
-silently.
+the expert's end, is held at the data's edge (which the executor reports), is flagged by
+its check of the CV folds' stops, or misses silently.
 
 The suite's closed-loop columns run the bare policy. On the robot the executor's
 extrapolation guard (:mod:`policy_align_ros.control.guard`) scales down commands that lead
@@ -17,9 +17,14 @@ is the suite's ``end/start`` column. The outcomes:
   from where the expert ends;
 * **held**: it does not, and the guard holds its command at the end (scale at most
   :data:`~policy_align_ros.control.guard_hold.HOLD_SCALE`): the executor says so;
-* **silent**: it does not, and the guard does not hold it: the robot settles, crawls on
-  under a guard that slows it, or is still on its way, somewhere the user was not warned
-  about.
+* **flagged**: neither, but the check of the run before it starts
+  (:func:`~policy_align_ros.learning.fold_stops.stop_spread`: the CV folds' models stop
+  it more than :data:`~policy_align_ros.learning.fold_stops.STOP_SPREAD_LIMIT` of its
+  travel from the model's stop) says that its stop is uncertain;
+* **silent**: none of these: the robot settles, crawls on under a guard that slows it, or
+  is still on its way, somewhere the user was not warned about.
+
+A run that reaches the goal and was flagged is a false alarm; the suite counts those too.
 """
 
 from __future__ import annotations
@@ -45,7 +50,7 @@ REACH_TOLERANCE = 0.02
 #: demonstration durations).
 SETTLE_HORIZONS = 3
 #: The outcomes of :func:`run_outcome`, in report order.
-OUTCOMES = ("reached", "held", "silent")
+OUTCOMES = ("reached", "held", "flagged", "silent")
 
 
 def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray],
@@ -93,14 +98,17 @@ def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray],
     return x, scale
 
 
-def run_outcome(end: np.ndarray, scale: float, x0: np.ndarray, goal: np.ndarray) -> str:
-    """``"reached"``, ``"held"`` or ``"silent"`` (see the module's docstring) for a guarded
-    run from ``x0`` (n,) that ended at ``end`` (n,) with the guard's last ``scale``, where
-    the expert ends at ``goal`` (n,)."""
+def run_outcome(end: np.ndarray, scale: float, x0: np.ndarray, goal: np.ndarray,
+                flagged: bool = False) -> str:
+    """One of :data:`OUTCOMES` (see the module's docstring) for a guarded run from ``x0``
+    (n,) that ended at ``end`` (n,) with the guard's last ``scale``, where the expert ends
+    at ``goal`` (n,); ``flagged``: its fold-stop check found the stop uncertain."""
     start = max(float(np.linalg.norm(x0 - goal)), 1e-12)
     if float(np.linalg.norm(end - goal)) <= REACH_TOLERANCE * start:
         return "reached"
-    return "held" if scale <= HOLD_SCALE else "silent"
+    if scale <= HOLD_SCALE:
+        return "held"
+    return "flagged" if flagged else "silent"
 
 
 def default_guard(model, max_extrapolation_rad: float = DEFAULT_MAX_EXTRAPOLATION_RAD
@@ -113,19 +121,21 @@ def default_guard(model, max_extrapolation_rad: float = DEFAULT_MAX_EXTRAPOLATIO
 
 def guard_table(results: list[dict], order: list[str]) -> list[str]:
     """Markdown lines of the suite's guarded runs (``results`` of ``suite.run_case``, cases
-    in ``order``): per case, the new model's runs reached-held-silent per data set, in seed
-    order, where its silent runs end (over their start distance: median and largest over
-    the data sets) and its fit's warnings per data set."""
+    in ``order``): per case, the new model's runs reached-held-flagged-silent per data set,
+    in seed order, how many runs that reached were flagged (false alarms), where its
+    silent runs end (over their start distance: median and largest over the data sets)
+    and its fit's warnings per data set."""
     rows = [r for r in results if "free_outcomes" in r["models"]["new"]]
     if not rows:
         return []
     caps = sorted({r.get("guard_rad", DEFAULT_MAX_EXTRAPOLATION_RAD) for r in rows})
     lines = ["", "Runs from new starts under the executor's extrapolation guard, capped at "
-             + "/".join(f"{c:g}" for c in caps) + " rad (new model; per data set, in seed "
-             "order):", "",
-             "| case | free runs reached-held-silent, guarded | unseen runs reached-held-"
-             "silent, guarded | silent free runs end (median, largest) | silent unseen runs "
-             "end | fit warnings |", "|---|---|---|---|---|---|"]
+             + "/".join(f"{c:g}" for c in caps) + " rad, and their fold-stop check (new "
+             "model; per data set, in seed order):", "",
+             "| case | free runs reached-held-flagged-silent | unseen runs reached-held-"
+             "flagged-silent | reached but flagged, free/unseen | silent free runs end "
+             "(median, largest) | silent unseen runs end | fit warnings |",
+             "|---|---|---|---|---|---|---|"]
     for name in order:
         mine = sorted((r for r in rows if r["case"] == name), key=lambda r: r["seed"])
         if not mine:
@@ -133,6 +143,8 @@ def guard_table(results: list[dict], order: list[str]) -> list[str]:
         new = [r["models"]["new"] for r in mine]
         cells = ["/".join("-".join(str(c) for c in m[f"{label}_outcomes"]) for m in new)
                  for label in ("free", "unseen")]
+        cells.append("/".join(str(sum(m.get(f"{label}_reached_flagged", 0) for m in new))
+                              for label in ("free", "unseen")))
         for label in ("free", "unseen"):
             ends = [e for m in new for e in m[f"{label}_silent_rel"]]
             cells.append(f"{np.median(ends):.3f} ({max(ends):.3f})" if ends else "-")

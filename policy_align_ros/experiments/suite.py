@@ -64,6 +64,7 @@ from policy_align_ros.experiments.recording_cases import RECORDING_CASES
 from policy_align_ros.experiments.retiming import learnt_minimum
 from policy_align_ros.experiments.suite_cases import CASES, Problem
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
+from policy_align_ros.learning.fold_stops import check_horizon, stop_spread
 from policy_align_ros.learning.model_io import atomic_write_text, json_float
 from policy_align_ros.learning.outliers import largest_group
 from policy_align_ros.learning.regressors import (
@@ -128,12 +129,15 @@ def _expert_goal(problem: Problem, x0: np.ndarray, constraint: ConstraintFn | No
     return goal, int(close[0]) if len(close) else steps
 
 
-def _projection(problem: Problem, constraint: ConstraintFn | None):
-    """``project(x, i, v)``: ``v`` at step ``i`` projected onto ``constraint``'s null space
-    (None: free), for :func:`~.guarded_runs.guarded_rollout`."""
+def _projection(problem: Problem, constraint: ConstraintFn | None,
+                dt: float | None = None):
+    """``project(x, i, v)``: ``v`` at step ``i`` of ``dt`` s (default: the data's)
+    projected onto ``constraint``'s null space (None: free), for
+    :func:`~.guarded_runs.guarded_rollout`."""
     if constraint is None:
         return None
-    return lambda x, i, v: _project(np.atleast_2d(constraint(x, i * problem.dt, v)), v)
+    dt = problem.dt if dt is None else dt
+    return lambda x, i, v: _project(np.atleast_2d(constraint(x, i * dt, v)), v)
 
 
 def _rollout_policy(policy, problem: Problem, x0: np.ndarray, steps: int,
@@ -191,9 +195,8 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals,
                 hand.append(1e3 * np.linalg.norm(problem.extras["hand"](end)
                                                   - problem.extras["hand"](goal)))
         if guard_rad is not None:
-            counts, silent = _guarded_outcomes(model, problem, starts, goals[label],
-                                               constraint, guard_rad)
-            out[f"{label}_outcomes"], out[f"{label}_silent_rel"] = counts, silent
+            out.update({f"{label}_{k}": v for k, v in _guarded_outcomes(
+                model, problem, starts, goals[label], constraint, guard_rad).items()})
         out[f"{label}_rel_median"] = float(np.median(rel))
         out[f"{label}_rel_max"] = float(np.max(rel))
         if hand:
@@ -208,24 +211,35 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals,
 
 
 def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
-                      constraint: ConstraintFn | None, guard_rad: float
-                      ) -> tuple[list[int], list[float]]:
+                      constraint: ConstraintFn | None, guard_rad: float) -> dict[str, Any]:
     """How many runs from ``starts`` reach the expert's end, are held at the data's edge,
-    or miss silently under the executor's default extrapolation guard
-    (:mod:`.guarded_runs`, in the order of ``OUTCOMES``) capped at ``guard_rad`` (rad),
-    and where each silent one ends: its distance from the expert's end over its start
-    distance."""
+    are flagged by their fold-stop check, or miss silently under the executor's default
+    extrapolation guard (:mod:`.guarded_runs`, ``outcomes`` in the order of
+    ``OUTCOMES``) capped at ``guard_rad`` (rad); how many that reach were flagged
+    (``reached_flagged``); and where each silent one ends (``silent_rel``: its distance
+    from the expert's end over its start distance).
+
+    The check (:func:`~policy_align_ros.learning.fold_stops.stop_spread`) runs the bare
+    model and its fold models from the start under the same constraint, over the
+    model's own :func:`~policy_align_ros.learning.fold_stops.check_horizon`, as the
+    executor does before it arms."""
     guard = default_guard(model, guard_rad)
     project = _projection(problem, constraint)
-    found, silent = [], []
+    horizon = check_horizon(model)
+    checked = None if horizon is None else _projection(problem, constraint, horizon[0])
+    found, silent, false_alarms = [], [], 0
     for x0, (goal, steps) in zip(starts, goals, strict=True):
         end, scale = guarded_rollout(model.policy, guard, x0, problem.dt,
                                      SETTLE_HORIZONS * steps, project)
-        found.append(run_outcome(end, scale, x0, goal))
+        flagged = horizon is not None and stop_spread(model, x0, *horizon,
+                                                      checked).uncertain
+        found.append(run_outcome(end, scale, x0, goal, flagged))
+        false_alarms += flagged and found[-1] == "reached"
         if found[-1] == "silent":
             silent.append(float(np.linalg.norm(end - goal)
                                 / max(float(np.linalg.norm(x0 - goal)), 1e-12)))
-    return [found.count(o) for o in OUTCOMES], silent
+    return {"outcomes": [found.count(o) for o in OUTCOMES], "silent_rel": silent,
+            "reached_flagged": int(false_alarms)}
 
 
 def _goal_report(model: PolicyAlign, problem: Problem, goals, train: list[Demonstration]

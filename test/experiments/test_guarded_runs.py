@@ -1,4 +1,5 @@
-"""Closed-loop runs under the executor's extrapolation guard: reached, held or silent."""
+"""Closed-loop runs under the executor's extrapolation guard: reached, held, flagged or
+silent."""
 
 import numpy as np
 import pytest
@@ -86,3 +87,13 @@ def test_reached_is_judged_relative_to_the_start_distance():
     assert run_outcome(just_in, 0.0, x0, goal) == "reached"
     assert run_outcome(just_out, 0.5, x0, goal) == "silent"
     assert run_outcome(just_out, HOLD_SCALE, x0, goal) == "held"
+
+
+def test_a_flag_names_a_miss_the_guard_does_not_hold_and_nothing_else():
+    goal, x0 = np.zeros(2), np.array([1.0, 0.0])
+    off, there = np.array([0.3, 0.0]), np.array([0.001, 0.0])
+    assert run_outcome(off, 1.0, x0, goal, flagged=True) == "flagged"
+    assert run_outcome(off, 1.0, x0, goal, flagged=False) == "silent"
+    # A hold is reported by the guard already; a run that arrives is not a miss.
+    assert run_outcome(off, HOLD_SCALE, x0, goal, flagged=True) == "held"
+    assert run_outcome(there, 1.0, x0, goal, flagged=True) == "reached"

@@ -144,11 +144,12 @@ def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
         model = result["models"][label]
         assert model["min_error"] >= 0 and np.isfinite(model["free_rel_median"])
     # Every guarded run of the new model has one outcome: reached, held at the data's
-    # edge, or silent.
+    # edge, flagged by its fold-stop check, or silent.
     new = result["models"]["new"]
     assert sum(new["free_outcomes"]) == sum(new["unseen_outcomes"]) == 2
     for where in ("free", "unseen"):  # where each silent run ended
-        assert len(new[f"{where}_silent_rel"]) == new[f"{where}_outcomes"][2]
+        assert len(new[f"{where}_silent_rel"]) == new[f"{where}_outcomes"][3]
+        assert 0 <= new[f"{where}_reached_flagged"] <= new[f"{where}_outcomes"][0]
     # How close the training data came to the true minimum, as the suite measures it.
     rng = np.random.default_rng(0)  # the data set run_case drew
     problem = small.make(rng)
