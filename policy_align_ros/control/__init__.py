@@ -27,6 +27,8 @@ constraints in force, scaled for speed and position limits. Modules:
   built into its :class:`ArmedController` and applied to it at run time;
 - :mod:`.stall`: stall detection (a joint commanded to move that does not);
 - :mod:`.stamp_hints`: joint-state stamps far from the node clock, explained;
+- :mod:`.stop_check`: at arming, whether the model's CV folds stop the run where it
+  stops (:class:`ArmingStopCheck`);
 - :mod:`.status`: the executor's status in words (its ``/diagnostics``, its ~/enable
   answers, its notes on rejected joint states);
 - :mod:`.turns`: continuous joints' angles on the turn the model was learnt on.
@@ -124,6 +126,12 @@ from policy_align_ros.control.step import (
     DEFAULT_MIN_SINGULAR_VALUE,
     ControlStep,
 )
+from policy_align_ros.control.stop_check import (
+    ArmingStopCheck,
+    fold_policies,
+    stop_check_answer,
+    stop_check_note,
+)
 from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_state
 from policy_align_ros.control.turns import TURN, nearest_turn, turn_centres, wrap_continuous
 
@@ -144,6 +152,7 @@ __all__ = [
     "STAMP_REJECTIONS",
     "TURN",
     "ArmedController",
+    "ArmingStopCheck",
     "ControlStep",
     "DistanceFn",
     "ExtrapolationGuard",
@@ -170,6 +179,7 @@ __all__ = [
     "controller_order_refusal",
     "damped_pinv",
     "enable_answer",
+    "fold_policies",
     "forced_model_refusal",
     "forced_model_warning",
     "goal_in_margin",
@@ -202,6 +212,8 @@ __all__ = [
     "setting_problem",
     "speed_limits",
     "stall_time_problem",
+    "stop_check_answer",
+    "stop_check_note",
     "task_to_joint_velocity",
     "turn_centres",
     "wrap_continuous",

@@ -162,6 +162,8 @@ class ArmedController:
         self.zero_cause: ZeroCause | None = ZeroCause.NOT_ENABLED
         self.ramp_scale = 1.0
         self.extrapolation_scale = 1.0
+        #: The fold-stop check at the last arming (control/stop_check.py; None: none ran).
+        self.stop_spread = None
         # Nothing left to publish: disarmed and the zero command has gone out.
         self._silent = True
         self._q: np.ndarray | None = None

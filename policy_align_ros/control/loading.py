@@ -30,6 +30,7 @@ from policy_align_ros.control.guard import (
 from policy_align_ros.control.joint_order import model_permutation
 from policy_align_ros.control.limits import goal_in_margin
 from policy_align_ros.control.model_checks import GoalReach, forced_model_warning, model_refusals
+from policy_align_ros.control.stop_check import ArmingStopCheck
 from policy_align_ros.control.task_policy import policy_for_state
 from policy_align_ros.control.turns import turn_centres
 from policy_align_ros.kinematics.robot import ROBOTS, Robot
@@ -340,10 +341,12 @@ def install_model(controller: ArmedController, robot: Robot, path: str, model: P
     down).
 
     Sets the step's guard (:func:`model_guard`, with the executor's ``max_extrapolation``
-    and ``max_extrapolation_rad``), turn centres, the refusals of a model written only
-    because it was forced (:func:`~policy_align_ros.control.model_checks.model_refusals`,
-    which make :meth:`~policy_align_ros.control.step.ControlStep.model_check` refuse to
-    arm unless ``allow_forced_model``) and the learnt goal's distance to the data
+    and ``max_extrapolation_rad``), its fold-stop check
+    (:class:`~policy_align_ros.control.stop_check.ArmingStopCheck`), turn centres, the
+    refusals of a model written only because it was forced
+    (:func:`~policy_align_ros.control.model_checks.model_refusals`, which make
+    :meth:`~policy_align_ros.control.step.ControlStep.model_check` refuse to arm unless
+    ``allow_forced_model``) and the learnt goal's distance to the data
     (:func:`goal_reach`).
 
     Returns
@@ -361,6 +364,8 @@ def install_model(controller: ArmedController, robot: Robot, path: str, model: P
     step.turn_centres = model_turn_centres(model, state, robot, permutation)
     step.model_refusals = model_refusals(model)
     step.goal_reach = goal_reach(model, permutation, step.guard)
+    step.stop_check = ArmingStopCheck.for_model(model, policy, permutation)
+    controller.stop_spread = None  # the last arming's check was of another model
     notes = [guard_problem]
     if step.model_refusals:
         notes.append(forced_model_warning(path, step.model_refusals, step.allow_forced_model))

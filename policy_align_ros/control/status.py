@@ -84,9 +84,10 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
     level : int
         :data:`ERROR` when disarmed by a stall (the robot did not follow its command),
         :data:`WARN` when disarmed by another fault, while a forced model that is not
-        allowed is loaded (it cannot be armed) and while armed but held at the data's edge
-        by the extrapolation guard; :data:`OK` otherwise (armed, or disarmed by a
-        request).
+        allowed is loaded (it cannot be armed), while armed but held at the data's edge
+        by the extrapolation guard and while armed on a run whose stop the fold-stop
+        check at arming found uncertain (:mod:`~policy_align_ros.control.stop_check`);
+        :data:`OK` otherwise (armed, or disarmed by a request).
     message : str
         Armed, held, ramping down or at zero, with the reason.
     values : dict str -> str
@@ -98,6 +99,8 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         ``extrapolation_hold`` and the hold in words (``extrapolation_hold`` names the
         limit that binds); while disarmed at zero with a forced model that is not allowed,
         ``forced_model`` and the refusal (unless a stall's report stands).
+        ``stop_spread`` and ``stop_uncertain`` are the fold-stop check's at the last
+        arming (``n/a``: none ran).
     """
     problem = controller.state_problem(now_ns)
     reason, cause = controller.zero_reason, controller.zero_cause
@@ -113,8 +116,14 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
           and not controller.publishing and not controller.stalled):
         # What keeps it at zero now: ~/enable is refused until the model is allowed.
         reason, cause, level = gate_reason, gate_cause, WARN
+    spread = controller.stop_spread
+    uncertain = spread is not None and spread.uncertain
     if hold is not None:
         message = f"armed, command held at zero: {reason}"
+    elif controller.armed and uncertain:
+        level = max(level, WARN)
+        message = ("armed: following the policy; where it stops is uncertain (the CV "
+                   f"folds' stops spread over {100 * spread.spread:.0f} % of its travel)")
     elif controller.armed:
         message = "armed: following the policy"
     elif controller.publishing:
@@ -141,6 +150,8 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "rejected_joint_states": ", ".join(
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
         **_model_values(step, model),
+        "stop_spread": "n/a" if spread is None else _measured(spread.spread, ".3f"),
+        "stop_uncertain": "n/a" if spread is None else str(uncertain).lower(),
     }
     return level, message, values
 

@@ -140,6 +140,9 @@ class ControlStep:
     goal_reach : GoalReach or None
         The learnt goal's distance to the data, measured by the guard when the model was
         loaded (for the report of a goal beyond the guard's reach); None without one.
+    stop_check : ArmingStopCheck or None
+        The loaded model's fold-stop check, run at each arming
+        (:mod:`~policy_align_ros.control.stop_check`); None: nothing to check.
     """
 
     def __init__(
@@ -182,6 +185,7 @@ class ControlStep:
         self.model_refusals: tuple[str, ...] = ()
         self.allow_forced_model = False
         self.goal_reach: GoalReach | None = None
+        self.stop_check = None
         self.extrapolation_scale = 1.0
         self.extrapolation_distance = float("nan")
         self._zeros = np.zeros(n)

@@ -7,6 +7,7 @@ the joint velocity (rad/s) closest to it under the constraints in force
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -104,6 +105,14 @@ class TaskSpacePolicy:
         self.lower = np.asarray(robot.lower, dtype=float)
         self.upper = np.asarray(robot.upper, dtype=float)
         self._continuous = np.asarray(robot.continuous, dtype=bool)
+
+    def with_model(self, policy: Any) -> TaskSpacePolicy:
+        """This policy with another task-space model's ``policy`` (a CV fold's model of
+        the same state, :mod:`~policy_align_ros.control.stop_check`): the same map,
+        constraint, rest posture, gains and bounds."""
+        other = copy.copy(self)
+        other._policy = getattr(policy, "policy", policy)
+        return other
 
     def task_policy(self, x: np.ndarray) -> np.ndarray:
         """``pi_x(x)`` (3F,) in m/s at the state ``x`` (3F,)."""

@@ -66,6 +66,10 @@ docs/executor_safety.md explains it for robot owners):
   than a quarter of the expected motion for ``stall_time_s`` while commanded at least
   0.05 rad/s; :mod:`policy_align_ros.control.stall`) ramps down, disarms and is reported
   at ERROR level;
+* at ``~/enable`` (``stop_check``), the model and its CV folds' models are run from the
+  current state under the constraints in force, in a worker thread before arming; where
+  their stops disagree by more than 5 % of the travel, the answer, the log and
+  ``/diagnostics`` say the stop is uncertain (:mod:`policy_align_ros.control.stop_check`);
 * all control timing uses the node clock, so ``use_sim_time`` works;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second of the steady clock and
   on arming changes) reports the arming state, the model, why the command is zero, the
@@ -74,13 +78,10 @@ docs/executor_safety.md explains it for robot owners):
 
 A ros2_control JointGroupVelocityController holds its last command forever, so the
 executor also publishes a zero when it shuts down; pair it with a controller-side command
-timeout for the case it is killed. The model is loaded from ``model_path`` at start (a
-file that does not load stops the node, with an error naming the file and the fix) and
-whenever ``model_path`` is set. A
-``/learner/model`` (std_msgs/String, transient local) announcement sets it only when the
-executor follows the learner: ``follow_learner`` true, or no ``model_path`` given at start
-(an explicit model file wins otherwise). A model that does not load, or was trained on
-other joints, is refused with the reason and the current one stays.
+timeout for the case it is killed. Models load from ``model_path`` (at start, and when it
+is set) or from ``/learner/model`` announcements when it follows the learner
+(``follow_learner``, or no ``model_path`` given at start); one that does not load is
+refused with the reason (at start: the node stops) and the current one stays.
 """
 
 from __future__ import annotations
@@ -128,11 +129,13 @@ from policy_align_ros.control import (
     order_check_off,
     rejection_note,
     setting_problem,
+    stop_check_answer,
     untrustworthy_reason,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, describe_foreign
 from policy_align_ros.kinematics import Robot
 from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.fold_stops import StopSpread
 from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     StartNode,
@@ -144,6 +147,7 @@ from policy_align_ros.nodes._common import (
     optional_parameter,
     publish_zero_command,
     reject,
+    run_in_thread,
     run_node,
 )
 from policy_align_ros.nodes.executor_parameters import declare_control_parameters
@@ -497,6 +501,7 @@ class Executor(StartNode):
                     self._controller_checks -= 1
                     self._destroy_retired_clients()
             accepted = not reason
+        spread = await self._stop_check() if check and accepted else None
         with self._lock:
             if check and ticket != self._enable_requests:
                 accepted, reason = False, "superseded by a later ~/enable request"
@@ -506,11 +511,25 @@ class Executor(StartNode):
                 accepted, reason = False, "the model changed while the controller was checked"
             if accepted:
                 accepted, reason, out = self.controller.arm(self._now_ns())
+                if accepted and check:
+                    self.controller.stop_spread = spread
+                    note += stop_check_answer(spread, out)
                 self._emit(out)
             message = enable_answer(accepted, reason, note, self.model_path)
             if not accepted:
                 self.get_logger().warning(f"~/enable {message}")
         return accepted, message
+
+    async def _stop_check(self) -> StopSpread | None:
+        """The fold-stop check of the run from the current state (:mod:`policy_align_ros.
+        control.stop_check`), in a worker thread while the node runs on; None when off or
+        there is nothing to check."""
+        with self._lock:
+            check, q = self.controller.step.stop_check, self.controller.last_q
+            if check is None or q is None or not self.get_parameter("stop_check").value:
+                return None
+            run = check.prepare(self.controller.step, q)
+        return await run_in_thread(run)
 
     async def _check_controller(self, client) -> tuple[str, str]:
         """Compare the controller's ``joints`` with ours, asked through ``client`` (the

@@ -35,6 +35,11 @@ def declare_control_parameters(node: Node, default_controller: str) -> None:
         "arm a model that learn refused and wrote only because it was forced (--force, "
         "the learner's force:=true; its file records the refusals); false = ~/enable is "
         "refused on such a model, naming the refusals; applies at the next ~/enable"))
+    node.declare_parameter("stop_check", True, descriptor(
+        "at ~/enable, run the model and its CV folds' models from the current state "
+        "under the constraints in force, and warn (in the answer, the log and "
+        "/diagnostics) when their stops disagree by more than 5 % of the travel; arms "
+        "either way; applies at the next ~/enable"))
     node.declare_parameter("max_velocity", 0.5, descriptor(
         "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
         float_range=(0.001, 10.0)))

@@ -1,12 +1,15 @@
 """The ``executor`` node on what a new user could not see: a model that learn refused and
 wrote only because it was forced, the guard holding the robot at the data's edge, a
 learnt goal beyond the guard's reach, and which joint a broken joint state broke (own
-rclpy.Context, domain ids 210-213).
+rclpy.Context, domain ids 210-213 and 217), and whether the CV folds' models stop an armed
+run where the model does.
 
 Assertions are on causes, flags, names and numbers, never on wording or wall-clock speed.
 The logic is tested without a graph in test/control/test_model_checks.py and
 test/control/test_guard_hold.py.
 """
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -146,3 +149,39 @@ def test_a_broken_joint_state_names_the_joint_and_is_reported_as_rejected(rig):
     r.spin_until(lambda: r.node.controller.state_problem(r.node._now_ns()) == "",
                  what="fresh joint states")
     assert r.node.controller.zero_cause == ZeroCause.NON_FINITE_STATE
+
+
+def test_enable_runs_the_fold_stop_check_and_says_when_the_stop_is_uncertain(rig, tmp_path):
+    centre = np.zeros(len(JOINTS))
+    good = str(_fit_model(tmp_path / "good.npz", JOINTS, centre))
+    r = rig(217, model_path=good)
+    check = r.node.controller.step.stop_check
+    assert check is not None and len(check.policies) > 1  # the model and its folds
+    r.enable_when_fresh()
+    # Exact data: the folds agree, and the status says so while armed.
+    assert r.node.controller.stop_spread is not None
+    assert not r.node.controller.stop_spread.uncertain
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics and _latest(r)["armed"] == "true",
+                 what="armed diagnostics")
+    assert _latest(r)["stop_uncertain"] == "false"
+    assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].OK
+    assert r.enable(False).success
+    # A fold model that stops the run 0.3 rad away per joint: uncertain, said, still armed.
+    shifted = _attractor_policy(centre + 0.3)
+    r.node.controller.step.stop_check = dataclasses.replace(
+        check, policies=[check.policies[0], shifted])
+    r.spin(0.1)
+    assert r.enable(True).success
+    assert r.node.controller.armed and r.node.controller.stop_spread.uncertain
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics and _latest(r)["armed"] == "true",
+                 what="armed diagnostics")
+    assert _latest(r)["stop_uncertain"] == "true"
+    assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
+    assert r.enable(False).success
+    # Switched off, no check runs.
+    assert r.node.set_parameters([Parameter("stop_check", value=False)])[0].successful
+    r.spin(0.1)
+    assert r.enable(True).success
+    assert r.node.controller.stop_spread is None

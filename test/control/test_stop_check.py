@@ -1,0 +1,130 @@
+"""The fold-stop check at arming (policy_align_ros.control.stop_check). ROS-free."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from policy_align_ros.control import (
+    ArmedController,
+    ArmingStopCheck,
+    ControlStep,
+    Output,
+    arming_status,
+    stop_check_answer,
+    stop_check_note,
+)
+from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.fold_stops import STOP_SPREAD_LIMIT
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "learning"))
+from flows import quadratic_flow  # noqa: E402
+
+A = np.array([[2.0, 0.3], [0.3, 1.0]])
+CENTRE = np.array([0.2, -0.1])
+ROW = np.array([1.0, 2.0])  # a constraint no demonstration showed: ROW . qdot = 0
+
+
+class _Row:
+    def matrix(self, q, qdot=None):
+        return ROW[None, :]
+
+
+class _Shifted:
+    """A fold model whose potential is the model's moved by ``shift``."""
+
+    def __init__(self, regressor, shift):
+        self.regressor, self.shift = regressor, np.asarray(shift, dtype=float)
+
+    def gradient(self, X):
+        return self.regressor.gradient(X - self.shift)
+
+
+def _fit(order=(0, 1)):
+    """A 2-D model fitted on exact flows of the bowl, its coordinates in ``order``."""
+    rng = np.random.default_rng(0)
+    trajs = [quadratic_flow(A, CENTRE, rng.uniform(-1, 1, 2), 60, 0.05) for _ in range(8)]
+    for t in trajs:
+        t.positions = t.positions[:, list(order)]
+    names = [["j0", "j1"][i] for i in order]
+    return PolicyAlign(random_state=0).fit(trajs, joint_names=names)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return _fit()
+
+
+def _step(policy, permutation=None):
+    return ControlStep(-3 * np.ones(2), 3 * np.ones(2), np.full(2, 2.0), 0.01,
+                       constraints=[_Row()], policy=policy, permutation=permutation)
+
+
+def _constrained_minimum(q0):
+    """The bowl's lowest point on the line through ``q0`` along which ROW . qdot = 0."""
+    d = np.array([ROW[1], -ROW[0]])
+    t = -(d @ A @ (q0 - CENTRE)) / (d @ A @ d)
+    return q0 + t * d
+
+
+def test_folds_of_exact_data_agree_and_the_run_keeps_to_the_constraint(model):
+    step = _step(model.policy)
+    check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    assert len(check.policies) == 1 + len(model.fold_regressors_)
+    q0 = np.array([0.9, -0.8])
+    found = check.prepare(step, q0)()
+    assert found.spread < STOP_SPREAD_LIMIT / 5 and not found.uncertain
+    assert ROW @ (found.stop - q0) == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(found.stop, _constrained_minimum(q0), atol=0.02)
+    assert stop_check_note(found) == ""
+    # The executor's own step is left as it was.
+    assert step.policy == model.policy and step.dt == 0.01 and step.guard is None
+
+
+def test_folds_that_stop_elsewhere_make_the_stop_uncertain_and_it_is_said(model):
+    shifted = PolicyAlign.__new__(PolicyAlign)
+    shifted.__dict__.update(model.__dict__)
+    shifted.fold_regressors_ = [_Shifted(model.regressor_, [0.0, 0.0]),
+                                _Shifted(model.regressor_, [0.3, 0.0])]
+    q0 = np.array([0.9, -0.8])
+    found = ArmingStopCheck.for_model(shifted, shifted.policy, np.arange(2)).prepare(
+        _step(shifted.policy), q0)()
+    assert found.uncertain and found.spread > 5 * STOP_SPREAD_LIMIT
+    np.testing.assert_allclose(found.fold_stops[0], found.stop, atol=1e-6)
+    out = Output(None, "", 1.0)
+    note = stop_check_answer(found, out)
+    assert note and out.events and out.events[0][0] == "warning"
+    # Armed on such a run, /diagnostics warns and gives the spread.
+    control = ArmedController(_step(shifted.policy), 2.0, 0.05)
+    control.stop_spread = found
+    ok_level, _, values = arming_status(control, 0, model="m", model_state="joints",
+                                        constraints="[]", rejected={})
+    assert values["stop_uncertain"] == "true"
+    assert float(values["stop_spread"]) == pytest.approx(found.spread, abs=1e-3)
+    control.armed = True
+    level, _, _ = arming_status(control, 0, model="m", model_state="joints",
+                                constraints="[]", rejected={})
+    assert level > ok_level
+
+
+def test_the_check_compares_stops_in_the_models_joint_order():
+    swapped = _fit(order=(1, 0))
+    q0 = np.array([0.9, -0.8])  # controller order j0, j1
+    found = ArmingStopCheck.for_model(swapped, swapped.policy, np.array([1, 0])).prepare(
+        _step(swapped.policy, permutation=[1, 0]), q0)()
+    # Reported in model order (j1, j0).
+    np.testing.assert_allclose(found.stop[::-1], _constrained_minimum(q0), atol=0.02)
+    assert not found.uncertain
+
+
+def test_nothing_to_check_without_fold_models_or_a_clock(model):
+    bare = PolicyAlign.__new__(PolicyAlign)
+    bare.__dict__.update(model.__dict__)
+    bare.fold_regressors_ = []
+    assert ArmingStopCheck.for_model(bare, bare.policy, np.arange(2)) is None
+    untimed = PolicyAlign.__new__(PolicyAlign)
+    untimed.__dict__.update(model.__dict__)
+    untimed.timed_ = False
+    assert ArmingStopCheck.for_model(untimed, untimed.policy, np.arange(2)) is None
+    assert stop_check_note(None) == "" and stop_check_answer(None, Output(None, "", 1.0)) == ""
