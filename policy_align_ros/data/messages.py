@@ -49,6 +49,7 @@ __all__ = [
     "UNTRUSTWORTHY",
     "JointSelector",
     "StreamClock",
+    "UnusableReasons",
     "describe_foreign",
     "describe_skips",
     "validate_joint_names",
@@ -132,6 +133,24 @@ def describe_foreign(joints: Sequence[str], names: Sequence[str], *,
     else:
         what = f"missing {len(missing)} of the {len(joints)} joints: {_some(missing)}"
     return f"{what}; {carrier} {len(names)} joint(s): {_some(names)}"
+
+
+class UnusableReasons:
+    """:func:`describe_foreign` of the selected ``joints`` and a message's joint names,
+    with ``fix`` appended; cached per list of names (a topic carries few), at most
+    ``size`` of them."""
+
+    def __init__(self, joints: Sequence[str], fix: str, size: int = 64) -> None:
+        self.joints, self.fix, self.size = list(joints), fix, size
+        self._known: dict[tuple[str, ...], str] = {}
+
+    def __call__(self, names: Sequence[str]) -> str:
+        names = tuple(names)
+        if names not in self._known:
+            if len(self._known) >= self.size:
+                self._known.clear()
+            self._known[names] = f"{describe_foreign(self.joints, names)}. {self.fix}"
+        return self._known[names]
 
 
 def validate_joint_names(joints: Sequence[str] | None) -> list[str] | None:

@@ -132,7 +132,7 @@ from policy_align_ros.control import (
     stop_check_answer,
     untrustworthy_reason,
 )
-from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, describe_foreign
+from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, UnusableReasons
 from policy_align_ros.kinematics import Robot
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.fold_stops import StopSpread
@@ -244,8 +244,10 @@ class Executor(StartNode):
         states = self.create_subscription(JointState, "/joint_states",
                                           self._locked(self._on_joint_state), 10)
         self.controller.state_topic = states.topic_name  # as remapped, for the reasons
-        # Why a message of these joint names is unusable (few distinct lists per topic).
-        self._unusable_reasons: dict[tuple[str, ...], str] = {}
+        self._unusable_reason = UnusableReasons(
+            self.robot.joint_names, "Publish every joint of the executor's joints parameter "
+            "on the topic, or start the executor with the robot's joints (-p joints:=[...] "
+            "or -p robot_config:=NAME)")
         self.create_subscription(String, "/learner/model", self._locked(self._on_model),
                                  LATCHED_QOS)
         self._controller_client = None
@@ -415,7 +417,7 @@ class Executor(StartNode):
                     q, self.robot.joint_names, msg.name, msg.position, msg.velocity,
                     msg.effort), ZeroCause(q)))
             else:  # unknown_joints, missing_joints: counted, named, nothing stops
-                reason = self._unusable_reason(msg.name)
+                reason = self._unusable_reason(msg.name)  # cached per list of names
                 self._count_rejected(q, reason)
                 self.controller.unusable_state(reason)
             return
@@ -430,20 +432,6 @@ class Executor(StartNode):
             # Armed like ~/enable, with the controller check, without blocking this thread.
             self._arm_at_start = False
             self.executor.create_task(self._enable_at_start)
-
-    def _unusable_reason(self, names: Sequence[str]) -> str:
-        """Why a message of joint ``names`` without every controlled joint cannot be used
-        (:func:`~policy_align_ros.data.messages.describe_foreign`), and the fix (cached)."""
-        names = tuple(names)
-        reason = self._unusable_reasons.get(names)
-        if reason is None:
-            if len(self._unusable_reasons) >= 64:
-                self._unusable_reasons.clear()
-            reason = self._unusable_reasons[names] = (
-                f"{describe_foreign(self.robot.joint_names, names)}. Publish every joint of "
-                "the executor's joints parameter on the topic, or start the executor with "
-                "the robot's joints (-p joints:=[...] or -p robot_config:=NAME)")
-        return reason
 
     def _count_rejected(self, reason: str, hint: str = "") -> None:
         self.rejected_states[reason] += 1
@@ -522,14 +510,19 @@ class Executor(StartNode):
 
     async def _stop_check(self) -> StopSpread | None:
         """The fold-stop check of the run from the current state (:mod:`policy_align_ros.
-        control.stop_check`), in a worker thread while the node runs on; None when off or
-        there is nothing to check."""
+        control.stop_check`), in a worker thread while the node runs on; None when off,
+        there is nothing to check, or it failed (logged: the control step refuses a policy
+        that fails)."""
         with self._lock:
             check, q = self.controller.step.stop_check, self.controller.last_q
             if check is None or q is None or not self.get_parameter("stop_check").value:
                 return None
             run = check.prepare(self.controller.step, q)
-        return await run_in_thread(run)
+        try:
+            return await run_in_thread(run)
+        except Exception as err:  # noqa: BLE001 - an unchecked stop does not stop arming
+            self.get_logger().warning(f"stop check failed: {type(err).__name__}: {err}")
+            return None
 
     async def _check_controller(self, client) -> tuple[str, str]:
         """Compare the controller's ``joints`` with ours, asked through ``client`` (the

@@ -13,6 +13,7 @@ from policy_align_ros.data.messages import (
     UNTRUSTWORTHY,
     JointSelector,
     StreamClock,
+    UnusableReasons,
     describe_foreign,
     describe_skips,
     validate_joint_names,
@@ -128,3 +129,15 @@ def test_a_message_skipped_for_its_joints_is_described_by_what_it_lacks_and_carr
     assert "'joint1'" in text and "'other0'" in text and "'other19'" not in text
     assert "20" in text
     assert describe_foreign(arm, [])  # no names at all
+
+
+def test_unusable_reasons_add_the_fix_and_keep_a_bounded_cache():
+    reasons = UnusableReasons(["joint1", "joint2"], "FIX", size=2)
+    first = reasons(["joint1"])
+    assert first.startswith(describe_foreign(["joint1", "joint2"], ["joint1"]))
+    assert first.endswith("FIX")
+    assert reasons(("joint1",)) is first  # the same list of names: cached
+    reasons(["a"])
+    reasons(["b"])  # a third list clears the cache rather than growing it
+    assert len(reasons._known) <= 2
+    assert reasons(["joint1"]) == first
