@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -44,6 +45,7 @@ from policy_align_ros.control import (
     DEFAULT_STALL_TIME_S,
     NO_CAUSE,
     ArmedController,
+    ArmingStopCheck,
     ControlStep,
     ExtrapolationGuard,
     StallDetector,
@@ -140,6 +142,24 @@ def armed_step(control: ArmedController, period_ns: int):
     return step
 
 
+def time_stop_check(model, permutation: np.ndarray, step: ControlStep, starts: np.ndarray
+                    ) -> dict[str, float]:
+    """The fold-stop check at arming (:class:`~policy_align_ros.control.stop_check.
+    ArmingStopCheck`) of ``model`` under ``step`` from each of ``starts`` (m, n): the
+    median and largest wall time (s), the runs per check and their steps."""
+    check = ArmingStopCheck.for_model(model, model.policy, permutation)
+    if check is None:
+        return {"runs": 0, "steps": 0, "median_s": math.nan, "max_s": math.nan}
+    times = []
+    for q in starts:
+        run = check.prepare(step, q)
+        t0 = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - t0)
+    return {"runs": len(check.policies), "steps": check.steps,
+            "median_s": float(np.median(times)), "max_s": float(np.max(times))}
+
+
 def format_report(results: dict) -> str:
     """The markdown table of :func:`main`'s timings and the verdict on the 1 ms target.
 
@@ -168,6 +188,11 @@ def format_report(results: dict) -> str:
               f"full_step CPU time of the step (thread_time; preemption excluded): p99 "
               f"{results['full_step_cpu']['p99_us']:.1f} us",
               f"stall disarms during full_step: {results.get('full_step_stalls', 0)}"]
+    check = results.get("stop_check")
+    if check:
+        lines.append(f"fold-stop check at arming ({check['runs']} runs of {check['steps']} "
+                     f"steps, control_law_only's step): median {check['median_s']:.2f} s, "
+                     f"largest {check['max_s']:.2f} s")
     return "\n".join(lines)
 
 
@@ -242,6 +267,7 @@ def main(args: argparse.Namespace) -> int:
 
     results["stall_only"] = percentiles_us(time_steps(
         stall_step, states, list(JOINTS), steps // 4))
+    results["stop_check"] = time_stop_check(model, perm, bare, states[::100][:5])
     # Tails on a shared machine come from preemption: say how busy it was.
     results["load_average_1min"] = os.getloadavg()[0]
     text = format_report(results)
