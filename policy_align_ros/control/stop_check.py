@@ -13,7 +13,8 @@ the executor's own :class:`~policy_align_ros.control.step.ControlStep` (the cons
 force, held frames latched at the start, locked joints, speed and position limits; no
 extrapolation guard, which would hold the folds' runs where the data ends), from the
 joint positions at arming, for the model's
-:func:`~policy_align_ros.learning.fold_stops.check_horizon`. The stops are compared in
+:func:`~policy_align_ros.learning.fold_stops.check_horizon`, in slices of wall time on
+the executor's own thread (:class:`StopCheckRun`). The stops are compared in
 the model's state (joint positions, or the frames' positions of a task-space model), over
 the run's travel there. The executor arms either way: the check informs, it does not
 refuse (a run that stops elsewhere stops within the constraints and limits).
@@ -23,6 +24,8 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -30,9 +33,10 @@ import numpy as np
 from policy_align_ros.control.output import Output
 from policy_align_ros.control.step import ControlStep
 from policy_align_ros.control.task_policy import TaskSpacePolicy
-from policy_align_ros.learning.fold_stops import StopSpread, check_horizon, settle, spread_of
+from policy_align_ros.learning.fold_stops import StopSpread, check_horizon, spread_of
 
-__all__ = ["ArmingStopCheck", "fold_policies", "stop_check_answer", "stop_check_note"]
+__all__ = ["ArmingStopCheck", "StopCheckRun", "fold_policies", "stop_check_answer",
+           "stop_check_note"]
 
 
 def fold_policies(model, policy: Callable) -> list[Callable]:
@@ -104,19 +108,54 @@ class ArmingStopCheck:
                 return np.asarray(q, dtype=float)[permutation]
         return cls([policy, *folds], *horizon, state, float(model.support_spacing_))
 
-    def prepare(self, step: ControlStep, q0: np.ndarray) -> Callable[[], StopSpread]:
+    def prepare(self, step: ControlStep, q0: np.ndarray) -> StopCheckRun:
         """The check of the run from ``q0`` (n,, controller order) under ``step`` as it is
-        now (copied here, so that the returned call may run in another thread while the
-        executor goes on): call it for the :class:`StopSpread`, in the model's state
-        units."""
-        q0 = np.array(q0, dtype=float)
+        now (copied here: later changes to ``step`` do not reach it)."""
         fields = [_stepped(step, p, self.dt, q0) for p in self.policies]
+        return StopCheckRun(fields, np.array(q0, dtype=float), self.dt, self.steps,
+                            self.state, self.floor)
 
-        def run() -> StopSpread:
-            ends = [self.state(settle(f, q0, self.dt, self.steps)) for f in fields]
-            return spread_of(self.state(q0), ends[0], ends[1:], self.floor)
 
-        return run
+class StopCheckRun:
+    """The runs of one :meth:`ArmingStopCheck.prepare`, advanced in slices of wall time,
+    so that the executor's thread serves its other callbacks in between (no second
+    thread shares the robot's kinematics data with it).
+
+    Parameters
+    ----------
+    fields : list of callable
+        Each run's command at rows (1, n): the model's first, then each fold model's.
+    q0 : ndarray (n,)
+        The start, rad, controller order.
+    dt, steps, state, floor
+        As :class:`ArmingStopCheck`'s.
+    """
+
+    def __init__(self, fields: list, q0: np.ndarray, dt: float, steps: int,
+                 state: Callable[[np.ndarray], np.ndarray], floor: float) -> None:
+        self.fields, self.q0, self.dt, self.steps = fields, q0, dt, steps
+        self.state, self.floor = state, floor
+        self.done = 0  # steps taken by every run
+        self._x = [q0.copy() for _ in fields]
+
+    def advance(self, budget_s: float = math.inf) -> bool:
+        """Euler steps of every run until ``budget_s`` s of wall time have passed (at
+        least one step) or the runs are done; whether they are."""
+        end = time.perf_counter() + budget_s
+        while self.done < self.steps:
+            for i, field in enumerate(self.fields):
+                self._x[i] = self._x[i] + self.dt * field(self._x[i][None])[0]
+            self.done += 1
+            if time.perf_counter() >= end:
+                break
+        return self.done >= self.steps
+
+    def result(self) -> StopSpread:
+        """The :class:`StopSpread` of the runs, in the model's state units (advances them
+        to the end first)."""
+        self.advance()
+        ends = [self.state(x) for x in self._x]
+        return spread_of(self.state(self.q0), ends[0], ends[1:], self.floor)
 
 
 def stop_check_note(found: StopSpread | None) -> str:

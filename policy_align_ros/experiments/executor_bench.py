@@ -154,7 +154,7 @@ def time_stop_check(model, permutation: np.ndarray, step: ControlStep, starts: n
     for q in starts:
         run = check.prepare(step, q)
         t0 = time.perf_counter()
-        run()
+        run.result()
         times.append(time.perf_counter() - t0)
     return {"runs": len(check.policies), "steps": check.steps,
             "median_s": float(np.median(times)), "max_s": float(np.max(times))}

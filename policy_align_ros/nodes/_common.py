@@ -331,27 +331,10 @@ async def call_with_timeout(client: Client, request: Any, timeout_s: float) -> A
     return None
 
 
-async def run_in_thread(work: Callable[[], Any], poll_s: float = 0.002) -> Any:
-    """``work()`` in a worker thread, from a coroutine callback without blocking its
-    executor: while it runs the executor serves the node's other callbacks (it waits at
-    most ``poll_s`` s at a time for it, releasing the GIL). Returns what ``work`` returns;
-    raises what it raises."""
-    out: dict[str, Any] = {}
-
-    def run() -> None:
-        try:
-            out["value"] = work()
-        except Exception as err:  # noqa: BLE001 - raised again in the caller
-            out["error"] = err
-
-    thread = threading.Thread(target=run, name="run_in_thread", daemon=True)
-    thread.start()
-    while thread.is_alive():
-        thread.join(poll_s)
-        await _NextCycle()
-    if "error" in out:
-        raise out["error"]
-    return out["value"]
+async def next_cycle() -> None:
+    """Suspend a coroutine callback until the executor's next cycle: its other callbacks
+    run in between (the executor's fold-stop check, done in slices)."""
+    await _NextCycle()
 
 
 _STOP = threading.Event()

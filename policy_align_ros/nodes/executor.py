@@ -67,7 +67,7 @@ docs/executor_safety.md explains it for robot owners):
   0.05 rad/s; :mod:`policy_align_ros.control.stall`) ramps down, disarms and is reported
   at ERROR level;
 * at ``~/enable`` (``stop_check``), the model and its CV folds' models are run from the
-  current state under the constraints in force, in a worker thread before arming; where
+  current state under the constraints in force, in slices before arming; where
   their stops disagree by more than 5 % of the travel, the answer, the log and
   ``/diagnostics`` say the stop is uncertain (:mod:`policy_align_ros.control.stop_check`);
 * all control timing uses the node clock, so ``use_sim_time`` works;
@@ -144,10 +144,10 @@ from policy_align_ros.nodes._common import (
     declare_robot,
     descriptor,
     load_robot,
+    next_cycle,
     optional_parameter,
     publish_zero_command,
     reject,
-    run_in_thread,
     run_node,
 )
 from policy_align_ros.nodes.executor_parameters import declare_control_parameters
@@ -160,6 +160,9 @@ __all__ = ["Executor", "main"]
 DIAGNOSTICS_PERIOD_S = 1.0
 #: How long ~/enable waits for the controller's joints parameter (s, wall time).
 CONTROLLER_TIMEOUT_S = 1.0
+#: Slice [s] of the fold-stop check at ~/enable between two executor cycles: the node's
+#: joint states, timers and services wait about this long (and one step of its runs).
+STOP_CHECK_SLICE_S = 0.005
 class Executor(StartNode):
     """The ``executor`` node (see the module docstring)."""
 
@@ -510,16 +513,20 @@ class Executor(StartNode):
 
     async def _stop_check(self) -> StopSpread | None:
         """The fold-stop check of the run from the current state (:mod:`policy_align_ros.
-        control.stop_check`), in a worker thread while the node runs on; None when off,
-        there is nothing to check, or it failed (logged: the control step refuses a policy
-        that fails)."""
+        control.stop_check`), in slices of about STOP_CHECK_SLICE_S s between which the
+        node serves its other callbacks; None when off, there is nothing to check, or it
+        failed (logged: the control step refuses a policy that fails)."""
         with self._lock:
             check, q = self.controller.step.stop_check, self.controller.last_q
             if check is None or q is None or not self.get_parameter("stop_check").value:
                 return None
             run = check.prepare(self.controller.step, q)
         try:
-            return await run_in_thread(run)
+            while True:
+                with self._lock:
+                    if run.advance(STOP_CHECK_SLICE_S):
+                        return run.result()
+                await next_cycle()
         except Exception as err:  # noqa: BLE001 - an unchecked stop does not stop arming
             self.get_logger().warning(f"stop check failed: {type(err).__name__}: {err}")
             return None

@@ -73,7 +73,7 @@ def test_folds_of_exact_data_agree_and_the_run_keeps_to_the_constraint(model):
     check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
     assert len(check.policies) == 1 + len(model.fold_regressors_)
     q0 = np.array([0.9, -0.8])
-    found = check.prepare(step, q0)()
+    found = check.prepare(step, q0).result()
     assert found.spread < STOP_SPREAD_LIMIT / 5 and not found.uncertain
     assert ROW @ (found.stop - q0) == pytest.approx(0.0, abs=1e-9)
     np.testing.assert_allclose(found.stop, _constrained_minimum(q0), atol=0.02)
@@ -89,7 +89,7 @@ def test_folds_that_stop_elsewhere_make_the_stop_uncertain_and_it_is_said(model)
                                 _Shifted(model.regressor_, [0.3, 0.0])]
     q0 = np.array([0.9, -0.8])
     found = ArmingStopCheck.for_model(shifted, shifted.policy, np.arange(2)).prepare(
-        _step(shifted.policy), q0)()
+        _step(shifted.policy), q0).result()
     assert found.uncertain and found.spread > 5 * STOP_SPREAD_LIMIT
     np.testing.assert_allclose(found.fold_stops[0], found.stop, atol=1e-6)
     out = Output(None, "", 1.0)
@@ -112,7 +112,7 @@ def test_the_check_compares_stops_in_the_models_joint_order():
     swapped = _fit(order=(1, 0))
     q0 = np.array([0.9, -0.8])  # controller order j0, j1
     found = ArmingStopCheck.for_model(swapped, swapped.policy, np.array([1, 0])).prepare(
-        _step(swapped.policy, permutation=[1, 0]), q0)()
+        _step(swapped.policy, permutation=[1, 0]), q0).result()
     # Reported in model order (j1, j0).
     np.testing.assert_allclose(found.stop[::-1], _constrained_minimum(q0), atol=0.02)
     assert not found.uncertain
@@ -128,3 +128,17 @@ def test_nothing_to_check_without_fold_models_or_a_clock(model):
     untimed.timed_ = False
     assert ArmingStopCheck.for_model(untimed, untimed.policy, np.arange(2)) is None
     assert stop_check_note(None) == "" and stop_check_answer(None, Output(None, "", 1.0)) == ""
+
+
+def test_a_check_advanced_in_slices_ends_where_one_run_to_the_end_does(model):
+    check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    q0 = np.array([-0.7, 0.6])
+    whole = check.prepare(_step(model.policy), q0).result()
+    sliced = check.prepare(_step(model.policy), q0)
+    assert not sliced.advance(0.0) and sliced.done == 1  # a zero budget still takes a step
+    while not sliced.advance(0.0):
+        pass
+    assert sliced.done == check.steps
+    found = sliced.result()
+    np.testing.assert_array_equal(found.stop, whole.stop)
+    np.testing.assert_array_equal(found.fold_stops, whole.fold_stops)
