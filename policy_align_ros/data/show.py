@@ -43,7 +43,9 @@ def model_report(path: str | Path) -> dict[str, Any]:
         ``learnt_goal``: {name: value} in the state's coordinates (state units), None
         without a minimum; ``n_minima``; ``tracking_lag_s``; ``timing_scales``;
         ``continuous_joints``: the robot's continuous joints the learner put on one turn
-        (their angles, which drivers report modulo a turn, are learnt and executed there).
+        (their angles, which drivers report modulo a turn, are learnt and executed there);
+        ``n_fold_models``: the CV folds' models the executor checks a run's stop with at
+        arming (0: a file written before they were kept, which is not checked).
 
     Raises
     ------
@@ -77,6 +79,7 @@ def model_report(path: str | Path) -> dict[str, Any]:
         "tracking_lag_s": summary.get("tracking_lag"),
         "timing_scales": summary.get("timing_scales"),
         "continuous_joints": [str(j) for j in block.get("continuous_joints") or []],
+        "n_fold_models": len(model.fold_regressors_),
     }
 
 
@@ -106,6 +109,10 @@ def report_lines(report: dict[str, Any]) -> list[str]:
     if report["continuous_joints"]:
         lines.append("continuous joints, learnt on one turn: "
                      + ", ".join(report["continuous_joints"]))
+    lines.append(f"fold models: {report['n_fold_models']}"
+                 + (" (the executor checks where a run stops with them at ~/enable)"
+                    if report["n_fold_models"] else " (no stop check at ~/enable: learn "
+                    "again to get them)"))
     lag = report["tracking_lag_s"]
     if lag:
         lines.append(f"tracking lag: {1000 * lag:.0f} ms (docs/design/tracking_lag.md)")

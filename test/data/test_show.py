@@ -48,6 +48,7 @@ def test_the_report_is_the_learners_summary_and_its_goal(learnt):
     assert report["joints"] == JOINTS and report["n_dims"] == 2
     assert not report["forced"] and report["refusals"] == []
     assert report["continuous_joints"] == []  # no robot named: none known
+    assert report["n_fold_models"] == len(PolicyAlign.load(path).fold_regressors_) >= 2
     # The learn line as the learner printed it, but for the path the report starts with.
     assert result.line().startswith(report["learn_summary"])
     goal = report["learnt_goal"]
