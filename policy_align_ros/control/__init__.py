@@ -128,6 +128,7 @@ from policy_align_ros.control.step import (
 )
 from policy_align_ros.control.stop_check import (
     ArmingStopCheck,
+    check_in_slices,
     fold_policies,
     stop_check_answer,
     stop_check_note,
@@ -171,6 +172,7 @@ __all__ = [
     "arming_status",
     "braking_scale",
     "build_controller",
+    "check_in_slices",
     "clearance_scale",
     "clock_mismatch_hint",
     "constrained_command",

@@ -128,6 +128,10 @@ class ArmedController:
         ``alpha`` of the last step (:func:`ramp_toward`; 1 = on target).
     extrapolation_scale : float
         The extrapolation guard's scale at the last step that followed the policy.
+    stop_spread : StopSpread or None
+        The fold-stop check at the last arming (:mod:`~policy_align_ros.control.
+        stop_check`, set by the executor); None when none ran, or the model or the
+        constraints changed since.
     """
 
     def __init__(
@@ -162,7 +166,6 @@ class ArmedController:
         self.zero_cause: ZeroCause | None = ZeroCause.NOT_ENABLED
         self.ramp_scale = 1.0
         self.extrapolation_scale = 1.0
-        #: The fold-stop check at the last arming (control/stop_check.py; None: none ran).
         self.stop_spread = None
         # Nothing left to publish: disarmed and the zero command has gone out.
         self._silent = True

@@ -117,19 +117,10 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         # What keeps it at zero now: ~/enable is refused until the model is allowed.
         reason, cause, level = gate_reason, gate_cause, WARN
     spread = controller.stop_spread
-    uncertain = spread is not None and spread.uncertain
-    if hold is not None:
-        message = f"armed, command held at zero: {reason}"
-    elif controller.armed and uncertain:
+    uncertain = hold is None and controller.armed and spread is not None and spread.uncertain
+    if uncertain:
         level = max(level, WARN)
-        message = ("armed: following the policy; where it stops is uncertain (the CV "
-                   f"folds' stops spread over {100 * spread.spread:.0f} % of its travel)")
-    elif controller.armed:
-        message = "armed: following the policy"
-    elif controller.publishing:
-        message = f"disarmed, ramping down: {reason}"
-    else:
-        message = f"disarmed, command zero: {reason}"
+    message = _message(controller, hold is not None, uncertain, reason)
     values = {
         "armed": str(controller.armed).lower(),
         "model": model or "(none)",
@@ -151,9 +142,25 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
         **_model_values(step, model),
         "stop_spread": "n/a" if spread is None else _measured(spread.spread, ".3f"),
-        "stop_uncertain": "n/a" if spread is None else str(uncertain).lower(),
+        "stop_uncertain": "n/a" if spread is None else str(spread.uncertain).lower(),
     }
     return level, message, values
+
+
+def _message(controller: ArmedController, held: bool, uncertain: bool, reason: str) -> str:
+    """:func:`arming_status`'s message: armed (``held`` at the data's edge, or on a run
+    whose stop is ``uncertain``), ramping down or at zero, with ``reason``."""
+    if held:
+        return f"armed, command held at zero: {reason}"
+    if uncertain:
+        return ("armed: following the policy; where it stops is uncertain (the CV folds' "
+                f"stops spread over {100 * controller.stop_spread.spread:.0f} % of its "
+                "travel)")
+    if controller.armed:
+        return "armed: following the policy"
+    if controller.publishing:
+        return f"disarmed, ramping down: {reason}"
+    return f"disarmed, command zero: {reason}"
 
 
 def _guard_values(controller: ArmedController) -> dict[str, str]:

@@ -26,17 +26,21 @@ import copy
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
 import numpy as np
 
+from policy_align_ros.control.limits import joint_velocity_bounds
 from policy_align_ros.control.output import Output
 from policy_align_ros.control.step import ControlStep
 from policy_align_ros.control.task_policy import TaskSpacePolicy
 from policy_align_ros.learning.fold_stops import StopSpread, check_horizon, spread_of
 
-__all__ = ["ArmingStopCheck", "StopCheckRun", "fold_policies", "stop_check_answer",
-           "stop_check_note"]
+__all__ = ["MAX_SLOWDOWN", "ArmingStopCheck", "StopCheckRun", "check_in_slices",
+           "fold_policies", "stop_check_answer", "stop_check_note"]
+
+#: Runs slowed by the executor's speed limit are lengthened by at most this factor.
+MAX_SLOWDOWN = 4.0
 
 
 def fold_policies(model, policy: Callable) -> list[Callable]:
@@ -81,6 +85,10 @@ class ArmingStopCheck:
         The model's state at joint positions (n,) in controller order.
     floor : float
         The model's support spacing: the travel at least, state units.
+    speed : float or None
+        The demonstrations' typical speed (rad/s) of a joint-state model: where the
+        step's speed limit is below it, the runs are lengthened as they are slowed (at
+        most :data:`MAX_SLOWDOWN` times); None for a task-space model.
     """
 
     policies: list
@@ -88,6 +96,7 @@ class ArmingStopCheck:
     steps: int
     state: Callable[[np.ndarray], np.ndarray]
     floor: float
+    speed: float | None = None
 
     @classmethod
     def for_model(cls, model, policy: Callable, permutation: np.ndarray
@@ -100,20 +109,28 @@ class ArmingStopCheck:
         horizon = check_horizon(model)
         if not folds or horizon is None:
             return None
+        speed = None
         if isinstance(policy, TaskSpacePolicy):
             def state(q):
                 return policy.state_map.kinematics(np.asarray(q, dtype=float))[0]
         else:
+            speed = float(model.fit_summary_["goal"]["typical_speed"])
+
             def state(q):
                 return np.asarray(q, dtype=float)[permutation]
-        return cls([policy, *folds], *horizon, state, float(model.support_spacing_))
+        return cls([policy, *folds], *horizon, state, float(model.support_spacing_), speed)
 
     def prepare(self, step: ControlStep, q0: np.ndarray) -> StopCheckRun:
         """The check of the run from ``q0`` (n,, controller order) under ``step`` as it is
-        now (copied here: later changes to ``step`` do not reach it)."""
+        now (copied here: later changes to ``step`` do not reach it). Raises what latching
+        the held frames at ``q0`` raises."""
         fields = [_stepped(step, p, self.dt, q0) for p in self.policies]
-        return StopCheckRun(fields, np.array(q0, dtype=float), self.dt, self.steps,
-                            self.state, self.floor)
+        slowdown = 1.0
+        if self.speed is not None:
+            slowdown = min(max(self.speed / float(np.min(step.max_velocity)), 1.0),
+                           MAX_SLOWDOWN)
+        return StopCheckRun(fields, np.array(q0, dtype=float), self.dt,
+                            math.ceil(slowdown * self.steps), self.state, self.floor)
 
 
 class StopCheckRun:
@@ -158,6 +175,21 @@ class StopCheckRun:
         return spread_of(self.state(self.q0), ends[0], ends[1:], self.floor)
 
 
+async def check_in_slices(run: StopCheckRun, lock, slice_s: float,
+                          pause: Callable[[], Awaitable], wanted: Callable[[], bool]
+                          ) -> StopSpread | None:
+    """``run`` advanced in slices of about ``slice_s`` s, each under ``lock``, awaiting
+    ``pause()`` between them (an executor's next cycle: its other callbacks run); its
+    :class:`StopSpread`, or None as soon as ``wanted()`` is false (superseded)."""
+    while True:
+        with lock:
+            if not wanted():
+                return None
+            if run.advance(slice_s):
+                return run.result()
+        await pause()
+
+
 def stop_check_note(found: StopSpread | None) -> str:
     """What the executor says of a check at arming: empty when the folds agree or nothing
     was checked, else the spread and the fix."""
@@ -182,8 +214,23 @@ def stop_check_answer(found: StopSpread | None, out: Output) -> str:
 def _stepped(step: ControlStep, policy: Callable, dt: float, q0: np.ndarray
              ) -> Callable[[np.ndarray], np.ndarray]:
     """``policy`` commanded through a copy of ``step`` with a period of ``dt`` s and no
-    guard, its held frames latched at ``q0``, as a field of rows (1, n)."""
+    guard, its held frames latched at ``q0``, as a field of rows (1, n). A task-space
+    policy is bound to the copy's constraints and velocity bounds, not the live step's.
+    A step that cannot command (a policy failing, a constraint turning singular) raises
+    RuntimeError with its reason: the run did not happen, so it tells nothing."""
     mine = copy.copy(step)
-    mine.policy, mine.guard, mine.dt = policy, None, dt
+    mine.guard, mine.dt = None, dt
+    if isinstance(policy, TaskSpacePolicy):
+        policy = policy.bound_to(mine.constraint_matrix, lambda q: joint_velocity_bounds(
+            q, mine.control_lower, mine.control_upper, mine.max_velocity, mine.dt,
+            mine.max_acceleration))
+    mine.policy = policy
     mine.latch(q0)
-    return lambda Q: mine(Q[0])[0][None]
+
+    def field(Q: np.ndarray) -> np.ndarray:
+        qdot, reason, cause = mine(Q[0])
+        if cause is not None:
+            raise RuntimeError(f"a checked run stopped: {reason}")
+        return qdot[None]
+
+    return field

@@ -114,6 +114,18 @@ class TaskSpacePolicy:
         other._policy = getattr(policy, "policy", policy)
         return other
 
+    def bound_to(self, constraint: ConstraintModel | Callable | None,
+                 bounds: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None
+                 ) -> TaskSpacePolicy:
+        """This policy under another ``constraint`` and velocity ``bounds`` (as the
+        constructor takes them): a copy of the executor's control step, run ahead of the
+        robot (:mod:`~policy_align_ros.control.stop_check`)."""
+        other = copy.copy(self)
+        other.constraint = (constraint if constraint is None or hasattr(constraint, "matrix")
+                            else _RowsFn(constraint))
+        other.bounds = bounds
+        return other
+
     def task_policy(self, x: np.ndarray) -> np.ndarray:
         """``pi_x(x)`` (3F,) in m/s at the state ``x`` (3F,)."""
         return np.asarray(self._policy(np.asarray(x, dtype=float)[None]),

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.learning import PolicyAlign
+from policy_align_ros.learning.fold_stops import check_horizon
 from policy_align_ros.learning.goal import learnt_goal_index
 from policy_align_ros.learning.policy_file import model_robot_fields
 
@@ -44,8 +45,10 @@ def model_report(path: str | Path) -> dict[str, Any]:
         without a minimum; ``n_minima``; ``tracking_lag_s``; ``timing_scales``;
         ``continuous_joints``: the robot's continuous joints the learner put on one turn
         (their angles, which drivers report modulo a turn, are learnt and executed there);
-        ``n_fold_models``: the CV folds' models the executor checks a run's stop with at
-        arming (0: a file written before they were kept, which is not checked).
+        ``n_fold_models``: the CV folds' models kept (0: a file written before they were);
+        ``stop_checked``: whether the executor checks a run's stop with them at arming
+        (also not for an untimed model, :func:`~policy_align_ros.learning.fold_stops.
+        check_horizon`).
 
     Raises
     ------
@@ -80,6 +83,7 @@ def model_report(path: str | Path) -> dict[str, Any]:
         "timing_scales": summary.get("timing_scales"),
         "continuous_joints": [str(j) for j in block.get("continuous_joints") or []],
         "n_fold_models": len(model.fold_regressors_),
+        "stop_checked": bool(model.fold_regressors_) and check_horizon(model) is not None,
     }
 
 
@@ -111,8 +115,7 @@ def report_lines(report: dict[str, Any]) -> list[str]:
                      + ", ".join(report["continuous_joints"]))
     lines.append(f"fold models: {report['n_fold_models']}"
                  + (" (the executor checks where a run stops with them at ~/enable)"
-                    if report["n_fold_models"] else " (no stop check at ~/enable: learn "
-                    "again to get them)"))
+                    if report["stop_checked"] else " (no stop check at ~/enable)"))
     lag = report["tracking_lag_s"]
     if lag:
         lines.append(f"tracking lag: {1000 * lag:.0f} ms (docs/design/tracking_lag.md)")

@@ -6,7 +6,7 @@ The suite's closed-loop columns run the bare policy. On the robot the executor's
 extrapolation guard (:mod:`policy_align_ros.control.guard`) scales down commands that lead
 away from the demonstrated data and holds the robot at the data's edge, reporting the hold
 on ``/diagnostics`` (:mod:`policy_align_ros.control.guard_hold`). What a user sees of a
-run from a new start is therefore one of three outcomes.
+run from a new start is therefore one of four outcomes.
 
 Each guarded run lasts :data:`SETTLE_HORIZONS` times the expert's horizon (the steps the
 expert takes to get within 1 % of its end), so that a run still slowing into the guard's

@@ -64,7 +64,7 @@ from policy_align_ros.experiments.recording_cases import RECORDING_CASES
 from policy_align_ros.experiments.retiming import learnt_minimum
 from policy_align_ros.experiments.suite_cases import CASES, Problem
 from policy_align_ros.learning import PolicyAlign, Trajectory, metrics
-from policy_align_ros.learning.fold_stops import STOP_SPREAD_LIMIT, check_horizon, stop_spread
+from policy_align_ros.learning.fold_stops import check_horizon, stop_spread
 from policy_align_ros.learning.model_io import atomic_write_text, json_float
 from policy_align_ros.learning.outliers import largest_group
 from policy_align_ros.learning.regressors import (
@@ -218,7 +218,8 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
     ``OUTCOMES``) capped at ``guard_rad`` (rad); how many that reach were flagged
     (``reached_flagged``); where each silent one ends (``silent_rel``: its distance from
     the expert's end over its start distance); and per run, that distance
-    (``guarded_rel``) and the check's spread (``stop_spread``, None unchecked).
+    (``guarded_rel``) and the check's spread (``stop_spread``; None unchecked or without
+    fold models).
 
     The check (:func:`~policy_align_ros.learning.fold_stops.stop_spread`) runs the bare
     model and its fold models from the start under the same constraint, over the
@@ -228,16 +229,16 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
     project = _projection(problem, constraint)
     horizon = check_horizon(model)
     checked = None if horizon is None else _projection(problem, constraint, horizon[0])
-    found, rel, spreads = [], [], []
+    found, rel, spreads, flagged = [], [], [], []
     for x0, (goal, steps) in zip(starts, goals, strict=True):
         end, scale = guarded_rollout(model.policy, guard, x0, problem.dt,
                                      SETTLE_HORIZONS * steps, project)
         check = None if horizon is None else stop_spread(model, x0, *horizon, checked)
-        found.append(run_outcome(end, scale, x0, goal, check is not None and check.uncertain))
+        flagged.append(check is not None and check.uncertain)
+        found.append(run_outcome(end, scale, x0, goal, flagged[-1]))
         rel.append(float(np.linalg.norm(end - goal)
                          / max(float(np.linalg.norm(x0 - goal)), 1e-12)))
         spreads.append(None if check is None else json_float(check.spread, "null"))
-    flagged = [s is not None and s > STOP_SPREAD_LIMIT for s in spreads]
     return {"outcomes": [found.count(o) for o in OUTCOMES],
             "silent_rel": [r for r, o in zip(rel, found, strict=True) if o == "silent"],
             "reached_flagged": sum(f and o == "reached"

@@ -132,8 +132,10 @@ def stop_spread(model, x0: np.ndarray, dt: float, steps: int,
     if x0.shape != (model.n_features_in_,) or not np.all(np.isfinite(x0)):
         raise ValueError(f"x0: must be {model.n_features_in_} finite numbers, got shape "
                          f"{x0.shape}")
-    if not (dt > 0.0 and np.isfinite(dt)) or int(steps) < 1:
-        raise ValueError(f"dt ({dt!r}) must be finite and > 0 and steps ({steps!r}) >= 1")
+    if not (dt > 0.0 and np.isfinite(dt)):
+        raise ValueError(f"dt: must be finite and > 0, got {dt!r}")
+    if int(steps) < 1:
+        raise ValueError(f"steps: must be >= 1, got {steps!r}")
     stop = settle(model.policy, x0, dt, int(steps), project)
     folds: Sequence = getattr(model, "fold_regressors_", ())
     ends = [settle(_descent(r), x0, dt, int(steps), project) for r in folds]

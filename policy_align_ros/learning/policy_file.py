@@ -137,8 +137,9 @@ def _read_header(model, header: dict, arrays: dict[str, np.ndarray], params: dic
     folds = header.get("folds", [])
     if not isinstance(folds, list):
         raise ValueError(f"folds must be a JSON array, got {type(folds).__name__}")
-    model.fold_regressors_ = [_regressor(_field({"folds": f}, "folds", dict), arrays,
-                                         f"fold{i}") for i, f in enumerate(folds)]
+    model.fold_regressors_ = [
+        _regressor(_field({f"folds[{i}]": f}, f"folds[{i}]", dict), arrays, f"fold{i}")
+        for i, f in enumerate(folds)]
     model.sigma2_ = float(header["sigma2"])
     n = _field(header, "n_features", int)
     if n < 1:

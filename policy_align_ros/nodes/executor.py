@@ -99,9 +99,7 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
-from rclpy.expand_topic_name import expand_topic_name
 from rclpy.parameter import Parameter
-from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
@@ -116,6 +114,7 @@ from policy_align_ros.control import (
     apply_setting,
     arming_status,
     build_controller,
+    check_in_slices,
     clock_mismatch_hint,
     constraints_from_text,
     constraints_problem,
@@ -150,6 +149,7 @@ from policy_align_ros.nodes._common import (
     reject,
     run_node,
 )
+from policy_align_ros.nodes.controller_client import ControllerClient
 from policy_align_ros.nodes.executor_parameters import declare_control_parameters
 from policy_align_ros.nodes.start_parameters import StartParameterError
 
@@ -163,6 +163,8 @@ CONTROLLER_TIMEOUT_S = 1.0
 #: Slice [s] of the fold-stop check at ~/enable between two executor cycles: the node's
 #: joint states, timers and services wait about this long (and one step of its runs).
 STOP_CHECK_SLICE_S = 0.005
+
+
 class Executor(StartNode):
     """The ``executor`` node (see the module docstring)."""
 
@@ -182,6 +184,8 @@ class Executor(StartNode):
         self._start_model = StartModel()
         #: What the loaded model's state is: "joints" or "frames F1, F2".
         self.model_state = ""
+        # The controller's parameter client; ``controller`` is validated with it.
+        self._order_client = ControllerClient(self)
         self.add_on_set_parameters_callback(self._locked(self._on_set_parameters))
         self.add_post_set_parameters_callback(self._locked(self._after_set_parameters))
         self._declare_robot_parameters()
@@ -253,12 +257,7 @@ class Executor(StartNode):
             "or -p robot_config:=NAME)")
         self.create_subscription(String, "/learner/model", self._locked(self._on_model),
                                  LATCHED_QOS)
-        self._controller_client = None
-        # Clients replaced while an ~/enable still waits on them: destroyed once no check
-        # is pending (a destroyed client raises in the waiting coroutine).
-        self._controller_checks = 0
-        self._retired_clients: list = []
-        self._make_controller_client(self.get_parameter("controller").value)
+        self._order_client.use(self.get_parameter("controller").value)
         #: Counts ~/enable requests, so a check that finishes late knows it was superseded.
         self._enable_requests = 0
         self.create_service(SetBool, "~/enable", self._on_enable,
@@ -308,34 +307,12 @@ class Executor(StartNode):
                     return result
             elif param.name == "controller" and not order_check_off(param.value):
                 try:
-                    self._controller_service(param.value)
+                    self._order_client.service(param.value)
                 except (InvalidServiceNameException, InvalidTopicNameException,
                         ValueError) as err:
                     return reject(f"controller: not a valid node name: {param.value!r} "
                                   f"({err})")
         return accept()
-
-    def _controller_service(self, controller: str) -> str:
-        """Fully qualified name of ``controller``'s get_parameters service (validated)."""
-        name = expand_topic_name(f"{controller}/get_parameters", self.get_name(),
-                                 self.get_namespace())
-        validate_full_topic_name(name, is_service=True)
-        return name
-
-    def _make_controller_client(self, controller: str) -> None:
-        if self._controller_client is not None:
-            self._retired_clients.append(self._controller_client)
-            self._controller_client = None
-            self._destroy_retired_clients()
-        if not order_check_off(controller):
-            self._controller_client = self.create_client(
-                GetParameters, self._controller_service(controller))
-
-    def _destroy_retired_clients(self) -> None:
-        if self._controller_checks == 0:
-            for client in self._retired_clients:
-                self.destroy_client(client)
-            self._retired_clients.clear()
 
     def _stage_model(self, path: str):
         """Load ``path`` for a ``model_path`` set; a refusal result, or None when loaded."""
@@ -370,12 +347,13 @@ class Executor(StartNode):
             if param.name == "constraints":
                 self.controller.step.constraints = constraints_from_text(param.value,
                                                                          self.robot)
+                self.controller.stop_spread = None  # it was of the constraints before
                 self._update_context()
                 self.get_logger().info(f"constraints now {param.value or '[]'}")
             elif param.name == "model_path" and self._staged is not None:
                 self._apply_staged()
             elif param.name == "controller":
-                self._make_controller_client(param.value)
+                self._order_client.use(param.value)
 
     # -- model ------------------------------------------------------------------------
     def _apply_staged(self) -> None:
@@ -420,7 +398,7 @@ class Executor(StartNode):
                     q, self.robot.joint_names, msg.name, msg.position, msg.velocity,
                     msg.effort), ZeroCause(q)))
             else:  # unknown_joints, missing_joints: counted, named, nothing stops
-                reason = self._unusable_reason(msg.name)  # cached per list of names
+                reason = self._unusable_reason(msg.name)
                 self._count_rejected(q, reason)
                 self.controller.unusable_state(reason)
             return
@@ -480,26 +458,25 @@ class Executor(StartNode):
                 reason += f"; {fix}"
             accepted = not reason
             check = accepted and not self.controller.armed
-            client = self._controller_client
-            if check:
-                self._controller_checks += 1
+            client = self._order_client.begin() if check else self._order_client.client
         note = ""
         if check:
             try:
                 reason, note = await self._check_controller(client)
             finally:
                 with self._lock:
-                    self._controller_checks -= 1
-                    self._destroy_retired_clients()
+                    self._order_client.end()
             accepted = not reason
-        spread = await self._stop_check() if check and accepted else None
+        spread, current = (await self._stop_check(ticket) if check and accepted
+                           else (None, lambda: True))
         with self._lock:
             if check and ticket != self._enable_requests:
                 accepted, reason = False, "superseded by a later ~/enable request"
-            elif check and client is not self._controller_client:
+            elif check and client is not self._order_client.client:
                 accepted, reason = False, "the controller changed while it was checked"
-            elif check and path != self.model_path:
-                accepted, reason = False, "the model changed while the controller was checked"
+            elif check and (path != self.model_path or not current()):
+                accepted, reason = False, ("the model or the constraints changed while "
+                                           "~/enable checked them")
             if accepted:
                 accepted, reason, out = self.controller.arm(self._now_ns())
                 if accepted and check:
@@ -511,25 +488,31 @@ class Executor(StartNode):
                 self.get_logger().warning(f"~/enable {message}")
         return accepted, message
 
-    async def _stop_check(self) -> StopSpread | None:
+    async def _stop_check(self, ticket: int
+                          ) -> tuple[StopSpread | None, Callable[[], bool]]:
         """The fold-stop check of the run from the current state (:mod:`policy_align_ros.
-        control.stop_check`), in slices of about STOP_CHECK_SLICE_S s between which the
-        node serves its other callbacks; None when off, there is nothing to check, or it
-        failed (logged: the control step refuses a policy that fails)."""
+        control.stop_check`) in slices, between which the node serves its other
+        callbacks: its spread (None when off, nothing to check, superseded, or failed,
+        which is logged), and whether the model and constraints checked are still those in
+        force and the enable request ``ticket`` the last."""
         with self._lock:
-            check, q = self.controller.step.stop_check, self.controller.last_q
+            step, q = self.controller.step, self.controller.last_q
+            check, constraints = step.stop_check, step.constraints  # a set replaces the list
+
+            def current() -> bool:
+                return (ticket == self._enable_requests and step.stop_check is check
+                        and step.constraints is constraints)
+
             if check is None or q is None or not self.get_parameter("stop_check").value:
-                return None
-            run = check.prepare(self.controller.step, q)
+                return None, current
         try:
-            while True:
-                with self._lock:
-                    if run.advance(STOP_CHECK_SLICE_S):
-                        return run.result()
-                await next_cycle()
+            with self._lock:
+                run = check.prepare(step, q)
+            return await check_in_slices(run, self._lock, STOP_CHECK_SLICE_S, next_cycle,
+                                         current), current
         except Exception as err:  # noqa: BLE001 - an unchecked stop does not stop arming
             self.get_logger().warning(f"stop check failed: {type(err).__name__}: {err}")
-            return None
+            return None, current
 
     async def _check_controller(self, client) -> tuple[str, str]:
         """Compare the controller's ``joints`` with ours, asked through ``client`` (the

@@ -1,6 +1,9 @@
 """The fold-stop check at arming (policy_align_ros.control.stop_check). ROS-free."""
 
+import asyncio
+import dataclasses
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +15,11 @@ from policy_align_ros.control import (
     ControlStep,
     Output,
     arming_status,
+    check_in_slices,
     stop_check_answer,
     stop_check_note,
 )
+from policy_align_ros.control.stop_check import MAX_SLOWDOWN
 from policy_align_ros.learning import PolicyAlign
 from policy_align_ros.learning.fold_stops import STOP_SPREAD_LIMIT
 
@@ -142,3 +147,72 @@ def test_a_check_advanced_in_slices_ends_where_one_run_to_the_end_does(model):
     found = sliced.result()
     np.testing.assert_array_equal(found.stop, whole.stop)
     np.testing.assert_array_equal(found.fold_stops, whole.fold_stops)
+
+
+class _HoldFirst:
+    """Holds the first joint where it was latched: ``A = [1, 0]``."""
+
+    def matrix(self, q, qdot=None):
+        return np.array([[1.0, 0.0]])
+
+    def hold_position(self, q):
+        return np.asarray(q, dtype=float)[:1]
+
+
+class _Sentinel:
+    def scale(self, *args):
+        return 1.0, 0.0
+
+
+def test_preparing_a_check_leaves_the_live_steps_guard_and_held_frames_alone(model):
+    step = ControlStep(-3 * np.ones(2), 3 * np.ones(2), np.full(2, 2.0), 0.01,
+                       constraints=[_HoldFirst()], policy=model.policy, guard=_Sentinel())
+    q_live = np.array([0.4, 0.2])
+    step.latch(q_live)
+    check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    found = check.prepare(step, np.array([-0.5, 0.9])).result()
+    assert isinstance(step.guard, _Sentinel) and step.dt == 0.01
+    np.testing.assert_array_equal(step.hold_errors(q_live), np.zeros(1))
+    # The checked runs hold their own start's first joint.
+    assert found.stop[0] == pytest.approx(-0.5, abs=1e-6)
+
+
+def test_a_run_the_step_cannot_command_fails_the_check_rather_than_stop_there(model):
+    check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    broken = dataclasses.replace(check, policies=[check.policies[0],
+                                                  lambda X: np.full_like(X, np.nan)])
+    with pytest.raises(RuntimeError):
+        broken.prepare(_step(model.policy), np.array([0.9, -0.8])).result()
+
+
+def test_runs_slowed_by_the_speed_limit_are_lengthened_at_most_fourfold(model):
+    check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    fast = _step(model.policy)
+    slow = ControlStep(-3 * np.ones(2), 3 * np.ones(2), np.full(2, check.speed / 2), 0.01,
+                       constraints=[_Row()], policy=model.policy)
+    crawl = ControlStep(-3 * np.ones(2), 3 * np.ones(2), np.full(2, check.speed / 100), 0.01,
+                        constraints=[_Row()], policy=model.policy)
+    q0 = np.array([0.9, -0.8])
+    assert check.prepare(fast, q0).steps == check.steps  # the limit above the demos' speed
+    assert check.prepare(slow, q0).steps == 2 * check.steps
+    assert check.prepare(crawl, q0).steps == MAX_SLOWDOWN * check.steps
+
+
+def test_a_check_in_slices_yields_between_slices_and_stops_when_superseded(model):
+    check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    q0 = np.array([0.9, -0.8])
+    pauses = []
+
+    async def pause():
+        pauses.append(1)
+
+    found = asyncio.run(check_in_slices(check.prepare(_step(model.policy), q0),
+                                        threading.Lock(), 0.0, pause, lambda: True))
+    assert len(pauses) == check.steps - 1  # one step per slice at a zero budget
+    np.testing.assert_array_equal(found.stop, check.prepare(_step(model.policy), q0)
+                                  .result().stop)
+    wanted = iter([True, True, False])
+    run = check.prepare(_step(model.policy), q0)
+    assert asyncio.run(check_in_slices(run, threading.Lock(), 0.0, pause,
+                                       lambda: next(wanted))) is None
+    assert run.done == 2

@@ -224,7 +224,10 @@ def _set(mapping, key, value):
     (None, lambda a: _set(a, "support_states", np.zeros((4, 3))),
      r"support_states\b.*\b3\b.*n_features\b.*\b2\b"),
     (lambda h: _set(h, "folds", {"class": "x"}), None, r"\bfolds\b.*\barray\b"),
-    (lambda h: _set(h, "folds", [1]), None, r"\bfolds\b.*\bobject\b"),
+    (lambda h: _set(h, "folds", [1]), None, r"\bfolds\[0\].*\bobject\b"),
+    # A fold model named in the header whose arrays are missing.
+    (None, lambda a: {k: v for k, v in a.items() if not k.startswith("fold1.")},
+     r"malformed"),
 ])
 def test_malformed_model_files_name_the_file_and_the_problem(model, tmp_path, header,
                                                              arrays, message):

@@ -460,7 +460,7 @@ def test_enable_without_an_answering_controller_refuses_and_names_the_fix(rig):
     # The explicit opt-outs: "none" (typed on the command line) and "" (a parameter file).
     for off in ("none", ""):
         assert r.node.set_parameters([Parameter("controller", value=off)])[0].successful
-        assert r.node._controller_client is None
+        assert r.node._order_client.client is None
         response = r.enable(True)
         assert response.success and r.node.controller.armed, response.message
         assert repr(off) in response.message  # the answer names the check's opt-out
@@ -493,7 +493,7 @@ def test_controller_none_parses_on_the_command_line(ros_context):
         parameter_overrides=[Parameter("joints", value=JOINTS)])
     try:
         assert node.get_parameter("controller").value == "none"
-        assert node._controller_client is None  # nothing to wait for at ~/enable
+        assert node._order_client.client is None  # nothing to wait for at ~/enable
     finally:
         node.destroy_node()
 
@@ -598,7 +598,7 @@ def test_a_controller_changed_while_enable_waits_for_it_refuses_the_enable(rig):
     assert not enable.result().success  # the check passed, but for the old controller
     r.spin(0.2)
     assert not r.node.controller.armed and r.commands == []
-    assert r.node._retired_clients == []  # the old client is gone once the check ended
+    assert r.node._order_client.retired == []  # the old client is gone once the check ended
 
 
 def test_lockstep_steps_once_per_joint_state_and_still_stops_on_stale_states(rig):

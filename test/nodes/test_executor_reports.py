@@ -172,13 +172,25 @@ def test_enable_runs_the_fold_stop_check_and_says_when_the_stop_is_uncertain(rig
     r.node.controller.step.stop_check = dataclasses.replace(
         check, policies=[check.policies[0], shifted])
     r.spin(0.1)
-    assert r.enable(True).success
+    answer = r.enable(True)
+    assert answer.success
     assert r.node.controller.armed and r.node.controller.stop_spread.uncertain
+    assert f"{100 * r.node.controller.stop_spread.spread:.0f} %" in answer.message
     r.diagnostics.clear()
     r.spin_until(lambda: r.diagnostics and _latest(r)["armed"] == "true",
                  what="armed diagnostics")
     assert _latest(r)["stop_uncertain"] == "true"
     assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
+    # New constraints while armed: the check was of the old ones, and is no longer shown.
+    assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
+    assert r.node.controller.stop_spread is None
+    assert r.enable(False).success
+    # A fold model the step cannot command: the check fails, is logged, and arming goes on.
+    r.node.controller.step.stop_check = dataclasses.replace(
+        check, policies=[check.policies[0], lambda X: np.full_like(X, np.nan)])
+    r.spin(0.1)
+    assert r.enable(True).success and r.node.controller.armed
+    assert r.node.controller.stop_spread is None
     assert r.enable(False).success
     # Switched off, no check runs.
     assert r.node.set_parameters([Parameter("stop_check", value=False)])[0].successful
