@@ -34,7 +34,12 @@ from policy_align_ros.control.limits import joint_velocity_bounds
 from policy_align_ros.control.output import Output
 from policy_align_ros.control.step import ControlStep
 from policy_align_ros.control.task_policy import TaskSpacePolicy
-from policy_align_ros.learning.fold_stops import StopSpread, check_horizon, spread_of
+from policy_align_ros.learning.fold_stops import (
+    SETTLED_SPEED,
+    StopSpread,
+    check_horizon,
+    spread_of,
+)
 
 __all__ = ["MAX_SLOWDOWN", "ArmingStopCheck", "StopCheckRun", "check_in_slices",
            "fold_policies", "stop_check_answer", "stop_check_note"]
@@ -80,7 +85,9 @@ class ArmingStopCheck:
     dt : float
         Step of a checked run (s).
     steps : int
-        Its number of steps (:func:`~policy_align_ros.learning.fold_stops.check_horizon`).
+        Its most steps (:func:`~policy_align_ros.learning.fold_stops.check_horizon`): a
+        run whose command falls to :data:`~policy_align_ros.learning.fold_stops.
+        SETTLED_SPEED` times ``speed`` stops earlier.
     state : callable
         The model's state at joint positions (n,) in controller order.
     floor : float
@@ -129,8 +136,10 @@ class ArmingStopCheck:
         if self.speed is not None:
             slowdown = min(max(self.speed / float(np.min(step.max_velocity)), 1.0),
                            MAX_SLOWDOWN)
+        settled = 0.0 if self.speed is None else SETTLED_SPEED * self.speed
         return StopCheckRun(fields, np.array(q0, dtype=float), self.dt,
-                            math.ceil(slowdown * self.steps), self.state, self.floor)
+                            math.ceil(slowdown * self.steps), self.state, self.floor,
+                            settled)
 
 
 class StopCheckRun:
@@ -145,27 +154,41 @@ class StopCheckRun:
     q0 : ndarray (n,)
         The start, rad, controller order.
     dt, steps, state, floor
-        As :class:`ArmingStopCheck`'s.
+        As :class:`ArmingStopCheck`'s (``steps``: at most).
+    settled : float
+        A run whose command's norm falls to this (rad/s) has stopped, and is not stepped
+        further (0: every run takes ``steps`` steps).
     """
 
     def __init__(self, fields: list, q0: np.ndarray, dt: float, steps: int,
-                 state: Callable[[np.ndarray], np.ndarray], floor: float) -> None:
+                 state: Callable[[np.ndarray], np.ndarray], floor: float,
+                 settled: float = 0.0) -> None:
         self.fields, self.q0, self.dt, self.steps = fields, q0, dt, steps
-        self.state, self.floor = state, floor
-        self.done = 0  # steps taken by every run
+        self.state, self.floor, self.settled = state, floor, settled
+        self.done = 0  # steps taken
         self._x = [q0.copy() for _ in fields]
+        self._moving = [True] * len(fields)
 
     def advance(self, budget_s: float = math.inf) -> bool:
-        """Euler steps of every run until ``budget_s`` s of wall time have passed (at
-        least one step) or the runs are done; whether they are."""
+        """Euler steps of every run still moving until ``budget_s`` s of wall time have
+        passed (at least one step) or the runs are done; whether they are."""
         end = time.perf_counter() + budget_s
-        while self.done < self.steps:
+        while not self.finished:
             for i, field in enumerate(self.fields):
-                self._x[i] = self._x[i] + self.dt * field(self._x[i][None])[0]
+                if self._moving[i]:
+                    v = field(self._x[i][None])[0]
+                    self._moving[i] = bool(np.linalg.norm(v) > self.settled)
+                    if self._moving[i]:
+                        self._x[i] = self._x[i] + self.dt * v
             self.done += 1
             if time.perf_counter() >= end:
                 break
-        return self.done >= self.steps
+        return self.finished
+
+    @property
+    def finished(self) -> bool:
+        """Every run has stopped, or taken ``steps`` steps."""
+        return self.done >= self.steps or not any(self._moving)
 
     def result(self) -> StopSpread:
         """The :class:`StopSpread` of the runs, in the model's state units (advances them

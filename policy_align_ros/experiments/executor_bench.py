@@ -146,18 +146,22 @@ def time_stop_check(model, permutation: np.ndarray, step: ControlStep, starts: n
                     ) -> dict[str, float]:
     """The fold-stop check at arming (:class:`~policy_align_ros.control.stop_check.
     ArmingStopCheck`) of ``model`` under ``step`` from each of ``starts`` (m, n): the
-    median and largest wall time (s), the runs per check and their steps."""
+    median and largest wall time (s), the runs per check, their most steps and the
+    median of the steps taken (the runs stop once settled)."""
     check = ArmingStopCheck.for_model(model, model.policy, permutation)
     if check is None:
-        return {"runs": 0, "steps": 0, "median_s": math.nan, "max_s": math.nan}
-    times = []
+        return {"runs": 0, "steps": 0, "median_steps": math.nan, "median_s": math.nan,
+                "max_s": math.nan}
+    times, taken = [], []
     for q in starts:
         run = check.prepare(step, q)
         t0 = time.perf_counter()
         run.result()
         times.append(time.perf_counter() - t0)
+        taken.append(run.done)
     return {"runs": len(check.policies), "steps": check.steps,
-            "median_s": float(np.median(times)), "max_s": float(np.max(times))}
+            "median_steps": float(np.median(taken)), "median_s": float(np.median(times)),
+            "max_s": float(np.max(times))}
 
 
 def format_report(results: dict) -> str:
@@ -190,8 +194,9 @@ def format_report(results: dict) -> str:
               f"stall disarms during full_step: {results.get('full_step_stalls', 0)}"]
     check = results.get("stop_check")
     if check:
-        lines.append(f"fold-stop check at arming ({check['runs']} runs of {check['steps']} "
-                     f"steps, control_law_only's step): median {check['median_s']:.2f} s, "
+        lines.append(f"fold-stop check at arming ({check['runs']} runs of at most "
+                     f"{check['steps']} steps, median {check['median_steps']:.0f} taken, "
+                     f"control_law_only's step): median {check['median_s']:.2f} s, "
                      f"largest {check['max_s']:.2f} s")
     return "\n".join(lines)
 

@@ -9,9 +9,11 @@ same run elsewhere than the model does, the stop depends on which demonstrations
 kept, and the model's own stop is uncertain by as much.
 
 :func:`stop_spread` runs the model and every fold model (``PolicyAlign.fold_regressors_``)
-from one start, under the caller's projection, and gives the largest distance of a fold's
-stop from the model's over the run's travel. Above :data:`STOP_SPREAD_LIMIT` the stop is
-uncertain. ``docs/design/fold_stops.md`` gives the measurement behind the limit.
+from one start, under the caller's projection, until each run has stopped
+(:data:`SETTLED_SPEED`) or :data:`MAX_CHECK_DURATIONS` have passed, and gives the largest
+distance of a fold's stop from the model's over the run's travel. Above
+:data:`STOP_SPREAD_LIMIT` the stop is uncertain. ``docs/design/fold_stops.md`` gives the
+measurement behind the limit.
 """
 
 from __future__ import annotations
@@ -21,18 +23,22 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["CHECK_DURATIONS", "CHECK_STEPS", "STOP_SPREAD_LIMIT", "StopSpread", "check_horizon",
-           "settle", "spread_of", "stop_spread"]
+__all__ = ["MAX_CHECK_DURATIONS", "SETTLED_SPEED", "STEPS_PER_DURATION", "STOP_SPREAD_LIMIT",
+           "StopSpread", "check_horizon", "settle", "settled_speed", "spread_of",
+           "stop_spread"]
 
 #: The folds' stops spread over more than this share of the run's travel: uncertain. Read
 #: on tuning seeds (docs/design/fold_stops.md).
 STOP_SPREAD_LIMIT = 0.05
-#: A checked run lasts this many times the demonstrations' typical duration (their extent
-#: over their typical speed, :func:`check_horizon`), as the suite's runs last three
-#: horizons of the expert: long enough to settle.
-CHECK_DURATIONS = 3.0
-#: Euler steps of a checked run.
-CHECK_STEPS = 300
+#: A checked run has stopped once its speed is at most this share of the demonstrations'
+#: typical speed (:func:`settled_speed`): the stops compared are stops, not places that
+#: slow runs have reached.
+SETTLED_SPEED = 0.01
+#: Euler steps per typical duration of the demonstrations (their extent over their
+#: typical speed, :func:`check_horizon`).
+STEPS_PER_DURATION = 100
+#: A checked run that has not stopped after this many typical durations ends there.
+MAX_CHECK_DURATIONS = 12
 
 Field = Callable[[np.ndarray], np.ndarray]
 Projection = Callable[[np.ndarray, int, np.ndarray], np.ndarray]
@@ -69,24 +75,33 @@ class StopSpread:
 
 
 def check_horizon(model) -> tuple[float, int] | None:
-    """The step (s) and the number of steps of a checked run of ``model``:
-    :data:`CHECK_DURATIONS` times its data's extent over its typical speed
-    (``fit_summary_["goal"]``), in :data:`CHECK_STEPS` steps. None when the summary
-    lacks either (a model file written before the goal report) or the model is untimed
-    (its policy is per sample, not per second)."""
+    """The step (s) and the most steps of a checked run of ``model``: its data's typical
+    duration (extent over typical speed, ``fit_summary_["goal"]``) in
+    :data:`STEPS_PER_DURATION` steps, for at most :data:`MAX_CHECK_DURATIONS` durations.
+    None when the summary lacks either (a model file written before the goal report) or
+    the model is untimed (its policy is per sample, not per second)."""
     goal = (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
     extent, speed = goal.get("extent"), goal.get("typical_speed")
     if not (getattr(model, "timed_", False) and isinstance(extent, (int, float))
             and isinstance(speed, (int, float)) and extent > 0.0 and speed > 0.0
             and np.isfinite(extent / speed)):
         return None
-    return CHECK_DURATIONS * extent / speed / CHECK_STEPS, CHECK_STEPS
+    return extent / speed / STEPS_PER_DURATION, MAX_CHECK_DURATIONS * STEPS_PER_DURATION
+
+
+def settled_speed(model) -> float:
+    """The speed (state units/s) below which a checked run of ``model`` has stopped:
+    :data:`SETTLED_SPEED` times its demonstrations' typical speed (0 without one: the
+    runs last their steps)."""
+    goal = (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
+    speed = goal.get("typical_speed")
+    return SETTLED_SPEED * float(speed) if isinstance(speed, (int, float)) else 0.0
 
 
 def settle(policy: Field, x0: np.ndarray, dt: float, steps: int,
-           project: Projection | None = None) -> np.ndarray:
+           project: Projection | None = None, settled: float = 0.0) -> np.ndarray:
     """Explicit Euler of ``policy`` from ``x0`` (n,): the state after ``steps`` steps of
-    ``dt`` (s).
+    ``dt`` (s), or once the command's norm is at most ``settled`` (state units/s).
 
     ``policy(X (1, n)) -> (1, n)`` is in state units per s; ``project(x (n,), i, v (n,))
     -> (n,)`` projects the command at step ``i`` onto the constraint (None: free).
@@ -96,13 +111,15 @@ def settle(policy: Field, x0: np.ndarray, dt: float, steps: int,
         v = policy(x[None])[0]
         if project is not None:
             v = project(x, i, v)
+        if np.linalg.norm(v) <= settled:
+            break
         x = x + dt * v
     return x
 
 
 def stop_spread(model, x0: np.ndarray, dt: float, steps: int,
-                project: Projection | None = None, *, floor: float | None = None
-                ) -> StopSpread:
+                project: Projection | None = None, *, floor: float | None = None,
+                settled: float | None = None) -> StopSpread:
     """The model's and its fold models' runs from ``x0``, and how far the folds' stops
     spread (:class:`StopSpread`).
 
@@ -116,13 +133,16 @@ def stop_spread(model, x0: np.ndarray, dt: float, steps: int,
         Step (s), as the model's policy is per second (per step for an untimed model:
         give 1).
     steps : int
-        Steps of each run: enough for it to settle.
+        Steps of each run at most.
     project : callable, optional
         As for :func:`settle`: the constraint in force.
     floor : float, optional
         The travel at least (state units): a start at the stop travels nowhere, and the
         folds' disagreement there is measured against this. Default: the model's
         ``support_spacing_``.
+    settled : float, optional
+        A run whose command's norm falls to this (state units/s) has stopped. Default:
+        :func:`settled_speed`.
 
     Returns
     -------
@@ -136,9 +156,10 @@ def stop_spread(model, x0: np.ndarray, dt: float, steps: int,
         raise ValueError(f"dt: must be finite and > 0, got {dt!r}")
     if int(steps) < 1:
         raise ValueError(f"steps: must be >= 1, got {steps!r}")
-    stop = settle(model.policy, x0, dt, int(steps), project)
+    settled = settled_speed(model) if settled is None else settled
+    stop = settle(model.policy, x0, dt, int(steps), project, settled)
     folds: Sequence = getattr(model, "fold_regressors_", ())
-    ends = [settle(_descent(r), x0, dt, int(steps), project) for r in folds]
+    ends = [settle(_descent(r), x0, dt, int(steps), project, settled) for r in folds]
     return spread_of(x0, stop, ends, model.support_spacing_ if floor is None else floor)
 
 

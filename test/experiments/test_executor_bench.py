@@ -8,7 +8,7 @@ import numpy as np
 from policy_align_ros.control import ControlStep
 from policy_align_ros.experiments.executor_bench import time_stop_check
 from policy_align_ros.learning import PolicyAlign
-from policy_align_ros.learning.fold_stops import CHECK_STEPS
+from policy_align_ros.learning.fold_stops import check_horizon
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "learning"))
 from flows import quadratic_flow  # noqa: E402
@@ -22,7 +22,8 @@ def test_the_stop_check_is_timed_once_per_start_over_the_model_and_its_folds():
     step = ControlStep(-3 * np.ones(2), 3 * np.ones(2), np.ones(2), 0.01, policy=model.policy)
     found = time_stop_check(model, np.arange(2), step, rng.uniform(-1, 1, (3, 2)))
     assert found["runs"] == 1 + len(model.fold_regressors_) and found["runs"] > 1
-    assert found["steps"] == CHECK_STEPS
+    assert found["steps"] == check_horizon(model)[1]
+    assert 1 <= found["median_steps"] <= found["steps"]
     assert 0.0 <= found["median_s"] <= found["max_s"] < np.inf
     model.fold_regressors_ = []
     assert time_stop_check(model, np.arange(2), step, np.zeros((1, 2)))["runs"] == 0

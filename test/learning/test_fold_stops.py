@@ -84,9 +84,12 @@ def test_bad_arguments_are_named(x0, dt, steps, message):
         stop_spread(_model([0.0, 0.0], []), x0, dt, steps)
 
 
-def test_settle_is_explicit_euler():
+def test_settle_is_explicit_euler_until_the_command_falls_to_the_settled_speed():
     end = settle(lambda X: -X, np.array([1.0]), 0.5, 3)
     assert end == pytest.approx([0.125])
+    # Commands 1, 0.5, 0.25 move it; at 0.125 (<= 0.2) it has stopped.
+    assert settle(lambda X: -X, np.array([1.0]), 0.5, 100, settled=0.2) == pytest.approx(
+        [0.125])
 
 
 def test_folds_of_an_exact_quadratic_agree_where_the_model_stops():
