@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from policy_align_ros.control.guard import DEFAULT_MAX_EXTRAPOLATION_RAD
+from policy_align_ros.control.guard_hold import HOLD_SCALE
 from policy_align_ros.experiments.guarded_runs import (
     OUTCOMES,
     SETTLE_HORIZONS,
@@ -218,8 +219,8 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
     ``OUTCOMES``) capped at ``guard_rad`` (rad); how many that reach were flagged
     (``reached_flagged``); where each silent one ends (``silent_rel``: its distance from
     the expert's end over its start distance); and per run, that distance
-    (``guarded_rel``) and the check's spread (``stop_spread``; None unchecked or without
-    fold models).
+    (``guarded_rel``), whether the guard held it (``guarded_held``) and the check's spread
+    (``stop_spread``; None unchecked or without fold models).
 
     The check (:func:`~policy_align_ros.learning.fold_stops.stop_spread`) runs the bare
     model and its fold models from the start under the same constraint, over the
@@ -229,12 +230,13 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
     project = _projection(problem, constraint)
     horizon = check_horizon(model)
     checked = None if horizon is None else _projection(problem, constraint, horizon[0])
-    found, rel, spreads, flagged = [], [], [], []
+    found, rel, spreads, flagged, held = [], [], [], [], []
     for x0, (goal, steps) in zip(starts, goals, strict=True):
         end, scale = guarded_rollout(model.policy, guard, x0, problem.dt,
                                      SETTLE_HORIZONS * steps, project)
         check = None if horizon is None else stop_spread(model, x0, *horizon, checked)
         flagged.append(check is not None and check.uncertain)
+        held.append(bool(scale <= HOLD_SCALE))
         found.append(run_outcome(end, scale, x0, goal, flagged[-1]))
         rel.append(float(np.linalg.norm(end - goal)
                          / max(float(np.linalg.norm(x0 - goal)), 1e-12)))
@@ -243,7 +245,7 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
             "silent_rel": [r for r, o in zip(rel, found, strict=True) if o == "silent"],
             "reached_flagged": sum(f and o == "reached"
                                    for f, o in zip(flagged, found, strict=True)),
-            "guarded_rel": rel, "stop_spread": spreads}
+            "guarded_rel": rel, "guarded_held": held, "stop_spread": spreads}
 
 
 def _goal_report(model: PolicyAlign, problem: Problem, goals, train: list[Demonstration]

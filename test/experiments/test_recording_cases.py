@@ -151,6 +151,7 @@ def test_a_case_runs_in_the_suite_and_reports_the_learnt_goal(monkeypatch):
         assert len(new[f"{where}_silent_rel"]) == new[f"{where}_outcomes"][3]
         assert 0 <= new[f"{where}_reached_flagged"] <= new[f"{where}_outcomes"][0]
         assert len(new[f"{where}_guarded_rel"]) == len(new[f"{where}_stop_spread"]) == 2
+        assert sum(new[f"{where}_guarded_held"]) >= new[f"{where}_outcomes"][1]
     # How close the training data came to the true minimum, as the suite measures it.
     rng = np.random.default_rng(0)  # the data set run_case drew
     problem = small.make(rng)
