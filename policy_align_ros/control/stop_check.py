@@ -35,9 +35,9 @@ from policy_align_ros.control.output import Output
 from policy_align_ros.control.step import ControlStep
 from policy_align_ros.control.task_policy import TaskSpacePolicy
 from policy_align_ros.learning.fold_stops import (
-    SETTLED_SPEED,
     StopSpread,
     check_horizon,
+    settled_speed,
     spread_of,
 )
 
@@ -86,12 +86,14 @@ class ArmingStopCheck:
         Step of a checked run (s).
     steps : int
         Its most steps (:func:`~policy_align_ros.learning.fold_stops.check_horizon`): a
-        run whose command falls to :data:`~policy_align_ros.learning.fold_stops.
-        SETTLED_SPEED` times ``speed`` stops earlier.
+        run that has stopped (``settled``) ends earlier.
     state : callable
         The model's state at joint positions (n,) in controller order.
     floor : float
         The model's support spacing: the travel at least, state units.
+    settled : float
+        A run whose state moves at most this fast (state units/s) has stopped
+        (:func:`~policy_align_ros.learning.fold_stops.settled_speed`).
     speed : float or None
         The demonstrations' typical speed (rad/s) of a joint-state model: where the
         step's speed limit is below it, the runs are lengthened as they are slowed (at
@@ -103,6 +105,7 @@ class ArmingStopCheck:
     steps: int
     state: Callable[[np.ndarray], np.ndarray]
     floor: float
+    settled: float
     speed: float | None = None
 
     @classmethod
@@ -125,7 +128,8 @@ class ArmingStopCheck:
 
             def state(q):
                 return np.asarray(q, dtype=float)[permutation]
-        return cls([policy, *folds], *horizon, state, float(model.support_spacing_), speed)
+        return cls([policy, *folds], *horizon, state, float(model.support_spacing_),
+                   settled_speed(model), speed)
 
     def prepare(self, step: ControlStep, q0: np.ndarray) -> StopCheckRun:
         """The check of the run from ``q0`` (n,, controller order) under ``step`` as it is
@@ -136,10 +140,9 @@ class ArmingStopCheck:
         if self.speed is not None:
             slowdown = min(max(self.speed / float(np.min(step.max_velocity)), 1.0),
                            MAX_SLOWDOWN)
-        settled = 0.0 if self.speed is None else SETTLED_SPEED * self.speed
         return StopCheckRun(fields, np.array(q0, dtype=float), self.dt,
                             math.ceil(slowdown * self.steps), self.state, self.floor,
-                            settled)
+                            self.settled)
 
 
 class StopCheckRun:
@@ -156,8 +159,8 @@ class StopCheckRun:
     dt, steps, state, floor
         As :class:`ArmingStopCheck`'s (``steps``: at most).
     settled : float
-        A run whose command's norm falls to this (rad/s) has stopped, and is not stepped
-        further (0: every run takes ``steps`` steps).
+        A run whose state would move at most this fast (state units/s) has stopped, and
+        is not stepped further (0: every run takes ``steps`` steps).
     """
 
     def __init__(self, fields: list, q0: np.ndarray, dt: float, steps: int,
@@ -165,8 +168,9 @@ class StopCheckRun:
                  settled: float = 0.0) -> None:
         self.fields, self.q0, self.dt, self.steps = fields, q0, dt, steps
         self.state, self.floor, self.settled = state, floor, settled
-        self.done = 0  # steps taken
+        self.done = 0  # sweeps over the runs still moving
         self._x = [q0.copy() for _ in fields]
+        self._s = [state(q0)] * len(fields)  # each run's state, for its speed there
         self._moving = [True] * len(fields)
 
     def advance(self, budget_s: float = math.inf) -> bool:
@@ -176,10 +180,12 @@ class StopCheckRun:
         while not self.finished:
             for i, field in enumerate(self.fields):
                 if self._moving[i]:
-                    v = field(self._x[i][None])[0]
-                    self._moving[i] = bool(np.linalg.norm(v) > self.settled)
+                    x = self._x[i] + self.dt * field(self._x[i][None])[0]
+                    s = self.state(x)
+                    self._moving[i] = bool(np.linalg.norm(s - self._s[i])
+                                           > self.settled * self.dt)
                     if self._moving[i]:
-                        self._x[i] = self._x[i] + self.dt * v
+                        self._x[i], self._s[i] = x, s
             self.done += 1
             if time.perf_counter() >= end:
                 break
@@ -194,8 +200,7 @@ class StopCheckRun:
         """The :class:`StopSpread` of the runs, in the model's state units (advances them
         to the end first)."""
         self.advance()
-        ends = [self.state(x) for x in self._x]
-        return spread_of(self.state(self.q0), ends[0], ends[1:], self.floor)
+        return spread_of(self.state(self.q0), self._s[0], self._s[1:], self.floor)
 
 
 async def check_in_slices(run: StopCheckRun, lock, slice_s: float,

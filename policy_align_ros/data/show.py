@@ -115,7 +115,9 @@ def report_lines(report: dict[str, Any]) -> list[str]:
                      + ", ".join(report["continuous_joints"]))
     lines.append(f"fold models: {report['n_fold_models']}"
                  + (" (the executor checks where a run stops with them at ~/enable)"
-                    if report["stop_checked"] else " (no stop check at ~/enable)"))
+                    if report["stop_checked"] else " (no stop check at ~/enable: "
+                    + ("the model is untimed or has no goal report)" if report["n_fold_models"]
+                       else "learn again to keep them)")))
     lag = report["tracking_lag_s"]
     if lag:
         lines.append(f"tracking lag: {1000 * lag:.0f} ms (docs/design/tracking_lag.md)")

@@ -146,22 +146,26 @@ def time_stop_check(model, permutation: np.ndarray, step: ControlStep, starts: n
                     ) -> dict[str, float]:
     """The fold-stop check at arming (:class:`~policy_align_ros.control.stop_check.
     ArmingStopCheck`) of ``model`` under ``step`` from each of ``starts`` (m, n): the
-    median and largest wall time (s), the runs per check, their most steps and the
-    median of the steps taken (the runs stop once settled)."""
+    median and largest wall time (s), the runs per check, their most steps under
+    ``step``'s speed limit, the median of the sweeps taken (the runs end once stopped),
+    and the time a check cut off at the most steps would take (s, at the median time
+    per sweep)."""
     check = ArmingStopCheck.for_model(model, model.policy, permutation)
     if check is None:
-        return {"runs": 0, "steps": 0, "median_steps": math.nan, "median_s": math.nan,
-                "max_s": math.nan}
-    times, taken = [], []
+        return dict.fromkeys(("runs", "steps", "median_steps", "median_s", "max_s",
+                              "capped_s"), math.nan)
+    times, sweeps, cap = [], [], 0
     for q in starts:
         run = check.prepare(step, q)
         t0 = time.perf_counter()
         run.result()
         times.append(time.perf_counter() - t0)
-        taken.append(run.done)
-    return {"runs": len(check.policies), "steps": check.steps,
-            "median_steps": float(np.median(taken)), "median_s": float(np.median(times)),
-            "max_s": float(np.max(times))}
+        sweeps.append(run.done)
+        cap = run.steps
+    per_sweep = float(np.median(np.array(times) / np.array(sweeps)))
+    return {"runs": len(check.policies), "steps": cap,
+            "median_steps": float(np.median(sweeps)), "median_s": float(np.median(times)),
+            "max_s": float(np.max(times)), "capped_s": per_sweep * cap}
 
 
 def format_report(results: dict) -> str:
@@ -193,11 +197,12 @@ def format_report(results: dict) -> str:
               f"{results['full_step_cpu']['p99_us']:.1f} us",
               f"stall disarms during full_step: {results.get('full_step_stalls', 0)}"]
     check = results.get("stop_check")
-    if check:
+    if check and not math.isnan(check["runs"]):
         lines.append(f"fold-stop check at arming ({check['runs']} runs of at most "
-                     f"{check['steps']} steps, median {check['median_steps']:.0f} taken, "
+                     f"{check['steps']:.0f} steps, median {check['median_steps']:.0f} taken, "
                      f"control_law_only's step): median {check['median_s']:.2f} s, "
-                     f"largest {check['max_s']:.2f} s")
+                     f"largest {check['max_s']:.2f} s; cut off at the most steps "
+                     f"{check['capped_s']:.1f} s")
     return "\n".join(lines)
 
 

@@ -91,11 +91,13 @@ def check_horizon(model) -> tuple[float, int] | None:
 
 def settled_speed(model) -> float:
     """The speed (state units/s) below which a checked run of ``model`` has stopped:
-    :data:`SETTLED_SPEED` times its demonstrations' typical speed (0 without one: the
-    runs last their steps)."""
+    :data:`SETTLED_SPEED` times its demonstrations' typical speed (0 without one, or for
+    an untimed model, whose policy is per sample: the runs last their steps)."""
     goal = (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
     speed = goal.get("typical_speed")
-    return SETTLED_SPEED * float(speed) if isinstance(speed, (int, float)) else 0.0
+    if not getattr(model, "timed_", False) or not isinstance(speed, (int, float)):
+        return 0.0
+    return SETTLED_SPEED * float(speed)
 
 
 def settle(policy: Field, x0: np.ndarray, dt: float, steps: int,

@@ -22,8 +22,8 @@ def test_the_stop_check_is_timed_once_per_start_over_the_model_and_its_folds():
     step = ControlStep(-3 * np.ones(2), 3 * np.ones(2), np.ones(2), 0.01, policy=model.policy)
     found = time_stop_check(model, np.arange(2), step, rng.uniform(-1, 1, (3, 2)))
     assert found["runs"] == 1 + len(model.fold_regressors_) and found["runs"] > 1
-    assert found["steps"] == check_horizon(model)[1]
-    assert 1 <= found["median_steps"] <= found["steps"]
-    assert 0.0 <= found["median_s"] <= found["max_s"] < np.inf
+    assert found["steps"] >= check_horizon(model)[1]
+    assert 1 <= found["median_steps"] < found["steps"]  # exact data: every run stops
+    assert 0.0 <= found["median_s"] <= found["max_s"] < found["capped_s"] < np.inf
     model.fold_regressors_ = []
-    assert time_stop_check(model, np.arange(2), step, np.zeros((1, 2)))["runs"] == 0
+    assert np.isnan(time_stop_check(model, np.arange(2), step, np.zeros((1, 2)))["runs"])

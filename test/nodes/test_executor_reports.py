@@ -185,12 +185,18 @@ def test_enable_runs_the_fold_stop_check_and_says_when_the_stop_is_uncertain(rig
     assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
     assert r.node.controller.stop_spread is None
     assert r.enable(False).success
-    # A fold model the step cannot command: the check fails, is logged, and arming goes on.
+    # A fold model the step cannot command: the check runs and fails, and arming goes on.
+    called = []
+
+    def broken(X):
+        called.append(1)
+        return np.full_like(X, np.nan)
+
     r.node.controller.step.stop_check = dataclasses.replace(
-        check, policies=[check.policies[0], lambda X: np.full_like(X, np.nan)])
+        check, policies=[check.policies[0], broken])
     r.spin(0.1)
     assert r.enable(True).success and r.node.controller.armed
-    assert r.node.controller.stop_spread is None
+    assert called and r.node.controller.stop_spread is None
     assert r.enable(False).success
     # Switched off, no check runs.
     assert r.node.set_parameters([Parameter("stop_check", value=False)])[0].successful
