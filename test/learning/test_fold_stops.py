@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from policy_align_ros.learning import PolicyAlign
-from policy_align_ros.learning.fold_stops import STOP_SPREAD_LIMIT, settle, stop_spread
+from policy_align_ros.learning.fold_stops import (
+    STOP_SPREAD_LIMIT,
+    settle,
+    settled_speed,
+    stop_spread,
+)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from flows import quadratic_flow  # noqa: E402
@@ -109,3 +114,11 @@ def test_folds_of_an_exact_quadratic_agree_where_the_model_stops():
             assert found.spread < STOP_SPREAD_LIMIT / 5
     found = stop_spread(model, np.array([0.9, -0.8]), 0.05, 300)
     np.testing.assert_allclose(found.stop, centre, atol=0.02)
+
+
+def test_a_run_has_stopped_at_one_percent_of_the_typical_speed_of_a_timed_model():
+    timed = SimpleNamespace(timed_=True, fit_summary_={"goal": {"typical_speed": 0.4}})
+    assert settled_speed(timed) == pytest.approx(0.004)
+    # Per sample, or without a goal report: no speed to compare with, the runs go on.
+    assert settled_speed(SimpleNamespace(timed_=False, fit_summary_=timed.fit_summary_)) == 0
+    assert settled_speed(SimpleNamespace(timed_=True, fit_summary_={})) == 0
