@@ -198,6 +198,18 @@ def test_enable_runs_the_fold_stop_check_and_says_when_the_stop_is_uncertain(rig
     assert r.enable(True).success and r.node.controller.armed
     assert called and r.node.controller.stop_spread is None
     assert r.enable(False).success
+    # Constraints set while the check runs (here by its first step): that enable is refused.
+    step = r.node.controller.step
+
+    def resets_constraints(X):
+        step.constraints = list(step.constraints)  # as a parameter set replaces them
+        return check.policies[0](X)
+
+    step.stop_check = dataclasses.replace(check, policies=[resets_constraints,
+                                                          *check.policies[1:]])
+    r.spin(0.1)
+    assert not r.enable(True).success and not r.node.controller.armed
+    assert r.enable(False).success
     # Switched off, no check runs.
     assert r.node.set_parameters([Parameter("stop_check", value=False)])[0].successful
     r.spin(0.1)
