@@ -14,6 +14,7 @@ from policy_align_ros.control import (
     ArmingStopCheck,
     ControlStep,
     Output,
+    TaskSpacePolicy,
     arming_status,
     check_in_slices,
     stop_check_answer,
@@ -218,3 +219,49 @@ def test_a_check_in_slices_yields_between_slices_and_stops_when_superseded(model
     assert asyncio.run(check_in_slices(run, threading.Lock(), 0.0, pause,
                                        lambda: next(wanted))) is None
     assert run.done == 2
+
+
+class _HandBowl:
+    """A timed task-space model of one frame: the bowl ``0.5 |x - centre|^2`` (m), and
+    fold models with bowls at ``fold_centres``."""
+
+    timed_ = True
+    n_features_in_ = 3
+    support_spacing_ = 0.005
+
+    def __init__(self, centre, fold_centres):
+        self.regressor_ = _Bowl(centre)
+        self.fold_regressors_ = [_Bowl(c) for c in fold_centres]
+        self.fit_summary_ = {"goal": {"extent": 0.3, "typical_speed": 0.1}}
+
+    def policy(self, X):
+        return -self.regressor_.gradient(X)
+
+
+class _Bowl:
+    def __init__(self, centre):
+        self.centre = np.asarray(centre, dtype=float)
+
+    def gradient(self, X):
+        return X - self.centre
+
+
+def test_a_task_space_model_is_checked_in_its_frames_positions(robot, hand_map):
+    q0 = robot.neutral()
+    hand = hand_map.kinematics(q0)[0]
+    goal = hand + np.array([0.05, 0.0, 0.0])
+    model = _HandBowl(goal, [goal, goal + np.array([0.0, 0.03, 0.0])])
+    policy = TaskSpacePolicy(model, hand_map)
+    step = ControlStep(robot.lower, robot.upper, np.full(robot.nq, 1.0), 0.01,
+                       policy=policy)
+    check = ArmingStopCheck.for_model(model, policy, np.arange(robot.nq))
+    assert check.speed is None  # no joint-speed comparison for frame states
+    run = check.prepare(step, q0)
+    found = run.result()
+    assert run.done < run.steps  # every run stopped, in frame positions
+    np.testing.assert_allclose(found.stop, goal, atol=0.003)
+    np.testing.assert_allclose(found.fold_stops[1], goal + [0.0, 0.03, 0.0], atol=0.003)
+    assert found.spread == pytest.approx(0.03 / np.linalg.norm(goal - hand), rel=0.1)
+    assert found.uncertain
+    # The executor's own policy and step are left as they were.
+    assert policy.constraint is None and step.policy is policy
