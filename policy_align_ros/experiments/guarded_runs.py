@@ -39,9 +39,10 @@ from policy_align_ros.control.guard import (
     SupportDistance,
 )
 from policy_align_ros.control.guard_hold import HOLD_SCALE
+from policy_align_ros.learning.fold_stops import settle
 
 __all__ = ["OUTCOMES", "REACH_TOLERANCE", "SETTLE_HORIZONS", "default_guard", "guard_table",
-           "guarded_rollout", "run_outcome"]
+           "guarded_rollout", "relative_end", "run_outcome"]
 
 #: A run reaches the expert's end within this share of its start distance (the closed-loop
 #: target of the real-recording cases).
@@ -58,7 +59,8 @@ def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray],
                     x0: np.ndarray, dt: float, steps: int,
                     project: Callable[[np.ndarray, int, np.ndarray], np.ndarray] | None
                     ) -> tuple[np.ndarray, float]:
-    """Explicit Euler of the policy, guarded or bare.
+    """Explicit Euler of the policy, guarded or bare
+    (:func:`~policy_align_ros.learning.fold_stops.settle`, the guard after the projection).
 
     Parameters
     ----------
@@ -86,16 +88,24 @@ def guarded_rollout(policy: Callable[[np.ndarray], np.ndarray],
     scale : float
         The guard's scale at the last step (1: not scaled).
     """
-    x, scale = np.array(x0, dtype=float), 1.0
-    inf = np.full(len(x), np.inf)
-    for i in range(steps):
-        v = policy(x[None])[0]
+    inf = np.full(len(x0), np.inf)
+    last = [1.0]  # the guard's scale at the last step
+
+    def command(x: np.ndarray, i: int, v: np.ndarray) -> np.ndarray:
         if project is not None:
             v = project(x, i, v)
         if guard is not None:
-            scale, _ = guard.scale(x, v, inf, None)
-        x = x + dt * scale * v
-    return x, scale
+            last[0], _ = guard.scale(x, v, inf, None)
+            v = last[0] * v
+        return v
+
+    return settle(policy, x0, dt, steps, command), last[0]
+
+
+def relative_end(end: np.ndarray, x0: np.ndarray, goal: np.ndarray) -> float:
+    """How far a run from ``x0`` (n,) ended at ``end`` (n,) from where the expert ends,
+    ``goal`` (n,), over its start distance."""
+    return float(np.linalg.norm(end - goal)) / max(float(np.linalg.norm(x0 - goal)), 1e-12)
 
 
 def run_outcome(end: np.ndarray, scale: float, x0: np.ndarray, goal: np.ndarray,

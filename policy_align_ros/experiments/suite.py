@@ -58,6 +58,7 @@ from policy_align_ros.experiments.guarded_runs import (
     default_guard,
     guard_table,
     guarded_rollout,
+    relative_end,
     run_outcome,
 )
 from policy_align_ros.experiments.pool import parallel_map
@@ -190,7 +191,7 @@ def _closed_loop(model: PolicyAlign, problem: Problem, starts, goals,
         rel, ends, hand = [], [], []
         for x0, (goal, steps) in zip(starts, goals[label], strict=True):
             end = _rollout_policy(model.policy, problem, x0, steps, constraint)
-            rel.append(np.linalg.norm(end - goal) / max(np.linalg.norm(x0 - goal), 1e-12))
+            rel.append(relative_end(end, x0, goal))
             ends.append(end)
             if "hand" in problem.extras:
                 hand.append(1e3 * np.linalg.norm(problem.extras["hand"](end)
@@ -238,8 +239,7 @@ def _guarded_outcomes(model: PolicyAlign, problem: Problem, starts, goals,
         flagged.append(check is not None and check.uncertain)
         held.append(bool(scale <= HOLD_SCALE))
         found.append(run_outcome(end, scale, x0, goal, flagged[-1]))
-        rel.append(float(np.linalg.norm(end - goal)
-                         / max(float(np.linalg.norm(x0 - goal)), 1e-12)))
+        rel.append(relative_end(end, x0, goal))
         spreads.append(None if check is None else json_float(check.spread, "null"))
     return {"outcomes": [found.count(o) for o in OUTCOMES],
             "silent_rel": [r for r, o in zip(rel, found, strict=True) if o == "silent"],

@@ -103,7 +103,8 @@ def settled_speed(model) -> float:
 def settle(policy: Field, x0: np.ndarray, dt: float, steps: int,
            project: Projection | None = None, settled: float = 0.0) -> np.ndarray:
     """Explicit Euler of ``policy`` from ``x0`` (n,): the state after ``steps`` steps of
-    ``dt`` (s), or once the command's norm is at most ``settled`` (state units/s).
+    ``dt`` (s), or once the command's norm is at most ``settled`` (state units/s; 0: all
+    the steps).
 
     ``policy(X (1, n)) -> (1, n)`` is in state units per s; ``project(x (n,), i, v (n,))
     -> (n,)`` projects the command at step ``i`` onto the constraint (None: free).
@@ -113,7 +114,7 @@ def settle(policy: Field, x0: np.ndarray, dt: float, steps: int,
         v = policy(x[None])[0]
         if project is not None:
             v = project(x, i, v)
-        if np.linalg.norm(v) <= settled:
+        if settled > 0.0 and np.linalg.norm(v) <= settled:
             break
         x = x + dt * v
     return x
