@@ -43,6 +43,7 @@ from policy_align_ros.control.guard import ExtrapolationGuard
 from policy_align_ros.control.limits import (
     clearance_scale,
     inner_limits,
+    joint_velocity_bounds,
     limit_locks,
     velocity_scale,
 )
@@ -322,6 +323,15 @@ class ControlStep:
         to act only against motion towards them.
         """
         return self._stack(self._blocks(q, pi))[0]
+
+    def velocity_bounds(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The joint velocity bounds (rad/s, each (n,)) at ``q`` that this step scales
+        commands to: speed limits, and braking in time before the limits at
+        :attr:`control_lower` and :attr:`control_upper`
+        (:func:`~policy_align_ros.control.limits.joint_velocity_bounds`); a task-space
+        policy keeps to them."""
+        return joint_velocity_bounds(q, self.control_lower, self.control_upper,
+                                     self.max_velocity, self.dt, self.max_acceleration)
 
     def _blocks(self, q: np.ndarray, pi: np.ndarray | None,
                 also: Sequence[np.ndarray] = ()) -> list[np.ndarray]:

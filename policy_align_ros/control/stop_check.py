@@ -30,7 +30,6 @@ from collections.abc import Awaitable, Callable
 
 import numpy as np
 
-from policy_align_ros.control.limits import joint_velocity_bounds
 from policy_align_ros.control.output import Output
 from policy_align_ros.control.step import ControlStep
 from policy_align_ros.control.task_policy import TaskSpacePolicy
@@ -249,9 +248,7 @@ def _stepped(step: ControlStep, policy: Callable, dt: float, q0: np.ndarray
     mine = copy.copy(step)
     mine.guard, mine.dt = None, dt
     if isinstance(policy, TaskSpacePolicy):
-        policy = policy.bound_to(mine.constraint_matrix, lambda q: joint_velocity_bounds(
-            q, mine.control_lower, mine.control_upper, mine.max_velocity, mine.dt,
-            mine.max_acceleration))
+        policy = policy.bound_to(mine.constraint_matrix, mine.velocity_bounds)
     mine.policy = policy
     mine.latch(q0)
 

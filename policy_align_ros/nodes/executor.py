@@ -121,7 +121,6 @@ from policy_align_ros.control import (
     controller_order_refusal,
     enable_answer,
     install_model,
-    joint_velocity_bounds,
     load_policy,
     model_text,
     no_model_fix,
@@ -289,9 +288,7 @@ class Executor(StartNode):
 
     def _joint_bounds(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Velocity bounds in force at call time: those ``ControlStep`` scales to."""
-        step = self.controller.step
-        return joint_velocity_bounds(q, step.control_lower, step.control_upper,
-                                     step.max_velocity, step.dt, step.max_acceleration)
+        return self.controller.step.velocity_bounds(q)
 
     def _on_set_parameters(self, params: Sequence[Parameter]):
         """Validate (and load a new model); :meth:`_after_set_parameters` applies."""

@@ -227,3 +227,15 @@ def test_bad_drift_and_singularity_settings():
                           ({"min_singular_value": float("nan")}, "min_singular_value")):
         with pytest.raises(ValueError, match=match):
             ControlStep(LOWER, UPPER, VMAX, DT, **kwargs)
+
+
+def test_velocity_bounds_are_the_speed_limit_and_brake_before_the_control_limits():
+    step = ControlStep(LOWER, UPPER, VMAX, DT, max_acceleration=2.0, joint_limit_margin=0.1)
+    lo, hi = step.velocity_bounds(np.zeros(N))  # mid-range: the speed limit both ways
+    np.testing.assert_allclose(hi, VMAX)
+    np.testing.assert_allclose(lo, -VMAX)
+    q = np.zeros(N)
+    q[0] = step.control_upper[0] - 0.01  # 0.01 rad from where joint 0 must rest
+    lo, hi = step.velocity_bounds(q)
+    assert 0.0 <= hi[0] < 0.25 * VMAX[0] and lo[0] == pytest.approx(-VMAX[0])
+    np.testing.assert_allclose(hi[1:], VMAX[1:])
