@@ -27,9 +27,9 @@ def write_model(model, path: str | Path) -> Path:
     """Write the fitted PolicyAlign ``model`` atomically to ``path`` (see
     :meth:`PolicyAlign.save <policy_align_ros.learning.policy_align.PolicyAlign.save>`)."""
     check_is_fitted(model, "regressor_")
-    reg_arrays, reg_meta = model.regressor_.get_state()
-    folds = getattr(model, "fold_regressors_", [])
-    fold_states = [r.get_state() for r in folds]
+    regressor, reg_arrays = _regressor_state(model.regressor_, "regressor")
+    folds = [_regressor_state(r, f"fold{i}")
+             for i, r in enumerate(getattr(model, "fold_regressors_", []))]
     params = {k: v for k, v in model.get_params(deep=False).items() if k != "regressor"}
     if isinstance(params["random_state"], np.random.Generator):
         params["random_state"] = None  # a file cannot hold its state
@@ -52,9 +52,8 @@ def write_model(model, path: str | Path) -> Path:
         "n_features": model.n_features_in_,
         "sigma2": model.sigma2_,
         "params": params,
-        "regressor": {"class": type(model.regressor_).__name__, "meta": reg_meta},
-        "folds": [{"class": type(r).__name__, "meta": m} for r, (_, m) in
-                  zip(folds, fold_states, strict=True)],
+        "regressor": regressor,
+        "folds": [entry for entry, _ in folds],
         "training": model.fit_summary_,
         "support_spacing": model.support_spacing_,
         # Exact (fit_summary_ holds its square root) and the Euler rule's factor.
@@ -69,8 +68,8 @@ def write_model(model, path: str | Path) -> Path:
         "aligned_lengths": lengths,
         "aligned_potentials": np.concatenate(model.aligned_potentials_),
         "support_states": model.support_states_,
-        **{f"regressor.{k}": v for k, v in reg_arrays.items()},
-        **{f"fold{i}.{k}": v for i, (a, _) in enumerate(fold_states) for k, v in a.items()},
+        **reg_arrays,
+        **{k: v for _, arrays_i in folds for k, v in arrays_i.items()},
     }
     return model_io.save_npz(path, header, arrays)
 
@@ -204,6 +203,14 @@ def _read_arrays(model, header: dict, arrays: dict[str, np.ndarray]) -> None:
                          f"columns, n_features is {n}")
     model.support_spacing_ = float(header["support_spacing"])
     model._support_tree = None
+
+
+def _regressor_state(regressor, prefix: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """A regressor's header entry (``class`` and ``meta``) and its arrays named
+    ``<prefix>.<name>``, as :func:`_regressor` reads them back."""
+    arrays, meta = regressor.get_state()
+    return ({"class": type(regressor).__name__, "meta": meta},
+            {f"{prefix}.{k}": v for k, v in arrays.items()})
 
 
 def _regressor(entry: dict, arrays: dict[str, np.ndarray], prefix: str):
