@@ -27,8 +27,9 @@ constraints in force, scaled for speed and position limits. Modules:
   built into its :class:`ArmedController` and applied to it at run time;
 - :mod:`.stall`: stall detection (a joint commanded to move that does not);
 - :mod:`.stamp_hints`: joint-state stamps far from the node clock, explained;
-- :mod:`.stop_check`: at arming, whether the model's CV folds stop the run where it
-  stops (:class:`ArmingStopCheck`);
+- :mod:`.stop_check`: at arming, and for constraints set while armed, whether the
+  model's CV folds stop the run where it stops (:class:`ArmingStopCheck`,
+  :class:`ArmedRecheck`);
 - :mod:`.status`: the executor's status in words (its ``/diagnostics``, its ~/enable
   answers, its notes on rejected joint states);
 - :mod:`.turns`: continuous joints' angles on the turn the model was learnt on.
@@ -127,6 +128,8 @@ from policy_align_ros.control.step import (
     ControlStep,
 )
 from policy_align_ros.control.stop_check import (
+    RECHECK_SHARE,
+    ArmedRecheck,
     ArmingStopCheck,
     check_in_slices,
     fold_policies,
@@ -150,9 +153,11 @@ __all__ = [
     "IMPLAUSIBLE_POSITION",
     "NO_CAUSE",
     "NO_ORDER_CHECK",
+    "RECHECK_SHARE",
     "STAMP_REJECTIONS",
     "TURN",
     "ArmedController",
+    "ArmedRecheck",
     "ArmingStopCheck",
     "ControlStep",
     "DistanceFn",

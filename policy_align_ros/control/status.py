@@ -64,7 +64,7 @@ def held_error_text(controller: ArmedController) -> str:
 
 
 def arming_status(controller: ArmedController, now_ns: int, *, model: str, model_state: str,
-                  constraints: str, rejected: Mapping[str, int]
+                  constraints: str, rejected: Mapping[str, int], checking: bool = False
                   ) -> tuple[int, str, dict[str, str]]:
     """``(level, message, values)`` describing ``controller`` at ``now_ns`` (ns).
 
@@ -78,6 +78,9 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         in force, empty when none.
     rejected : mapping str -> int
         Rejected joint-state messages by reason.
+    checking : bool
+        A fold-stop check of constraints set while armed is running
+        (:class:`~policy_align_ros.control.stop_check.ArmedRecheck`).
 
     Returns
     -------
@@ -100,7 +103,8 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         limit that binds); while disarmed at zero with a forced model that is not allowed,
         ``forced_model`` and the refusal (unless a stall's report stands).
         ``stop_spread`` and ``stop_uncertain`` are the fold-stop check's at the last
-        arming (``n/a``: none ran).
+        arming, or of the constraints set since while armed (``n/a``: none ran;
+        ``checking``: that check runs).
     """
     problem = controller.state_problem(now_ns)
     reason, cause = controller.zero_reason, controller.zero_cause
@@ -141,8 +145,10 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "rejected_joint_states": ", ".join(
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
         **_model_values(step, model),
-        "stop_spread": "n/a" if spread is None else _measured(spread.spread, ".3f"),
-        "stop_uncertain": "n/a" if spread is None else str(spread.uncertain).lower(),
+        "stop_spread": ("checking" if checking else "n/a" if spread is None
+                        else _measured(spread.spread, ".3f")),
+        "stop_uncertain": ("checking" if checking else "n/a" if spread is None
+                           else str(spread.uncertain).lower()),
     }
     return level, message, values
 

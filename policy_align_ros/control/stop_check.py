@@ -40,11 +40,16 @@ from policy_align_ros.learning.fold_stops import (
     spread_of,
 )
 
-__all__ = ["MAX_SLOWDOWN", "ArmingStopCheck", "StopCheckRun", "check_in_slices",
-           "fold_policies", "stop_check_answer", "stop_check_note"]
+__all__ = ["MAX_SLOWDOWN", "RECHECK_SHARE", "ArmedRecheck", "ArmingStopCheck",
+           "StopCheckRun", "check_in_slices", "fold_policies", "stop_check_answer",
+           "stop_check_note"]
 
 #: Runs slowed by the executor's speed limit are lengthened by at most this factor.
 MAX_SLOWDOWN = 4.0
+#: Share of each control period that a check of constraints set while armed
+#: (:class:`ArmedRecheck`) takes, once the period's command is out: the next command is
+#: never late for it, and a check of about 0.35 s of computing ends within 2 s.
+RECHECK_SHARE = 0.2
 
 
 def fold_policies(model, policy: Callable) -> list[Callable]:
@@ -168,24 +173,30 @@ class StopCheckRun:
         self.fields, self.q0, self.dt, self.steps = fields, q0, dt, steps
         self.state, self.floor, self.settled = state, floor, settled
         self.done = 0  # sweeps over the runs still moving
+        self.stepped = 0  # the runs' Euler steps, over all sweeps
         self._x = [q0.copy() for _ in fields]
         self._s = [state(q0)] * len(fields)  # each run's state, for its speed there
         self._moving = [True] * len(fields)
+        self._next = 0  # the run whose step is next in this sweep
 
     def advance(self, budget_s: float = math.inf) -> bool:
-        """Euler steps of every run still moving until ``budget_s`` s of wall time have
-        passed (at least one step) or the runs are done; whether they are."""
+        """Euler steps of the runs still moving, one run's step at a time, until
+        ``budget_s`` s of wall time have passed (at least one step) or the runs are done;
+        whether they are. One step is the finest slice: a budget below one policy call
+        (a short control period) is overrun by at most one."""
         end = time.perf_counter() + budget_s
         while not self.finished:
-            for i, field in enumerate(self.fields):
-                if self._moving[i]:
-                    x = self._x[i] + self.dt * field(self._x[i][None])[0]
-                    s = self.state(x)
-                    self._moving[i] = bool(np.linalg.norm(s - self._s[i])
-                                           > self.settled * self.dt)
-                    if self._moving[i]:
-                        self._x[i], self._s[i] = x, s
-            self.done += 1
+            i = self._next
+            self._next = (i + 1) % len(self.fields)
+            self.done += self._next == 0
+            if not self._moving[i]:
+                continue
+            x = self._x[i] + self.dt * self.fields[i](self._x[i][None])[0]
+            s = self.state(x)
+            self._moving[i] = bool(np.linalg.norm(s - self._s[i]) > self.settled * self.dt)
+            if self._moving[i]:
+                self._x[i], self._s[i] = x, s
+            self.stepped += 1
             if time.perf_counter() >= end:
                 break
         return self.finished
@@ -215,6 +226,52 @@ async def check_in_slices(run: StopCheckRun, lock, slice_s: float,
             if run.advance(slice_s):
                 return run.result()
         await pause()
+
+
+class ArmedRecheck:
+    """The check of constraints set while armed: the run from where the robot stands
+    when they were set, under them, advanced by the executor a slice of
+    :data:`RECHECK_SHARE` of its period after each control step (never while it computes
+    a command). Constraints set again, another model, a disarm or the check turned off
+    make it moot: it ends without a result.
+
+    Parameters
+    ----------
+    controller : ArmedController
+        The executor's, armed, with the new constraints in force in its step and a
+        ``stop_check`` (not None) there.
+
+    Raises what :meth:`ArmingStopCheck.prepare` raises.
+    """
+
+    def __init__(self, controller) -> None:
+        step = controller.step
+        # A parameter set replaces the list: identity tells a later set.
+        self._check, self._constraints = step.stop_check, step.constraints
+        self.run = step.stop_check.prepare(step, controller.last_q)
+
+    @classmethod
+    def begin(cls, controller, on: bool) -> ArmedRecheck | None:
+        """The check of ``controller``'s constraints just set; None when there is nothing
+        to check: not armed, no state or no ``stop_check``, or the check is off (``on``
+        false)."""
+        if not (on and controller.armed and controller.step.stop_check is not None
+                and controller.last_q is not None):
+            return None
+        return cls(controller)
+
+    def advance(self, controller, on: bool) -> tuple[bool, StopSpread | None]:
+        """One slice: ``(ended, found)``, ``found`` the result when the runs are done
+        (None while they go on, or when the check has become moot: ended without it).
+        Raises RuntimeError where the step cannot command a run (as
+        :meth:`StopCheckRun.advance` does)."""
+        step = controller.step
+        if not (on and controller.armed and step.stop_check is self._check
+                and step.constraints is self._constraints):
+            return True, None
+        if not self.run.advance(RECHECK_SHARE * step.dt):
+            return False, None
+        return True, self.run.result()
 
 
 def stop_check_note(found: StopSpread | None) -> str:

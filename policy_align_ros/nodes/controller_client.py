@@ -3,14 +3,22 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
+from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.node import Node
 from rclpy.validate_full_topic_name import validate_full_topic_name
 
-from policy_align_ros.control import order_check_off
+from policy_align_ros.control import controller_order_refusal, order_check_off
+from policy_align_ros.nodes._common import call_with_timeout
 
-__all__ = ["ControllerClient"]
+__all__ = ["CONTROLLER_TIMEOUT_S", "ControllerClient"]
+
+#: How long ~/enable waits for the controller's joints parameter (s, wall time).
+CONTROLLER_TIMEOUT_S = 1.0
 
 
 class ControllerClient:
@@ -39,6 +47,17 @@ class ControllerClient:
         validate_full_topic_name(name, is_service=True)
         return name
 
+    def name_problem(self, controller: str) -> str:
+        """Why ``controller`` (a parameter value) names no node to ask; empty when it does,
+        or turns the check off."""
+        if order_check_off(controller):
+            return ""
+        try:
+            self.service(controller)
+        except (InvalidServiceNameException, InvalidTopicNameException, ValueError) as err:
+            return f"controller: not a valid node name: {controller!r} ({err})"
+        return ""
+
     def use(self, controller: str) -> None:
         """Ask ``controller`` from now on (none for a ``controller`` that turns the check
         off)."""
@@ -58,6 +77,28 @@ class ControllerClient:
         """A check that :meth:`begin` began has ended."""
         self._waiting -= 1
         self._destroy_retired()
+
+    async def order_refusal(self, client, controller: str, joints: Sequence[str]
+                            ) -> tuple[str, str]:
+        """Compare ``controller``'s ``joints`` parameter with ``joints``, asked through
+        ``client`` (the one :meth:`begin` gave, or None), waiting at most
+        :data:`CONTROLLER_TIMEOUT_S`.
+
+        Returns
+        -------
+        (refusal, note)
+            ``refusal`` names a mismatch or why the order could not be read (empty: go
+            ahead); ``note`` is appended to the ~/enable answer when the check is off.
+        """
+        if order_check_off(controller) or client is None:
+            return "", f"; joint order check off (controller {controller!r})"
+        answer = await call_with_timeout(
+            client, GetParameters.Request(names=["joints"]), CONTROLLER_TIMEOUT_S)
+        value = answer.values[0] if answer is not None and len(answer.values) == 1 else None
+        order = (value.string_array_value if value is not None
+                 and value.type == ParameterType.PARAMETER_STRING_ARRAY else None)
+        return controller_order_refusal(controller, order, joints, answer is not None,
+                                        CONTROLLER_TIMEOUT_S), ""
 
     def _destroy_retired(self) -> None:
         if self._waiting == 0:

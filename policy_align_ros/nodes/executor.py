@@ -70,6 +70,8 @@ docs/executor_safety.md explains it for robot owners):
   current state under the constraints in force, in slices before arming; where
   their stops disagree by more than 5 % of the travel, the answer, the log and
   ``/diagnostics`` say the stop is uncertain (:mod:`policy_align_ros.control.stop_check`);
+  constraints set while armed are checked so too, from where the robot stands, in a
+  fifth of each control period after its command (the log and ``/diagnostics``);
 * all control timing uses the node clock, so ``use_sim_time`` works;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second of the steady clock and
   on arming changes) reports the arming state, the model, why the command is zero, the
@@ -94,11 +96,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterType
-from rcl_interfaces.srv import GetParameters
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
@@ -106,6 +105,7 @@ from std_srvs.srv import SetBool
 
 from policy_align_ros.control import (
     ArmedController,
+    ArmedRecheck,
     ClockWatch,
     GuardHoldLog,
     Output,
@@ -118,16 +118,15 @@ from policy_align_ros.control import (
     clock_mismatch_hint,
     constraints_from_text,
     constraints_problem,
-    controller_order_refusal,
     enable_answer,
     install_model,
     load_policy,
     model_text,
     no_model_fix,
-    order_check_off,
     rejection_note,
     setting_problem,
     stop_check_answer,
+    stop_check_note,
     untrustworthy_reason,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, UnusableReasons
@@ -138,7 +137,6 @@ from policy_align_ros.nodes._common import (
     LATCHED_QOS,
     StartNode,
     accept,
-    call_with_timeout,
     declare_robot,
     descriptor,
     load_robot,
@@ -157,8 +155,6 @@ __all__ = ["Executor", "main"]
 #: Period of the /diagnostics status (s, steady clock); every arming change, by ~/enable,
 #: a stale or broken state or a fault, also goes out at once (through ``_emit``).
 DIAGNOSTICS_PERIOD_S = 1.0
-#: How long ~/enable waits for the controller's joints parameter (s, wall time).
-CONTROLLER_TIMEOUT_S = 1.0
 #: Slice [s] of the fold-stop check at ~/enable between two executor cycles: the node's
 #: joint states, timers and services wait about this long (and one step of its runs).
 STOP_CHECK_SLICE_S = 0.005
@@ -199,6 +195,7 @@ class Executor(StartNode):
                             zero_cause=self.controller.zero_cause)
         #: The arming state the last /diagnostics status reported.
         self._diag_armed = False
+        self._recheck: ArmedRecheck | None = None  # of constraints set while armed
         self._hold_log = GuardHoldLog()  # says once when the guard starts holding the robot
         self._create_interfaces()
 
@@ -302,13 +299,9 @@ class Executor(StartNode):
                 result = self._stage_model(param.value)
                 if result is not None:
                     return result
-            elif param.name == "controller" and not order_check_off(param.value):
-                try:
-                    self._order_client.service(param.value)
-                except (InvalidServiceNameException, InvalidTopicNameException,
-                        ValueError) as err:
-                    return reject(f"controller: not a valid node name: {param.value!r} "
-                                  f"({err})")
+            elif param.name == "controller":
+                if problem := self._order_client.name_problem(param.value):
+                    return reject(problem)
         return accept()
 
     def _stage_model(self, path: str):
@@ -345,6 +338,7 @@ class Executor(StartNode):
                 self.controller.step.constraints = constraints_from_text(param.value,
                                                                          self.robot)
                 self.controller.stop_spread = None  # it was of the constraints before
+                self._recheck = self._start_recheck()
                 self._update_context()
                 self.get_logger().info(f"constraints now {param.value or '[]'}")
             elif param.name == "model_path" and self._staged is not None:
@@ -406,6 +400,7 @@ class Executor(StartNode):
         self._emit(out)
         if self._lockstep and not out.rejected:
             self._emit(self.controller.tick(now))
+            self._advance_recheck()
         if self._arm_at_start and not out.rejected and self.executor is not None:
             # Armed like ~/enable, with the controller check, without blocking this thread.
             self._arm_at_start = False
@@ -508,29 +503,13 @@ class Executor(StartNode):
             return await check_in_slices(run, self._lock, STOP_CHECK_SLICE_S, next_cycle,
                                          current), current
         except Exception as err:  # noqa: BLE001 - an unchecked stop does not stop arming
-            self.get_logger().warning(f"stop check failed: {type(err).__name__}: {err}")
+            self._stop_check_failed(err)
             return None, current
 
     async def _check_controller(self, client) -> tuple[str, str]:
-        """Compare the controller's ``joints`` with ours, asked through ``client`` (the
-        controller's get_parameters client when the check began, or None).
-
-        Returns
-        -------
-        (refusal, note)
-            ``refusal`` names a mismatch or why the order could not be read (empty: go
-            ahead); ``note`` is appended to the answer when the check is off.
-        """
-        controller = self.get_parameter("controller").value
-        if order_check_off(controller) or client is None:
-            return "", f"; joint order check off (controller {controller!r})"
-        answer = await call_with_timeout(
-            client, GetParameters.Request(names=["joints"]), CONTROLLER_TIMEOUT_S)
-        value = answer.values[0] if answer is not None and len(answer.values) == 1 else None
-        order = (value.string_array_value if value is not None
-                 and value.type == ParameterType.PARAMETER_STRING_ARRAY else None)
-        return controller_order_refusal(controller, order, self.robot.joint_names,
-                                        answer is not None, CONTROLLER_TIMEOUT_S), ""
+        """The controller's joint order check (:meth:`ControllerClient.order_refusal`)."""
+        return await self._order_client.order_refusal(
+            client, self.get_parameter("controller").value, self.robot.joint_names)
 
     # -- output -----------------------------------------------------------------------
     def _on_timer(self) -> None:
@@ -540,6 +519,34 @@ class Executor(StartNode):
         if self._lockstep and not self.controller.state_problem(now):
             return
         self._emit(self.controller.tick(now))
+        self._advance_recheck()
+
+    def _start_recheck(self) -> ArmedRecheck | None:
+        """The fold-stop check of constraints just set while armed (None: none)."""
+        try:
+            return ArmedRecheck.begin(self.controller, self.get_parameter("stop_check").value)
+        except Exception as err:  # noqa: BLE001 - an unchecked stop does not disarm
+            return self._stop_check_failed(err)
+
+    def _advance_recheck(self) -> None:
+        """A slice of it once the period's command is out; its result shown and said."""
+        if self._recheck is None:
+            return
+        try:
+            ended, found = self._recheck.advance(self.controller,
+                                                 self.get_parameter("stop_check").value)
+        except Exception as err:  # noqa: BLE001 - an unchecked stop does not disarm
+            ended, found = True, self._stop_check_failed(err)
+        if ended:
+            self._recheck = None
+        if found is not None:
+            self.controller.stop_spread = found
+            if note := stop_check_note(found):
+                self.get_logger().warning(f"constraints {self._constraints_text()}: {note}")
+            self.publish_diagnostics()
+
+    def _stop_check_failed(self, err: Exception) -> None:
+        self.get_logger().warning(f"stop check failed: {type(err).__name__}: {err}")
 
     def _emit(self, out: Output) -> None:
         """Publish the command the controller asks for and log its events."""
@@ -564,8 +571,8 @@ class Executor(StartNode):
         control, now_ns = self.controller, self._now_ns()
         level, message, values = arming_status(
             control, now_ns, model=self.model_path, model_state=self.model_state,
-            constraints=self._constraints_text(),
-            rejected=self.rejected_states)
+            constraints=self._constraints_text(), rejected=self.rejected_states,
+            checking=self._recheck is not None)
         values["node_clock"] = self._clock_watch.update(now_ns, time.monotonic_ns())
         status = DiagnosticStatus(
             level=(DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level],

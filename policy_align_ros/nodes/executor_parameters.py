@@ -39,7 +39,8 @@ def declare_control_parameters(node: Node, default_controller: str) -> None:
         "at ~/enable, run the model and its CV folds' models from the current state "
         "under the constraints in force, and warn (in the answer, the log and "
         "/diagnostics) when their stops disagree by more than 5 % of the travel; arms "
-        "either way; applies at the next ~/enable"))
+        "either way; constraints set while armed are checked so too, from where the "
+        "robot stands (the log and /diagnostics); applies at the next check"))
     node.declare_parameter("max_velocity", 0.5, descriptor(
         "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
         float_range=(0.001, 10.0)))

@@ -11,12 +11,14 @@ import pytest
 
 from policy_align_ros.control import (
     ArmedController,
+    ArmedRecheck,
     ArmingStopCheck,
     ControlStep,
     Output,
     TaskSpacePolicy,
     arming_status,
     check_in_slices,
+    stop_check,
     stop_check_answer,
     stop_check_note,
 )
@@ -141,7 +143,7 @@ def test_a_check_advanced_in_slices_ends_where_one_run_to_the_end_does(model):
     q0 = np.array([-0.7, 0.6])
     whole = check.prepare(_step(model.policy), q0).result()
     sliced = check.prepare(_step(model.policy), q0)
-    assert not sliced.advance(0.0) and sliced.done == 1  # a zero budget still takes a step
+    assert not sliced.advance(0.0) and sliced.stepped == 1  # a zero budget: one step
     while not sliced.advance(0.0):
         pass
     # Every run has stopped (its command at most 1 % of the demonstrations' speed) before
@@ -211,14 +213,73 @@ def test_a_check_in_slices_yields_between_slices_and_stops_when_superseded(model
 
     run = check.prepare(_step(model.policy), q0)
     found = asyncio.run(check_in_slices(run, threading.Lock(), 0.0, pause, lambda: True))
-    assert len(pauses) == run.done - 1  # one step per slice at a zero budget
+    assert len(pauses) == run.stepped - 1  # one step per slice at a zero budget
     np.testing.assert_array_equal(found.stop, check.prepare(_step(model.policy), q0)
                                   .result().stop)
     wanted = iter([True, True, False])
     run = check.prepare(_step(model.policy), q0)
     assert asyncio.run(check_in_slices(run, threading.Lock(), 0.0, pause,
                                        lambda: next(wanted))) is None
-    assert run.done == 2
+    assert run.stepped == 2
+
+
+def _armed(model, q, constraints):
+    """An armed controller on ``model`` at ``q`` under ``constraints``, with its check."""
+    step = ControlStep(-3 * np.ones(2), 3 * np.ones(2), np.full(2, 2.0), 0.01,
+                       constraints=constraints, policy=model.policy)
+    step.stop_check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    control = ArmedController(step, 2.0, 0.05)
+    control.joint_state(q, 1, 1)
+    assert control.arm(1)[0]
+    return control
+
+
+def test_constraints_set_while_armed_are_checked_from_where_the_robot_stands(model,
+                                                                            monkeypatch):
+    monkeypatch.setattr(stop_check, "RECHECK_SHARE", 0.0)  # one step per slice
+    q = np.array([0.9, -0.8])
+    control = _armed(model, q, [])
+    control.step.constraints = [_Row()]  # set while armed
+    recheck = ArmedRecheck.begin(control, True)
+    _, _, values = arming_status(control, 0, model="m", model_state="joints",
+                                 constraints="[row]", rejected={}, checking=True)
+    assert values["stop_spread"] == values["stop_uncertain"] == "checking"
+    ended, found = recheck.advance(control, True)
+    slices = 1
+    while not ended:
+        ended, found = recheck.advance(control, True)
+        slices += 1
+    assert slices == recheck.run.stepped > 1  # a slice after each control step
+    np.testing.assert_allclose(found.stop, _constrained_minimum(q), atol=0.02)
+    assert not found.uncertain
+    # Nothing to check: the check off, disarmed, or no check for the model.
+    assert ArmedRecheck.begin(control, False) is None
+    control.step.stop_check = None
+    assert ArmedRecheck.begin(control, True) is None
+    assert ArmedRecheck.begin(_disarmed(model, q), True) is None
+
+
+def _disarmed(model, q):
+    control = _armed(model, q, [])
+    control.disarm("test")
+    return control
+
+
+@pytest.mark.parametrize("change", ["constraints", "model", "disarm", "off"])
+def test_a_recheck_made_moot_ends_without_a_result(model, change):
+    control = _armed(model, np.array([0.9, -0.8]), [_Row()])
+    recheck = ArmedRecheck.begin(control, True)
+    on = True
+    if change == "constraints":
+        control.step.constraints = [_Row()]  # a set replaces the list
+    elif change == "model":
+        control.step.stop_check = dataclasses.replace(control.step.stop_check)
+    elif change == "disarm":
+        control.disarm("test")
+    else:
+        on = False
+    assert recheck.advance(control, on) == (True, None)
+    assert recheck.run.done == 0  # not a step of a moot check
 
 
 class _HandBowl:

@@ -25,5 +25,6 @@ def test_the_stop_check_is_timed_once_per_start_over_the_model_and_its_folds():
     assert found["steps"] >= check_horizon(model)[1]
     assert 1 <= found["median_steps"] < found["steps"]  # exact data: every run stops
     assert 0.0 <= found["median_s"] <= found["max_s"] < found["capped_s"] < np.inf
+    assert 0.0 < found["slice_p50_us"] <= found["slice_p99_us"] < np.inf
     model.fold_regressors_ = []
     assert np.isnan(time_stop_check(model, np.arange(2), step, np.zeros((1, 2)))["runs"])

@@ -181,10 +181,26 @@ def test_enable_runs_the_fold_stop_check_and_says_when_the_stop_is_uncertain(rig
                  what="armed diagnostics")
     assert _latest(r)["stop_uncertain"] == "true"
     assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
-    # New constraints while armed: the check was of the old ones, and is no longer shown.
+    # New constraints while armed: the check of the old ones is dropped, and the new ones
+    # are checked from where the robot stands, a slice after each control step.
     assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
+    assert r.node.controller.stop_spread is None and r.node._recheck is not None
+    r.spin_until(lambda: r.node.controller.stop_spread is not None,
+                 what="the check of the new constraints")
+    assert r.node.controller.armed and r.node.controller.stop_spread.uncertain
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics and _latest(r)["stop_uncertain"] == "true",
+                 what="uncertain diagnostics")
+    assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
+    # A disarm drops a check still running (one that would run for ever here).
+    r.node.controller.step.stop_check = dataclasses.replace(check, steps=10**9, settled=0.0)
+    assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
+    r.spin(0.1)
+    assert r.node._recheck is not None and r.node._recheck.run.done > 0
     assert r.node.controller.stop_spread is None
     assert r.enable(False).success
+    r.spin(0.1)
+    assert r.node._recheck is None and r.node.controller.stop_spread is None
     # A fold model the step cannot command: the check runs and fails, and arming goes on.
     called = []
 
