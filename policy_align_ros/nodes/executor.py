@@ -66,12 +66,11 @@ docs/executor_safety.md explains it for robot owners):
   than a quarter of the expected motion for ``stall_time_s`` while commanded at least
   0.05 rad/s; :mod:`policy_align_ros.control.stall`) ramps down, disarms and is reported
   at ERROR level;
-* at ``~/enable`` (``stop_check``), the model and its CV folds' models are run from the
-  current state under the constraints in force, in slices before arming; where
-  their stops disagree by more than 5 % of the travel, the answer, the log and
-  ``/diagnostics`` say the stop is uncertain (:mod:`policy_align_ros.control.stop_check`);
-  constraints set while armed are checked so too, from where the robot stands, in a
-  fifth of each control period after its command (the log and ``/diagnostics``);
+* at ``~/enable`` (``stop_check``), and for constraints set while armed (in a fifth of
+  each period, after its command), the model and its CV folds' models are run from the
+  current state under the constraints in force; where their stops disagree by more than
+  5 % of the travel, the answer, the log and ``/diagnostics`` say the stop is uncertain
+  (:mod:`policy_align_ros.control.stop_check`);
 * all control timing uses the node clock, so ``use_sim_time`` works;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every second of the steady clock and
   on arming changes) reports the arming state, the model, why the command is zero, the
@@ -545,7 +544,7 @@ class Executor(StartNode):
                 self.get_logger().warning(f"constraints {self._constraints_text()}: {note}")
             self.publish_diagnostics()
 
-    def _stop_check_failed(self, err: Exception) -> None:
+    def _stop_check_failed(self, err: Exception) -> None:  # logged: it does not disarm
         self.get_logger().warning(f"stop check failed: {type(err).__name__}: {err}")
 
     def _emit(self, out: Output) -> None:
