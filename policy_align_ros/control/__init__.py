@@ -129,6 +129,7 @@ from policy_align_ros.control.step import (
 )
 from policy_align_ros.control.stop_check import (
     RECHECK_SHARE,
+    SLICE_S,
     ArmedRecheck,
     ArmingStopCheck,
     check_in_slices,
@@ -154,6 +155,7 @@ __all__ = [
     "NO_CAUSE",
     "NO_ORDER_CHECK",
     "RECHECK_SHARE",
+    "SLICE_S",
     "STAMP_REJECTIONS",
     "TURN",
     "ArmedController",

@@ -145,10 +145,7 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "rejected_joint_states": ", ".join(
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
         **_model_values(step, model),
-        "stop_spread": ("checking" if checking else "n/a" if spread is None
-                        else _measured(spread.spread, ".3f")),
-        "stop_uncertain": ("checking" if checking else "n/a" if spread is None
-                           else str(spread.uncertain).lower()),
+        **_stop_values(spread, checking),
     }
     return level, message, values
 
@@ -167,6 +164,15 @@ def _message(controller: ArmedController, held: bool, uncertain: bool, reason: s
     if controller.publishing:
         return f"disarmed, ramping down: {reason}"
     return f"disarmed, command zero: {reason}"
+
+
+def _stop_values(spread, checking: bool) -> dict[str, str]:
+    """The fold-stop check's ``stop_spread`` and ``stop_uncertain``."""
+    if checking or spread is None:
+        return dict.fromkeys(("stop_spread", "stop_uncertain"),
+                             "checking" if checking else "n/a")
+    return {"stop_spread": _measured(spread.spread, ".3f"),
+            "stop_uncertain": str(spread.uncertain).lower()}
 
 
 def _guard_values(controller: ArmedController) -> dict[str, str]:

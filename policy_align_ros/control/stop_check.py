@@ -14,7 +14,9 @@ force, held frames latched at the start, locked joints, speed and position limit
 extrapolation guard, which would hold the folds' runs where the data ends), from the
 joint positions at arming, for the model's
 :func:`~policy_align_ros.learning.fold_stops.check_horizon`, in slices of wall time on
-the executor's own thread (:class:`StopCheckRun`). The stops are compared in
+the executor's own thread (:class:`StopCheckRun`); constraints set while armed are checked
+so too, from where the robot stands, a slice after each control step
+(:class:`ArmedRecheck`). The stops are compared in
 the model's state (joint positions, or the frames' positions of a task-space model), over
 the run's travel there. The executor arms either way: the check informs, it does not
 refuse (a run that stops elsewhere stops within the constraints and limits).
@@ -40,16 +42,19 @@ from policy_align_ros.learning.fold_stops import (
     spread_of,
 )
 
-__all__ = ["MAX_SLOWDOWN", "RECHECK_SHARE", "ArmedRecheck", "ArmingStopCheck",
+__all__ = ["MAX_SLOWDOWN", "RECHECK_SHARE", "SLICE_S", "ArmedRecheck", "ArmingStopCheck",
            "StopCheckRun", "check_in_slices", "fold_policies", "stop_check_answer",
            "stop_check_note"]
 
 #: Runs slowed by the executor's speed limit are lengthened by at most this factor.
 MAX_SLOWDOWN = 4.0
-#: Share of each control period that a check of constraints set while armed
-#: (:class:`ArmedRecheck`) takes, once the period's command is out: the next command is
-#: never late for it, and a check of about 0.35 s of computing ends within 2 s.
+#: Share of the wall time between control steps (at most one period) that a check of
+#: constraints set while armed (:class:`ArmedRecheck`) takes once a step's command is out;
+#: a check of about 0.35 s of computing then ends within about 2 s.
 RECHECK_SHARE = 0.2
+#: Longest slice of a check (s): the executor's callbacks wait at most about this long,
+#: and one run's step (:meth:`StopCheckRun.advance`).
+SLICE_S = 0.005
 
 
 def fold_policies(model, policy: Callable) -> list[Callable]:
@@ -172,7 +177,7 @@ class StopCheckRun:
                  settled: float = 0.0) -> None:
         self.fields, self.q0, self.dt, self.steps = fields, q0, dt, steps
         self.state, self.floor, self.settled = state, floor, settled
-        self.done = 0  # sweeps over the runs still moving
+        self.done = 0  # sweeps over the runs still moving, counted as they start
         self.stepped = 0  # the runs' Euler steps, over all sweeps
         self._x = [q0.copy() for _ in fields]
         self._s = [state(q0)] * len(fields)  # each run's state, for its speed there
@@ -187,8 +192,8 @@ class StopCheckRun:
         end = time.perf_counter() + budget_s
         while not self.finished:
             i = self._next
+            self.done += i == 0
             self._next = (i + 1) % len(self.fields)
-            self.done += self._next == 0
             if not self._moving[i]:
                 continue
             x = self._x[i] + self.dt * self.fields[i](self._x[i][None])[0]
@@ -204,7 +209,7 @@ class StopCheckRun:
     @property
     def finished(self) -> bool:
         """Every run has stopped, or taken ``steps`` steps."""
-        return self.done >= self.steps or not any(self._moving)
+        return (self.done >= self.steps and self._next == 0) or not any(self._moving)
 
     def result(self) -> StopSpread:
         """The :class:`StopSpread` of the runs, in the model's state units (advances them
@@ -230,35 +235,42 @@ async def check_in_slices(run: StopCheckRun, lock, slice_s: float,
 
 class ArmedRecheck:
     """The check of constraints set while armed: the run from where the robot stands
-    when they were set, under them, advanced by the executor a slice of
-    :data:`RECHECK_SHARE` of its period after each control step (never while it computes
-    a command). Constraints set again, another model, a disarm or the check turned off
-    make it moot: it ends without a result.
+    when they were set, under them, advanced by the executor a slice after each control
+    step, once its command is out. A slice is :data:`RECHECK_SHARE` of the wall time since
+    the last one, at most of one period and of :data:`SLICE_S`: control steps that come
+    faster than the period (driven by joint states, or by a simulation faster than real
+    time) get shorter slices. Constraints set again, another model, a disarm or the check
+    turned off make it moot: it ends without a result.
 
     Parameters
     ----------
     controller : ArmedController
         The executor's, armed, with the new constraints in force in its step and a
         ``stop_check`` (not None) there.
+    clock : callable
+        Wall time, s.
 
     Raises what :meth:`ArmingStopCheck.prepare` raises.
     """
 
-    def __init__(self, controller) -> None:
+    def __init__(self, controller, clock: Callable[[], float] = time.perf_counter) -> None:
         step = controller.step
         # A parameter set replaces the list: identity tells a later set.
         self._check, self._constraints = step.stop_check, step.constraints
         self.run = step.stop_check.prepare(step, controller.last_q)
+        self._clock = clock
+        self._last = clock()
 
     @classmethod
-    def begin(cls, controller, on: bool) -> ArmedRecheck | None:
+    def begin(cls, controller, on: bool, clock: Callable[[], float] = time.perf_counter
+              ) -> ArmedRecheck | None:
         """The check of ``controller``'s constraints just set; None when there is nothing
         to check: not armed, no state or no ``stop_check``, or the check is off (``on``
         false)."""
         if not (on and controller.armed and controller.step.stop_check is not None
                 and controller.last_q is not None):
             return None
-        return cls(controller)
+        return cls(controller, clock)
 
     def advance(self, controller, on: bool) -> tuple[bool, StopSpread | None]:
         """One slice: ``(ended, found)``, ``found`` the result when the runs are done
@@ -269,7 +281,10 @@ class ArmedRecheck:
         if not (on and controller.armed and step.stop_check is self._check
                 and step.constraints is self._constraints):
             return True, None
-        if not self.run.advance(RECHECK_SHARE * step.dt):
+        now = self._clock()
+        budget = RECHECK_SHARE * min(now - self._last, step.dt)
+        self._last = now
+        if not self.run.advance(min(budget, SLICE_S)):
             return False, None
         return True, self.run.result()
 

@@ -214,8 +214,8 @@ def format_report(results: dict) -> str:
                      f"{check['capped_s']:.1f} s")
         wall = check["median_s"] / RECHECK_SHARE
         lines.append(f"its check of constraints set while armed, {RECHECK_SHARE:g} of each "
-                     f"period: about {wall:.1f} s (median); its finest slice, one run's "
-                     f"step: p50 {check['slice_p50_us']:.0f} us, p99 "
+                     f"period: about {wall:.1f} s (median, estimated); its finest slice, "
+                     f"one run's step: p50 {check['slice_p50_us']:.0f} us, p99 "
                      f"{check['slice_p99_us']:.0f} us")
     return "\n".join(lines)
 

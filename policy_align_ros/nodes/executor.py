@@ -103,6 +103,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
 
 from policy_align_ros.control import (
+    SLICE_S,
     ArmedController,
     ArmedRecheck,
     ClockWatch,
@@ -154,9 +155,6 @@ __all__ = ["Executor", "main"]
 #: Period of the /diagnostics status (s, steady clock); every arming change, by ~/enable,
 #: a stale or broken state or a fault, also goes out at once (through ``_emit``).
 DIAGNOSTICS_PERIOD_S = 1.0
-#: Slice [s] of the fold-stop check at ~/enable between two executor cycles: the node's
-#: joint states, timers and services wait about this long (and one step of its runs).
-STOP_CHECK_SLICE_S = 0.005
 
 
 class Executor(StartNode):
@@ -426,6 +424,7 @@ class Executor(StartNode):
         with self._lock:
             self._arm_at_start = False
             self._enable_requests += 1
+            self._recheck = None  # of the run disarmed
             self._emit(self.controller.disarm("disabled by ~/enable", ZeroCause.DISABLED))
             response.success = True
             response.message = f"disabled ({model_text(self.model_path)})"
@@ -471,7 +470,7 @@ class Executor(StartNode):
             if accepted:
                 accepted, reason, out = self.controller.arm(self._now_ns())
                 if accepted and check:
-                    self.controller.stop_spread = spread
+                    self._recheck, self.controller.stop_spread = None, spread
                     note += stop_check_answer(spread, out)
                 self._emit(out)
             message = enable_answer(accepted, reason, note, self.model_path)
@@ -499,7 +498,7 @@ class Executor(StartNode):
         try:
             with self._lock:
                 run = check.prepare(step, q)
-            return await check_in_slices(run, self._lock, STOP_CHECK_SLICE_S, next_cycle,
+            return await check_in_slices(run, self._lock, SLICE_S, next_cycle,
                                          current), current
         except Exception as err:  # noqa: BLE001 - an unchecked stop does not stop arming
             self._stop_check_failed(err)
@@ -525,7 +524,8 @@ class Executor(StartNode):
         try:
             return ArmedRecheck.begin(self.controller, self.get_parameter("stop_check").value)
         except Exception as err:  # noqa: BLE001 - an unchecked stop does not disarm
-            return self._stop_check_failed(err)
+            self._stop_check_failed(err)
+            return None
 
     def _advance_recheck(self) -> None:
         """A slice of it once the period's command is out; its result shown and said."""
@@ -571,7 +571,7 @@ class Executor(StartNode):
         level, message, values = arming_status(
             control, now_ns, model=self.model_path, model_state=self.model_state,
             constraints=self._constraints_text(), rejected=self.rejected_states,
-            checking=self._recheck is not None)
+            checking=self._recheck is not None and control.armed)
         values["node_clock"] = self._clock_watch.update(now_ns, time.monotonic_ns())
         status = DiagnosticStatus(
             level=(DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level],

@@ -40,7 +40,8 @@ def declare_control_parameters(node: Node, default_controller: str) -> None:
         "under the constraints in force, and warn (in the answer, the log and "
         "/diagnostics) when their stops disagree by more than 5 % of the travel; arms "
         "either way; constraints set while armed are checked so too, from where the "
-        "robot stands (the log and /diagnostics); applies at the next check"))
+        "robot stands (the log and /diagnostics); read when a check starts, and false "
+        "also drops a check of new constraints still running"))
     node.declare_parameter("max_velocity", 0.5, descriptor(
         "speed limit of every joint [rad/s] (the URDF limit applies when lower)",
         float_range=(0.001, 10.0)))

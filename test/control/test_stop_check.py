@@ -154,6 +154,38 @@ def test_a_check_advanced_in_slices_ends_where_one_run_to_the_end_does(model):
     np.testing.assert_array_equal(found.fold_stops, whole.fold_stops)
 
 
+def _sweeps(run):
+    """The runs of ``run`` (a fresh StopCheckRun) as whole sweeps over them: the sweeps
+    taken and each run's state at its end (the loop the sliced runs must equal)."""
+    x, s = [run.q0.copy() for _ in run.fields], [run.state(run.q0)] * len(run.fields)
+    moving, sweeps = [True] * len(run.fields), 0
+    while sweeps < run.steps and any(moving):
+        sweeps += 1
+        for i, field in enumerate(run.fields):
+            if moving[i]:
+                y = x[i] + run.dt * field(x[i][None])[0]
+                moving[i] = bool(np.linalg.norm(run.state(y) - s[i]) > run.settled * run.dt)
+                if moving[i]:
+                    x[i], s[i] = y, run.state(y)
+    return sweeps, s
+
+
+@pytest.mark.parametrize("cap", [None, 7])
+def test_runs_advanced_a_step_at_a_time_equal_whole_sweeps(model, cap):
+    check = ArmingStopCheck.for_model(model, model.policy, np.arange(2))
+    if cap is not None:
+        check = dataclasses.replace(check, steps=cap)  # cut off while the runs move
+    q0 = np.array([0.9, -0.8])
+    sweeps, ends = _sweeps(check.prepare(_step(model.policy), q0))
+    run = check.prepare(_step(model.policy), q0)
+    while not run.advance(0.0):
+        pass
+    found = run.result()
+    assert run.done == sweeps and (cap is None or sweeps == cap)
+    np.testing.assert_array_equal(found.stop, ends[0])
+    np.testing.assert_array_equal(found.fold_stops, np.array(ends[1:]))
+
+
 class _HoldFirst:
     """Holds the first joint where it was latched: ``A = [1, 0]``."""
 
@@ -265,6 +297,24 @@ def _disarmed(model, q):
     return control
 
 
+def test_a_recheck_takes_a_share_of_the_time_between_control_steps(model, monkeypatch):
+    control = _armed(model, np.array([0.9, -0.8]), [_Row()])
+    now = [0.0]
+    recheck = ArmedRecheck.begin(control, True, clock=lambda: now[0])
+    budgets = []
+    monkeypatch.setattr(recheck.run, "advance", lambda b: budgets.append(b) or False)
+    dt = control.step.dt
+    for gap in (dt, dt / 10, 10 * dt):  # steps at the rate, faster (lockstep), late
+        now[0] += gap
+        recheck.advance(control, True)
+    np.testing.assert_allclose(budgets, [stop_check.RECHECK_SHARE * g
+                                         for g in (dt, dt / 10, dt)])
+    control.step.dt = 1.0  # a slow rate: no slice longer than SLICE_S
+    now[0] += 1.0
+    recheck.advance(control, True)
+    assert budgets[-1] == stop_check.SLICE_S
+
+
 @pytest.mark.parametrize("change", ["constraints", "model", "disarm", "off"])
 def test_a_recheck_made_moot_ends_without_a_result(model, change):
     control = _armed(model, np.array([0.9, -0.8]), [_Row()])
@@ -279,7 +329,7 @@ def test_a_recheck_made_moot_ends_without_a_result(model, change):
     else:
         on = False
     assert recheck.advance(control, on) == (True, None)
-    assert recheck.run.done == 0  # not a step of a moot check
+    assert recheck.run.stepped == 0  # not a step of a moot check
 
 
 class _HandBowl:

@@ -1,8 +1,8 @@
 """The ``executor`` node on what a new user could not see: a model that learn refused and
 wrote only because it was forced, the guard holding the robot at the data's edge, a
 learnt goal beyond the guard's reach, and which joint a broken joint state broke (own
-rclpy.Context, domain ids 210-213 and 217), and whether the CV folds' models stop an armed
-run where the model does.
+rclpy.Context, domain ids 210-213, 217 and 218), and whether the CV folds' models stop an
+armed run where the model does.
 
 Assertions are on causes, flags, names and numbers, never on wording or wall-clock speed.
 The logic is tested without a graph in test/control/test_model_checks.py and
@@ -181,26 +181,11 @@ def test_enable_runs_the_fold_stop_check_and_says_when_the_stop_is_uncertain(rig
                  what="armed diagnostics")
     assert _latest(r)["stop_uncertain"] == "true"
     assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
-    # New constraints while armed: the check of the old ones is dropped, and the new ones
-    # are checked from where the robot stands, a slice after each control step.
+    # New constraints while armed: the check of the old ones is dropped (and the new ones
+    # checked: test_constraints_set_while_armed_are_checked_from_where_the_robot_stands).
     assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
-    assert r.node.controller.stop_spread is None and r.node._recheck is not None
-    r.spin_until(lambda: r.node.controller.stop_spread is not None,
-                 what="the check of the new constraints")
-    assert r.node.controller.armed and r.node.controller.stop_spread.uncertain
-    r.diagnostics.clear()
-    r.spin_until(lambda: r.diagnostics and _latest(r)["stop_uncertain"] == "true",
-                 what="uncertain diagnostics")
-    assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
-    # A disarm drops a check still running (one that would run for ever here).
-    r.node.controller.step.stop_check = dataclasses.replace(check, steps=10**9, settled=0.0)
-    assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
-    r.spin(0.1)
-    assert r.node._recheck is not None and r.node._recheck.run.done > 0
     assert r.node.controller.stop_spread is None
     assert r.enable(False).success
-    r.spin(0.1)
-    assert r.node._recheck is None and r.node.controller.stop_spread is None
     # A fold model the step cannot command: the check runs and fails, and arming goes on.
     called = []
 
@@ -231,3 +216,46 @@ def test_enable_runs_the_fold_stop_check_and_says_when_the_stop_is_uncertain(rig
     r.spin(0.1)
     assert r.enable(True).success
     assert r.node.controller.stop_spread is None
+
+
+@pytest.mark.parametrize("lockstep", [False, True])
+def test_constraints_set_while_armed_are_checked_from_where_the_robot_stands(rig, tmp_path,
+                                                                             lockstep):
+    centre = np.zeros(len(JOINTS))
+    r = rig(218, model_path=str(_fit_model(tmp_path / "good.npz", JOINTS, centre)),
+            step_on_joint_state=lockstep)
+    check = r.node.controller.step.stop_check
+    r.enable_when_fresh()
+    assert not r.node.controller.stop_spread.uncertain
+    # A fold model that stops the run 0.3 rad away per joint, then new constraints: the
+    # check of the old ones is dropped, the new ones are checked after the control steps.
+    r.node.controller.step.stop_check = dataclasses.replace(
+        check, policies=[check.policies[0], _attractor_policy(centre + 0.3)])
+    assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
+    assert r.node.controller.stop_spread is None and r.node._recheck is not None
+    r.spin_until(lambda: r.node.controller.stop_spread is not None,
+                 what="the check of the new constraints")
+    assert r.node.controller.armed and r.node.controller.stop_spread.uncertain
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics and _latest(r)["stop_uncertain"] == "true",
+                 what="uncertain diagnostics")
+    assert r.diagnostics[-1].status[0].level == r.diagnostics[-1].status[0].WARN
+    # A check still running (one that would run for ever here) is shown, and a disarm
+    # drops it.
+    r.node.controller.step.stop_check = dataclasses.replace(check, steps=10**9, settled=0.0)
+    assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
+    r.spin_until(lambda: r.node._recheck.run.stepped > 0, what="the check's first slice")
+    r.diagnostics.clear()
+    r.spin_until(lambda: r.diagnostics, what="diagnostics")
+    assert _latest(r)["stop_spread"] == "checking" and r.node.controller.armed
+    assert r.enable(False).success
+    assert r.node._recheck is None and r.node.controller.stop_spread is None
+    # A fold model the step cannot command: the check fails (logged), still armed.
+    r.node.controller.step.stop_check = check
+    r.enable_when_fresh()
+    r.node.controller.step.stop_check = dataclasses.replace(
+        check, policies=[check.policies[0], lambda X: np.full_like(X, np.nan)])
+    assert r.node.set_parameters([Parameter("constraints", value="[]")])[0].successful
+    assert r.node._recheck is not None
+    r.spin_until(lambda: r.node._recheck is None, what="the failed check")
+    assert r.node.controller.armed and r.node.controller.stop_spread is None
