@@ -535,7 +535,8 @@ class Executor(StartNode):
             ended, found = self._recheck.advance(self.controller,
                                                  self.get_parameter("stop_check").value)
         except Exception as err:  # noqa: BLE001 - an unchecked stop does not disarm
-            ended, found = True, self._stop_check_failed(err)
+            self._stop_check_failed(err)
+            ended, found = True, None
         if ended:
             self._recheck = None
         if found is not None:
