@@ -79,8 +79,7 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
     rejected : mapping str -> int
         Rejected joint-state messages by reason.
     checking : bool
-        A fold-stop check of constraints set while armed is running
-        (:class:`~policy_align_ros.control.stop_check.ArmedRecheck`).
+        A check of constraints set while armed runs (:class:`.stop_check.ArmedRecheck`).
 
     Returns
     -------
@@ -88,9 +87,8 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         :data:`ERROR` when disarmed by a stall (the robot did not follow its command),
         :data:`WARN` when disarmed by another fault, while a forced model that is not
         allowed is loaded (it cannot be armed), while armed but held at the data's edge
-        by the extrapolation guard and while armed on a run whose stop the fold-stop
-        check at arming found uncertain (:mod:`~policy_align_ros.control.stop_check`);
-        :data:`OK` otherwise (armed, or disarmed by a request).
+        by the extrapolation guard or on a run whose stop the fold-stop check found
+        uncertain (:mod:`.stop_check`); :data:`OK` otherwise.
     message : str
         Armed, held, ramping down or at zero, with the reason.
     values : dict str -> str
@@ -102,18 +100,15 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         ``extrapolation_hold`` and the hold in words (``extrapolation_hold`` names the
         limit that binds); while disarmed at zero with a forced model that is not allowed,
         ``forced_model`` and the refusal (unless a stall's report stands).
-        ``stop_spread`` and ``stop_uncertain`` are the fold-stop check's at the last
-        arming, or of the constraints set since while armed (``n/a``: none ran;
-        ``checking``: that check runs).
+        ``stop_spread`` and ``stop_uncertain``: the fold-stop check's, at the last arming
+        or of constraints set since (``n/a``: none ran; ``checking``: it runs).
     """
     problem = controller.state_problem(now_ns)
     reason, cause = controller.zero_reason, controller.zero_cause
-    level = OK
-    if not controller.armed and controller.faulted:
-        level = ERROR if controller.stalled else WARN
-    step = controller.step
+    faulted = not controller.armed and controller.faulted
+    level = (ERROR if controller.stalled else WARN) if faulted else OK
     hold = guard_hold(controller)
-    gate_cause, gate_reason = step.model_check()
+    gate_cause, gate_reason = controller.step.model_check()
     if hold is not None:
         reason, cause, level = hold.text, ZeroCause.EXTRAPOLATION_HOLD, WARN
     elif (gate_cause == ZeroCause.FORCED_MODEL and not controller.armed
@@ -144,7 +139,7 @@ def arming_status(controller: ArmedController, now_ns: int, *, model: str, model
         "joint_states": problem or "fresh",
         "rejected_joint_states": ", ".join(
             f"{k}={v}" for k, v in sorted(rejected.items())) or "0",
-        **_model_values(step, model),
+        **_model_values(controller.step, model),
         **_stop_values(spread, checking),
     }
     return level, message, values
