@@ -108,7 +108,7 @@ def _drive(s: DemoSettings, t0: float, conductor: Conductor, run_id: str,
            specs: list[dict], q0: np.ndarray, wall_per_sim: float
            ) -> tuple[np.ndarray, np.ndarray]:
     """Reset the robot to ``q0``, enable the executor for ``run_duration_s`` under
-    ``specs``; the run's times (s from the enable request) and joint positions (T, n)."""
+    ``specs``; the run's times (s from arming) and joint positions (T, n)."""
     conductor.set_parameter("/sim_robot", "initial_positions", q0.tolist())
     conductor.trigger("/sim_robot/reset")
     conductor.set_parameter("/executor", "constraints", yaml.safe_dump(
@@ -116,19 +116,19 @@ def _drive(s: DemoSettings, t0: float, conductor: Conductor, run_id: str,
     conductor.spin_sim(0.3, 10.0 + 0.3 * wall_per_sim * 20)
     conductor.listen(True)
     conductor.trace, conductor.ticks, conductor.missed = [], 0, 0
-    # The run's clock starts with the enable request: the time the executor takes to arm
-    # counts against the learnt policy, not the expert.
-    start_sim = conductor.now()
     response = conductor.enable(True)
     deadline = time.monotonic() + 10.0
     while not response.success and time.monotonic() < deadline:
         # After the reset the executor may not have taken a fresh joint state yet (a loaded
         # machine delays it); it refuses with the reason, and a retry is safe.
         conductor.spin_sim(4.0 / s.rate_hz, 10.0)
-        start_sim = conductor.now()
         response = conductor.enable(True)
     if not response.success:
         raise StageError(f"executor refused to enable: {response.message}")
+    # The run's clock starts once ~/enable has armed: its checks before arming (the
+    # controller's joint order, where the run will stop) take up to seconds on a loaded
+    # machine, with the robot at rest at q0, and are not the policy's motion.
+    start_sim = conductor.now()
     say(t0, f"executor run {run_id} for {s.run_duration_s:g} s of sim time"
             + (f" under {specs}" if specs else ""))
     conductor.spin_sim(s.run_duration_s, 30.0 + 20.0 * s.run_duration_s * wall_per_sim)
