@@ -234,6 +234,10 @@ class _ArmedCases:
             r.expect(exe.controller.armed, "disarmed by a message meant for someone else")
         if reasons != "nothing" or reason is not None:
             r.behaviour += f"; counted as {reasons}"
+        if not disarms and not exe.controller.armed:  # why, for a failure to say
+            cause = exe.controller.zero_cause
+            r.behaviour += (f"; disarmed: {cause.value if cause else 'none'}: "
+                            f"{exe.controller.zero_reason}")
         if reason is not None:
             r.expect(exe.rejected_states.get(reason, 0) > 0, f"not counted as {reason}")
         return r
