@@ -136,6 +136,7 @@ from policy_align_ros.control.stop_check import (
     fold_policies,
     stop_check_answer,
     stop_check_note,
+    unchanged,
 )
 from policy_align_ros.control.task_policy import TaskSpacePolicy, policy_for_state
 from policy_align_ros.control.turns import TURN, nearest_turn, turn_centres, wrap_continuous
@@ -226,6 +227,7 @@ __all__ = [
     "task_to_joint_velocity",
     "turn_centres",
     "wrap_continuous",
+    "unchanged",
     "unchecked_order_refusal",
     "untrustworthy_reason",
     "velocity_scale",

@@ -40,11 +40,12 @@ from policy_align_ros.learning.fold_stops import (
     check_horizon,
     settled_speed,
     spread_of,
+    typical_speed,
 )
 
 __all__ = ["MAX_SLOWDOWN", "RECHECK_SHARE", "SLICE_S", "ArmedRecheck", "ArmingStopCheck",
            "StopCheckRun", "check_in_slices", "fold_policies", "stop_check_answer",
-           "stop_check_note"]
+           "stop_check_note", "unchanged"]
 
 #: Runs slowed by the executor's speed limit are lengthened by at most this factor.
 MAX_SLOWDOWN = 4.0
@@ -133,7 +134,7 @@ class ArmingStopCheck:
             def state(q):
                 return policy.state_map.kinematics(np.asarray(q, dtype=float))[0]
         else:
-            speed = float(model.fit_summary_["goal"]["typical_speed"])
+            speed = typical_speed(model)
 
             def state(q):
                 return np.asarray(q, dtype=float)[permutation]
@@ -218,6 +219,14 @@ class StopCheckRun:
         return spread_of(self.state(self.q0), self._s[0], self._s[1:], self.floor)
 
 
+def unchanged(step: ControlStep) -> Callable[[], bool]:
+    """Whether ``step`` still has the model check and the constraints it has now: loading
+    a model sets a new ``stop_check``, and setting constraints a new list, so identity
+    tells a later change (a check of the ones before is moot)."""
+    check, constraints = step.stop_check, step.constraints
+    return lambda: step.stop_check is check and step.constraints is constraints
+
+
 async def check_in_slices(run: StopCheckRun, lock, slice_s: float,
                           pause: Callable[[], Awaitable], wanted: Callable[[], bool]
                           ) -> StopSpread | None:
@@ -255,8 +264,7 @@ class ArmedRecheck:
 
     def __init__(self, controller, clock: Callable[[], float] = time.perf_counter) -> None:
         step = controller.step
-        # A parameter set replaces the list: identity tells a later set.
-        self._check, self._constraints = step.stop_check, step.constraints
+        self._unchanged = unchanged(step)
         self.run = step.stop_check.prepare(step, controller.last_q)
         self._clock = clock
         self._last = clock()
@@ -277,12 +285,10 @@ class ArmedRecheck:
         (None while they go on, or when the check has become moot: ended without it).
         Raises RuntimeError where the step cannot command a run (as
         :meth:`StopCheckRun.advance` does)."""
-        step = controller.step
-        if not (on and controller.armed and step.stop_check is self._check
-                and step.constraints is self._constraints):
+        if not (on and controller.armed and self._unchanged()):
             return True, None
         now = self._clock()
-        budget = RECHECK_SHARE * min(now - self._last, step.dt)
+        budget = RECHECK_SHARE * min(now - self._last, controller.step.dt)
         self._last = now
         if not self.run.advance(min(budget, SLICE_S)):
             return False, None

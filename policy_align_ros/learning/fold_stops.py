@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["MAX_CHECK_DURATIONS", "SETTLED_SPEED", "STEPS_PER_DURATION", "STOP_SPREAD_LIMIT",
            "StopSpread", "check_horizon", "settle", "settled_speed", "spread_of",
-           "stop_spread"]
+           "stop_spread", "typical_speed"]
 
 #: The folds' stops spread over more than this share of the run's travel: uncertain. Read
 #: on tuning seeds (docs/design/fold_stops.md).
@@ -74,17 +74,29 @@ class StopSpread:
         return bool(self.spread > STOP_SPREAD_LIMIT)
 
 
+def _goal_report(model) -> dict:
+    return (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
+
+
+def typical_speed(model) -> float | None:
+    """The demonstrations' typical speed (state units/s) in ``model``'s goal report
+    (``fit_summary_["goal"]``); None without one (a model file written before the goal
+    report) or for an untimed model (its policy is per sample, not per second)."""
+    speed = _goal_report(model).get("typical_speed")
+    if not getattr(model, "timed_", False) or not isinstance(speed, (int, float)):
+        return None
+    return float(speed)
+
+
 def check_horizon(model) -> tuple[float, int] | None:
     """The step (s) and the most steps of a checked run of ``model``: its data's typical
     duration (extent over typical speed, ``fit_summary_["goal"]``) in
     :data:`STEPS_PER_DURATION` steps, for at most :data:`MAX_CHECK_DURATIONS` durations.
     None when the summary lacks either (a model file written before the goal report) or
     the model is untimed (its policy is per sample, not per second)."""
-    goal = (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
-    extent, speed = goal.get("extent"), goal.get("typical_speed")
-    if not (getattr(model, "timed_", False) and isinstance(extent, (int, float))
-            and isinstance(speed, (int, float)) and extent > 0.0 and speed > 0.0
-            and np.isfinite(extent / speed)):
+    extent, speed = _goal_report(model).get("extent"), typical_speed(model)
+    if not (speed is not None and isinstance(extent, (int, float)) and extent > 0.0
+            and speed > 0.0 and np.isfinite(extent / speed)):
         return None
     return extent / speed / STEPS_PER_DURATION, MAX_CHECK_DURATIONS * STEPS_PER_DURATION
 
@@ -93,11 +105,8 @@ def settled_speed(model) -> float:
     """The speed (state units/s) below which a checked run of ``model`` has stopped:
     :data:`SETTLED_SPEED` times its demonstrations' typical speed (0 without one, or for
     an untimed model, whose policy is per sample: the runs last their steps)."""
-    goal = (getattr(model, "fit_summary_", None) or {}).get("goal") or {}
-    speed = goal.get("typical_speed")
-    if not getattr(model, "timed_", False) or not isinstance(speed, (int, float)):
-        return 0.0
-    return SETTLED_SPEED * float(speed)
+    speed = typical_speed(model)
+    return 0.0 if speed is None else SETTLED_SPEED * speed
 
 
 def settle(policy: Field, x0: np.ndarray, dt: float, steps: int,

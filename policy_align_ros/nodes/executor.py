@@ -127,6 +127,7 @@ from policy_align_ros.control import (
     setting_problem,
     stop_check_answer,
     stop_check_note,
+    unchanged,
     untrustworthy_reason,
 )
 from policy_align_ros.data.messages import UNTRUSTWORTHY, JointSelector, UnusableReasons
@@ -487,11 +488,10 @@ class Executor(StartNode):
         force and the enable request ``ticket`` the last."""
         with self._lock:
             step, q = self.controller.step, self.controller.last_q
-            check, constraints = step.stop_check, step.constraints  # a set replaces the list
+            check, same = step.stop_check, unchanged(step)
 
             def current() -> bool:
-                return (ticket == self._enable_requests and step.stop_check is check
-                        and step.constraints is constraints)
+                return ticket == self._enable_requests and same()
 
             if check is None or q is None or not self.get_parameter("stop_check").value:
                 return None, current
